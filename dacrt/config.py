@@ -1,0 +1,36 @@
+"""One decorator policy for every kernel, and the engine's tuning constants.
+
+Kernels are compiled with ``cache=True`` (compiled once per machine), ``nogil=True`` (ray chunks
+run on Python threads side by side) and ``error_model="numpy"`` (division by zero gives inf, no
+exception check). No fastmath: the slab test relies on IEEE infinities, and contraction into FMA
+could give one ray-triangle pair two different ``t`` in two call sites, which would break the
+promise that every strategy gives the same answer.
+"""
+import numba
+
+jit = numba.njit(cache=True, nogil=True, boundscheck=False, error_model="numpy")
+inline = numba.njit(cache=True, nogil=True, boundscheck=False, error_model="numpy", inline="always")
+
+# Binned splits (Nabata et al. 2013, Sec. 5: 32 bins).
+N_BINS = 32
+# Ray sampling: 100 sample rays, only when more than 1000 rays are active.
+N_SAMPLE_RAYS = 100
+MIN_RAYS_TO_SAMPLE = 1000
+# Afra's rule: use the cost function only when rays / triangles exceeds this, else split in the middle.
+RAYS_PER_TRIANGLE_FOR_COST = 1.5
+# Leaves: brute force once either side is this small.
+LEAF_TRIANGLES = 8
+LEAF_RAYS = 8
+# Ray-space hierarchy termination R*G < C_r*R + C_g*G.
+RAYSPACE_C_R = 16.0
+RAYSPACE_C_G = 16.0
+# Deepest node; below it a node is brute-forced (keeps the explicit stack small and bounded).
+MAX_DEPTH = 64
+# SAH constants (C_T: node, C_I: triangle), as ratios.
+SAH_C_T = 1.0
+SAH_C_I = 1.0
+# A box is culled only when its entry is beyond the ray's best t by more than this (relative):
+# keeps culling conservative with respect to the rounding of triangle t.
+CULL_MARGIN = 1e-5
+# pbrt's robust slab test: grow the exit distance by 1 + 2*gamma(3) for float32.
+SLAB_GROWTH = 1.0 + 2.0 * (3 * 2.0**-24) / (1 - 3 * 2.0**-24)

@@ -1,0 +1,62 @@
+"""Array contracts shared by the engine: dtypes, the miss marker, strategies, the result type."""
+from dataclasses import dataclass
+
+import numpy as np
+
+FLOAT = np.float32
+INDEX = np.int32
+MISS = -1
+
+STRATEGIES = ("sampling", "sah", "middle", "rayspace")
+STRATEGY_CODES = {"middle": 0, "sah": 1, "sampling": 2, "rayspace": 3}
+
+# Query modes understood by the kernels.
+MODE_CLOSEST = 0
+MODE_OCCLUDED = 1
+
+# Order of the counters in a kernel's stats array.
+STAT_NAMES = (
+    "rays",
+    "triangles",
+    "ray_box_tests",
+    "ray_triangle_tests",
+    "nodes",
+    "leaves",
+    "sampled_nodes",
+    "skipped_filterings",
+    "max_depth",
+)
+(
+    STAT_RAYS,
+    STAT_TRIANGLES,
+    STAT_BOX_TESTS,
+    STAT_TRIANGLE_TESTS,
+    STAT_NODES,
+    STAT_LEAVES,
+    STAT_SAMPLED,
+    STAT_SKIPPED,
+    STAT_MAX_DEPTH,
+) = range(len(STAT_NAMES))
+
+
+@dataclass
+class Hits:
+    """Closest hit of each ray.
+
+    t : (n,) float32, inf on a miss
+    mesh, prim : (n,) int32, -1 on a miss
+    u, v : (n,) float32 barycentrics, hit = (1-u-v)*p0 + u*p1 + v*p2; 0 on a miss
+    normal : (n, 3) float32 unit geometric normal (p1-p0)x(p2-p0); 0 on a miss
+    stats : dict of counters when asked for, else None
+    """
+
+    t: np.ndarray
+    mesh: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    normal: np.ndarray
+    stats: dict | None = None
+
+    def __len__(self):
+        return len(self.t)

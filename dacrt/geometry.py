@@ -1,0 +1,136 @@
+"""Geometry kernels: the conservative ray-box slab test and the watertight ray-triangle test.
+
+Both are inlined into the traversal loops. They take scalars, so the callers decide the layout.
+"""
+import numpy as np
+
+from .config import SLAB_GROWTH, inline
+
+
+@inline
+def cull_distance(best_t, margin):
+    """The distance beyond which a box cannot hold a hit that beats ``best_t``.
+
+    Slightly larger than ``best_t`` so that rounding in a triangle's ``t`` never culls a hit
+    (``-inf`` marks a ray that is done and stays ``-inf``)."""
+    if best_t >= 0:
+        return best_t * (1.0 + margin)
+    return best_t * (1.0 - margin)
+
+
+@inline
+def intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, x0, y0, z0, x1, y1, z1):
+    """Slab test of the ray segment [t_lo, t_hi] against the box [x0,x1]x[y0,y1]x[z0,z1].
+
+    ``ix, iy, iz`` are 1/direction (+-inf for a zero component). Returns (hit, entry distance).
+    Conservative: the exit distance is grown by 1 + 2*gamma(3) (pbrt); a 0*inf NaN, from a ray
+    lying in a slab's plane, never tightens the interval because comparisons with NaN are false.
+    """
+    near = -np.inf
+    far = np.inf
+    # Near and far planes by the sign of the inverse direction.
+    if ix >= 0:
+        tn = (x0 - ox) * ix
+        tf = (x1 - ox) * ix
+    else:
+        tn = (x1 - ox) * ix
+        tf = (x0 - ox) * ix
+    if tn > near:
+        near = tn
+    if tf < far:
+        far = tf
+    if iy >= 0:
+        tn = (y0 - oy) * iy
+        tf = (y1 - oy) * iy
+    else:
+        tn = (y1 - oy) * iy
+        tf = (y0 - oy) * iy
+    if tn > near:
+        near = tn
+    if tf < far:
+        far = tf
+    if iz >= 0:
+        tn = (z0 - oz) * iz
+        tf = (z1 - oz) * iz
+    else:
+        tn = (z1 - oz) * iz
+        tf = (z0 - oz) * iz
+    if tn > near:
+        near = tn
+    if tf < far:
+        far = tf
+    far = far + abs(far) * (SLAB_GROWTH - 1.0)
+    if t_lo > near:
+        near = t_lo
+    if t_hi < far:
+        far = t_hi
+    return near <= far, near
+
+
+@inline
+def watertight_setup(dx, dy, dz):
+    """Per-ray constants of the watertight test (Woop, Benthin & Wald 2013).
+
+    Returns the axis permutation (kx, ky, kz), kz being the dominant direction axis, and the
+    shear constants (sx, sy, sz) that map the ray onto +z."""
+    ax = abs(dx)
+    ay = abs(dy)
+    az = abs(dz)
+    if ax >= ay and ax >= az:
+        kz = 0
+        dk = float(dx)
+    elif ay >= az:
+        kz = 1
+        dk = float(dy)
+    else:
+        kz = 2
+        dk = float(dz)
+    kx = kz + 1 if kz < 2 else 0
+    ky = kx + 1 if kx < 2 else 0
+    # Swap to keep the winding, so the sign of det tells front from back.
+    if dk < 0:
+        kx, ky = ky, kx
+    d = (float(dx), float(dy), float(dz))
+    sx = d[kx] / dk
+    sy = d[ky] / dk
+    sz = 1.0 / dk
+    return kx, ky, kz, sx, sy, sz
+
+
+@inline
+def intersect_triangle(tri_verts, tri, o, kx, ky, kz, sx, sy, sz):
+    """Watertight ray-triangle test in float64 on float32 data.
+
+    ``o`` is the ray origin as a 3-tuple of floats. Returns (hit, t, u, v) with
+    hit = (1-u-v)*p0 + u*p1 + v*p2. A ray through an edge or vertex shared by two triangles
+    hits at least one of them: each shared edge's function is computed from the same
+    transformed vertices, so its sign agrees on both sides. Degenerate triangles give det == 0.
+    """
+    ax = float(tri_verts[tri, kx]) - o[kx]
+    ay = float(tri_verts[tri, ky]) - o[ky]
+    az = float(tri_verts[tri, kz]) - o[kz]
+    bx = float(tri_verts[tri, 3 + kx]) - o[kx]
+    by = float(tri_verts[tri, 3 + ky]) - o[ky]
+    bz = float(tri_verts[tri, 3 + kz]) - o[kz]
+    cx = float(tri_verts[tri, 6 + kx]) - o[kx]
+    cy = float(tri_verts[tri, 6 + ky]) - o[ky]
+    cz = float(tri_verts[tri, 6 + kz]) - o[kz]
+    # Shear so the ray runs along +z through the origin.
+    ax = ax - sx * az
+    ay = ay - sy * az
+    bx = bx - sx * bz
+    by = by - sy * bz
+    cx = cx - sx * cz
+    cy = cy - sy * cz
+    # Scaled barycentrics: edge functions of the projected triangle.
+    e0 = cx * by - cy * bx
+    e1 = ax * cy - ay * cx
+    e2 = bx * ay - by * ax
+    if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
+        return False, 0.0, 0.0, 0.0
+    det = e0 + e1 + e2
+    if det == 0.0:
+        return False, 0.0, 0.0, 0.0
+    scaled_t = e0 * (sz * az) + e1 * (sz * bz) + e2 * (sz * cz)
+    inv_det = 1.0 / det
+    return True, scaled_t * inv_det, e1 * inv_det, e2 * inv_det

@@ -1,0 +1,173 @@
+"""Partitioning: binning, split choice helpers, and in-place partition of index ranges.
+
+Every function works on a half-open range ``[lo, hi)`` of an index array and allocates nothing;
+the caller owns the scratch arrays. Triangle bounds are rows [x0, y0, z0, x1, y1, z1].
+"""
+import numpy as np
+
+from .config import CULL_MARGIN, inline
+from .geometry import cull_distance, intersect_box
+
+_BIN_SHRINK = 1.0 - 1e-6
+
+
+@inline
+def centroid(tri_bounds, tri, axis):
+    """Centre of a triangle's box along ``axis`` (what binning sorts by)."""
+    return 0.5 * (float(tri_bounds[tri, axis]) + float(tri_bounds[tri, axis + 3]))
+
+
+@inline
+def bin_of(c, c_min, scale, n_bins):
+    """Bin of a centroid coordinate; the same expression for binning and partitioning, so
+    the partition matches the binned counts exactly."""
+    b = int((c - c_min) * scale)
+    if b < 0:
+        return 0
+    if b >= n_bins:
+        return n_bins - 1
+    return b
+
+
+@inline
+def bin_scale(c_min, c_max, n_bins):
+    return n_bins * _BIN_SHRINK / (c_max - c_min)
+
+
+@inline
+def centroid_bounds(tri_ids, lo, hi, tri_bounds, out):
+    """Box of the triangles' centroids into ``out`` (6,)."""
+    for a in range(3):
+        out[a] = np.inf
+        out[a + 3] = -np.inf
+    for k in range(lo, hi):
+        tri = tri_ids[k]
+        for a in range(3):
+            c = centroid(tri_bounds, tri, a)
+            if c < out[a]:
+                out[a] = c
+            if c > out[a + 3]:
+                out[a + 3] = c
+
+
+@inline
+def triangle_bounds(tri_ids, lo, hi, tri_bounds, out):
+    """Box of the triangles ``tri_ids[lo:hi]`` into ``out`` (6,)."""
+    for a in range(3):
+        out[a] = np.inf
+        out[a + 3] = -np.inf
+    for k in range(lo, hi):
+        tri = tri_ids[k]
+        for a in range(3):
+            if tri_bounds[tri, a] < out[a]:
+                out[a] = tri_bounds[tri, a]
+            if tri_bounds[tri, a + 3] > out[a + 3]:
+                out[a + 3] = tri_bounds[tri, a + 3]
+
+
+@inline
+def longest_axis(box):
+    ex = box[3] - box[0]
+    ey = box[4] - box[1]
+    ez = box[5] - box[2]
+    if ex >= ey and ex >= ez:
+        return 0, ex
+    if ey >= ez:
+        return 1, ey
+    return 2, ez
+
+
+@inline
+def box_area(box):
+    ex = box[3] - box[0]
+    ey = box[4] - box[1]
+    ez = box[5] - box[2]
+    return ex * ey + ey * ez + ez * ex
+
+
+@inline
+def bin_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, bin_count, bin_box):
+    """Count triangles per bin and the box of each bin's triangles."""
+    for b in range(n_bins):
+        bin_count[b] = 0
+        for a in range(3):
+            bin_box[b, a] = np.inf
+            bin_box[b, a + 3] = -np.inf
+    for k in range(lo, hi):
+        tri = tri_ids[k]
+        b = bin_of(centroid(tri_bounds, tri, axis), c_min, scale, n_bins)
+        bin_count[b] += 1
+        for a in range(3):
+            if tri_bounds[tri, a] < bin_box[b, a]:
+                bin_box[b, a] = tri_bounds[tri, a]
+            if tri_bounds[tri, a + 3] > bin_box[b, a + 3]:
+                bin_box[b, a + 3] = tri_bounds[tri, a + 3]
+
+
+@inline
+def sweep_bins(n_bins, bin_count, bin_box, left_count, left_box, right_count, right_box):
+    """Candidate split j puts bins [0, j] left and [j+1, n_bins) right: their counts and boxes."""
+    count = 0
+    for a in range(6):
+        left_box[0, a] = bin_box[0, a]
+    for j in range(n_bins - 1):
+        count += bin_count[j]
+        left_count[j] = count
+        if j > 0:
+            for a in range(3):
+                left_box[j, a] = min(left_box[j - 1, a], bin_box[j, a])
+                left_box[j, a + 3] = max(left_box[j - 1, a + 3], bin_box[j, a + 3])
+    count = 0
+    for j in range(n_bins - 2, -1, -1):
+        count += bin_count[j + 1]
+        right_count[j] = count
+        if j == n_bins - 2:
+            for a in range(6):
+                right_box[j, a] = bin_box[j + 1, a]
+        else:
+            for a in range(3):
+                right_box[j, a] = min(right_box[j + 1, a], bin_box[j + 1, a])
+                right_box[j, a + 3] = max(right_box[j + 1, a + 3], bin_box[j + 1, a + 3])
+
+
+@inline
+def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, split_bin):
+    """Move triangles whose bin is <= split_bin to the front; returns the first right index."""
+    i = lo
+    j = hi
+    while i < j:
+        tri = tri_ids[i]
+        if bin_of(centroid(tri_bounds, tri, axis), c_min, scale, n_bins) <= split_bin:
+            i += 1
+        else:
+            j -= 1
+            tri_ids[i] = tri_ids[j]
+            tri_ids[j] = tri
+    return i
+
+
+@inline
+def filter_rays(ray_ids, lo, hi, origins, inv_dirs, tmin, best_t, box):
+    """Move the rays that can hit ``box`` (within [tmin, best_t]) to the front of the range;
+    returns how many they are."""
+    x0 = box[0]
+    y0 = box[1]
+    z0 = box[2]
+    x1 = box[3]
+    y1 = box[4]
+    z1 = box[5]
+    i = lo
+    j = hi
+    while i < j:
+        ray = ray_ids[i]
+        hit, _ = intersect_box(origins[ray, 0], origins[ray, 1], origins[ray, 2],
+                               inv_dirs[ray, 0], inv_dirs[ray, 1], inv_dirs[ray, 2],
+                               tmin[ray], cull_distance(best_t[ray], CULL_MARGIN),
+                               x0, y0, z0, x1, y1, z1)
+        if hit:
+            i += 1
+        else:
+            j -= 1
+            ray_ids[i] = ray_ids[j]
+            ray_ids[j] = ray
+    return i - lo

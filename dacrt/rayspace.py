@@ -1,0 +1,282 @@
+"""The DACRT driver for ray-space partitions: ``rayspace`` (5D ray hierarchies).
+
+Rays are grouped by the axis and sign of their dominant direction component; within a group a
+ray is (origin x, y, z; u, v), u and v being its direction's slopes against the dominant axis.
+A node is a range of ray ids and a range of triangle ids: popping it bounds its rays by a
+frustum (origin box, slope box, distance range), culls the triangles whose boxes lie outside,
+then brute-forces it if R*G < C_r*R + C_g*G, else halves its rays along the widest of the five
+dimensions and pushes both halves with the surviving triangles.
+"""
+import numpy as np
+
+from .config import CULL_MARGIN, MAX_DEPTH, RAYSPACE_C_G, RAYSPACE_C_R, inline, jit
+from .contracts import (
+    MODE_OCCLUDED,
+    STAT_BOX_TESTS,
+    STAT_LEAVES,
+    STAT_MAX_DEPTH,
+    STAT_NODES,
+    STAT_TRIANGLE_TESTS,
+)
+from .geometry import cull_distance
+from .leaf import NO_HIT, intersect_leaf
+
+# Frustum rows: origin min (3), origin max (3), u min/max, v min/max, distance min/max.
+_O_MIN = 0
+_O_MAX = 3
+_U = 6
+_V = 8
+_S = 10
+_FRUSTUM_SIZE = 12
+
+
+@inline
+def dominant_class(dx, dy, dz):
+    """0..5: 2*axis + (1 if the dominant component is negative)."""
+    ax = abs(dx)
+    ay = abs(dy)
+    az = abs(dz)
+    if ax >= ay and ax >= az:
+        return 0 if dx >= 0 else 1
+    if ay >= az:
+        return 2 if dy >= 0 else 3
+    return 4 if dz >= 0 else 5
+
+
+@inline
+def ray_coordinate(origins, directions, ray, axis, dim):
+    """Dimension ``dim`` of a ray in its group: 0-2 origin, 3 slope u, 4 slope v."""
+    if dim < 3:
+        return float(origins[ray, dim])
+    a = (axis + 1) % 3 if dim == 3 else (axis + 2) % 3
+    return float(directions[ray, a]) / abs(float(directions[ray, axis]))
+
+
+@jit
+def bound_rays(ray_ids, lo, hi, origins, directions, tmin, best_t, axis, frustum):
+    """Frustum of the rays ``ray_ids[lo:hi]`` of one group into ``frustum`` (12,)."""
+    a1 = (axis + 1) % 3
+    a2 = (axis + 2) % 3
+    for k in range(_FRUSTUM_SIZE):
+        frustum[k] = np.inf if k % 2 == 0 else -np.inf
+    for a in range(3):
+        frustum[_O_MIN + a] = np.inf
+        frustum[_O_MAX + a] = -np.inf
+    for r in range(lo, hi):
+        ray = ray_ids[r]
+        for a in range(3):
+            o = float(origins[ray, a])
+            frustum[_O_MIN + a] = min(frustum[_O_MIN + a], o)
+            frustum[_O_MAX + a] = max(frustum[_O_MAX + a], o)
+        da = abs(float(directions[ray, axis]))
+        u = float(directions[ray, a1]) / da
+        v = float(directions[ray, a2]) / da
+        frustum[_U] = min(frustum[_U], u)
+        frustum[_U + 1] = max(frustum[_U + 1], u)
+        frustum[_V] = min(frustum[_V], v)
+        frustum[_V + 1] = max(frustum[_V + 1], v)
+        # Distance along the dominant axis: t * |d_axis|.
+        frustum[_S] = min(frustum[_S], float(tmin[ray]) * da)
+        frustum[_S + 1] = max(frustum[_S + 1], cull_distance(float(best_t[ray]), CULL_MARGIN) * da)
+
+
+@inline
+def slope_range(o_lo, o_hi, s_lo, s_hi, lo, hi):
+    """Range of o + w*s over o in [o_lo, o_hi], w in [lo, hi], s in [s_lo, s_hi]."""
+    p0 = lo * s_lo
+    p1 = lo * s_hi
+    p2 = hi * s_lo
+    p3 = hi * s_hi
+    return o_lo + min(min(p0, p1), min(p2, p3)), o_hi + max(max(p0, p1), max(p2, p3))
+
+
+@inline
+def frustum_overlaps_box(frustum, axis, negative, tolerance, tri_bounds, tri):
+    """Conservative test: can a ray of the frustum pass through the triangle's box?
+
+    Interval arithmetic over the five ray dimensions and the distance range; ``tolerance``
+    (world units) absorbs rounding."""
+    a1 = (axis + 1) % 3
+    a2 = (axis + 2) % 3
+    b_lo = float(tri_bounds[tri, axis]) - tolerance
+    b_hi = float(tri_bounds[tri, axis + 3]) + tolerance
+    # Distances along the dominant axis at which a ray can be inside the box's slab.
+    if negative:
+        s_lo = frustum[_O_MIN + axis] - b_hi
+        s_hi = frustum[_O_MAX + axis] - b_lo
+    else:
+        s_lo = b_lo - frustum[_O_MAX + axis]
+        s_hi = b_hi - frustum[_O_MIN + axis]
+    s_lo = max(s_lo, frustum[_S] - tolerance)
+    s_hi = min(s_hi, frustum[_S + 1] + tolerance)
+    if s_lo > s_hi:
+        return False
+    lo, hi = slope_range(frustum[_O_MIN + a1], frustum[_O_MAX + a1], s_lo, s_hi,
+                         frustum[_U], frustum[_U + 1])
+    if hi < float(tri_bounds[tri, a1]) - tolerance or lo > float(tri_bounds[tri, a1 + 3]) + tolerance:
+        return False
+    lo, hi = slope_range(frustum[_O_MIN + a2], frustum[_O_MAX + a2], s_lo, s_hi,
+                         frustum[_V], frustum[_V + 1])
+    if hi < float(tri_bounds[tri, a2]) - tolerance or lo > float(tri_bounds[tri, a2 + 3]) + tolerance:
+        return False
+    return True
+
+
+@jit
+def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, tolerance):
+    """Move the triangles the frustum can reach to the front; returns how many they are."""
+    i = lo
+    j = hi
+    while i < j:
+        tri = tri_ids[i]
+        if frustum_overlaps_box(frustum, axis, negative, tolerance, tri_bounds, tri):
+            i += 1
+        else:
+            j -= 1
+            tri_ids[i] = tri_ids[j]
+            tri_ids[j] = tri
+    return i - lo
+
+
+@jit
+def partition_rays(ray_ids, lo, hi, origins, directions, axis, dim, split):
+    """Move rays whose coordinate ``dim`` is below ``split`` to the front; returns the index
+    of the first other ray."""
+    i = lo
+    j = hi
+    while i < j:
+        ray = ray_ids[i]
+        if ray_coordinate(origins, directions, ray, axis, dim) < split:
+            i += 1
+        else:
+            j -= 1
+            ray_ids[i] = ray_ids[j]
+            ray_ids[j] = ray
+    return i
+
+
+@jit
+def drop_finished_rays(ray_ids, lo, hi, best_tri):
+    """Occlusion: move rays that already hit something out of the range; returns the new end."""
+    i = lo
+    j = hi
+    while i < j:
+        ray = ray_ids[i]
+        if best_tri[ray] == NO_HIT:
+            i += 1
+        else:
+            j -= 1
+            ray_ids[i] = ray_ids[j]
+            ray_ids[j] = ray
+    return i
+
+
+@jit
+def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, origins, directions, tmin, best_t,
+                    best_tri, hit_u, hit_v, ray_ids, tri_ids, stats):
+    """Trace rays ``ray_ids`` against triangles ``tri_ids`` (both permuted in place)."""
+    n_rays_all = ray_ids.shape[0]
+    n_tris_all = tri_ids.shape[0]
+    scene_size = 0.0
+    for a in range(3):
+        scene_size = max(scene_size, float(scene_box[a + 3] - scene_box[a]),
+                         abs(float(scene_box[a])), abs(float(scene_box[a + 3])))
+    tolerance = 1e-5 * scene_size
+    # Group rays by dominant axis and sign (a counting pass per group, in place).
+    group_start = np.zeros(7, np.int64)
+    lo = 0
+    for g in range(6):
+        group_start[g] = lo
+        j = n_rays_all
+        i = lo
+        while i < j:
+            ray = ray_ids[i]
+            if dominant_class(directions[ray, 0], directions[ray, 1], directions[ray, 2]) == g:
+                i += 1
+            else:
+                j -= 1
+                ray_ids[i] = ray_ids[j]
+                ray_ids[j] = ray
+        lo = i
+    group_start[6] = n_rays_all
+
+    n_stack = MAX_DEPTH + 2
+    stack = np.empty((n_stack, 5), np.int64)  # ray_lo, ray_hi, tri_lo, tri_hi, depth
+    frustum = np.empty(_FRUSTUM_SIZE)
+    for g in range(6):
+        if group_start[g + 1] == group_start[g]:
+            continue
+        axis = g // 2
+        negative = g % 2 == 1
+        stack[0, 0] = group_start[g]
+        stack[0, 1] = group_start[g + 1]
+        stack[0, 2] = 0
+        stack[0, 3] = n_tris_all
+        stack[0, 4] = 0
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            ray_lo = stack[sp, 0]
+            ray_hi = stack[sp, 1]
+            tri_lo = stack[sp, 2]
+            tri_hi = stack[sp, 3]
+            depth = stack[sp, 4]
+            stats[STAT_NODES] += 1
+            if depth > stats[STAT_MAX_DEPTH]:
+                stats[STAT_MAX_DEPTH] = depth
+            if mode == MODE_OCCLUDED:
+                ray_hi = drop_finished_rays(ray_ids, ray_lo, ray_hi, best_tri)
+            n_rays = ray_hi - ray_lo
+            if n_rays == 0 or tri_hi == tri_lo:
+                continue
+            bound_rays(ray_ids, ray_lo, ray_hi, origins, directions, tmin, best_t, axis, frustum)
+            stats[STAT_BOX_TESTS] += tri_hi - tri_lo
+            tri_hi = tri_lo + cull_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, frustum, axis,
+                                             negative, tolerance)
+            n_tris = tri_hi - tri_lo
+            if n_tris == 0:
+                continue
+            if (n_rays * n_tris < RAYSPACE_C_R * n_rays + RAYSPACE_C_G * n_tris
+                    or depth >= MAX_DEPTH):
+                stats[STAT_LEAVES] += 1
+                stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
+                    mode, tri_verts, origins, directions, tmin, best_t, best_tri, hit_u, hit_v,
+                    ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi)
+                continue
+            # Split the rays at the middle of their widest dimension; slopes are weighed by the
+            # distance they travel across the scene, so both kinds are in world units.
+            spread = 0.0
+            dim = -1
+            for d in range(5):
+                if d < 3:
+                    extent = frustum[_O_MAX + d] - frustum[_O_MIN + d]
+                else:
+                    k = _U if d == 3 else _V
+                    extent = (frustum[k + 1] - frustum[k]) * scene_size
+                if extent > spread:
+                    spread = extent
+                    dim = d
+            split_ok = False
+            if dim >= 0:
+                if dim < 3:
+                    split = 0.5 * (frustum[_O_MIN + dim] + frustum[_O_MAX + dim])
+                else:
+                    k = _U if dim == 3 else _V
+                    split = 0.5 * (frustum[k] + frustum[k + 1])
+                ray_mid = partition_rays(ray_ids, ray_lo, ray_hi, origins, directions, axis,
+                                         dim, split)
+                split_ok = ray_lo < ray_mid < ray_hi
+            if not split_ok:
+                # All rays alike in every dimension: nothing left to divide.
+                stats[STAT_LEAVES] += 1
+                stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
+                    mode, tri_verts, origins, directions, tmin, best_t, best_tri, hit_u, hit_v,
+                    ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi)
+                continue
+            for half in range(2):
+                stack[sp, 0] = ray_mid if half == 0 else ray_lo
+                stack[sp, 1] = ray_hi if half == 0 else ray_mid
+                stack[sp, 2] = tri_lo
+                stack[sp, 3] = tri_hi
+                stack[sp, 4] = depth + 1
+                sp += 1

@@ -1,0 +1,187 @@
+"""The public query surface: ``Scene``, ``Scene.closest`` and ``Scene.occluded``.
+
+This is the only module that checks and converts input. A Scene keeps its triangles and what is
+O(F) and cheap to derive from them (gathered vertices, boxes); every query partitions rays and
+triangles from scratch and keeps nothing afterwards.
+"""
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from .contracts import (
+    FLOAT,
+    INDEX,
+    MISS,
+    MODE_CLOSEST,
+    MODE_OCCLUDED,
+    STAT_NAMES,
+    STAT_RAYS,
+    STAT_TRIANGLES,
+    STRATEGIES,
+    STRATEGY_CODES,
+    Hits,
+)
+from .leaf import NO_HIT
+from .rayspace import trace_ray_space
+from .traversal import trace_object_split
+from .validation import check_mesh, check_rays, check_strategy, check_threads
+
+N_CORES = os.cpu_count() or 1
+# Rays are dealt to threads in blocks of this many, round robin, so each thread gets rays from
+# every part of the batch (balanced work) while keeping neighbours together (coherence).
+RAY_BLOCK = 4096
+# Below this many rays a single thread is quicker than splitting the triangles' work twice.
+MIN_RAYS_PER_THREAD = 16384
+
+_pool = ThreadPoolExecutor(max_workers=max(N_CORES, 2), thread_name_prefix="dacrt")
+
+
+class Scene:
+    """Triangle meshes to cast rays into.
+
+    meshes : sequence of (vertices (V, 3) float, faces (F, 3) int) pairs; hits report a mesh by
+        its position in this sequence and a triangle by its row in that mesh's faces.
+    """
+
+    def __init__(self, meshes):
+        meshes = list(meshes)
+        checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in enumerate(meshes)]
+        counts = [len(faces) for _, faces in checked]
+        self.n_meshes = len(checked)
+        self.mesh_offsets = np.zeros(self.n_meshes + 1, np.int64)
+        self.mesh_offsets[1:] = np.cumsum(counts)
+        self.n_triangles = int(self.mesh_offsets[-1])
+
+        corners = [vertices[faces].reshape(-1, 9) for vertices, faces in checked]
+        tri_verts = (np.concatenate(corners) if corners else np.empty((0, 9), FLOAT)).astype(
+            FLOAT, copy=False)
+        # Degenerate (zero-area) triangles never hit: leave them out of every query.
+        p0 = tri_verts[:, 0:3].astype(np.float64)
+        normals = np.cross(tri_verts[:, 3:6] - p0, tri_verts[:, 6:9] - p0)
+        live = normals.any(axis=1)
+        if live.all():
+            self._tri_global = np.arange(self.n_triangles, dtype=INDEX)
+        else:
+            self._tri_global = np.flatnonzero(live).astype(INDEX)
+            tri_verts = tri_verts[live]
+        self._tri_verts = np.ascontiguousarray(tri_verts)
+        lo = np.minimum(np.minimum(tri_verts[:, 0:3], tri_verts[:, 3:6]), tri_verts[:, 6:9])
+        hi = np.maximum(np.maximum(tri_verts[:, 0:3], tri_verts[:, 3:6]), tri_verts[:, 6:9])
+        self._tri_bounds = np.ascontiguousarray(np.concatenate([lo, hi], axis=1))
+        if len(tri_verts):
+            self._box = np.concatenate([lo.min(axis=0), hi.max(axis=0)]).astype(FLOAT)
+        else:
+            self._box = np.zeros(6, FLOAT)
+        used = [vertices[np.unique(faces)] for vertices, faces in checked if len(faces)]
+        if used:
+            all_used = np.concatenate(used)
+            self.bounds = np.stack([all_used.min(axis=0), all_used.max(axis=0)]).astype(FLOAT)
+        else:
+            self.bounds = np.zeros((2, 3), FLOAT)
+
+    @property
+    def nbytes(self):
+        """Bytes held by the scene's arrays."""
+        return int(self._tri_verts.nbytes + self._tri_bounds.nbytes + self._tri_global.nbytes
+                   + self.mesh_offsets.nbytes)
+
+    def __repr__(self):
+        return f"Scene({self.n_meshes} meshes, {self.n_triangles} triangles)"
+
+    def closest(self, origins, directions, tmin=None, tmax=None, *, strategy="sampling",
+                threads=None, stats=False):
+        """Nearest hit of each ray ``origins + t * directions`` with tmin <= t <= tmax.
+
+        origins, directions : (n, 3) float; directions need not be unit, t is in their units
+        tmin, tmax : None, a number, or (n,) float (defaults 0 and +inf)
+        strategy : one of ``dacrt.STRATEGIES``; all give the same answers
+        threads : None for every core, or a positive int
+        Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
+        """
+        best_t, best_tri, hit_u, hit_v, counters = self._trace(
+            MODE_CLOSEST, origins, directions, tmin, tmax, strategy, threads)
+        hit = best_tri != NO_HIT
+        n = len(best_t)
+        t = np.full(n, np.inf, FLOAT)
+        mesh = np.full(n, MISS, INDEX)
+        prim = np.full(n, MISS, INDEX)
+        u = np.zeros(n, FLOAT)
+        v = np.zeros(n, FLOAT)
+        normal = np.zeros((n, 3), FLOAT)
+        if hit.any():
+            rows = best_tri[hit]
+            t[hit] = best_t[hit]
+            u[hit] = hit_u[hit]
+            v[hit] = hit_v[hit]
+            tri = self._tri_global[rows].astype(np.int64)
+            mesh_of_hit = np.searchsorted(self.mesh_offsets, tri, side="right") - 1
+            mesh[hit] = mesh_of_hit
+            prim[hit] = tri - self.mesh_offsets[mesh_of_hit]
+            corners = self._tri_verts[rows].astype(np.float64)
+            n_hit = np.cross(corners[:, 3:6] - corners[:, 0:3], corners[:, 6:9] - corners[:, 0:3])
+            normal[hit] = n_hit / np.linalg.norm(n_hit, axis=1, keepdims=True)
+        return Hits(t, mesh, prim, u, v, normal, counters if stats else None)
+
+    def occluded(self, origins, directions, tmin=None, tmax=None, *, strategy="sampling",
+                 threads=None, stats=False):
+        """Whether each ray hits anything with tmin <= t <= tmax (it stops at its first hit).
+
+        Same arguments as ``closest``. Returns (n,) bool, or (occluded, stats dict) when
+        ``stats`` is true."""
+        _, best_tri, _, _, counters = self._trace(
+            MODE_OCCLUDED, origins, directions, tmin, tmax, strategy, threads)
+        occluded = best_tri != NO_HIT
+        return (occluded, counters) if stats else occluded
+
+    def _trace(self, mode, origins, directions, tmin, tmax, strategy, threads):
+        """Run the kernels; returns best_t, best_tri (kernel rows), u, v and the counters."""
+        strategy = check_strategy(strategy)
+        threads = check_threads(threads, N_CORES)
+        origins, directions, tmin, tmax = check_rays(origins, directions, tmin, tmax)
+        n_rays = len(origins)
+        best_t = tmax  # shrinks as hits are found; a fresh array from check_rays
+        best_tri = np.full(n_rays, NO_HIT, INDEX)
+        hit_u = np.zeros(n_rays, FLOAT)
+        hit_v = np.zeros(n_rays, FLOAT)
+        counters = dict.fromkeys(STAT_NAMES, 0)
+        counters["rays"] = n_rays
+        counters["triangles"] = self.n_triangles
+        n_live = len(self._tri_verts)
+        if n_rays == 0 or n_live == 0:
+            return best_t, best_tri, hit_u, hit_v, counters
+        with np.errstate(divide="ignore"):
+            inv_dirs = (1.0 / directions).astype(FLOAT)
+
+        n_chunks = max(1, min(threads, n_rays // MIN_RAYS_PER_THREAD))
+        blocks = np.arange(n_rays, dtype=np.int64) // RAY_BLOCK % n_chunks
+        code = STRATEGY_CODES[strategy]
+
+        def run(chunk):
+            ray_ids = np.flatnonzero(blocks == chunk).astype(INDEX)
+            tri_ids = np.arange(n_live, dtype=INDEX)
+            chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
+            if code == STRATEGY_CODES["rayspace"]:
+                trace_ray_space(mode, self._tri_verts, self._tri_bounds, self._box, origins,
+                                directions, tmin, best_t, best_tri, hit_u, hit_v, ray_ids,
+                                tri_ids, chunk_stats)
+            else:
+                trace_object_split(code, mode, self._tri_verts, self._tri_bounds, self._box,
+                                   origins, directions, inv_dirs, tmin, best_t, best_tri,
+                                   hit_u, hit_v, ray_ids, tri_ids, chunk_stats)
+            return chunk_stats
+
+        if n_chunks == 1:
+            per_chunk = [run(0)]
+        else:
+            per_chunk = list(_pool.map(run, range(n_chunks)))
+        totals = np.sum(per_chunk, axis=0)
+        for i, name in enumerate(STAT_NAMES):
+            if i not in (STAT_RAYS, STAT_TRIANGLES):
+                counters[name] = int(totals[i])
+        counters["max_depth"] = int(max(c[STAT_NAMES.index("max_depth")] for c in per_chunk))
+        return best_t, best_tri, hit_u, hit_v, counters
+
+
+def strategies():
+    return STRATEGIES

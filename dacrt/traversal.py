@@ -1,0 +1,280 @@
+"""The DACRT driver for object partitions: ``middle``, ``sah`` and ``sampling``.
+
+One explicit-stack loop over nodes; a node is a range of triangle ids, a range of ray ids and
+a box. Popping a node filters its rays by the box (unless ray sampling said the filter would
+not pay), then either brute-forces the node or splits its triangles in place and pushes both
+children, the one the rays reach first on top. No tree outlives the call.
+"""
+import numpy as np
+
+from .config import (
+    LEAF_RAYS,
+    LEAF_TRIANGLES,
+    MAX_DEPTH,
+    MIN_RAYS_TO_SAMPLE,
+    N_BINS,
+    N_SAMPLE_RAYS,
+    RAYS_PER_TRIANGLE_FOR_COST,
+    SAH_C_I,
+    SAH_C_T,
+    CULL_MARGIN,
+    jit,
+)
+from .contracts import (
+    STAT_BOX_TESTS,
+    STAT_LEAVES,
+    STAT_MAX_DEPTH,
+    STAT_NODES,
+    STAT_SAMPLED,
+    STAT_SKIPPED,
+    STAT_TRIANGLE_TESTS,
+)
+from .geometry import cull_distance, intersect_box
+from .leaf import intersect_leaf
+from .partition import (
+    bin_scale,
+    bin_triangles,
+    box_area,
+    centroid_bounds,
+    filter_rays,
+    longest_axis,
+    partition_triangles,
+    sweep_bins,
+    triangle_bounds,
+)
+
+MIDDLE = 0
+SAH = 1
+SAMPLING = 2
+
+
+@jit
+def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, origins, directions,
+                       inv_dirs, tmin, best_t, best_tri, hit_u, hit_v, ray_ids, tri_ids, stats):
+    """Trace the rays ``ray_ids`` against all triangles ``tri_ids`` (both permuted in place).
+
+    Results go to best_t, best_tri, hit_u, hit_v (indexed by ray id); counters to ``stats``."""
+    n_stack = MAX_DEPTH + 2
+    stack_tri = np.empty((n_stack, 2), np.int64)
+    stack_ray = np.empty((n_stack, 2), np.int64)
+    stack_depth = np.empty(n_stack, np.int64)
+    stack_filter = np.empty(n_stack, np.bool_)
+    stack_box = np.empty((n_stack, 6), np.float32)
+    # Scratch for binning and ray sampling, reused by every node.
+    bin_count = np.empty(N_BINS, np.int64)
+    bin_box = np.empty((N_BINS, 6), np.float32)
+    left_count = np.empty(N_BINS - 1, np.int64)
+    right_count = np.empty(N_BINS - 1, np.int64)
+    left_box = np.empty((N_BINS - 1, 6), np.float32)
+    right_box = np.empty((N_BINS - 1, 6), np.float32)
+    hits_left = np.empty(N_BINS - 1, np.int64)
+    hits_right = np.empty(N_BINS - 1, np.int64)
+    nearer_left = np.empty(N_BINS - 1, np.int64)
+    c_box = np.empty(6, np.float32)
+    box_a = np.empty(6, np.float32)
+    box_b = np.empty(6, np.float32)
+
+    stack_tri[0, 0] = 0
+    stack_tri[0, 1] = tri_ids.shape[0]
+    stack_ray[0, 0] = 0
+    stack_ray[0, 1] = ray_ids.shape[0]
+    stack_depth[0] = 0
+    stack_filter[0] = True
+    stack_box[0, :] = scene_box
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        tri_lo = stack_tri[sp, 0]
+        tri_hi = stack_tri[sp, 1]
+        ray_lo = stack_ray[sp, 0]
+        ray_hi = stack_ray[sp, 1]
+        depth = stack_depth[sp]
+        stats[STAT_NODES] += 1
+        if depth > stats[STAT_MAX_DEPTH]:
+            stats[STAT_MAX_DEPTH] = depth
+        # Ray filtering: keep the rays that can reach this node's box.
+        if stack_filter[sp]:
+            stats[STAT_BOX_TESTS] += ray_hi - ray_lo
+            ray_hi = ray_lo + filter_rays(ray_ids, ray_lo, ray_hi, origins, inv_dirs, tmin,
+                                          best_t, stack_box[sp])
+        else:
+            stats[STAT_SKIPPED] += 1
+        n_rays = ray_hi - ray_lo
+        n_tris = tri_hi - tri_lo
+        if n_rays == 0 or n_tris == 0:
+            continue
+        if n_tris <= LEAF_TRIANGLES or n_rays <= LEAF_RAYS or depth >= MAX_DEPTH:
+            stats[STAT_LEAVES] += 1
+            stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
+                mode, tri_verts, origins, directions, tmin, best_t, best_tri, hit_u, hit_v,
+                ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi)
+            continue
+
+        # Choose the split; it leaves left triangles in [tri_lo, tri_mid), boxes in box_a/box_b.
+        tri_mid = tri_lo
+        axis = 0
+        sampled = False
+        split = -1
+        if strategy != MIDDLE and n_rays > RAYS_PER_TRIANGLE_FOR_COST * n_tris:
+            centroid_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, c_box)
+            axis, extent = longest_axis(c_box)
+            if extent > 0:
+                c_min = float(c_box[axis])
+                scale = bin_scale(c_min, float(c_box[axis + 3]), N_BINS)
+                bin_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, axis, c_min, scale, N_BINS,
+                              bin_count, bin_box)
+                sweep_bins(N_BINS, bin_count, bin_box, left_count, left_box, right_count,
+                           right_box)
+                if strategy == SAMPLING and n_rays > MIN_RAYS_TO_SAMPLE:
+                    sampled = True
+                    stats[STAT_SAMPLED] += 1
+                    stats[STAT_BOX_TESTS] += sample_rays(
+                        ray_ids, ray_lo, ray_hi, origins, inv_dirs, tmin, best_t, left_count,
+                        left_box, right_count, right_box, hits_left, hits_right, nearer_left)
+                    split = cheapest_sampled_split(left_count, right_count, hits_left,
+                                                   hits_right)
+                else:
+                    split = cheapest_sah_split(left_count, left_box, right_count, right_box,
+                                               stack_box[sp])
+                tri_mid = partition_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, axis, c_min,
+                                              scale, N_BINS, split)
+                box_a[:] = left_box[split]
+                box_b[:] = right_box[split]
+        if split < 0:
+            axis, tri_mid = split_middle(tri_ids, tri_lo, tri_hi, tri_bounds, stack_box[sp],
+                                         c_box)
+            triangle_bounds(tri_ids, tri_lo, tri_mid, tri_bounds, box_a)
+            triangle_bounds(tri_ids, tri_mid, tri_hi, tri_bounds, box_b)
+
+        # Traversal order and ray-filter skipping.
+        if sampled:
+            n_samples = min(N_SAMPLE_RAYS, n_rays)
+            left_first = nearer_left[split] >= n_samples - nearer_left[split]
+            # Eq. (6): skip filtering a child that more than half the sample rays reach.
+            filter_left = 2 * hits_left[split] <= n_samples
+            filter_right = 2 * hits_right[split] <= n_samples
+        else:
+            left_first = directions[ray_ids[ray_lo], axis] >= 0
+            filter_left = True
+            filter_right = True
+        # Push the later child first, so the nearer one is popped next.
+        for side in range(2):
+            is_left = (side == 0) != left_first
+            if is_left:
+                stack_tri[sp, 0] = tri_lo
+                stack_tri[sp, 1] = tri_mid
+                stack_box[sp, :] = box_a
+                stack_filter[sp] = filter_left
+            else:
+                stack_tri[sp, 0] = tri_mid
+                stack_tri[sp, 1] = tri_hi
+                stack_box[sp, :] = box_b
+                stack_filter[sp] = filter_right
+            stack_ray[sp, 0] = ray_lo
+            stack_ray[sp, 1] = ray_hi
+            stack_depth[sp] = depth + 1
+            sp += 1
+
+
+@jit
+def sample_rays(ray_ids, ray_lo, ray_hi, origins, inv_dirs, tmin, best_t, left_count, left_box,
+                right_count, right_box, hits_left, hits_right, nearer_left):
+    """Algorithm 2 of Nabata et al.: test sample rays against both sides of every candidate.
+
+    Per candidate j: how many sample rays hit the left and right boxes, and how many enter the
+    left box first. Samples are evenly strided over the active rays. Returns the box tests made."""
+    n_rays = ray_hi - ray_lo
+    n_samples = min(N_SAMPLE_RAYS, n_rays)
+    n_candidates = left_count.shape[0]
+    hits_left[:] = 0
+    hits_right[:] = 0
+    nearer_left[:] = 0
+    n_tests = 0
+    for s in range(n_samples):
+        ray = ray_ids[ray_lo + (s * n_rays) // n_samples]
+        ox = origins[ray, 0]
+        oy = origins[ray, 1]
+        oz = origins[ray, 2]
+        ix = inv_dirs[ray, 0]
+        iy = inv_dirs[ray, 1]
+        iz = inv_dirs[ray, 2]
+        t_lo = tmin[ray]
+        t_hi = cull_distance(best_t[ray], CULL_MARGIN)
+        for j in range(n_candidates):
+            if left_count[j] == 0 or right_count[j] == 0:
+                continue
+            n_tests += 2
+            hit_l, near_l = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi,
+                                          left_box[j, 0], left_box[j, 1], left_box[j, 2],
+                                          left_box[j, 3], left_box[j, 4], left_box[j, 5])
+            hit_r, near_r = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi,
+                                          right_box[j, 0], right_box[j, 1], right_box[j, 2],
+                                          right_box[j, 3], right_box[j, 4], right_box[j, 5])
+            if hit_l:
+                hits_left[j] += 1
+            else:
+                near_l = np.inf
+            if hit_r:
+                hits_right[j] += 1
+            else:
+                near_r = np.inf
+            if near_l < near_r:
+                nearer_left[j] += 1
+    return n_tests
+
+
+@jit
+def cheapest_sampled_split(left_count, right_count, hits_left, hits_right):
+    """Eq. (2): the candidate minimising alpha_L*N_L + alpha_R*N_R (alphas from sample rays)."""
+    best = -1
+    best_cost = np.inf
+    for j in range(left_count.shape[0]):
+        if left_count[j] == 0 or right_count[j] == 0:
+            continue
+        cost = SAH_C_T + SAH_C_I * float(hits_left[j] * left_count[j]
+                                         + hits_right[j] * right_count[j])
+        if cost <= best_cost:
+            best_cost = cost
+            best = j
+    return best
+
+
+@jit
+def cheapest_sah_split(left_count, left_box, right_count, right_box, node_box):
+    """Binned SAH: the candidate minimising (A_L*N_L + A_R*N_R) / A."""
+    best = -1
+    best_cost = np.inf
+    area = max(box_area(node_box), 1e-30)
+    for j in range(left_count.shape[0]):
+        if left_count[j] == 0 or right_count[j] == 0:
+            continue
+        cost = SAH_C_T + SAH_C_I * (box_area(left_box[j]) * left_count[j]
+                                    + box_area(right_box[j]) * right_count[j]) / area
+        if cost <= best_cost:
+            best_cost = cost
+            best = j
+    return best
+
+
+@jit
+def split_middle(tri_ids, tri_lo, tri_hi, tri_bounds, node_box, c_box):
+    """Keller & Waechter: split at the middle of the node box's longest axis.
+
+    Falls back to the middle of the centroids' box, then to the median index, so both sides are
+    never empty. Returns (axis, tri_mid)."""
+    axis, extent = longest_axis(node_box)
+    if extent > 0:
+        c_min = float(node_box[axis])
+        tri_mid = partition_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, axis, c_min,
+                                      2.0 / (float(node_box[axis + 3]) - c_min), 2, 0)
+        if tri_lo < tri_mid < tri_hi:
+            return axis, tri_mid
+    centroid_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, c_box)
+    c_axis, c_extent = longest_axis(c_box)
+    if c_extent > 0:
+        c_min = float(c_box[c_axis])
+        tri_mid = partition_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, c_axis, c_min,
+                                      bin_scale(c_min, float(c_box[c_axis + 3]), 2), 2, 0)
+        if tri_lo < tri_mid < tri_hi:
+            return c_axis, tri_mid
+    return axis, (tri_lo + tri_hi) // 2

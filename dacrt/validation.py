@@ -1,0 +1,102 @@
+"""Input checks of the public API: shapes, dtypes and values, each error naming the first bad
+index and how many there are. Everything past here assumes clean float32/int32 arrays."""
+import numpy as np
+
+from .contracts import FLOAT, STRATEGIES
+
+
+def _first_bad(bad, what, reason, total_label):
+    """Raise ValueError for a boolean mask ``bad`` if any entry is set."""
+    bad_rows = np.flatnonzero(bad)
+    if len(bad_rows):
+        raise ValueError(f"{what}[{bad_rows[0]}] {reason} ({len(bad_rows)} {total_label})")
+
+
+def as_float_rows(array, name, width=3):
+    """``array`` as a C-contiguous float32 (n, width) array; finite values required."""
+    array = np.asarray(array)
+    if array.ndim != 2 or array.shape[1] != width:
+        raise ValueError(f"{name} must have shape (n, {width}), got {array.shape}")
+    if array.dtype.kind not in "fiu" or array.dtype.kind == "b":
+        raise ValueError(f"{name} must be a float array, got dtype {array.dtype}")
+    with np.errstate(over="ignore", invalid="ignore"):
+        converted = np.ascontiguousarray(array, dtype=FLOAT)
+    _first_bad(~np.isfinite(converted).all(axis=1), name,
+               "has a non-finite value (or one too large for float32)", "rows are not finite")
+    return converted
+
+
+def check_mesh(index, vertices, faces):
+    """Validate one mesh; returns (vertices float32 (V,3), faces int64 (F,3))."""
+    label = f"mesh {index}"
+    vertices = np.asarray(vertices)
+    faces = np.asarray(faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise ValueError(f"{label}: vertices must have shape (V, 3), got {vertices.shape}")
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        if faces.size == 0:
+            faces = faces.reshape(0, 3)
+        else:
+            raise ValueError(f"{label}: faces must have shape (F, 3), got {faces.shape}")
+    if faces.dtype.kind not in "iu":
+        if faces.size == 0:
+            faces = faces.astype(np.int64)
+        else:
+            raise ValueError(f"{label}: faces must be an integer array, got dtype {faces.dtype}")
+    vertices = as_float_rows(vertices, f"{label}: vertices")
+    faces = faces.astype(np.int64, copy=False)
+    n_vertices = len(vertices)
+    out_of_range = ((faces < 0) | (faces >= n_vertices)).any(axis=1)
+    bad_rows = np.flatnonzero(out_of_range)
+    if len(bad_rows):
+        row = bad_rows[0]
+        bad_vertex = faces[row][(faces[row] < 0) | (faces[row] >= n_vertices)][0]
+        raise ValueError(
+            f"{label}: faces[{row}] refers to vertex {bad_vertex}, but there are {n_vertices} "
+            f"vertices ({len(bad_rows)} faces out of range)")
+    return vertices, faces
+
+
+def check_rays(origins, directions, tmin, tmax):
+    """Validate a ray batch; returns float32 C-contiguous origins, directions, tmin, tmax."""
+    origins = as_float_rows(origins, "origins")
+    directions = as_float_rows(directions, "directions")
+    n = len(origins)
+    if len(directions) != n:
+        raise ValueError(f"origins has {n} rows but directions has {len(directions)}")
+    _first_bad(~directions.any(axis=1), "directions", "is zero", "zero directions")
+    tmin = _ray_range(tmin, 0.0, n, "tmin")
+    tmax = _ray_range(tmax, np.inf, n, "tmax")
+    _first_bad(~np.isfinite(tmin), "tmin", "is not finite", "non-finite tmin")
+    _first_bad(np.isnan(tmax), "tmax", "is NaN", "NaN tmax")
+    _first_bad(tmin > tmax, "tmin", "is greater than tmax", "rays with tmin > tmax")
+    return origins, directions, tmin, tmax
+
+
+def _ray_range(value, default, n, name):
+    """A scalar or (n,) bound as a float32 (n,) array."""
+    if value is None:
+        return np.full(n, default, FLOAT)
+    value = np.asarray(value)
+    if value.dtype.kind not in "fiu" or value.dtype.kind == "b":
+        raise ValueError(f"{name} must be a number or a float array, got dtype {value.dtype}")
+    if value.ndim == 0:
+        return np.full(n, value, FLOAT)
+    if value.shape != (n,):
+        raise ValueError(f"{name} must be a scalar or have shape ({n},), got {value.shape}")
+    with np.errstate(over="ignore"):
+        return np.ascontiguousarray(value, dtype=FLOAT)
+
+
+def check_strategy(strategy):
+    if strategy not in STRATEGIES:
+        raise ValueError(f"unknown strategy {strategy!r}; use one of {', '.join(STRATEGIES)}")
+    return strategy
+
+
+def check_threads(threads, n_cores):
+    if threads is None:
+        return n_cores
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
+    return int(threads)

@@ -1,0 +1,21 @@
+"""Compile (or load from the cache) every kernel by running each query kind on a tiny scene."""
+import time
+
+import numpy as np
+
+from .contracts import STRATEGIES
+from .scene import Scene
+
+
+def warmup():
+    """Compile every kernel; returns the seconds it took."""
+    start = time.perf_counter()
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float32)
+    faces = np.array([[0, 1, 2], [1, 3, 2]], np.int32)
+    scene = Scene([(vertices, faces)])
+    origins = np.tile(np.array([[0.25, 0.25, 1.0]], np.float32), (4, 1))
+    directions = np.tile(np.array([[0.0, 0.0, -1.0]], np.float32), (4, 1))
+    for strategy in STRATEGIES:
+        scene.closest(origins, directions, strategy=strategy, threads=1)
+        scene.occluded(origins, directions, strategy=strategy, threads=1)
+    return time.perf_counter() - start
