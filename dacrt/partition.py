@@ -7,6 +7,7 @@ import numpy as np
 
 from .config import CULL_MARGIN, inline
 from .geometry import cull_distance, intersect_box
+from .rays import BEST_T, INV_DIRECTION, ORIGIN, TMIN, swap_rays
 
 _BIN_SHRINK = 1.0 - 1e-6
 
@@ -147,7 +148,7 @@ def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins,
 
 
 @inline
-def filter_rays(ray_ids, lo, hi, origins, inv_dirs, tmin, best_t, box):
+def filter_rays(rays, ray_ids, lo, hi, box):
     """Move the rays that can hit ``box`` (within [tmin, best_t]) to the front of the range;
     returns how many they are."""
     x0 = box[0]
@@ -159,15 +160,14 @@ def filter_rays(ray_ids, lo, hi, origins, inv_dirs, tmin, best_t, box):
     i = lo
     j = hi
     while i < j:
-        ray = ray_ids[i]
-        hit, _ = intersect_box(origins[ray, 0], origins[ray, 1], origins[ray, 2],
-                               inv_dirs[ray, 0], inv_dirs[ray, 1], inv_dirs[ray, 2],
-                               tmin[ray], cull_distance(best_t[ray], CULL_MARGIN),
+        hit, _ = intersect_box(rays[i, ORIGIN], rays[i, ORIGIN + 1], rays[i, ORIGIN + 2],
+                               rays[i, INV_DIRECTION], rays[i, INV_DIRECTION + 1],
+                               rays[i, INV_DIRECTION + 2], rays[i, TMIN],
+                               cull_distance(rays[i, BEST_T], CULL_MARGIN),
                                x0, y0, z0, x1, y1, z1)
         if hit:
             i += 1
         else:
             j -= 1
-            ray_ids[i] = ray_ids[j]
-            ray_ids[j] = ray
+            swap_rays(rays, ray_ids, i, j)
     return i - lo

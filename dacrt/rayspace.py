@@ -19,7 +19,8 @@ from .contracts import (
     STAT_TRIANGLE_TESTS,
 )
 from .geometry import cull_distance
-from .leaf import NO_HIT, intersect_leaf
+from .leaf import intersect_leaf
+from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, swap_rays
 
 # Frustum rows: origin min (3), origin max (3), u min/max, v min/max, distance min/max.
 _O_MIN = 0
@@ -44,17 +45,17 @@ def dominant_class(dx, dy, dz):
 
 
 @inline
-def ray_coordinate(origins, directions, ray, axis, dim):
-    """Dimension ``dim`` of a ray in its group: 0-2 origin, 3 slope u, 4 slope v."""
+def ray_coordinate(rays, r, axis, dim):
+    """Dimension ``dim`` of ray record r in its group: 0-2 origin, 3 slope u, 4 slope v."""
     if dim < 3:
-        return float(origins[ray, dim])
+        return float(rays[r, ORIGIN + dim])
     a = (axis + 1) % 3 if dim == 3 else (axis + 2) % 3
-    return float(directions[ray, a]) / abs(float(directions[ray, axis]))
+    return float(rays[r, DIRECTION + a]) / abs(float(rays[r, DIRECTION + axis]))
 
 
 @jit
-def bound_rays(ray_ids, lo, hi, origins, directions, tmin, best_t, axis, frustum):
-    """Frustum of the rays ``ray_ids[lo:hi]`` of one group into ``frustum`` (12,)."""
+def bound_rays(rays, lo, hi, axis, frustum):
+    """Frustum of the ray records ``lo:hi`` of one group into ``frustum`` (12,)."""
     a1 = (axis + 1) % 3
     a2 = (axis + 2) % 3
     for k in range(_FRUSTUM_SIZE):
@@ -63,21 +64,21 @@ def bound_rays(ray_ids, lo, hi, origins, directions, tmin, best_t, axis, frustum
         frustum[_O_MIN + a] = np.inf
         frustum[_O_MAX + a] = -np.inf
     for r in range(lo, hi):
-        ray = ray_ids[r]
         for a in range(3):
-            o = float(origins[ray, a])
+            o = float(rays[r, ORIGIN + a])
             frustum[_O_MIN + a] = min(frustum[_O_MIN + a], o)
             frustum[_O_MAX + a] = max(frustum[_O_MAX + a], o)
-        da = abs(float(directions[ray, axis]))
-        u = float(directions[ray, a1]) / da
-        v = float(directions[ray, a2]) / da
+        da = abs(float(rays[r, DIRECTION + axis]))
+        u = float(rays[r, DIRECTION + a1]) / da
+        v = float(rays[r, DIRECTION + a2]) / da
         frustum[_U] = min(frustum[_U], u)
         frustum[_U + 1] = max(frustum[_U + 1], u)
         frustum[_V] = min(frustum[_V], v)
         frustum[_V + 1] = max(frustum[_V + 1], v)
         # Distance along the dominant axis: t * |d_axis|.
-        frustum[_S] = min(frustum[_S], float(tmin[ray]) * da)
-        frustum[_S + 1] = max(frustum[_S + 1], cull_distance(float(best_t[ray]), CULL_MARGIN) * da)
+        frustum[_S] = min(frustum[_S], float(rays[r, TMIN]) * da)
+        frustum[_S + 1] = max(frustum[_S + 1],
+                              cull_distance(float(rays[r, BEST_T]), CULL_MARGIN) * da)
 
 
 @inline
@@ -139,43 +140,39 @@ def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, toleran
 
 
 @jit
-def partition_rays(ray_ids, lo, hi, origins, directions, axis, dim, split):
+def partition_rays(rays, ray_ids, lo, hi, axis, dim, split):
     """Move rays whose coordinate ``dim`` is below ``split`` to the front; returns the index
     of the first other ray."""
     i = lo
     j = hi
     while i < j:
-        ray = ray_ids[i]
-        if ray_coordinate(origins, directions, ray, axis, dim) < split:
+        if ray_coordinate(rays, i, axis, dim) < split:
             i += 1
         else:
             j -= 1
-            ray_ids[i] = ray_ids[j]
-            ray_ids[j] = ray
+            swap_rays(rays, ray_ids, i, j)
     return i
 
 
 @jit
-def drop_finished_rays(ray_ids, lo, hi, best_tri):
+def drop_finished_rays(rays, ray_ids, lo, hi):
     """Occlusion: move rays that already hit something out of the range; returns the new end."""
     i = lo
     j = hi
     while i < j:
-        ray = ray_ids[i]
-        if best_tri[ray] == NO_HIT:
+        if rays[i, BEST_T] != -np.inf:
             i += 1
         else:
             j -= 1
-            ray_ids[i] = ray_ids[j]
-            ray_ids[j] = ray
+            swap_rays(rays, ray_ids, i, j)
     return i
 
 
 @jit
-def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, origins, directions, tmin, best_t,
-                    best_tri, hit_u, hit_v, ray_ids, tri_ids, stats):
-    """Trace rays ``ray_ids`` against triangles ``tri_ids`` (both permuted in place)."""
-    n_rays_all = ray_ids.shape[0]
+def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_ids, best_tri,
+                    hit_u, hit_v, stats):
+    """Trace the ray records ``rays`` against triangles ``tri_ids`` (both permuted in place)."""
+    n_rays_all = rays.shape[0]
     n_tris_all = tri_ids.shape[0]
     scene_size = 0.0
     for a in range(3):
@@ -190,13 +187,12 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, origins, directions,
         j = n_rays_all
         i = lo
         while i < j:
-            ray = ray_ids[i]
-            if dominant_class(directions[ray, 0], directions[ray, 1], directions[ray, 2]) == g:
+            if dominant_class(rays[i, DIRECTION], rays[i, DIRECTION + 1],
+                              rays[i, DIRECTION + 2]) == g:
                 i += 1
             else:
                 j -= 1
-                ray_ids[i] = ray_ids[j]
-                ray_ids[j] = ray
+                swap_rays(rays, ray_ids, i, j)
         lo = i
     group_start[6] = n_rays_all
 
@@ -225,11 +221,11 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, origins, directions,
             if depth > stats[STAT_MAX_DEPTH]:
                 stats[STAT_MAX_DEPTH] = depth
             if mode == MODE_OCCLUDED:
-                ray_hi = drop_finished_rays(ray_ids, ray_lo, ray_hi, best_tri)
+                ray_hi = drop_finished_rays(rays, ray_ids, ray_lo, ray_hi)
             n_rays = ray_hi - ray_lo
             if n_rays == 0 or tri_hi == tri_lo:
                 continue
-            bound_rays(ray_ids, ray_lo, ray_hi, origins, directions, tmin, best_t, axis, frustum)
+            bound_rays(rays, ray_lo, ray_hi, axis, frustum)
             stats[STAT_BOX_TESTS] += tri_hi - tri_lo
             tri_hi = tri_lo + cull_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, frustum, axis,
                                              negative, tolerance)
@@ -240,8 +236,8 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, origins, directions,
                     or depth >= MAX_DEPTH):
                 stats[STAT_LEAVES] += 1
                 stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
-                    mode, tri_verts, origins, directions, tmin, best_t, best_tri, hit_u, hit_v,
-                    ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi)
+                    mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
+                    best_tri, hit_u, hit_v)
                 continue
             # Split the rays at the middle of their widest dimension; slopes are weighed by the
             # distance they travel across the scene, so both kinds are in world units.
@@ -263,15 +259,14 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, origins, directions,
                 else:
                     k = _U if dim == 3 else _V
                     split = 0.5 * (frustum[k] + frustum[k + 1])
-                ray_mid = partition_rays(ray_ids, ray_lo, ray_hi, origins, directions, axis,
-                                         dim, split)
+                ray_mid = partition_rays(rays, ray_ids, ray_lo, ray_hi, axis, dim, split)
                 split_ok = ray_lo < ray_mid < ray_hi
             if not split_ok:
                 # All rays alike in every dimension: nothing left to divide.
                 stats[STAT_LEAVES] += 1
                 stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
-                    mode, tri_verts, origins, directions, tmin, best_t, best_tri, hit_u, hit_v,
-                    ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi)
+                    mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
+                    best_tri, hit_u, hit_v)
                 continue
             for half in range(2):
                 stack[sp, 0] = ray_mid if half == 0 else ray_lo

@@ -18,18 +18,18 @@ from .contracts import (
     STAT_NAMES,
     STAT_RAYS,
     STAT_TRIANGLES,
-    STRATEGIES,
     STRATEGY_CODES,
     Hits,
 )
 from .leaf import NO_HIT
+from .rays import RECORD_SIZE, pack_rays, unpack_best_t
+from .results import finish_closest
 from .rayspace import trace_ray_space
 from .traversal import trace_object_split
 from .validation import check_mesh, check_rays, check_strategy, check_threads
 
 N_CORES = os.cpu_count() or 1
-# Rays are dealt to threads in blocks of this many, round robin, so each thread gets rays from
-# every part of the batch (balanced work) while keeping neighbours together (coherence).
+# Rays are dealt to threads in blocks of this many (see rays_of_chunk).
 RAY_BLOCK = 4096
 # Below this many rays a single thread is quicker than splitting the triangles' work twice.
 MIN_RAYS_PER_THREAD = 16384
@@ -101,7 +101,6 @@ class Scene:
         """
         best_t, best_tri, hit_u, hit_v, counters = self._trace(
             MODE_CLOSEST, origins, directions, tmin, tmax, strategy, threads)
-        hit = best_tri != NO_HIT
         n = len(best_t)
         t = np.full(n, np.inf, FLOAT)
         mesh = np.full(n, MISS, INDEX)
@@ -109,18 +108,9 @@ class Scene:
         u = np.zeros(n, FLOAT)
         v = np.zeros(n, FLOAT)
         normal = np.zeros((n, 3), FLOAT)
-        if hit.any():
-            rows = best_tri[hit]
-            t[hit] = best_t[hit]
-            u[hit] = hit_u[hit]
-            v[hit] = hit_v[hit]
-            tri = self._tri_global[rows].astype(np.int64)
-            mesh_of_hit = np.searchsorted(self.mesh_offsets, tri, side="right") - 1
-            mesh[hit] = mesh_of_hit
-            prim[hit] = tri - self.mesh_offsets[mesh_of_hit]
-            corners = self._tri_verts[rows].astype(np.float64)
-            n_hit = np.cross(corners[:, 3:6] - corners[:, 0:3], corners[:, 6:9] - corners[:, 0:3])
-            normal[hit] = n_hit / np.linalg.norm(n_hit, axis=1, keepdims=True)
+        if len(self._tri_verts):
+            finish_closest(best_t, best_tri, hit_u, hit_v, self._tri_global, self.mesh_offsets,
+                           self._tri_verts, t, mesh, prim, u, v, normal)
         return Hits(t, mesh, prim, u, v, normal, counters if stats else None)
 
     def occluded(self, origins, directions, tmin=None, tmax=None, *, strategy="sampling",
@@ -140,7 +130,7 @@ class Scene:
         threads = check_threads(threads, N_CORES)
         origins, directions, tmin, tmax = check_rays(origins, directions, tmin, tmax)
         n_rays = len(origins)
-        best_t = tmax  # shrinks as hits are found; a fresh array from check_rays
+        best_t = tmax.copy()  # the records' best_t, scattered back after the trace
         best_tri = np.full(n_rays, NO_HIT, INDEX)
         hit_u = np.zeros(n_rays, FLOAT)
         hit_v = np.zeros(n_rays, FLOAT)
@@ -150,25 +140,22 @@ class Scene:
         n_live = len(self._tri_verts)
         if n_rays == 0 or n_live == 0:
             return best_t, best_tri, hit_u, hit_v, counters
-        with np.errstate(divide="ignore"):
-            inv_dirs = (1.0 / directions).astype(FLOAT)
-
         n_chunks = max(1, min(threads, n_rays // MIN_RAYS_PER_THREAD))
-        blocks = np.arange(n_rays, dtype=np.int64) // RAY_BLOCK % n_chunks
         code = STRATEGY_CODES[strategy]
 
         def run(chunk):
-            ray_ids = np.flatnonzero(blocks == chunk).astype(INDEX)
+            ray_ids = rays_of_chunk(n_rays, chunk, n_chunks)
+            rays = np.empty((len(ray_ids), RECORD_SIZE), FLOAT)
+            pack_rays(origins, directions, tmin, tmax, ray_ids, rays)
             tri_ids = np.arange(n_live, dtype=INDEX)
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
             if code == STRATEGY_CODES["rayspace"]:
-                trace_ray_space(mode, self._tri_verts, self._tri_bounds, self._box, origins,
-                                directions, tmin, best_t, best_tri, hit_u, hit_v, ray_ids,
-                                tri_ids, chunk_stats)
+                trace_ray_space(mode, self._tri_verts, self._tri_bounds, self._box, rays,
+                                ray_ids, tri_ids, best_tri, hit_u, hit_v, chunk_stats)
             else:
                 trace_object_split(code, mode, self._tri_verts, self._tri_bounds, self._box,
-                                   origins, directions, inv_dirs, tmin, best_t, best_tri,
-                                   hit_u, hit_v, ray_ids, tri_ids, chunk_stats)
+                                   rays, ray_ids, tri_ids, best_tri, hit_u, hit_v, chunk_stats)
+            unpack_best_t(rays, ray_ids, best_t)
             return chunk_stats
 
         if n_chunks == 1:
@@ -183,5 +170,12 @@ class Scene:
         return best_t, best_tri, hit_u, hit_v, counters
 
 
-def strategies():
-    return STRATEGIES
+def rays_of_chunk(n_rays, chunk, n_chunks):
+    """Row numbers of the rays thread ``chunk`` traces: blocks of RAY_BLOCK rays, dealt round
+    robin, so each thread gets rays from every part of the batch (balanced work) while
+    neighbours stay together (coherence)."""
+    if n_chunks == 1:
+        return np.arange(n_rays, dtype=INDEX)
+    starts = np.arange(chunk * RAY_BLOCK, n_rays, n_chunks * RAY_BLOCK)
+    return np.concatenate([np.arange(s, min(s + RAY_BLOCK, n_rays), dtype=INDEX)
+                           for s in starts])

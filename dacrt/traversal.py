@@ -31,6 +31,7 @@ from .contracts import (
 )
 from .geometry import cull_distance, intersect_box
 from .leaf import intersect_leaf
+from .rays import BEST_T, DIRECTION, INV_DIRECTION, ORIGIN, TMIN
 from .partition import (
     bin_scale,
     bin_triangles,
@@ -49,11 +50,12 @@ SAMPLING = 2
 
 
 @jit
-def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, origins, directions,
-                       inv_dirs, tmin, best_t, best_tri, hit_u, hit_v, ray_ids, tri_ids, stats):
-    """Trace the rays ``ray_ids`` against all triangles ``tri_ids`` (both permuted in place).
+def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_ids,
+                       best_tri, hit_u, hit_v, stats):
+    """Trace the ray records ``rays`` against all triangles ``tri_ids`` (both permuted in place).
 
-    Results go to best_t, best_tri, hit_u, hit_v (indexed by ray id); counters to ``stats``."""
+    best_t stays in the records; best_tri, hit_u, hit_v are indexed by ray id (``ray_ids``);
+    counters go to ``stats``."""
     n_stack = MAX_DEPTH + 2
     stack_tri = np.empty((n_stack, 2), np.int64)
     stack_ray = np.empty((n_stack, 2), np.int64)
@@ -77,7 +79,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, origins
     stack_tri[0, 0] = 0
     stack_tri[0, 1] = tri_ids.shape[0]
     stack_ray[0, 0] = 0
-    stack_ray[0, 1] = ray_ids.shape[0]
+    stack_ray[0, 1] = rays.shape[0]
     stack_depth[0] = 0
     stack_filter[0] = True
     stack_box[0, :] = scene_box
@@ -95,8 +97,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, origins
         # Ray filtering: keep the rays that can reach this node's box.
         if stack_filter[sp]:
             stats[STAT_BOX_TESTS] += ray_hi - ray_lo
-            ray_hi = ray_lo + filter_rays(ray_ids, ray_lo, ray_hi, origins, inv_dirs, tmin,
-                                          best_t, stack_box[sp])
+            ray_hi = ray_lo + filter_rays(rays, ray_ids, ray_lo, ray_hi, stack_box[sp])
         else:
             stats[STAT_SKIPPED] += 1
         n_rays = ray_hi - ray_lo
@@ -106,8 +107,8 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, origins
         if n_tris <= LEAF_TRIANGLES or n_rays <= LEAF_RAYS or depth >= MAX_DEPTH:
             stats[STAT_LEAVES] += 1
             stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
-                mode, tri_verts, origins, directions, tmin, best_t, best_tri, hit_u, hit_v,
-                ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi)
+                mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
+                best_tri, hit_u, hit_v)
             continue
 
         # Choose the split; it leaves left triangles in [tri_lo, tri_mid), boxes in box_a/box_b.
@@ -129,7 +130,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, origins
                     sampled = True
                     stats[STAT_SAMPLED] += 1
                     stats[STAT_BOX_TESTS] += sample_rays(
-                        ray_ids, ray_lo, ray_hi, origins, inv_dirs, tmin, best_t, left_count,
+                        rays, ray_lo, ray_hi, left_count,
                         left_box, right_count, right_box, hits_left, hits_right, nearer_left)
                     split = cheapest_sampled_split(left_count, right_count, hits_left,
                                                    hits_right)
@@ -154,7 +155,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, origins
             filter_left = 2 * hits_left[split] <= n_samples
             filter_right = 2 * hits_right[split] <= n_samples
         else:
-            left_first = directions[ray_ids[ray_lo], axis] >= 0
+            left_first = rays[ray_lo, DIRECTION + axis] >= 0
             filter_left = True
             filter_right = True
         # Push the later child first, so the nearer one is popped next.
@@ -177,8 +178,8 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, origins
 
 
 @jit
-def sample_rays(ray_ids, ray_lo, ray_hi, origins, inv_dirs, tmin, best_t, left_count, left_box,
-                right_count, right_box, hits_left, hits_right, nearer_left):
+def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box, hits_left,
+                hits_right, nearer_left):
     """Algorithm 2 of Nabata et al.: test sample rays against both sides of every candidate.
 
     Per candidate j: how many sample rays hit the left and right boxes, and how many enter the
@@ -191,15 +192,15 @@ def sample_rays(ray_ids, ray_lo, ray_hi, origins, inv_dirs, tmin, best_t, left_c
     nearer_left[:] = 0
     n_tests = 0
     for s in range(n_samples):
-        ray = ray_ids[ray_lo + (s * n_rays) // n_samples]
-        ox = origins[ray, 0]
-        oy = origins[ray, 1]
-        oz = origins[ray, 2]
-        ix = inv_dirs[ray, 0]
-        iy = inv_dirs[ray, 1]
-        iz = inv_dirs[ray, 2]
-        t_lo = tmin[ray]
-        t_hi = cull_distance(best_t[ray], CULL_MARGIN)
+        r = ray_lo + (s * n_rays) // n_samples
+        ox = rays[r, ORIGIN]
+        oy = rays[r, ORIGIN + 1]
+        oz = rays[r, ORIGIN + 2]
+        ix = rays[r, INV_DIRECTION]
+        iy = rays[r, INV_DIRECTION + 1]
+        iz = rays[r, INV_DIRECTION + 2]
+        t_lo = rays[r, TMIN]
+        t_hi = cull_distance(rays[r, BEST_T], CULL_MARGIN)
         for j in range(n_candidates):
             if left_count[j] == 0 or right_count[j] == 0:
                 continue

@@ -2,6 +2,7 @@
 index and how many there are. Everything past here assumes clean float32/int32 arrays."""
 import numpy as np
 
+from .config import jit
 from .contracts import FLOAT, STRATEGIES
 
 
@@ -12,7 +13,7 @@ def _first_bad(bad, what, reason, total_label):
         raise ValueError(f"{what}[{bad_rows[0]}] {reason} ({len(bad_rows)} {total_label})")
 
 
-def as_float_rows(array, name, width=3):
+def as_float_rows(array, name, width=3, check_finite=True):
     """``array`` as a C-contiguous float32 (n, width) array; finite values required."""
     array = np.asarray(array)
     if array.ndim != 2 or array.shape[1] != width:
@@ -21,8 +22,9 @@ def as_float_rows(array, name, width=3):
         raise ValueError(f"{name} must be a float array, got dtype {array.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
         converted = np.ascontiguousarray(array, dtype=FLOAT)
-    _first_bad(~np.isfinite(converted).all(axis=1), name,
-               "has a non-finite value (or one too large for float32)", "rows are not finite")
+    if check_finite:
+            _first_bad(~np.isfinite(converted).all(axis=1), name,
+                   "has a non-finite value (or one too large for float32)", "rows are not finite")
     return converted
 
 
@@ -59,18 +61,37 @@ def check_mesh(index, vertices, faces):
 
 def check_rays(origins, directions, tmin, tmax):
     """Validate a ray batch; returns float32 C-contiguous origins, directions, tmin, tmax."""
-    origins = as_float_rows(origins, "origins")
-    directions = as_float_rows(directions, "directions")
+    origins = as_float_rows(origins, "origins", check_finite=False)
+    directions = as_float_rows(directions, "directions", check_finite=False)
     n = len(origins)
     if len(directions) != n:
         raise ValueError(f"origins has {n} rows but directions has {len(directions)}")
-    _first_bad(~directions.any(axis=1), "directions", "is zero", "zero directions")
     tmin = _ray_range(tmin, 0.0, n, "tmin")
     tmax = _ray_range(tmax, np.inf, n, "tmax")
-    _first_bad(~np.isfinite(tmin), "tmin", "is not finite", "non-finite tmin")
-    _first_bad(np.isnan(tmax), "tmax", "is NaN", "NaN tmax")
-    _first_bad(tmin > tmax, "tmin", "is greater than tmax", "rays with tmin > tmax")
+    if not _rays_are_valid(origins, directions, tmin, tmax):
+        # Slow path, only for a bad batch: find and name the first problem.
+        as_float_rows(origins, "origins")
+        as_float_rows(directions, "directions")
+        _first_bad(~directions.any(axis=1), "directions", "is zero", "zero directions")
+        _first_bad(~np.isfinite(tmin), "tmin", "is not finite", "non-finite tmin")
+        _first_bad(np.isnan(tmax), "tmax", "is NaN", "NaN tmax")
+        _first_bad(tmin > tmax, "tmin", "is greater than tmax", "rays with tmin > tmax")
     return origins, directions, tmin, tmax
+
+
+@jit
+def _rays_are_valid(origins, directions, tmin, tmax):
+    """One pass over the batch: finite origins and directions, no zero direction, finite tmin,
+    tmin <= tmax (tmax may be +inf)."""
+    for r in range(origins.shape[0]):
+        for a in range(3):
+            if not np.isfinite(origins[r, a]) or not np.isfinite(directions[r, a]):
+                return False
+        if directions[r, 0] == 0 and directions[r, 1] == 0 and directions[r, 2] == 0:
+            return False
+        if not np.isfinite(tmin[r]) or not tmin[r] <= tmax[r]:
+            return False
+    return True
 
 
 def _ray_range(value, default, n, name):
