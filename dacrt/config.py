@@ -24,6 +24,12 @@ LEAF_RAYS = 8
 # Ray-space hierarchy termination R*G < C_r*R + C_g*G.
 RAYSPACE_C_R = 16.0
 RAYSPACE_C_G = 16.0
+# A ray-space leaf with more triangles than this goes on with object splits instead.
+RAYSPACE_LEAF_TRIANGLES = 64
+# ... and so does a node, at this depth or deeper, whose frustum kept more than this fraction of
+# its parent's triangles (rays too incoherent for ray-space splits to pay).
+RAYSPACE_MIN_DEPTH_TO_GIVE_UP = 4
+RAYSPACE_KEPT_TO_GIVE_UP = 0.8
 # Deepest node; below it a node is brute-forced (keeps the explicit stack small and bounded).
 MAX_DEPTH = 64
 # SAH constants (C_T: node, C_I: triangle), as ratios.

@@ -98,23 +98,24 @@ def watertight_setup(dx, dy, dz):
 
 
 @inline
-def intersect_triangle(tri_verts, tri, o, kx, ky, kz, sx, sy, sz):
+def intersect_triangle(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz):
     """Watertight ray-triangle test in float64 on float32 data.
 
-    ``o`` is the ray origin as a 3-tuple of floats. Returns (hit, t, u, v) with
-    hit = (1-u-v)*p0 + u*p1 + v*p2. A ray through an edge or vertex shared by two triangles
-    hits at least one of them: each shared edge's function is computed from the same
-    transformed vertices, so its sign agrees on both sides. Degenerate triangles give det == 0.
+    ``okx, oky, okz`` are the ray origin's coordinates in the permuted order (kx, ky, kz).
+    Returns (hit, t, u, v) with hit = (1-u-v)*p0 + u*p1 + v*p2. A ray through an edge or
+    vertex shared by two triangles hits at least one of them: each shared edge's function is
+    computed from the same transformed vertices, so its sign agrees on both sides.
+    Degenerate triangles give det == 0.
     """
-    ax = float(tri_verts[tri, kx]) - o[kx]
-    ay = float(tri_verts[tri, ky]) - o[ky]
-    az = float(tri_verts[tri, kz]) - o[kz]
-    bx = float(tri_verts[tri, 3 + kx]) - o[kx]
-    by = float(tri_verts[tri, 3 + ky]) - o[ky]
-    bz = float(tri_verts[tri, 3 + kz]) - o[kz]
-    cx = float(tri_verts[tri, 6 + kx]) - o[kx]
-    cy = float(tri_verts[tri, 6 + ky]) - o[ky]
-    cz = float(tri_verts[tri, 6 + kz]) - o[kz]
+    ax = float(tri_verts[tri, kx]) - okx
+    ay = float(tri_verts[tri, ky]) - oky
+    az = float(tri_verts[tri, kz]) - okz
+    bx = float(tri_verts[tri, 3 + kx]) - okx
+    by = float(tri_verts[tri, 3 + ky]) - oky
+    bz = float(tri_verts[tri, 3 + kz]) - okz
+    cx = float(tri_verts[tri, 6 + kx]) - okx
+    cy = float(tri_verts[tri, 6 + ky]) - oky
+    cz = float(tri_verts[tri, 6 + kz]) - okz
     # Shear so the ray runs along +z through the origin.
     ax = ax - sx * az
     ay = ay - sy * az

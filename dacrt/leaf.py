@@ -20,18 +20,21 @@ def intersect_leaf(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_
     stops at its first hit and its best_t becomes -inf. Returns the ray-triangle tests made."""
     n_tests = 0
     for r in range(ray_lo, ray_hi):
-        best = rays[r, BEST_T]
+        best = rays[BEST_T, r]
         if best == -np.inf:
             continue  # an occlusion ray that has already hit
-        kx, ky, kz, sx, sy, sz = watertight_setup(rays[r, DIRECTION], rays[r, DIRECTION + 1],
-                                                  rays[r, DIRECTION + 2])
-        o = (float(rays[r, ORIGIN]), float(rays[r, ORIGIN + 1]), float(rays[r, ORIGIN + 2]))
-        t_lo = rays[r, TMIN]
+        kx, ky, kz, sx, sy, sz = watertight_setup(rays[DIRECTION, r], rays[DIRECTION + 1, r],
+                                                  rays[DIRECTION + 2, r])
+        okx = float(rays[ORIGIN + kx, r])
+        oky = float(rays[ORIGIN + ky, r])
+        okz = float(rays[ORIGIN + kz, r])
+        t_lo = rays[TMIN, r]
         ray = ray_ids[r]
         for k in range(tri_lo, tri_hi):
             tri = tri_ids[k]
             n_tests += 1
-            hit, t64, u, v = intersect_triangle(tri_verts, tri, o, kx, ky, kz, sx, sy, sz)
+            hit, t64, u, v = intersect_triangle(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy,
+                                                 sz)
             if not hit:
                 continue
             # Ranges and ties are decided on the float32 t that is reported.
@@ -44,5 +47,5 @@ def intersect_leaf(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_
                 if mode == MODE_OCCLUDED:
                     best = -np.inf
                     break
-        rays[r, BEST_T] = best
+        rays[BEST_T, r] = best
     return n_tests

@@ -5,8 +5,7 @@ the caller owns the scratch arrays. Triangle bounds are rows [x0, y0, z0, x1, y1
 """
 import numpy as np
 
-from .config import CULL_MARGIN, inline
-from .geometry import cull_distance, intersect_box
+from .config import CULL_MARGIN, SLAB_GROWTH, inline
 from .rays import BEST_T, INV_DIRECTION, ORIGIN, TMIN, swap_rays
 
 _BIN_SHRINK = 1.0 - 1e-6
@@ -147,27 +146,75 @@ def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins,
     return i
 
 
+# float32 copies of the slab growth and cull margin, so the mask loop stays in float32 (and
+# vectorises).
+_GROWTH32 = np.float32(SLAB_GROWTH - 1.0)
+_MARGIN32 = np.float32(CULL_MARGIN)
+
+
 @inline
-def filter_rays(rays, ray_ids, lo, hi, box):
-    """Move the rays that can hit ``box`` (within [tmin, best_t]) to the front of the range;
-    returns how many they are."""
+def mark_rays_hitting_box(rays, lo, hi, box, hit_mask):
+    """hit_mask[i] = can ray i hit ``box`` within [tmin, best_t], for i in [lo, hi).
+
+    The same conservative slab test as ``intersect_box``, written with selects only (no
+    branches) so that LLVM vectorises the loop over the structure-of-arrays records."""
     x0 = box[0]
     y0 = box[1]
     z0 = box[2]
     x1 = box[3]
     y1 = box[4]
     z1 = box[5]
+    ox = rays[ORIGIN]
+    oy = rays[ORIGIN + 1]
+    oz = rays[ORIGIN + 2]
+    ix = rays[INV_DIRECTION]
+    iy = rays[INV_DIRECTION + 1]
+    iz = rays[INV_DIRECTION + 2]
+    tmin = rays[TMIN]
+    best_t = rays[BEST_T]
+    for i in range(lo, hi):
+        ax = (x0 - ox[i]) * ix[i]
+        bx = (x1 - ox[i]) * ix[i]
+        ay = (y0 - oy[i]) * iy[i]
+        by = (y1 - oy[i]) * iy[i]
+        az = (z0 - oz[i]) * iz[i]
+        bz = (z1 - oz[i]) * iz[i]
+        # Near and far planes by the sign of the inverse direction.
+        near_x = ax if ix[i] >= 0 else bx
+        far_x = bx if ix[i] >= 0 else ax
+        near_y = ay if iy[i] >= 0 else by
+        far_y = by if iy[i] >= 0 else ay
+        near_z = az if iz[i] >= 0 else bz
+        far_z = bz if iz[i] >= 0 else az
+        # A NaN (0*inf, a ray in a slab's plane) fails every comparison, so it never tightens.
+        near = tmin[i]
+        near = near_x if near_x > near else near
+        near = near_y if near_y > near else near
+        near = near_z if near_z > near else near
+        far = np.float32(np.inf)
+        far = far_x if far_x < far else far
+        far = far_y if far_y < far else far
+        far = far_z if far_z < far else far
+        far = far + abs(far) * _GROWTH32
+        # -inf (a finished occlusion ray) stays -inf: -inf + inf*m is NaN, and NaN fails below.
+        best = best_t[i]
+        cull = best + abs(best) * _MARGIN32
+        hit_mask[i] = near <= far and near <= cull
+
+
+@inline
+def filter_rays(rays, ray_ids, lo, hi, box, hit_mask):
+    """Move the rays that can hit ``box`` (within [tmin, best_t]) to the front of the range;
+    returns how many they are. ``hit_mask`` is scratch, one entry per ray."""
+    mark_rays_hitting_box(rays, lo, hi, box, hit_mask)
     i = lo
     j = hi
     while i < j:
-        hit, _ = intersect_box(rays[i, ORIGIN], rays[i, ORIGIN + 1], rays[i, ORIGIN + 2],
-                               rays[i, INV_DIRECTION], rays[i, INV_DIRECTION + 1],
-                               rays[i, INV_DIRECTION + 2], rays[i, TMIN],
-                               cull_distance(rays[i, BEST_T], CULL_MARGIN),
-                               x0, y0, z0, x1, y1, z1)
-        if hit:
+        if hit_mask[i]:
             i += 1
         else:
             j -= 1
-            swap_rays(rays, ray_ids, i, j)
+            if hit_mask[j]:
+                swap_rays(rays, ray_ids, i, j)
+                i += 1
     return i - lo

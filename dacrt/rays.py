@@ -1,9 +1,11 @@
-"""The kernels' working copy of a ray batch: one float32 record per ray, permuted in place.
+"""The kernels' working copy of a ray batch: float32 records, permuted in place.
 
 Partitioning moves whole records rather than ids, so every pass over a node's rays streams
-through memory instead of gathering from arrays indexed by ray id. A record is
+through memory instead of gathering from arrays indexed by ray id. The records are stored as a
+structure of arrays, ``rays[field, i]`` with shape (11, n), so the ray-box loop vectorises.
+The fields are
 
-    [ox, oy, oz, dx, dy, dz, 1/dx, 1/dy, 1/dz, tmin, best_t]
+    ox, oy, oz, dx, dy, dz, 1/dx, 1/dy, 1/dz, tmin, best_t
 
 where best_t starts at tmax, shrinks as closer hits are found, and is -inf once an occlusion
 ray has hit (which culls it from every later box). The ray's id travels in a parallel int32
@@ -23,32 +25,32 @@ RECORD_SIZE = 11
 
 @jit
 def pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
-    """Fill ``rays`` (n, 11) float32 with the records of rows ``ray_ids`` (n,) of the batch."""
+    """Fill ``rays`` (11, n) float32 with the records of rows ``ray_ids`` (n,) of the batch."""
     for r in range(ray_ids.shape[0]):
         ray = ray_ids[r]
         for a in range(3):
             d = directions[ray, a]
-            rays[r, ORIGIN + a] = origins[ray, a]
-            rays[r, DIRECTION + a] = d
-            rays[r, INV_DIRECTION + a] = np.float32(1.0) / d  # +-inf for a zero component
-        rays[r, TMIN] = tmin[ray]
-        rays[r, BEST_T] = tmax[ray]
+            rays[ORIGIN + a, r] = origins[ray, a]
+            rays[DIRECTION + a, r] = d
+            rays[INV_DIRECTION + a, r] = np.float32(1.0) / d  # +-inf for a zero component
+        rays[TMIN, r] = tmin[ray]
+        rays[BEST_T, r] = tmax[ray]
 
 
 @jit
 def unpack_best_t(rays, ray_ids, best_t):
     """Scatter the records' best_t back to ray order."""
     for r in range(ray_ids.shape[0]):
-        best_t[ray_ids[r]] = rays[r, BEST_T]
+        best_t[ray_ids[r]] = rays[BEST_T, r]
 
 
 @inline
 def swap_rays(rays, ray_ids, i, j):
     """Exchange records i and j (and their ids)."""
     for k in range(RECORD_SIZE):
-        tmp = rays[i, k]
-        rays[i, k] = rays[j, k]
-        rays[j, k] = tmp
+        tmp = rays[k, i]
+        rays[k, i] = rays[k, j]
+        rays[k, j] = tmp
     tmp_id = ray_ids[i]
     ray_ids[i] = ray_ids[j]
     ray_ids[j] = tmp_id

@@ -9,7 +9,17 @@ dimensions and pushes both halves with the surviving triangles.
 """
 import numpy as np
 
-from .config import CULL_MARGIN, MAX_DEPTH, RAYSPACE_C_G, RAYSPACE_C_R, inline, jit
+from .config import (
+    CULL_MARGIN,
+    MAX_DEPTH,
+    RAYSPACE_C_G,
+    RAYSPACE_C_R,
+    RAYSPACE_KEPT_TO_GIVE_UP,
+    RAYSPACE_LEAF_TRIANGLES,
+    RAYSPACE_MIN_DEPTH_TO_GIVE_UP,
+    inline,
+    jit,
+)
 from .contracts import (
     MODE_OCCLUDED,
     STAT_BOX_TESTS,
@@ -20,7 +30,9 @@ from .contracts import (
 )
 from .geometry import cull_distance
 from .leaf import intersect_leaf
+from .partition import triangle_bounds
 from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, swap_rays
+from .traversal import SAMPLING, trace_object_split
 
 # Frustum rows: origin min (3), origin max (3), u min/max, v min/max, distance min/max.
 _O_MIN = 0
@@ -48,9 +60,9 @@ def dominant_class(dx, dy, dz):
 def ray_coordinate(rays, r, axis, dim):
     """Dimension ``dim`` of ray record r in its group: 0-2 origin, 3 slope u, 4 slope v."""
     if dim < 3:
-        return float(rays[r, ORIGIN + dim])
+        return float(rays[ORIGIN + dim, r])
     a = (axis + 1) % 3 if dim == 3 else (axis + 2) % 3
-    return float(rays[r, DIRECTION + a]) / abs(float(rays[r, DIRECTION + axis]))
+    return float(rays[DIRECTION + a, r]) / abs(float(rays[DIRECTION + axis, r]))
 
 
 @jit
@@ -65,20 +77,20 @@ def bound_rays(rays, lo, hi, axis, frustum):
         frustum[_O_MAX + a] = -np.inf
     for r in range(lo, hi):
         for a in range(3):
-            o = float(rays[r, ORIGIN + a])
+            o = float(rays[ORIGIN + a, r])
             frustum[_O_MIN + a] = min(frustum[_O_MIN + a], o)
             frustum[_O_MAX + a] = max(frustum[_O_MAX + a], o)
-        da = abs(float(rays[r, DIRECTION + axis]))
-        u = float(rays[r, DIRECTION + a1]) / da
-        v = float(rays[r, DIRECTION + a2]) / da
+        da = abs(float(rays[DIRECTION + axis, r]))
+        u = float(rays[DIRECTION + a1, r]) / da
+        v = float(rays[DIRECTION + a2, r]) / da
         frustum[_U] = min(frustum[_U], u)
         frustum[_U + 1] = max(frustum[_U + 1], u)
         frustum[_V] = min(frustum[_V], v)
         frustum[_V + 1] = max(frustum[_V + 1], v)
         # Distance along the dominant axis: t * |d_axis|.
-        frustum[_S] = min(frustum[_S], float(rays[r, TMIN]) * da)
+        frustum[_S] = min(frustum[_S], float(rays[TMIN, r]) * da)
         frustum[_S + 1] = max(frustum[_S + 1],
-                              cull_distance(float(rays[r, BEST_T]), CULL_MARGIN) * da)
+                              cull_distance(float(rays[BEST_T, r]), CULL_MARGIN) * da)
 
 
 @inline
@@ -160,7 +172,7 @@ def drop_finished_rays(rays, ray_ids, lo, hi):
     i = lo
     j = hi
     while i < j:
-        if rays[i, BEST_T] != -np.inf:
+        if rays[BEST_T, i] != -np.inf:
             i += 1
         else:
             j -= 1
@@ -170,9 +182,13 @@ def drop_finished_rays(rays, ray_ids, lo, hi):
 
 @jit
 def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_ids, best_tri,
-                    hit_u, hit_v, stats):
-    """Trace the ray records ``rays`` against triangles ``tri_ids`` (both permuted in place)."""
-    n_rays_all = rays.shape[0]
+                    hit_u, hit_v, hit_mask, stats):
+    """Trace the ray records ``rays`` against triangles ``tri_ids`` (both permuted in place).
+
+    A node the termination rule makes a leaf but that still holds many triangles (incoherent
+    rays the frustum cannot cull for) goes to the object-split driver, with ray sampling,
+    instead of a brute force over all of them."""
+    n_rays_all = rays.shape[1]
     n_tris_all = tri_ids.shape[0]
     scene_size = 0.0
     for a in range(3):
@@ -187,8 +203,8 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
         j = n_rays_all
         i = lo
         while i < j:
-            if dominant_class(rays[i, DIRECTION], rays[i, DIRECTION + 1],
-                              rays[i, DIRECTION + 2]) == g:
+            if dominant_class(rays[DIRECTION, i], rays[DIRECTION + 1, i],
+                              rays[DIRECTION + 2, i]) == g:
                 i += 1
             else:
                 j -= 1
@@ -199,6 +215,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
     n_stack = MAX_DEPTH + 2
     stack = np.empty((n_stack, 5), np.int64)  # ray_lo, ray_hi, tri_lo, tri_hi, depth
     frustum = np.empty(_FRUSTUM_SIZE)
+    node_box = np.empty(6, np.float32)
     for g in range(6):
         if group_start[g + 1] == group_start[g]:
             continue
@@ -226,14 +243,25 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
             if n_rays == 0 or tri_hi == tri_lo:
                 continue
             bound_rays(rays, ray_lo, ray_hi, axis, frustum)
-            stats[STAT_BOX_TESTS] += tri_hi - tri_lo
+            n_tris_before = tri_hi - tri_lo
+            stats[STAT_BOX_TESTS] += n_tris_before
             tri_hi = tri_lo + cull_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, frustum, axis,
                                              negative, tolerance)
             n_tris = tri_hi - tri_lo
             if n_tris == 0:
                 continue
+            # Rays too incoherent for their frustum to cull: dividing them further only repeats
+            # the cull, so object splits take over.
+            incoherent = (depth >= RAYSPACE_MIN_DEPTH_TO_GIVE_UP
+                          and n_tris > RAYSPACE_KEPT_TO_GIVE_UP * n_tris_before)
             if (n_rays * n_tris < RAYSPACE_C_R * n_rays + RAYSPACE_C_G * n_tris
-                    or depth >= MAX_DEPTH):
+                    or depth >= MAX_DEPTH or incoherent):
+                if n_tris > RAYSPACE_LEAF_TRIANGLES:
+                    triangle_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, node_box)
+                    trace_object_split(SAMPLING, mode, tri_verts, tri_bounds, node_box, rays,
+                                       ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
+                                       best_tri, hit_u, hit_v, hit_mask, stats)
+                    continue
                 stats[STAT_LEAVES] += 1
                 stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
                     mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,

@@ -50,12 +50,13 @@ SAMPLING = 2
 
 
 @jit
-def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_ids,
-                       best_tri, hit_u, hit_v, stats):
-    """Trace the ray records ``rays`` against all triangles ``tri_ids`` (both permuted in place).
+def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ray_ids, ray_lo,
+                       ray_hi, tri_ids, tri_lo, tri_hi, best_tri, hit_u, hit_v, hit_mask, stats):
+    """Trace ray records ``ray_lo:ray_hi`` against triangles ``tri_ids[tri_lo:tri_hi]``, whose
+    box is ``root_box`` (both ranges are permuted in place).
 
     best_t stays in the records; best_tri, hit_u, hit_v are indexed by ray id (``ray_ids``);
-    counters go to ``stats``."""
+    ``hit_mask`` is scratch with one entry per record; counters go to ``stats``."""
     n_stack = MAX_DEPTH + 2
     stack_tri = np.empty((n_stack, 2), np.int64)
     stack_ray = np.empty((n_stack, 2), np.int64)
@@ -76,13 +77,13 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, rays, r
     box_a = np.empty(6, np.float32)
     box_b = np.empty(6, np.float32)
 
-    stack_tri[0, 0] = 0
-    stack_tri[0, 1] = tri_ids.shape[0]
-    stack_ray[0, 0] = 0
-    stack_ray[0, 1] = rays.shape[0]
+    stack_tri[0, 0] = tri_lo
+    stack_tri[0, 1] = tri_hi
+    stack_ray[0, 0] = ray_lo
+    stack_ray[0, 1] = ray_hi
     stack_depth[0] = 0
     stack_filter[0] = True
-    stack_box[0, :] = scene_box
+    stack_box[0, :] = root_box
     sp = 1
     while sp > 0:
         sp -= 1
@@ -97,7 +98,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, rays, r
         # Ray filtering: keep the rays that can reach this node's box.
         if stack_filter[sp]:
             stats[STAT_BOX_TESTS] += ray_hi - ray_lo
-            ray_hi = ray_lo + filter_rays(rays, ray_ids, ray_lo, ray_hi, stack_box[sp])
+            ray_hi = ray_lo + filter_rays(rays, ray_ids, ray_lo, ray_hi, stack_box[sp], hit_mask)
         else:
             stats[STAT_SKIPPED] += 1
         n_rays = ray_hi - ray_lo
@@ -155,7 +156,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, scene_box, rays, r
             filter_left = 2 * hits_left[split] <= n_samples
             filter_right = 2 * hits_right[split] <= n_samples
         else:
-            left_first = rays[ray_lo, DIRECTION + axis] >= 0
+            left_first = rays[DIRECTION + axis, ray_lo] >= 0
             filter_left = True
             filter_right = True
         # Push the later child first, so the nearer one is popped next.
@@ -193,14 +194,14 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
     n_tests = 0
     for s in range(n_samples):
         r = ray_lo + (s * n_rays) // n_samples
-        ox = rays[r, ORIGIN]
-        oy = rays[r, ORIGIN + 1]
-        oz = rays[r, ORIGIN + 2]
-        ix = rays[r, INV_DIRECTION]
-        iy = rays[r, INV_DIRECTION + 1]
-        iz = rays[r, INV_DIRECTION + 2]
-        t_lo = rays[r, TMIN]
-        t_hi = cull_distance(rays[r, BEST_T], CULL_MARGIN)
+        ox = rays[ORIGIN, r]
+        oy = rays[ORIGIN + 1, r]
+        oz = rays[ORIGIN + 2, r]
+        ix = rays[INV_DIRECTION, r]
+        iy = rays[INV_DIRECTION + 1, r]
+        iz = rays[INV_DIRECTION + 2, r]
+        t_lo = rays[TMIN, r]
+        t_hi = cull_distance(rays[BEST_T, r], CULL_MARGIN)
         for j in range(n_candidates):
             if left_count[j] == 0 or right_count[j] == 0:
                 continue
