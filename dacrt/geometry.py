@@ -4,18 +4,12 @@ Both are inlined into the traversal loops. They take scalars, so the callers dec
 """
 import numpy as np
 
-from .config import SLAB_GROWTH, inline
+from .config import CULL_MARGIN, SLAB_GROWTH, inline
 
-
-@inline
-def cull_distance(best_t, margin):
-    """The distance beyond which a box cannot hold a hit that beats ``best_t``.
-
-    Slightly larger than ``best_t`` so that rounding in a triangle's ``t`` never culls a hit
-    (``-inf`` marks a ray that is done and stays ``-inf``)."""
-    if best_t >= 0:
-        return best_t * (1.0 + margin)
-    return best_t * (1.0 - margin)
+# float32 constants keep the box test in float32, so loops over rays vectorise.
+_GROWTH32 = np.float32(SLAB_GROWTH - 1.0)
+_MARGIN32 = np.float32(CULL_MARGIN)
+_INF32 = np.float32(np.inf)
 
 
 @inline
@@ -25,46 +19,40 @@ def intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, x0, y0, z0, x1, y1, z1):
     ``ix, iy, iz`` are 1/direction (+-inf for a zero component). Returns (hit, entry distance).
     Conservative: the exit distance is grown by 1 + 2*gamma(3) (pbrt); a 0*inf NaN, from a ray
     lying in a slab's plane, never tightens the interval because comparisons with NaN are false.
+    Written with selects only, no branches, so loops over rays vectorise; float32 throughout.
     """
-    near = -np.inf
-    far = np.inf
+    ax = (x0 - ox) * ix
+    bx = (x1 - ox) * ix
+    ay = (y0 - oy) * iy
+    by = (y1 - oy) * iy
+    az = (z0 - oz) * iz
+    bz = (z1 - oz) * iz
     # Near and far planes by the sign of the inverse direction.
-    if ix >= 0:
-        tn = (x0 - ox) * ix
-        tf = (x1 - ox) * ix
-    else:
-        tn = (x1 - ox) * ix
-        tf = (x0 - ox) * ix
-    if tn > near:
-        near = tn
-    if tf < far:
-        far = tf
-    if iy >= 0:
-        tn = (y0 - oy) * iy
-        tf = (y1 - oy) * iy
-    else:
-        tn = (y1 - oy) * iy
-        tf = (y0 - oy) * iy
-    if tn > near:
-        near = tn
-    if tf < far:
-        far = tf
-    if iz >= 0:
-        tn = (z0 - oz) * iz
-        tf = (z1 - oz) * iz
-    else:
-        tn = (z1 - oz) * iz
-        tf = (z0 - oz) * iz
-    if tn > near:
-        near = tn
-    if tf < far:
-        far = tf
-    far = far + abs(far) * (SLAB_GROWTH - 1.0)
-    if t_lo > near:
-        near = t_lo
-    if t_hi < far:
-        far = t_hi
+    near_x = ax if ix >= 0 else bx
+    far_x = bx if ix >= 0 else ax
+    near_y = ay if iy >= 0 else by
+    far_y = by if iy >= 0 else ay
+    near_z = az if iz >= 0 else bz
+    far_z = bz if iz >= 0 else az
+    near = t_lo
+    near = near_x if near_x > near else near
+    near = near_y if near_y > near else near
+    near = near_z if near_z > near else near
+    far = _INF32
+    far = far_x if far_x < far else far
+    far = far_y if far_y < far else far
+    far = far_z if far_z < far else far
+    far = far + abs(far) * _GROWTH32
+    far = t_hi if t_hi < far else far
     return near <= far, near
+
+
+@inline
+def cull_distance(best_t):
+    """The distance beyond which a box cannot hold a hit that beats ``best_t``: slightly larger
+    than ``best_t`` so that rounding in a triangle's ``t`` never culls a hit. -inf (a finished
+    occlusion ray) gives NaN, which fails every comparison, so such a ray is always culled."""
+    return best_t + abs(best_t) * _MARGIN32
 
 
 @inline

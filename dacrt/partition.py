@@ -5,7 +5,8 @@ the caller owns the scratch arrays. Triangle bounds are rows [x0, y0, z0, x1, y1
 """
 import numpy as np
 
-from .config import CULL_MARGIN, SLAB_GROWTH, inline
+from .config import inline
+from .geometry import cull_distance, intersect_box
 from .rays import BEST_T, INV_DIRECTION, ORIGIN, TMIN, swap_rays
 
 _BIN_SHRINK = 1.0 - 1e-6
@@ -146,18 +147,11 @@ def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins,
     return i
 
 
-# float32 copies of the slab growth and cull margin, so the mask loop stays in float32 (and
-# vectorises).
-_GROWTH32 = np.float32(SLAB_GROWTH - 1.0)
-_MARGIN32 = np.float32(CULL_MARGIN)
-
-
 @inline
 def mark_rays_hitting_box(rays, lo, hi, box, hit_mask):
     """hit_mask[i] = can ray i hit ``box`` within [tmin, best_t], for i in [lo, hi).
 
-    The same conservative slab test as ``intersect_box``, written with selects only (no
-    branches) so that LLVM vectorises the loop over the structure-of-arrays records."""
+    A branch-free loop over the structure-of-arrays records: LLVM vectorises it."""
     x0 = box[0]
     y0 = box[1]
     z0 = box[2]
@@ -173,33 +167,9 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask):
     tmin = rays[TMIN]
     best_t = rays[BEST_T]
     for i in range(lo, hi):
-        ax = (x0 - ox[i]) * ix[i]
-        bx = (x1 - ox[i]) * ix[i]
-        ay = (y0 - oy[i]) * iy[i]
-        by = (y1 - oy[i]) * iy[i]
-        az = (z0 - oz[i]) * iz[i]
-        bz = (z1 - oz[i]) * iz[i]
-        # Near and far planes by the sign of the inverse direction.
-        near_x = ax if ix[i] >= 0 else bx
-        far_x = bx if ix[i] >= 0 else ax
-        near_y = ay if iy[i] >= 0 else by
-        far_y = by if iy[i] >= 0 else ay
-        near_z = az if iz[i] >= 0 else bz
-        far_z = bz if iz[i] >= 0 else az
-        # A NaN (0*inf, a ray in a slab's plane) fails every comparison, so it never tightens.
-        near = tmin[i]
-        near = near_x if near_x > near else near
-        near = near_y if near_y > near else near
-        near = near_z if near_z > near else near
-        far = np.float32(np.inf)
-        far = far_x if far_x < far else far
-        far = far_y if far_y < far else far
-        far = far_z if far_z < far else far
-        far = far + abs(far) * _GROWTH32
-        # -inf (a finished occlusion ray) stays -inf: -inf + inf*m is NaN, and NaN fails below.
-        best = best_t[i]
-        cull = best + abs(best) * _MARGIN32
-        hit_mask[i] = near <= far and near <= cull
+        hit, _ = intersect_box(ox[i], oy[i], oz[i], ix[i], iy[i], iz[i], tmin[i],
+                               cull_distance(best_t[i]), x0, y0, z0, x1, y1, z1)
+        hit_mask[i] = hit
 
 
 @inline

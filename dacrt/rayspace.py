@@ -10,7 +10,6 @@ dimensions and pushes both halves with the surviving triangles.
 import numpy as np
 
 from .config import (
-    CULL_MARGIN,
     MAX_DEPTH,
     RAYSPACE_C_G,
     RAYSPACE_C_R,
@@ -90,7 +89,7 @@ def bound_rays(rays, lo, hi, axis, frustum):
         # Distance along the dominant axis: t * |d_axis|.
         frustum[_S] = min(frustum[_S], float(rays[TMIN, r]) * da)
         frustum[_S + 1] = max(frustum[_S + 1],
-                              cull_distance(float(rays[BEST_T, r]), CULL_MARGIN) * da)
+                              float(cull_distance(rays[BEST_T, r])) * da)
 
 
 @inline

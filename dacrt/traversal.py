@@ -17,7 +17,6 @@ from .config import (
     RAYS_PER_TRIANGLE_FOR_COST,
     SAH_C_I,
     SAH_C_T,
-    CULL_MARGIN,
     jit,
 )
 from .contracts import (
@@ -45,6 +44,7 @@ from .partition import (
 )
 
 MIDDLE = 0
+_INF32 = np.float32(np.inf)
 SAH = 1
 SAMPLING = 2
 
@@ -73,6 +73,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     hits_left = np.empty(N_BINS - 1, np.int64)
     hits_right = np.empty(N_BINS - 1, np.int64)
     nearer_left = np.empty(N_BINS - 1, np.int64)
+    samples = np.empty((8, N_SAMPLE_RAYS), np.float32)
     c_box = np.empty(6, np.float32)
     box_a = np.empty(6, np.float32)
     box_b = np.empty(6, np.float32)
@@ -131,8 +132,8 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
                     sampled = True
                     stats[STAT_SAMPLED] += 1
                     stats[STAT_BOX_TESTS] += sample_rays(
-                        rays, ray_lo, ray_hi, left_count,
-                        left_box, right_count, right_box, hits_left, hits_right, nearer_left)
+                        rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box,
+                        samples, hits_left, hits_right, nearer_left)
                     split = cheapest_sampled_split(left_count, right_count, hits_left,
                                                    hits_right)
                 else:
@@ -179,49 +180,70 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
 
 
 @jit
-def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box, hits_left,
-                hits_right, nearer_left):
+def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box, samples,
+                hits_left, hits_right, nearer_left):
     """Algorithm 2 of Nabata et al.: test sample rays against both sides of every candidate.
 
     Per candidate j: how many sample rays hit the left and right boxes, and how many enter the
-    left box first. Samples are evenly strided over the active rays. Returns the box tests made."""
+    left box first. Samples are evenly strided over the active rays and copied to ``samples``
+    (8, N_SAMPLE_RAYS) so the loop over them vectorises. Returns the box tests made."""
     n_rays = ray_hi - ray_lo
     n_samples = min(N_SAMPLE_RAYS, n_rays)
-    n_candidates = left_count.shape[0]
-    hits_left[:] = 0
-    hits_right[:] = 0
-    nearer_left[:] = 0
-    n_tests = 0
     for s in range(n_samples):
         r = ray_lo + (s * n_rays) // n_samples
-        ox = rays[ORIGIN, r]
-        oy = rays[ORIGIN + 1, r]
-        oz = rays[ORIGIN + 2, r]
-        ix = rays[INV_DIRECTION, r]
-        iy = rays[INV_DIRECTION + 1, r]
-        iz = rays[INV_DIRECTION + 2, r]
-        t_lo = rays[TMIN, r]
-        t_hi = cull_distance(rays[BEST_T, r], CULL_MARGIN)
-        for j in range(n_candidates):
-            if left_count[j] == 0 or right_count[j] == 0:
-                continue
-            n_tests += 2
-            hit_l, near_l = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi,
-                                          left_box[j, 0], left_box[j, 1], left_box[j, 2],
-                                          left_box[j, 3], left_box[j, 4], left_box[j, 5])
-            hit_r, near_r = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi,
-                                          right_box[j, 0], right_box[j, 1], right_box[j, 2],
-                                          right_box[j, 3], right_box[j, 4], right_box[j, 5])
-            if hit_l:
-                hits_left[j] += 1
-            else:
-                near_l = np.inf
-            if hit_r:
-                hits_right[j] += 1
-            else:
-                near_r = np.inf
-            if near_l < near_r:
-                nearer_left[j] += 1
+        samples[0, s] = rays[ORIGIN, r]
+        samples[1, s] = rays[ORIGIN + 1, r]
+        samples[2, s] = rays[ORIGIN + 2, r]
+        samples[3, s] = rays[INV_DIRECTION, r]
+        samples[4, s] = rays[INV_DIRECTION + 1, r]
+        samples[5, s] = rays[INV_DIRECTION + 2, r]
+        samples[6, s] = rays[TMIN, r]
+        samples[7, s] = cull_distance(rays[BEST_T, r])
+    ox = samples[0]
+    oy = samples[1]
+    oz = samples[2]
+    ix = samples[3]
+    iy = samples[4]
+    iz = samples[5]
+    t_lo = samples[6]
+    t_hi = samples[7]
+    n_tests = 0
+    for j in range(left_count.shape[0]):
+        hits_left[j] = 0
+        hits_right[j] = 0
+        nearer_left[j] = 0
+        if left_count[j] == 0 or right_count[j] == 0:
+            continue
+        n_tests += 2 * n_samples
+        lx0 = left_box[j, 0]
+        ly0 = left_box[j, 1]
+        lz0 = left_box[j, 2]
+        lx1 = left_box[j, 3]
+        ly1 = left_box[j, 4]
+        lz1 = left_box[j, 5]
+        rx0 = right_box[j, 0]
+        ry0 = right_box[j, 1]
+        rz0 = right_box[j, 2]
+        rx1 = right_box[j, 3]
+        ry1 = right_box[j, 4]
+        rz1 = right_box[j, 5]
+        n_left = 0
+        n_right = 0
+        n_nearer = 0
+        for s in range(n_samples):
+            hit_l, near_l = intersect_box(ox[s], oy[s], oz[s], ix[s], iy[s], iz[s], t_lo[s],
+                                          t_hi[s], lx0, ly0, lz0, lx1, ly1, lz1)
+            hit_r, near_r = intersect_box(ox[s], oy[s], oz[s], ix[s], iy[s], iz[s], t_lo[s],
+                                          t_hi[s], rx0, ry0, rz0, rx1, ry1, rz1)
+            n_left += 1 if hit_l else 0
+            n_right += 1 if hit_r else 0
+            # Entry distances decide the nearer side (a missed box is at infinity).
+            entry_l = near_l if hit_l else _INF32
+            entry_r = near_r if hit_r else _INF32
+            n_nearer += 1 if entry_l < entry_r else 0
+        hits_left[j] = n_left
+        hits_right[j] = n_right
+        nearer_left[j] = n_nearer
     return n_tests
 
 
