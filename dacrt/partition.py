@@ -7,9 +7,10 @@ import numpy as np
 
 from .config import inline
 from .geometry import cull_distance, intersect_box
-from .rays import BEST_T, INV_DIRECTION, ORIGIN, TMIN, swap_rays
+from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, swap_rays
 
 _BIN_SHRINK = 1.0 - 1e-6
+_ONE32 = np.float32(1.0)
 
 
 @inline
@@ -161,13 +162,15 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask):
     ox = rays[ORIGIN]
     oy = rays[ORIGIN + 1]
     oz = rays[ORIGIN + 2]
-    ix = rays[INV_DIRECTION]
-    iy = rays[INV_DIRECTION + 1]
-    iz = rays[INV_DIRECTION + 2]
+    dx = rays[DIRECTION]
+    dy = rays[DIRECTION + 1]
+    dz = rays[DIRECTION + 2]
     tmin = rays[TMIN]
     best_t = rays[BEST_T]
     for i in range(lo, hi):
-        hit, _ = intersect_box(ox[i], oy[i], oz[i], ix[i], iy[i], iz[i], tmin[i],
+        # 1/d is +-inf for a zero component, which the slab test expects.
+        hit, _ = intersect_box(ox[i], oy[i], oz[i], _ONE32 / dx[i], _ONE32 / dy[i],
+                               _ONE32 / dz[i], tmin[i],
                                cull_distance(best_t[i]), x0, y0, z0, x1, y1, z1)
         hit_mask[i] = hit
 

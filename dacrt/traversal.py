@@ -30,7 +30,7 @@ from .contracts import (
 )
 from .geometry import cull_distance, intersect_box
 from .leaf import intersect_leaf
-from .rays import BEST_T, DIRECTION, INV_DIRECTION, ORIGIN, TMIN
+from .rays import BEST_T, DIRECTION, ORIGIN, TMIN
 from .partition import (
     bin_scale,
     bin_triangles,
@@ -45,6 +45,7 @@ from .partition import (
 
 MIDDLE = 0
 _INF32 = np.float32(np.inf)
+_ONE32 = np.float32(1.0)
 SAH = 1
 SAMPLING = 2
 
@@ -194,9 +195,9 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
         samples[0, s] = rays[ORIGIN, r]
         samples[1, s] = rays[ORIGIN + 1, r]
         samples[2, s] = rays[ORIGIN + 2, r]
-        samples[3, s] = rays[INV_DIRECTION, r]
-        samples[4, s] = rays[INV_DIRECTION + 1, r]
-        samples[5, s] = rays[INV_DIRECTION + 2, r]
+        samples[3, s] = _ONE32 / rays[DIRECTION, r]
+        samples[4, s] = _ONE32 / rays[DIRECTION + 1, r]
+        samples[5, s] = _ONE32 / rays[DIRECTION + 2, r]
         samples[6, s] = rays[TMIN, r]
         samples[7, s] = cull_distance(rays[BEST_T, r])
     ox = samples[0]
