@@ -10,6 +10,8 @@ from .config import CULL_MARGIN, SLAB_GROWTH, inline
 _GROWTH32 = np.float32(SLAB_GROWTH - 1.0)
 _MARGIN32 = np.float32(CULL_MARGIN)
 _INF32 = np.float32(np.inf)
+# Relative size of det below which a triangle counts as edge-on (float64 edge functions).
+_EDGE_ON_TOLERANCE = 1e-12
 
 
 @inline
@@ -61,24 +63,24 @@ def watertight_setup(dx, dy, dz):
 
     Returns the axis permutation (kx, ky, kz), kz being the dominant direction axis, and the
     shear constants (sx, sy, sz) that map the ray onto +z."""
-    ax = abs(dx)
-    ay = abs(dy)
-    az = abs(dz)
-    if ax >= ay and ax >= az:
+    abs_x = abs(dx)
+    abs_y = abs(dy)
+    abs_z = abs(dz)
+    if abs_x >= abs_y and abs_x >= abs_z:
         kz = 0
-        dk = float(dx)
-    elif ay >= az:
+        dk = np.float64(dx)
+    elif abs_y >= abs_z:
         kz = 1
-        dk = float(dy)
+        dk = np.float64(dy)
     else:
         kz = 2
-        dk = float(dz)
+        dk = np.float64(dz)
     kx = kz + 1 if kz < 2 else 0
     ky = kx + 1 if kx < 2 else 0
     # Swap to keep the winding, so the sign of det tells front from back.
     if dk < 0:
         kx, ky = ky, kx
-    d = (float(dx), float(dy), float(dz))
+    d = (np.float64(dx), np.float64(dy), np.float64(dz))
     sx = d[kx] / dk
     sy = d[ky] / dk
     sz = 1.0 / dk
@@ -95,15 +97,15 @@ def intersect_triangle(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz):
     computed from the same transformed vertices, so its sign agrees on both sides.
     Degenerate triangles give det == 0.
     """
-    ax = float(tri_verts[tri, kx]) - okx
-    ay = float(tri_verts[tri, ky]) - oky
-    az = float(tri_verts[tri, kz]) - okz
-    bx = float(tri_verts[tri, 3 + kx]) - okx
-    by = float(tri_verts[tri, 3 + ky]) - oky
-    bz = float(tri_verts[tri, 3 + kz]) - okz
-    cx = float(tri_verts[tri, 6 + kx]) - okx
-    cy = float(tri_verts[tri, 6 + ky]) - oky
-    cz = float(tri_verts[tri, 6 + kz]) - okz
+    ax = np.float64(tri_verts[tri, kx]) - okx
+    ay = np.float64(tri_verts[tri, ky]) - oky
+    az = np.float64(tri_verts[tri, kz]) - okz
+    bx = np.float64(tri_verts[tri, 3 + kx]) - okx
+    by = np.float64(tri_verts[tri, 3 + ky]) - oky
+    bz = np.float64(tri_verts[tri, 3 + kz]) - okz
+    cx = np.float64(tri_verts[tri, 6 + kx]) - okx
+    cy = np.float64(tri_verts[tri, 6 + ky]) - oky
+    cz = np.float64(tri_verts[tri, 6 + kz]) - okz
     # Shear so the ray runs along +z through the origin.
     ax = ax - sx * az
     ay = ay - sy * az
@@ -118,7 +120,11 @@ def intersect_triangle(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz):
     if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
         return False, 0.0, 0.0, 0.0
     det = e0 + e1 + e2
-    if det == 0.0:
+    # A triangle seen exactly edge-on projects to a segment: det is then rounding noise and so
+    # would be t. Treat det within the edge functions' rounding error as zero (a miss).
+    noise = (abs(cx * by) + abs(cy * bx) + abs(ax * cy) + abs(ay * cx) + abs(bx * ay)
+             + abs(by * ax)) * _EDGE_ON_TOLERANCE
+    if abs(det) <= noise:
         return False, 0.0, 0.0, 0.0
     scaled_t = e0 * (sz * az) + e1 * (sz * bz) + e2 * (sz * cz)
     inv_det = 1.0 / det

@@ -25,9 +25,9 @@ def intersect_leaf(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_
             continue  # an occlusion ray that has already hit
         kx, ky, kz, sx, sy, sz = watertight_setup(rays[DIRECTION, r], rays[DIRECTION + 1, r],
                                                   rays[DIRECTION + 2, r])
-        okx = float(rays[ORIGIN + kx, r])
-        oky = float(rays[ORIGIN + ky, r])
-        okz = float(rays[ORIGIN + kz, r])
+        okx = np.float64(rays[ORIGIN + kx, r])
+        oky = np.float64(rays[ORIGIN + ky, r])
+        okz = np.float64(rays[ORIGIN + kz, r])
         t_lo = rays[TMIN, r]
         ray = ray_ids[r]
         for k in range(tri_lo, tri_hi):

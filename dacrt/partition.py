@@ -16,7 +16,7 @@ _ONE32 = np.float32(1.0)
 @inline
 def centroid(tri_bounds, tri, axis):
     """Centre of a triangle's box along ``axis`` (what binning sorts by)."""
-    return 0.5 * (float(tri_bounds[tri, axis]) + float(tri_bounds[tri, axis + 3]))
+    return 0.5 * (np.float64(tri_bounds[tri, axis]) + np.float64(tri_bounds[tri, axis + 3]))
 
 
 @inline

@@ -59,9 +59,9 @@ def dominant_class(dx, dy, dz):
 def ray_coordinate(rays, r, axis, dim):
     """Dimension ``dim`` of ray record r in its group: 0-2 origin, 3 slope u, 4 slope v."""
     if dim < 3:
-        return float(rays[ORIGIN + dim, r])
+        return np.float64(rays[ORIGIN + dim, r])
     a = (axis + 1) % 3 if dim == 3 else (axis + 2) % 3
-    return float(rays[DIRECTION + a, r]) / abs(float(rays[DIRECTION + axis, r]))
+    return np.float64(rays[DIRECTION + a, r]) / abs(np.float64(rays[DIRECTION + axis, r]))
 
 
 @jit
@@ -76,20 +76,20 @@ def bound_rays(rays, lo, hi, axis, frustum):
         frustum[_O_MAX + a] = -np.inf
     for r in range(lo, hi):
         for a in range(3):
-            o = float(rays[ORIGIN + a, r])
+            o = np.float64(rays[ORIGIN + a, r])
             frustum[_O_MIN + a] = min(frustum[_O_MIN + a], o)
             frustum[_O_MAX + a] = max(frustum[_O_MAX + a], o)
-        da = abs(float(rays[DIRECTION + axis, r]))
-        u = float(rays[DIRECTION + a1, r]) / da
-        v = float(rays[DIRECTION + a2, r]) / da
+        da = abs(np.float64(rays[DIRECTION + axis, r]))
+        u = np.float64(rays[DIRECTION + a1, r]) / da
+        v = np.float64(rays[DIRECTION + a2, r]) / da
         frustum[_U] = min(frustum[_U], u)
         frustum[_U + 1] = max(frustum[_U + 1], u)
         frustum[_V] = min(frustum[_V], v)
         frustum[_V + 1] = max(frustum[_V + 1], v)
         # Distance along the dominant axis: t * |d_axis|.
-        frustum[_S] = min(frustum[_S], float(rays[TMIN, r]) * da)
+        frustum[_S] = min(frustum[_S], np.float64(rays[TMIN, r]) * da)
         frustum[_S + 1] = max(frustum[_S + 1],
-                              float(cull_distance(rays[BEST_T, r])) * da)
+                              np.float64(cull_distance(rays[BEST_T, r])) * da)
 
 
 @inline
@@ -110,8 +110,8 @@ def frustum_overlaps_box(frustum, axis, negative, tolerance, tri_bounds, tri):
     (world units) absorbs rounding."""
     a1 = (axis + 1) % 3
     a2 = (axis + 2) % 3
-    b_lo = float(tri_bounds[tri, axis]) - tolerance
-    b_hi = float(tri_bounds[tri, axis + 3]) + tolerance
+    b_lo = np.float64(tri_bounds[tri, axis]) - tolerance
+    b_hi = np.float64(tri_bounds[tri, axis + 3]) + tolerance
     # Distances along the dominant axis at which a ray can be inside the box's slab.
     if negative:
         s_lo = frustum[_O_MIN + axis] - b_hi
@@ -125,11 +125,11 @@ def frustum_overlaps_box(frustum, axis, negative, tolerance, tri_bounds, tri):
         return False
     lo, hi = slope_range(frustum[_O_MIN + a1], frustum[_O_MAX + a1], s_lo, s_hi,
                          frustum[_U], frustum[_U + 1])
-    if hi < float(tri_bounds[tri, a1]) - tolerance or lo > float(tri_bounds[tri, a1 + 3]) + tolerance:
+    if hi < np.float64(tri_bounds[tri, a1]) - tolerance or lo > np.float64(tri_bounds[tri, a1 + 3]) + tolerance:
         return False
     lo, hi = slope_range(frustum[_O_MIN + a2], frustum[_O_MAX + a2], s_lo, s_hi,
                          frustum[_V], frustum[_V + 1])
-    if hi < float(tri_bounds[tri, a2]) - tolerance or lo > float(tri_bounds[tri, a2 + 3]) + tolerance:
+    if hi < np.float64(tri_bounds[tri, a2]) - tolerance or lo > np.float64(tri_bounds[tri, a2 + 3]) + tolerance:
         return False
     return True
 
@@ -191,8 +191,8 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
     n_tris_all = tri_ids.shape[0]
     scene_size = 0.0
     for a in range(3):
-        scene_size = max(scene_size, float(scene_box[a + 3] - scene_box[a]),
-                         abs(float(scene_box[a])), abs(float(scene_box[a + 3])))
+        scene_size = max(scene_size, np.float64(scene_box[a + 3] - scene_box[a]),
+                         abs(np.float64(scene_box[a])), abs(np.float64(scene_box[a + 3])))
     tolerance = 1e-5 * scene_size
     # Group rays by dominant axis and sign (a counting pass per group, in place).
     group_start = np.zeros(7, np.int64)

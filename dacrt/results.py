@@ -24,12 +24,12 @@ def finish_closest(best_t, best_tri, hit_u, hit_v, tri_global, mesh_offsets, tri
         u[ray] = hit_u[ray]
         v[ray] = hit_v[ray]
         # Geometric normal (p1 - p0) x (p2 - p0), normalised in float64.
-        e1x = float(tri_verts[row, 3]) - float(tri_verts[row, 0])
-        e1y = float(tri_verts[row, 4]) - float(tri_verts[row, 1])
-        e1z = float(tri_verts[row, 5]) - float(tri_verts[row, 2])
-        e2x = float(tri_verts[row, 6]) - float(tri_verts[row, 0])
-        e2y = float(tri_verts[row, 7]) - float(tri_verts[row, 1])
-        e2z = float(tri_verts[row, 8]) - float(tri_verts[row, 2])
+        e1x = np.float64(tri_verts[row, 3]) - np.float64(tri_verts[row, 0])
+        e1y = np.float64(tri_verts[row, 4]) - np.float64(tri_verts[row, 1])
+        e1z = np.float64(tri_verts[row, 5]) - np.float64(tri_verts[row, 2])
+        e2x = np.float64(tri_verts[row, 6]) - np.float64(tri_verts[row, 0])
+        e2y = np.float64(tri_verts[row, 7]) - np.float64(tri_verts[row, 1])
+        e2z = np.float64(tri_verts[row, 8]) - np.float64(tri_verts[row, 2])
         nx = e1y * e2z - e1z * e2y
         ny = e1z * e2x - e1x * e2z
         nz = e1x * e2y - e1y * e2x

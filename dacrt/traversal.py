@@ -123,8 +123,8 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
             centroid_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, c_box)
             axis, extent = longest_axis(c_box)
             if extent > 0:
-                c_min = float(c_box[axis])
-                scale = bin_scale(c_min, float(c_box[axis + 3]), N_BINS)
+                c_min = np.float64(c_box[axis])
+                scale = bin_scale(c_min, np.float64(c_box[axis + 3]), N_BINS)
                 bin_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, axis, c_min, scale, N_BINS,
                               bin_count, bin_box)
                 sweep_bins(N_BINS, bin_count, bin_box, left_count, left_box, right_count,
@@ -256,7 +256,7 @@ def cheapest_sampled_split(left_count, right_count, hits_left, hits_right):
     for j in range(left_count.shape[0]):
         if left_count[j] == 0 or right_count[j] == 0:
             continue
-        cost = SAH_C_T + SAH_C_I * float(hits_left[j] * left_count[j]
+        cost = SAH_C_T + SAH_C_I * np.float64(hits_left[j] * left_count[j]
                                          + hits_right[j] * right_count[j])
         if cost <= best_cost:
             best_cost = cost
@@ -289,17 +289,17 @@ def split_middle(tri_ids, tri_lo, tri_hi, tri_bounds, node_box, c_box):
     never empty. Returns (axis, tri_mid)."""
     axis, extent = longest_axis(node_box)
     if extent > 0:
-        c_min = float(node_box[axis])
+        c_min = np.float64(node_box[axis])
         tri_mid = partition_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, axis, c_min,
-                                      2.0 / (float(node_box[axis + 3]) - c_min), 2, 0)
+                                      2.0 / (np.float64(node_box[axis + 3]) - c_min), 2, 0)
         if tri_lo < tri_mid < tri_hi:
             return axis, tri_mid
     centroid_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, c_box)
     c_axis, c_extent = longest_axis(c_box)
     if c_extent > 0:
-        c_min = float(c_box[c_axis])
+        c_min = np.float64(c_box[c_axis])
         tri_mid = partition_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, c_axis, c_min,
-                                      bin_scale(c_min, float(c_box[c_axis + 3]), 2), 2, 0)
+                                      bin_scale(c_min, np.float64(c_box[c_axis + 3]), 2), 2, 0)
         if tri_lo < tri_mid < tri_hi:
             return c_axis, tri_mid
     return axis, (tri_lo + tri_hi) // 2
