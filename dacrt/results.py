@@ -18,7 +18,7 @@ def finish_closest(best_t, best_tri, hit_u, hit_v, tri_global, mesh_offsets, tri
             continue
         tri = tri_global[row]
         m = np.searchsorted(mesh_offsets, tri, side="right") - 1
-        t[ray] = best_t[ray]
+        t[ray] = best_t[ray] + np.float32(0.0)  # -0.0 (a hit at the origin) as +0.0
         mesh[ray] = m
         prim[ray] = tri - mesh_offsets[m]
         u[ray] = hit_u[ray]

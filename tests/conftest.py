@@ -1,0 +1,29 @@
+"""Shared fixtures of the engine tests: the shared scene files, and one engine warm-up per session."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import scenes
+
+
+@pytest.fixture(scope="session")
+def shared_scenes() -> Path:
+    """Path of ``../shared/scenes`` beside the repository (it may be absent: ``load_shared`` skips then)."""
+    return scenes.SHARED_SCENES
+
+
+@pytest.fixture(scope="session")
+def load_shared():
+    """``load_shared(name) -> (vertices, faces)``; skips the test when ``../shared/scenes/{name}.npz`` is absent."""
+    return scenes.load_shared
+
+
+@pytest.fixture(scope="session", autouse=True)
+def warm_engine():
+    """Compile every engine kernel once, before the first test, so that no test pays for it."""
+    import dacrt  # Lazily: collection must work without importing the engine.
+
+    return dacrt.warmup()

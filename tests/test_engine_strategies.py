@@ -1,0 +1,142 @@
+"""Every strategy and thread count gives bitwise the same answers as the default.
+
+The contract promises the same answers for every strategy and thread count, ties included (the
+lowest global triangle index wins), so these tests compare whole result arrays bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import dacrt
+
+import assertions as check
+import procedural as pg
+import scenes
+
+
+def _grid_vertex_rays():
+    """A flat grid and rays exactly through its vertices and edge midpoints: t ties across faces."""
+    v, f = pg.grid(16, 1.0, alternate=True)
+    o1, d1, _ = pg.grid_rays(v, f, 16, "vertices", "exact_oblique")
+    o2, d2, _ = pg.grid_rays(v, f, 16, "midpoints", "normal")
+    return [(v, f)], np.concatenate([o1, o2]), np.concatenate([d1, d2]), None, None
+
+
+def _inside_sphere():
+    (v, f), = scenes.sphere(40)
+    o, d = pg.rays_from_inside((0, 0, 0), 0.9 * pg.inner_radius(v, f), 3000, np.random.default_rng(40))
+    return [(v, f)], o, d, None, None
+
+
+def _soup_with_ranges():
+    meshes = scenes.soup(41)
+    o, d = scenes.mixed_rays(meshes, 41, n=3000)
+    rng = np.random.default_rng(41)
+    tmin = rng.uniform(0.0, 0.5, len(o)).astype(np.float32)
+    return meshes, o, d, tmin, (tmin + rng.uniform(0.0, 1.5, len(o))).astype(np.float32)
+
+
+def _multi():
+    meshes = scenes.multi(42)
+    return meshes, *scenes.mixed_rays(meshes, 42, n=3000), None, None
+
+
+def _duplicates():
+    """A soup with every triangle twice (in both meshes too): every hit is a tie."""
+    (v, f), = scenes.soup(43)
+    meshes = [(v, np.concatenate([f, f[::-1]])), (v, f)]
+    return meshes, *scenes.mixed_rays(meshes, 43, n=2000), None, None
+
+
+def _many_rays():
+    """40,000 rays from inside a sphere: enough for the engine to split the batch across threads."""
+    (v, f), = scenes.sphere(44)
+    o, d = pg.rays_from_inside((0, 0, 0), 0.9 * pg.inner_radius(v, f), 40_000, np.random.default_rng(44))
+    return [(v, f)], o, d, None, None
+
+
+def _pinwheel():
+    meshes = scenes.pinwheel(45)
+    return meshes, *scenes.mixed_rays(meshes, 45, n=2000), None, None
+
+
+def _teapot_camera():
+    v, f = scenes.load_shared("teapot")
+    o, d = pg.camera_rays(pg.bounds(v, f), 64, 48)
+    return [(v, f)], o, d, None, None
+
+
+CASES = {
+    "grid_vertex_rays": _grid_vertex_rays,
+    "inside_sphere": _inside_sphere,
+    "soup_with_ranges": _soup_with_ranges,
+    "multi": _multi,
+    "duplicates": _duplicates,
+    "many_rays": _many_rays,
+    "pinwheel": _pinwheel,
+    "teapot_camera": _teapot_camera,
+}
+
+
+@pytest.fixture(scope="module")
+def default_answers():
+    """Per case: (scene, rays, default closest, default occluded), computed once."""
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            meshes, o, d, tmin, tmax = CASES[name]()
+            scene = dacrt.Scene(meshes)
+            cache[name] = (scene, (o, d, tmin, tmax), scene.closest(o, d, tmin, tmax),
+                           scene.occluded(o, d, tmin, tmax))
+        return cache[name]
+
+    return get
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
+@pytest.mark.parametrize("case", list(CASES))
+def test_strategy_and_threads_match_default(case, strategy, threads, default_answers):
+    scene, (o, d, tmin, tmax), closest, occluded = default_answers(case)
+    assert np.any(closest.prim >= 0), "vacuous: no hits"
+    hits = scene.closest(o, d, tmin, tmax, strategy=strategy, threads=threads)
+    check.assert_bitwise_equal(hits, closest, f"{strategy}, threads={threads} vs default")
+    occ = scene.occluded(o, d, tmin, tmax, strategy=strategy, threads=threads)
+    np.testing.assert_array_equal(occ, occluded, err_msg=f"occluded: {strategy}, threads={threads}")
+    np.testing.assert_array_equal(occ, np.isfinite(closest.t), err_msg="occluded != isfinite(closest.t)")
+
+
+@pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
+def test_stats_do_not_change_answers(strategy, default_answers):
+    scene, (o, d, tmin, tmax), closest, occluded = default_answers("multi")
+    hits = scene.closest(o, d, tmin, tmax, strategy=strategy, stats=True)
+    check.assert_bitwise_equal(hits, closest, f"{strategy} with stats")
+    occ, _ = scene.occluded(o, d, tmin, tmax, strategy=strategy, stats=True)
+    np.testing.assert_array_equal(occ, occluded)
+
+
+@pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
+def test_batch_split_does_not_change_answers(strategy, default_answers):
+    """Tracing rays in two halves, or in reverse order, gives each ray the same answer."""
+    scene, (o, d, tmin, tmax), closest, _ = default_answers("soup_with_ranges")
+    half = len(o) // 2
+    first = scene.closest(o[:half], d[:half], tmin[:half], tmax[:half], strategy=strategy)
+    second = scene.closest(o[half:], d[half:], tmin[half:], tmax[half:], strategy=strategy)
+    joined = type(closest)(**{k: np.concatenate([getattr(first, k), getattr(second, k)])
+                              for k in ("t", "mesh", "prim", "u", "v", "normal")})
+    check.assert_bitwise_equal(joined, closest, f"{strategy}, two halves")
+    rev = scene.closest(o[::-1], d[::-1], tmin[::-1], tmax[::-1], strategy=strategy)
+    reversed_back = type(closest)(**{k: getattr(rev, k)[::-1] for k in ("t", "mesh", "prim", "u", "v", "normal")})
+    check.assert_bitwise_equal(reversed_back, closest, f"{strategy}, reversed order")
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_stats_count_every_ray_across_threads(threads, default_answers):
+    scene, (o, d, tmin, tmax), closest, _ = default_answers("many_rays")
+    hits = scene.closest(o, d, tmin, tmax, threads=threads, stats=True)
+    assert hits.stats["rays"] == len(o)
+    assert hits.stats["ray_triangle_tests"] >= len(o)  # every ray hits
+    check.assert_bitwise_equal(hits, closest, f"threads={threads} with stats")

@@ -1,0 +1,216 @@
+"""Invalid input raises ValueError, and the message names the first bad index and how many there are.
+
+Bad rows are placed at FIRST_BAD and after it, N_BAD of them in all; numbers chosen so that they
+cannot appear in a message by accident.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+import dacrt
+
+import procedural as pg
+
+N_RAYS = 400
+FIRST_BAD = 137
+N_BAD = 11
+BAD_ROWS = np.r_[FIRST_BAD, np.random.default_rng(0).choice(np.arange(FIRST_BAD + 1, N_RAYS), N_BAD - 1, replace=False)]
+
+
+def _mesh():
+    return pg.triangle_soup(1500, np.random.default_rng(1))
+
+
+def _rays():
+    return pg.mixed_rays([[0, 0, 0], [1, 1, 1]], N_RAYS, np.random.default_rng(2))
+
+
+def _mentions(message, *numbers):
+    for number in numbers:
+        assert re.search(rf"(?<![\d.]){re.escape(str(number))}(?![\d.])", message), f"{number} not in message: {message!r}"
+
+
+def _run(query, meshes, origins, directions, tmin=None, tmax=None, **kwargs):
+    """Build the scene and run the query (validation may happen at either step)."""
+    scene = dacrt.Scene(meshes)
+    return getattr(scene, query)(origins, directions, tmin, tmax, **kwargs)
+
+
+QUERIES = ["closest", "occluded"]
+
+
+# ---------------------------------------------------------------------------------------------
+# Rays
+# ---------------------------------------------------------------------------------------------
+
+
+def _with_bad_rows(array, value, column=1):
+    array = array.copy()
+    array[BAD_ROWS, column] = value
+    return array
+
+
+RAY_CASES = {
+    "origin_nan": lambda o, d: (_with_bad_rows(o, np.nan), d, None, None),
+    "origin_inf": lambda o, d: (_with_bad_rows(o, np.inf, 2), d, None, None),
+    "origin_too_large_for_float32": lambda o, d: (_with_bad_rows(o.astype(np.float64), 1e39), d, None, None),
+    "direction_nan": lambda o, d: (o, _with_bad_rows(d, np.nan, 0), None, None),
+    "direction_neg_inf": lambda o, d: (o, _with_bad_rows(d, -np.inf), None, None),
+    "direction_zero": lambda o, d: (o, _with_bad_rows(_with_bad_rows(_with_bad_rows(d, 0.0, 0), 0.0, 1), 0.0, 2), None, None),
+    "tmin_gt_tmax": lambda o, d: (o, d, _with_bad_rows(np.zeros((N_RAYS, 2), np.float32), 2.0)[:, 1], np.ones(N_RAYS, np.float32)),
+    "tmin_nan": lambda o, d: (o, d, _with_bad_rows(np.zeros((N_RAYS, 2), np.float32), np.nan)[:, 1], None),
+    "tmax_nan": lambda o, d: (o, d, None, _with_bad_rows(np.ones((N_RAYS, 2), np.float32), np.nan)[:, 1]),
+}
+
+
+@pytest.mark.parametrize("query", QUERIES)
+@pytest.mark.parametrize("case", sorted(RAY_CASES))
+def test_bad_rays_name_first_index_and_count(case, query):
+    origins, directions = _rays()
+    o, d, tmin, tmax = RAY_CASES[case](origins, directions)
+    with pytest.raises(ValueError) as info:
+        _run(query, [_mesh()], o, d, tmin, tmax)
+    _mentions(str(info.value), FIRST_BAD, N_BAD)
+
+
+@pytest.mark.parametrize("query", QUERIES)
+@pytest.mark.parametrize("tmin,tmax", [(2.0, 1.0), (np.nan, None), (None, np.nan), (0.0, -1.0)])
+def test_bad_scalar_ranges(tmin, tmax, query):
+    origins, directions = _rays()
+    with pytest.raises(ValueError):
+        _run(query, [_mesh()], origins, directions, tmin, tmax)
+
+
+def _shape_cases():
+    o, d = _rays()
+    return {
+        "origins_2_columns": (o[:, :2], d, None, None),
+        "origins_4_columns": (np.c_[o, o[:, :1]], d, None, None),
+        "origins_1d": (o[0], d[:1], None, None),
+        "origins_3d": (o[:, :, None], d, None, None),
+        "directions_fewer_rows": (o, d[:-1], None, None),
+        "tmin_wrong_length": (o, d, np.zeros(N_RAYS - 1, np.float32), None),
+        "tmax_2d": (o, d, None, np.ones((N_RAYS, 1), np.float32)),
+        "origins_complex": (o.astype(np.complex64), d, None, None),
+        "directions_strings": (o, np.full((N_RAYS, 3), "x"), None, None),
+    }
+
+
+@pytest.mark.parametrize("query", QUERIES)
+@pytest.mark.parametrize("case", sorted(_shape_cases()))
+def test_bad_ray_shapes_and_dtypes(case, query):
+    o, d, tmin, tmax = _shape_cases()[case]
+    with pytest.raises(ValueError):
+        _run(query, [_mesh()], o, d, tmin, tmax)
+
+
+# ---------------------------------------------------------------------------------------------
+# Meshes
+# ---------------------------------------------------------------------------------------------
+
+
+def _bad_vertices(value):
+    """A soup whose vertices FIRST_BAD and N_BAD - 1 later ones (all referenced) are ``value``."""
+    v, f = _mesh()
+    v = v.copy()
+    v[BAD_ROWS, 0] = value
+    return v, f
+
+
+@pytest.mark.parametrize("query", QUERIES)
+@pytest.mark.parametrize("mesh_index", [0, 1])
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_non_finite_vertices_name_first_index_and_count(value, mesh_index, query):
+    meshes = [_mesh(), _mesh()]
+    meshes[mesh_index] = _bad_vertices(value)
+    origins, directions = _rays()
+    with pytest.raises(ValueError) as info:
+        _run(query, meshes, origins, directions)
+    _mentions(str(info.value), FIRST_BAD, N_BAD)
+
+
+BAD_FACE = 1043
+BAD_FACES = (BAD_FACE, 1044, 1200, 1300, 1499)  # 5 bad faces
+
+
+@pytest.mark.parametrize("query", QUERIES)
+@pytest.mark.parametrize("bad_vertex", [90211, 4500, -5])  # far out, one past the end, negative
+def test_face_indices_out_of_range_name_face_and_vertex(bad_vertex, query):
+    v, f = _mesh()  # 4500 vertices, 1500 faces
+    f = f.copy()
+    f[list(BAD_FACES), 1] = bad_vertex
+    origins, directions = _rays()
+    with pytest.raises(ValueError) as info:
+        _run(query, [(v, f)], origins, directions)
+    _mentions(str(info.value), BAD_FACE, bad_vertex, len(BAD_FACES))
+
+
+@pytest.mark.parametrize("query", QUERIES)
+def test_bad_face_in_second_mesh(query):
+    v, f = _mesh()
+    bad = f.copy()
+    bad[BAD_FACE, 2] = len(v)
+    origins, directions = _rays()
+    with pytest.raises(ValueError) as info:
+        _run(query, [(v, f), (v, bad)], origins, directions)
+    _mentions(str(info.value), BAD_FACE, len(v))
+
+
+def _mesh_shape_cases():
+    v, f = _mesh()
+    return {
+        "vertices_2_columns": (v[:, :2], f[f.max(axis=1) < len(v)]),
+        "vertices_1d": (v.ravel(), f),
+        "faces_4_columns": (v, np.c_[f, f[:, :1]]),
+        "faces_1d": (v, f.ravel()),
+        "faces_float": (v, f.astype(np.float32)),
+        "faces_float64_integral": (v, f.astype(np.float64)),
+        "faces_complex": (v, f.astype(np.complex64)),
+        "vertices_complex": (v.astype(np.complex64), f),
+    }
+
+
+@pytest.mark.parametrize("query", QUERIES)
+@pytest.mark.parametrize("case", sorted(_mesh_shape_cases()))
+def test_bad_mesh_shapes_and_dtypes(case, query):
+    mesh = _mesh_shape_cases()[case]
+    origins, directions = _rays()
+    with pytest.raises(ValueError):
+        _run(query, [mesh], origins, directions)
+
+
+# ---------------------------------------------------------------------------------------------
+# Options
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("query", QUERIES)
+@pytest.mark.parametrize("strategy", ["bogus", ""])
+def test_unknown_strategy(strategy, query):
+    origins, directions = _rays()
+    with pytest.raises(ValueError) as info:
+        _run(query, [_mesh()], origins, directions, strategy=strategy)
+    assert repr(strategy) in str(info.value) or strategy in str(info.value)
+
+
+@pytest.mark.parametrize("query", QUERIES)
+@pytest.mark.parametrize("threads", [0, -1, -8])
+def test_threads_below_one(threads, query):
+    origins, directions = _rays()
+    with pytest.raises(ValueError) as info:
+        _run(query, [_mesh()], origins, directions, threads=threads)
+    _mentions(str(info.value), threads)
+
+
+@pytest.mark.parametrize("query", QUERIES)
+def test_valid_edge_values_are_accepted(query):
+    """Not errors: tmin == tmax, tmax = inf, threads above the core count."""
+    origins, directions = _rays()
+    scene = dacrt.Scene([_mesh()])
+    getattr(scene, query)(origins, directions, 0.5, 0.5)
+    getattr(scene, query)(origins, directions, 0.0, np.inf)
+    getattr(scene, query)(origins, directions, threads=64)
