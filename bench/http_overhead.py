@@ -1,0 +1,134 @@
+"""HTTP overhead of the service: what a 1M-ray binary query costs beyond the engine's own time.
+
+    python -m bench.http_overhead [SCENE.npz] [--rays 1000000] [--repeat 5] [--fields ...]
+
+Side by side in one run, alternating, medians of ``--repeat``:
+  engine      ``dacrt.Scene(...).closest`` in this process (the scene built once, as the server caches it)
+  end to end  the same rays through a real uvicorn server on loopback with httpx: .npy (N, 6) in,
+              .npz out (all fields), including the client's encoding and its reading of the answer
+The overhead is ``end to end - engine``: receive + decode + encode + transport, on both sides.
+The server's own Server-Timing (receive, decode, trace, encode) is shown too. BENCHMARKS.md asks
+for at most 10% of the trace time; the service issue for at most ~15%.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import socket
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+import dacrt  # noqa: E402
+from service.client import Client  # noqa: E402
+
+
+def make_rays(vertices: np.ndarray, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Rays from a sphere around the scene towards random points in its bounds (most hit)."""
+    rng = np.random.default_rng(seed)
+    lo, hi = vertices.min(0), vertices.max(0)
+    centre, radius = (lo + hi) / 2, np.linalg.norm(hi - lo) / 2
+    away = rng.normal(size=(n, 3))
+    origins = centre + 2 * radius * away / np.linalg.norm(away, axis=1, keepdims=True)
+    targets = rng.uniform(lo, hi, (n, 3))
+    return origins.astype(np.float32), (targets - origins).astype(np.float32)
+
+
+def start_server(env: dict[str, str]) -> tuple[subprocess.Popen, str]:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    process = subprocess.Popen(
+        [sys.executable, "-m", "uvicorn", "service.app:create_app", "--factory",
+         "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"],
+        cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO), **env})
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise SystemExit(f"server exited with {process.returncode}")
+        try:
+            if httpx.get(f"{url}/health", timeout=2).json().get("status") == "ok":
+                return process, url
+        except (httpx.HTTPError, ValueError):
+            pass
+        time.sleep(0.25)
+    process.terminate()
+    raise SystemExit("server not ready after 300 s")
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("scene", nargs="?", default=str(REPO / "scenes" / "teapot.npz"))
+    parser.add_argument("--rays", type=int, default=1_000_000)
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--fields", default=None, help="e.g. t,mesh,prim (default: all)")
+    args = parser.parse_args()
+
+    with np.load(args.scene) as archive:
+        vertices = np.ascontiguousarray(archive["vertices"], np.float32)
+        faces = np.ascontiguousarray(archive["faces"], np.int32)
+    origins, directions = make_rays(vertices, args.rays)
+    rays = np.hstack([origins, directions])  # the (N, 6) body, built once, as a caller would hold it
+
+    dacrt.warmup()
+    scene = dacrt.Scene([(vertices, faces)])
+    process, url = start_server({"DACRT_MAX_RAYS_PER_REQUEST": str(max(args.rays, 1))})
+    engine, end_to_end, server = [], [], []
+    try:
+        with Client(url) as client:
+            client.put_mesh("bench", "mesh", vertices, faces)
+            client.closest("bench", rays[:1000], fields=args.fields)  # the server builds and caches its scene
+            for _ in range(args.repeat):
+                start = time.perf_counter()
+                reference = scene.closest(origins, directions)
+                engine.append(time.perf_counter() - start)
+                start = time.perf_counter()
+                answer = client.closest("bench", rays, fields=args.fields)
+                end_to_end.append(time.perf_counter() - start)
+                server.append(answer.timing)
+            assert np.array_equal(answer.t, reference.t), "the server's answer differs from the engine's"
+    finally:
+        process.terminate()
+        process.wait(timeout=30)
+
+    def median_ms(values):
+        return 1000 * statistics.median(values)
+
+    engine_ms, e2e_ms = median_ms(engine), median_ms(end_to_end)
+    overhead_ms = e2e_ms - engine_ms
+    print(f"machine: {os.cpu_count()} cores, {cpu_model()}; numpy {np.__version__}")
+    print(f"scene: {Path(args.scene).name} ({len(faces)} triangles); {args.rays} rays; "
+          f"fields: {args.fields or 'all'}; medians of {args.repeat}")
+    print(f"engine in-process      {engine_ms:9.1f} ms   ({args.rays / engine_ms / 1000:.2f} Mrays/s)")
+    print(f"end to end over HTTP   {e2e_ms:9.1f} ms")
+    for key in ("receive", "decode", "trace", "encode"):
+        print(f"  server {key:<8}      {statistics.median(t.get(key, 0.0) for t in server):9.1f} ms")
+    server_trace_ms = statistics.median(t.get("trace", 0.0) for t in server)
+    print(f"HTTP overhead          {overhead_ms:9.1f} ms = {100 * overhead_ms / engine_ms:.1f}% of engine time")
+    print(f"  (end to end - server trace = {e2e_ms - server_trace_ms:.1f} ms = "
+          f"{100 * (e2e_ms - server_trace_ms) / server_trace_ms:.1f}% of the server's trace time)")
+    print(f"load average during the run: {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()

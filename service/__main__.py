@@ -1,0 +1,21 @@
+"""``python -m service``: serve on 127.0.0.1:8000 (DACRT_HOST, DACRT_PORT) with the demo scene."""
+from __future__ import annotations
+
+import logging
+import os
+
+import uvicorn
+
+from .app import create_app
+from .settings import Settings
+
+
+def main() -> None:
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s:     %(name)s: %(message)s")
+    overrides = {} if "DACRT_LOAD_DEMO" in os.environ else {"load_demo": True}
+    settings = Settings(**overrides)
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,270 @@
+"""Python client of the service: NumPy arrays in, NumPy arrays out, over httpx.
+
+    from service.client import Client
+    with Client("http://127.0.0.1:8000") as client:
+        client.put_mesh("demo", "box", vertices, faces)        # (V,3) float, (F,3) int
+        hits = client.closest("demo", origins, directions)    # (N,3) each, or one (N,6|8) array
+        hits.t, hits.mesh, hits.version                        # arrays, and the scene version
+
+Binary by default (.npy rays in, .npz answers out); arrays are converted to the wire dtypes
+(float32, int32) here, so any float or int arrays may be passed. Errors raise ``APIError`` with
+the HTTP status and the server's message.
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Iterator
+
+import httpx
+import numpy as np
+
+from . import wire
+from .timing import parse_server_timing
+
+#: dtype of every answer key, for answers read from JSON.
+ANSWER_DTYPES = {"t": np.float32, "mesh": np.int32, "prim": np.int32, "u": np.float32,
+                 "v": np.float32, "normal": np.float32, "occluded": np.bool_}
+_SUFFIX_FORMATS = {".obj": "obj", ".ply": "ply", ".stl": "stl", ".glb": "glb", ".off": "off",
+                   ".npz": "npz", ".json": "json"}
+
+
+class APIError(Exception):
+    """An error answer: ``status`` (e.g. 422) and the server's ``detail`` message."""
+
+    def __init__(self, status: int, detail: str, response: httpx.Response | None = None) -> None:
+        super().__init__(f"{status}: {detail}")
+        self.status, self.detail, self.response = status, detail, response
+
+
+class Answer(Mapping):
+    """The arrays of a query answer (``answer["t"]`` or ``answer.t``) with its headers' facts."""
+
+    def __init__(self, arrays: dict[str, np.ndarray], version: int, timing: dict[str, float],
+                 stats: dict[str, Any] | None) -> None:
+        self.arrays = arrays
+        self.version = version    #: X-Scene-Version: the scene version the answer was computed on
+        self.timing = timing      #: Server-Timing in ms: receive, decode, trace, encode
+        self.stats = stats        #: X-Trace-Stats (with stats=True), else None
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        return self.arrays[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.arrays)
+
+    def __len__(self) -> int:
+        return len(self.arrays)
+
+    def __getattr__(self, key: str) -> np.ndarray:
+        try:
+            return self.__dict__["arrays"][key]
+        except KeyError:
+            raise AttributeError(key) from None
+
+    def __repr__(self) -> str:
+        shapes = ", ".join(f"{k}={v.dtype}{v.shape}" for k, v in self.arrays.items())
+        return f"Answer(version={self.version}, {shapes})"
+
+
+def rays_array(origins: Any, directions: Any = None, tmin: Any = None, tmax: Any = None) -> np.ndarray:
+    """One (N, 6) or (N, 8) float32 ray array from origins + directions (+ tmin, tmax), or as given."""
+    if directions is None:
+        rays = np.asarray(origins)
+        if rays.ndim != 2 or rays.shape[1] not in (6, 8):
+            raise ValueError(f"without directions, origins must be (N, 6) or (N, 8) rays, got {rays.shape}")
+        if tmin is None and tmax is None:
+            return np.ascontiguousarray(rays, dtype="<f4")
+        origins, directions = rays[:, 0:3], rays[:, 3:6]
+        if rays.shape[1] == 8:
+            tmin = rays[:, 6] if tmin is None else tmin
+            tmax = rays[:, 7] if tmax is None else tmax
+    origins, directions = np.asarray(origins), np.asarray(directions)
+    has_t = tmin is not None or tmax is not None
+    rays = np.empty((len(origins), 8 if has_t else 6), dtype="<f4")
+    rays[:, 0:3], rays[:, 3:6] = origins, directions
+    if has_t:
+        rays[:, 6] = 0.0 if tmin is None else tmin
+        rays[:, 7] = np.inf if tmax is None else tmax
+    return rays
+
+
+class Client:
+    """A connection to one service; use as a context manager or call ``close()``."""
+
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", token: str | None = None,
+                 timeout: float = 600.0, http: httpx.Client | None = None) -> None:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self.http = http or httpx.Client(base_url=base_url, timeout=timeout)
+        self.http.headers.update(headers)
+
+    def close(self) -> None:
+        self.http.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---- plumbing
+
+    def request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        """Send a request; raise APIError for any error status."""
+        response = self.http.request(method, path, **kwargs)
+        if response.status_code >= 400:
+            try:
+                detail = response.json()["detail"]
+            except (ValueError, KeyError, TypeError):
+                detail = response.text
+            raise APIError(response.status_code, str(detail), response)
+        return response
+
+    def _binary(self, method: str, path: str, arrays: Mapping[str, np.ndarray], fmt: str = "npz",
+                **kwargs: Any) -> httpx.Response:
+        """Send arrays as one .npy (a single array) or .npz body: headers around the arrays' memory."""
+        parts = wire.npy_parts(arrays) if fmt == "npy" else wire.npz_parts(arrays)
+        headers = {"Content-Type": wire.MEDIA_TYPES[fmt],
+                   "Content-Length": str(sum(len(part) for part in parts)), **kwargs.pop("headers", {})}
+        return self.request(method, path, content=_slices(parts), headers=headers, **kwargs)
+
+    # ---- operations
+
+    def health(self) -> dict[str, Any]:
+        """``{"status": "ok" | "starting" | "error", ...}`` (no exception for 503)."""
+        return self.http.get("/health").json()
+
+    def capabilities(self) -> dict[str, Any]:
+        return self.request("GET", "/v1/capabilities").json()
+
+    # ---- scenes and meshes
+
+    def scenes(self) -> list[dict[str, Any]]:
+        return self.request("GET", "/v1/scenes").json()["scenes"]
+
+    def scene(self, scene: str) -> dict[str, Any]:
+        return self.request("GET", f"/v1/scenes/{scene}").json()
+
+    def put_mesh(self, scene: str, mesh: str, vertices: Any = None, faces: Any = None, *,
+                 file: str | Path | bytes | None = None, format: str | None = None) -> dict[str, Any]:
+        """Add or replace a mesh from arrays, or from a mesh file (path or bytes; ``format`` is
+        obj/ply/stl/glb/off, taken from the path's suffix if not given). Answers mesh info."""
+        path = f"/v1/scenes/{scene}/meshes/{mesh}"
+        if file is None:
+            return self._binary("PUT", path, {"vertices": np.asarray(vertices, dtype="<f4"),
+                                              "faces": np.asarray(faces, dtype="<i4")}).json()
+        if isinstance(file, (str, Path)):
+            format = format or _SUFFIX_FORMATS.get(Path(file).suffix.lower())
+            file = Path(file).read_bytes()
+        if format is None:
+            raise ValueError("give format= (obj, ply, stl, glb, off) for a mesh file given as bytes")
+        return self.request("PUT", path, content=file, params={"format": format},
+                            headers={"Content-Type": wire.MEDIA_TYPES[format]}).json()
+
+    def update_vertices(self, scene: str, mesh: str, vertices: Any) -> dict[str, Any]:
+        """New positions for a mesh's vertices (same count); answers mesh info."""
+        return self._binary("PUT", f"/v1/scenes/{scene}/meshes/{mesh}/vertices",
+                            {"vertices": np.asarray(vertices, dtype="<f4")}, "npy").json()
+
+    def frame(self, scene: str, meshes: Mapping[str, Any]) -> dict[str, Any]:
+        """Change several meshes in one version: ``{name: vertices}`` moves a mesh,
+        ``{name: (vertices, faces)}`` adds or replaces one. Answers scene info."""
+        arrays = {}
+        for name, value in meshes.items():
+            vertices, faces = value if isinstance(value, tuple) else (value, None)
+            arrays[f"{name}.vertices"] = np.asarray(vertices, dtype="<f4")
+            if faces is not None:
+                arrays[f"{name}.faces"] = np.asarray(faces, dtype="<i4")
+        return self._binary("POST", f"/v1/scenes/{scene}/frame", arrays).json()
+
+    def delete(self, scene: str) -> None:
+        self.request("DELETE", f"/v1/scenes/{scene}")
+
+    def delete_mesh(self, scene: str, mesh: str) -> None:
+        self.request("DELETE", f"/v1/scenes/{scene}/meshes/{mesh}")
+
+    # ---- queries
+
+    def closest(self, scene: str, origins: Any, directions: Any = None, tmin: Any = None,
+                tmax: Any = None, **options: Any) -> Answer:
+        """Nearest hit per ray: t, mesh, prim, u, v, normal (see ``query`` for the options)."""
+        return self.query(scene, "closest", origins, directions, tmin, tmax, **options)
+
+    def occluded(self, scene: str, origins: Any, directions: Any = None, tmin: Any = None,
+                 tmax: Any = None, **options: Any) -> Answer:
+        """Whether each ray hits anything in [tmin, tmax]: ``answer.occluded``."""
+        return self.query(scene, "occluded", origins, directions, tmin, tmax, **options)
+
+    def query(self, scene: str, query: str, origins: Any, directions: Any = None,
+              tmin: Any = None, tmax: Any = None, *, fields: Any = None, strategy: str | None = None,
+              stats: bool = False, answer: str = "npz") -> Answer:
+        """A query on a stored scene. ``origins`` may be a whole (N, 6|8) ray array when
+        ``directions`` is None. ``answer`` is npz, npy or json (the format the server writes)."""
+        rays = rays_array(origins, directions, tmin, tmax)
+        return self._answer(self._binary("POST", f"/v1/scenes/{scene}/{query}", {"rays": rays}, "npy",
+                                         params=_params(fields, strategy, stats),
+                                         headers={"Accept": wire.MEDIA_TYPES[answer]}))
+
+    def trace(self, vertices: Any, faces: Any, origins: Any, directions: Any, tmin: Any = None,
+              tmax: Any = None, *, query: str = "closest", fields: Any = None,
+              strategy: str | None = None, stats: bool = False, answer: str = "npz") -> Answer:
+        """A one-shot query on a mesh sent with the rays (nothing is stored)."""
+        arrays = {"vertices": np.asarray(vertices, dtype="<f4"), "faces": np.asarray(faces, dtype="<i4"),
+                  "origins": np.asarray(origins, dtype="<f4"), "directions": np.asarray(directions, dtype="<f4")}
+        if tmin is not None:
+            arrays["tmin"] = np.asarray(tmin, dtype="<f4")
+        if tmax is not None:
+            arrays["tmax"] = np.asarray(tmax, dtype="<f4")
+        params = {"query": query, **_params(fields, strategy, stats)}
+        return self._answer(self._binary("POST", "/v1/trace", arrays, params=params,
+                                         headers={"Accept": wire.MEDIA_TYPES[answer]}))
+
+    @staticmethod
+    def _answer(response: httpx.Response) -> Answer:
+        return Answer(read_answer(response), int(response.headers["x-scene-version"]),
+                      parse_server_timing(response.headers.get("server-timing", "")),
+                      json.loads(response.headers["x-trace-stats"])
+                      if "x-trace-stats" in response.headers else None)
+
+
+def _slices(parts: list, size: int = 1 << 20) -> list[memoryview]:
+    """The body as 1 MiB views: sent with Content-Length and no join into one big copy."""
+    views = [memoryview(part).cast("B") for part in parts]
+    return [view[i:i + size] for view in views for i in range(0, len(view), size)] or [memoryview(b"")]
+
+
+def _params(fields: Any, strategy: str | None, stats: bool) -> dict[str, str]:
+    params = {}
+    if fields is not None:
+        params["fields"] = fields if isinstance(fields, str) else ",".join(fields)
+    if strategy is not None:
+        params["strategy"] = strategy
+    if stats:
+        params["stats"] = "true"
+    return params
+
+
+def read_answer(response: httpx.Response) -> dict[str, np.ndarray]:
+    """The arrays of an answer body, whatever its format (npz, npy, JSON)."""
+    media = response.headers.get("content-type", "").split(";")[0].strip()
+    if media == wire.NPZ:
+        return wire.read_npz(response.content)
+    if media == wire.NPY:
+        array = wire.read_npy(response.content)
+        if array.dtype.names:
+            return {name: array[name] for name in array.dtype.names}
+        # one array: the single ?fields= name, or occluded (closest with all fields is structured)
+        return {response.request.url.params.get("fields") or "occluded": array}
+    document = response.json()
+    return {key: _from_json(key, value) for key, value in document.items()}
+
+
+def _from_json(key: str, value: Any) -> np.ndarray:
+    dtype = ANSWER_DTYPES.get(key, np.float64)
+    if np.dtype(dtype).kind == "f":
+        value = wire.nulls_to_inf(value)
+    array = np.asarray(value, dtype=dtype)
+    if key == "normal" and array.size == 0:
+        array = array.reshape(0, 3)
+    return array

@@ -1,0 +1,64 @@
+"""Request plumbing shared by the routes: app state, the bearer token, bounded body reading."""
+from __future__ import annotations
+
+import secrets
+from dataclasses import dataclass, field
+from typing import Any
+
+from fastapi import Request
+
+from .errors import TooLarge, Unauthorized
+from .metrics import Metrics
+from .settings import Settings
+from .store import Store
+
+
+@dataclass
+class Readiness:
+    """Engine warm-up state: ``starting`` until ``dacrt.warmup()`` returns, then ``ok`` (or ``error``)."""
+
+    status: str = "starting"
+    seconds: float | None = None
+    error: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def settings_of(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+def store_of(request: Request) -> Store:
+    return request.app.state.store
+
+
+def metrics_of(request: Request) -> Metrics:
+    return request.app.state.metrics
+
+
+def require_token(request: Request) -> None:
+    """Dependency of every /v1 route: 401 unless the configured bearer token is presented."""
+    token = settings_of(request).token
+    if token is None:
+        return
+    scheme, _, presented = request.headers.get("authorization", "").partition(" ")
+    if scheme.lower() != "bearer" or not presented.strip():
+        raise Unauthorized("this server needs the header 'Authorization: Bearer <token>' on every "
+                           "/v1 request (the token is the server's DACRT_TOKEN)")
+    if not secrets.compare_digest(presented.strip().encode(), token.get_secret_value().encode()):
+        raise Unauthorized("the bearer token is wrong; use the server's DACRT_TOKEN")
+
+
+async def read_body(request: Request) -> bytes:
+    """The whole body, refused (413) as soon as it is known to exceed DACRT_MAX_BODY_BYTES."""
+    limit = settings_of(request).max_body_bytes
+    declared = request.headers.get("content-length")
+    if declared is not None and declared.isdigit() and int(declared) > limit:
+        raise TooLarge(f"body of {int(declared)} bytes is over the limit of {limit} bytes "
+                       "(DACRT_MAX_BODY_BYTES)")
+    chunks, size = [], 0
+    async for chunk in request.stream():
+        size += len(chunk)
+        if size > limit:
+            raise TooLarge(f"body is over the limit of {limit} bytes (DACRT_MAX_BODY_BYTES)")
+        chunks.append(chunk)
+    return b"".join(chunks)  # one chunk: no copy

@@ -1,0 +1,106 @@
+"""Domain errors, and the one table that maps them to HTTP statuses.
+
+The rest of the service raises these (never ``HTTPException``); ``install`` turns every error,
+including FastAPI's own, into ``{"detail": "<message a person can act on>"}``. This module
+imports nothing from FastAPI at import time, so ``wire`` and ``client`` stay light.
+"""
+from __future__ import annotations
+
+
+class ServiceError(Exception):
+    """A request the service refuses; ``detail`` is the message the client reads."""
+
+    def __init__(self, detail: str) -> None:
+        super().__init__(detail)
+        self.detail = detail
+
+
+class BadBody(ServiceError):
+    """The body cannot be parsed: not npy/npz/JSON/mesh file, truncated, wrong keys."""
+
+
+class Unauthorized(ServiceError):
+    """A token is configured and the request lacks it or has a wrong one."""
+
+
+class NotFound(ServiceError):
+    """Unknown scene or mesh."""
+
+
+class NotAcceptable(ServiceError):
+    """``Accept`` names no answer format the service can write."""
+
+
+class Conflict(ServiceError):
+    """The request contradicts the scene's state (vertex count of a vertices update)."""
+
+
+class TooLarge(ServiceError):
+    """Body, ray count or scene size over a configured limit; the message names the limit."""
+
+
+class UnsupportedMediaType(ServiceError):
+    """``Content-Type`` (or ``?format=``) is not one the endpoint reads."""
+
+
+class Invalid(ServiceError):
+    """A well-formed body or parameter with invalid values: shapes, dtypes, non-finite, indices."""
+
+
+class NotReady(ServiceError):
+    """The engine is not compiled yet."""
+
+
+STATUS: dict[type[ServiceError], int] = {
+    BadBody: 400,
+    Unauthorized: 401,
+    NotFound: 404,
+    NotAcceptable: 406,
+    Conflict: 409,
+    TooLarge: 413,
+    UnsupportedMediaType: 415,
+    Invalid: 422,
+    NotReady: 503,
+}
+
+
+def status_of(error: ServiceError) -> int:
+    """HTTP status for a domain error (500 for a ServiceError subclass missing from STATUS)."""
+    for cls in type(error).__mro__:
+        if cls in STATUS:
+            return STATUS[cls]
+    return 500
+
+
+def install(app) -> None:
+    """Register the exception handlers that give every error the ``{"detail": str}`` shape."""
+    from fastapi.exceptions import RequestValidationError
+    from fastapi.responses import JSONResponse
+    from starlette.exceptions import HTTPException
+
+    async def on_service_error(request, exc: ServiceError):
+        headers = {"WWW-Authenticate": "Bearer"} if isinstance(exc, Unauthorized) else None
+        return JSONResponse({"detail": exc.detail}, status_code=status_of(exc), headers=headers)
+
+    async def on_http_error(request, exc: HTTPException):
+        return JSONResponse({"detail": str(exc.detail)}, status_code=exc.status_code,
+                            headers=getattr(exc, "headers", None))
+
+    async def on_validation_error(request, exc: RequestValidationError):
+        return JSONResponse({"detail": describe_validation(exc.errors())}, status_code=422)
+
+    app.add_exception_handler(ServiceError, on_service_error)
+    app.add_exception_handler(HTTPException, on_http_error)
+    app.add_exception_handler(RequestValidationError, on_validation_error)
+
+
+def describe_validation(errors) -> str:
+    """One line per FastAPI validation error, e.g. ``query parameter 'stats': Input should be ...``."""
+    parts = []
+    for err in errors:
+        loc = [str(x) for x in err.get("loc", ())]
+        where = {"query": "query parameter", "path": "path parameter", "header": "header"}.get(
+            loc[0] if loc else "", loc[0] if loc else "request")
+        name = ".".join(loc[1:])
+        parts.append(f"{where} {name!r}: {err.get('msg', 'invalid')}" if name else f"{where}: {err.get('msg')}")
+    return "; ".join(parts) or "invalid request"

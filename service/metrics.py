@@ -1,0 +1,60 @@
+"""Prometheus metrics: requests, rays traced, trace seconds, scene memory.
+
+Each app gets its own registry, so several apps (tests) can live in one process.
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+
+_SECONDS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60)
+
+
+class Metrics:
+    """The service's metrics in their own registry (served by GET /metrics)."""
+
+    def __init__(self, scene_bytes: Callable[[], float], scene_count: Callable[[], float]) -> None:
+        self.registry = CollectorRegistry()
+        self.requests = Counter("dacrt_requests", "HTTP requests by method, route and status",
+                                ("method", "route", "status"), registry=self.registry)
+        self.request_seconds = Histogram("dacrt_request_seconds", "HTTP request time by route",
+                                         ("route",), buckets=_SECONDS, registry=self.registry)
+        self.rays = Counter("dacrt_rays_traced", "Rays traced, by query", ("query",),
+                            registry=self.registry)
+        self.trace_seconds = Histogram("dacrt_trace_seconds", "Engine time per query batch",
+                                       ("query",), buckets=_SECONDS, registry=self.registry)
+        Gauge("dacrt_scene_memory_bytes", "Bytes of vertices and faces held over all scenes",
+              registry=self.registry).set_function(scene_bytes)
+        Gauge("dacrt_scenes", "Scenes held", registry=self.registry).set_function(scene_count)
+
+    def traced(self, query: str, n_rays: int, seconds: float) -> None:
+        self.rays.labels(query).inc(n_rays)
+        self.trace_seconds.labels(query).observe(seconds)
+
+
+class MetricsMiddleware:
+    """Pure ASGI middleware counting every HTTP request by its route template (not its path)."""
+
+    def __init__(self, app, metrics: Metrics) -> None:
+        self.app, self.metrics = app, metrics
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        status = 500
+        start = time.perf_counter()
+
+        async def send_and_note(message):
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_and_note)
+        finally:
+            route = getattr(scope.get("route"), "path", "unmatched")
+            self.metrics.requests.labels(scope["method"], route, str(status)).inc()
+            self.metrics.request_seconds.labels(route).observe(time.perf_counter() - start)

@@ -1,0 +1,51 @@
+"""Operations: /health, /metrics (no token), /v1/capabilities."""
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, Request, Response
+from fastapi.responses import JSONResponse
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+
+from .. import __version__, tracing, wire
+from ..deps import metrics_of, require_token, settings_of, store_of
+
+router = APIRouter(tags=["operations"])
+
+
+@router.get("/health")
+async def health(request: Request) -> JSONResponse:
+    """200 ``{"status": "ok", ...}`` once the engine is compiled; 503 ``starting``/``error`` before."""
+    ready = request.app.state.readiness
+    body = {"status": ready.status, "service": __version__, "scenes": len(store_of(request).snapshots())}
+    if ready.seconds is not None:
+        body["warmup_seconds"] = round(ready.seconds, 3)
+    if ready.error:
+        body["detail"] = ready.error
+    return JSONResponse(body, status_code=200 if ready.status == "ok" else 503)
+
+
+@router.get("/metrics")
+async def metrics(request: Request) -> Response:
+    return Response(generate_latest(metrics_of(request).registry), media_type=CONTENT_TYPE_LATEST)
+
+
+@router.get("/v1/capabilities", dependencies=[Depends(require_token)])
+async def capabilities(request: Request) -> dict:
+    """Formats, fields, strategies and the limits in force."""
+    def media(formats):
+        return [wire.MEDIA_TYPES[f] for f in formats]
+
+    settings = settings_of(request)
+    return {
+        "api": "v1",
+        "queries": [q.value for q in tracing.Query] + ["trace"],
+        "fields": {q.value: list(names) for q, names in tracing.FIELDS.items()},
+        "strategies": list(tracing.strategies()),
+        "default_strategy": tracing.strategies()[0],
+        "cull": list(tracing.CULL_MODES),
+        "formats": {"rays": media(wire.RAY_FORMATS), "meshes": media(wire.MESH_FORMATS),
+                    "vertices": media(wire.VERTEX_FORMATS), "frame": media(wire.FRAME_FORMATS),
+                    "trace": media(wire.TRACE_FORMATS), "answers": media(wire.ANSWER_FORMATS)},
+        "limits": settings.limits(),
+        "auth": settings.token is not None,
+        "threads": settings.threads,
+    }

@@ -1,0 +1,78 @@
+"""Ray queries: closest and occluded on a stored scene, and the one-shot /trace."""
+from __future__ import annotations
+
+import json
+
+from anyio.to_thread import run_sync
+from fastapi import APIRouter, Depends, Request
+
+from .. import tracing, wire
+from ..deps import metrics_of, read_body, require_token, settings_of, store_of
+from ..responses import BuffersResponse
+from ..store import check_name
+from ..timing import ServerTiming
+from ..tracing import Query
+
+router = APIRouter(prefix="/v1", tags=["queries"], dependencies=[Depends(require_token)])
+
+
+@router.post("/scenes/{scene}/closest")
+async def closest(scene: str, request: Request, fields: str | None = None,
+                  strategy: str | None = None, stats: bool = False, cull: str = "none",
+                  format: str | None = None):
+    """The nearest hit of each ray."""
+    options = tracing.make_options(Query.CLOSEST, fields, strategy, stats, settings_of(request).threads, cull)
+    return await answer(request, options, scene, format)
+
+
+@router.post("/scenes/{scene}/occluded")
+async def occluded(scene: str, request: Request, fields: str | None = None,
+                   strategy: str | None = None, stats: bool = False, cull: str = "none",
+                   format: str | None = None):
+    """Whether each ray hits anything in [tmin, tmax]."""
+    options = tracing.make_options(Query.OCCLUDED, fields, strategy, stats, settings_of(request).threads, cull)
+    return await answer(request, options, scene, format)
+
+
+@router.post("/trace")
+async def trace(request: Request, query: str = "closest", fields: str | None = None,
+                strategy: str | None = None, stats: bool = False, cull: str = "none",
+                format: str | None = None):
+    """A stateless one-shot: the mesh comes with the rays (answers carry X-Scene-Version: 0)."""
+    options = tracing.make_options(query, fields, strategy, stats, settings_of(request).threads, cull)
+    return await answer(request, options, None, format)
+
+
+async def answer(request: Request, options: tracing.Options, scene: str | None,
+                 format: str | None) -> BuffersResponse:
+    """Read, decode, trace and encode one batch; the last three off the event loop."""
+    settings, store, timing = settings_of(request), store_of(request), ServerTiming()
+    if scene is not None:
+        store.snapshot(check_name("scene", scene))  # 404 before reading the body
+    with timing("receive"):
+        body = await read_body(request)
+    fmt = wire.resolve_format(request.headers.get("content-type"), format,
+                              wire.RAY_FORMATS if scene is not None else wire.TRACE_FORMATS, body,
+                              f"POST {request.url.path}")
+    answer_format = wire.negotiate(request.headers.get("accept"), fmt)
+    limits = {"max_rays": settings.max_rays_per_request, "max_bytes": settings.max_body_bytes}
+
+    def work():
+        with timing("decode"):
+            if scene is None:
+                mesh, rays = wire.decode_trace(body, fmt, **limits)
+            else:
+                rays = wire.decode_rays(body, fmt, **limits)
+        with timing("trace"):
+            result = (tracing.trace(store.snapshot(scene), rays, options) if scene is not None
+                      else tracing.trace_once(mesh, rays, options))
+        with timing("encode"):
+            content, media = wire.encode_answer(result.arrays, answer_format)
+        return result, len(rays), content, media
+
+    result, n_rays, content, media = await run_sync(work)
+    metrics_of(request).traced(options.query.value, n_rays, result.seconds)
+    headers = {"X-Scene-Version": str(result.version), "Server-Timing": timing.header()}
+    if result.stats is not None:
+        headers["X-Trace-Stats"] = json.dumps(result.stats, separators=(",", ":"))
+    return BuffersResponse(content, media, headers)

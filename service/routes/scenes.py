@@ -1,0 +1,84 @@
+"""Scenes and meshes: upload, deform, frame, inspect, delete."""
+from __future__ import annotations
+
+from functools import partial
+
+from anyio.to_thread import run_sync
+from fastapi import APIRouter, Depends, Request, Response
+
+from .. import wire
+from ..deps import read_body, require_token, settings_of, store_of
+from ..errors import Invalid
+from ..store import check_name
+
+router = APIRouter(prefix="/v1/scenes", tags=["scenes"], dependencies=[Depends(require_token)])
+
+
+@router.put("/{scene}/meshes/{mesh}")
+async def put_mesh(scene: str, mesh: str, request: Request, response: Response,
+                   format: str | None = None, mask: str | None = None) -> dict:
+    """Add or replace a mesh (201 new / 200 replaced); creates the scene if needed."""
+    check_name("scene", scene), check_name("mesh", mesh)
+    if mask is not None:
+        raise Invalid("?mask= (visibility masks) is not supported by this server yet")
+    body = await read_body(request)
+    fmt = wire.resolve_format(request.headers.get("content-type"), format, wire.MESH_FORMATS,
+                              body, "PUT /v1/scenes/{scene}/meshes/{mesh}")
+    arrays = await run_sync(partial(wire.decode_mesh, body, fmt, settings_of(request).max_body_bytes))
+    stored, created = await run_sync(store_of(request).put_mesh, scene, mesh, arrays)
+    response.status_code = 201 if created else 200
+    return stored.info(scene)
+
+
+@router.put("/{scene}/meshes/{mesh}/vertices")
+async def put_vertices(scene: str, mesh: str, request: Request, format: str | None = None) -> dict:
+    """New vertex positions for a mesh, same count (409 otherwise); faces are kept."""
+    check_name("scene", scene), check_name("mesh", mesh)
+    store_of(request).snapshot(scene).mesh(mesh)  # 404 before reading the body
+    body = await read_body(request)
+    fmt = wire.resolve_format(request.headers.get("content-type"), format, wire.VERTEX_FORMATS,
+                              body, "PUT /v1/scenes/{scene}/meshes/{mesh}/vertices")
+    vertices = await run_sync(partial(wire.decode_vertices, body, fmt, settings_of(request).max_body_bytes))
+    stored = await run_sync(store_of(request).update_vertices, scene, mesh, vertices)
+    return stored.info(scene)
+
+
+@router.post("/{scene}/frame")
+async def post_frame(scene: str, request: Request, format: str | None = None) -> dict:
+    """Change several meshes in one version, atomically."""
+    check_name("scene", scene)
+    body = await read_body(request)
+    fmt = wire.resolve_format(request.headers.get("content-type"), format, wire.FRAME_FORMATS,
+                              body, "POST /v1/scenes/{scene}/frame")
+    frame = await run_sync(partial(wire.decode_frame, body, fmt, settings_of(request).max_body_bytes))
+    snapshot = await run_sync(store_of(request).apply_frame, scene, frame)
+    return snapshot.info()
+
+
+@router.get("")
+async def list_scenes(request: Request) -> dict:
+    return {"scenes": [s.info() for s in store_of(request).snapshots()]}
+
+
+@router.get("/{scene}")
+async def get_scene(scene: str, request: Request) -> dict:
+    return store_of(request).snapshot(check_name("scene", scene)).info()
+
+
+@router.get("/{scene}/meshes/{mesh}")
+async def get_mesh(scene: str, mesh: str, request: Request) -> dict:
+    check_name("scene", scene), check_name("mesh", mesh)
+    return store_of(request).snapshot(scene).mesh(mesh).info(scene)
+
+
+@router.delete("/{scene}", status_code=204)
+async def delete_scene(scene: str, request: Request) -> Response:
+    store_of(request).delete_scene(check_name("scene", scene))
+    return Response(status_code=204)
+
+
+@router.delete("/{scene}/meshes/{mesh}", status_code=204)
+async def delete_mesh(scene: str, mesh: str, request: Request) -> Response:
+    check_name("scene", scene), check_name("mesh", mesh)
+    store_of(request).delete_mesh(scene, mesh)
+    return Response(status_code=204)

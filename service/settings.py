@@ -1,0 +1,70 @@
+"""Settings, read from the environment with the prefix ``DACRT_`` (e.g. ``DACRT_TOKEN``).
+
+Byte sizes accept plain integers or a unit: ``64MiB``, ``4GiB``, ``500MB``, ``10k``.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import BeforeValidator, Field, SecretStr, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+KiB, MiB, GiB = 2**10, 2**20, 2**30
+_UNITS = {"": 1, "b": 1, "k": KiB, "kb": 1000, "kib": KiB, "m": MiB, "mb": 1000**2, "mib": MiB,
+          "g": GiB, "gb": 1000**3, "gib": GiB, "t": 2**40, "tb": 1000**4, "tib": 2**40}
+
+
+def parse_size(value: object) -> object:
+    """``"512MiB"`` -> 536870912; integers and anything else pass through to pydantic."""
+    if isinstance(value, str):
+        match = re.fullmatch(r"\s*([0-9_]+)\s*([A-Za-z]*)\s*", value)
+        if match and match.group(2).lower() in _UNITS:
+            return int(match.group(1)) * _UNITS[match.group(2).lower()]
+    return value
+
+
+ByteSize = Annotated[int, BeforeValidator(parse_size), Field(gt=0)]
+Count = Annotated[int, BeforeValidator(parse_size), Field(gt=0)]
+
+#: Where the demo scene is looked for when ``demo_scene`` is not set: the working directory,
+#: then the source checkout this package was imported from.
+DEMO_CANDIDATES = (Path("scenes") / "teapot.npz",
+                   Path(__file__).resolve().parent.parent / "scenes" / "teapot.npz")
+
+
+class Settings(BaseSettings):
+    """Everything an operator can set. Defaults suit one machine serving a few large scenes."""
+
+    model_config = SettingsConfigDict(env_prefix="DACRT_", frozen=True, extra="ignore")
+
+    host: str = "127.0.0.1"                       #: bind address of ``python -m service``
+    port: int = Field(8000, ge=0, le=65535)       #: port of ``python -m service``
+    token: SecretStr | None = None                #: when set, every /v1 request needs ``Authorization: Bearer <token>``
+    max_body_bytes: ByteSize = 512 * MiB          #: largest request body (also the largest decompressed .npz)
+    max_rays_per_request: Count = 16 * MiB        #: most rays in one query
+    max_triangles_per_scene: Count = 32 * MiB     #: most triangles in one scene
+    max_scene_bytes: ByteSize = 4 * GiB           #: total bytes of vertices and faces over all scenes
+    threads: int | None = Field(None, gt=0)       #: engine threads per query (None: every core)
+    demo_scene: Path | None = None                #: .npz (vertices, faces) for the demo scene; None: scenes/teapot.npz
+    demo_name: str = "demo"                       #: name of the demo scene
+    load_demo: bool = False                       #: load the demo scene at start (``python -m service`` turns it on)
+
+    @field_validator("token", mode="before")
+    @classmethod
+    def _empty_token_is_none(cls, value: object) -> object:
+        return None if value in ("", None) else value
+
+    def demo_path(self) -> Path | None:
+        """The demo scene file to load, or None if no candidate exists."""
+        if self.demo_scene is not None:
+            return self.demo_scene
+        return next((p for p in DEMO_CANDIDATES if p.is_file()), None)
+
+    def limits(self) -> dict[str, int]:
+        """The limits in force, as shown by /v1/capabilities."""
+        return {"max_body_bytes": self.max_body_bytes,
+                "max_rays_per_request": self.max_rays_per_request,
+                "max_triangles_per_scene": self.max_triangles_per_scene,
+                "max_scene_bytes": self.max_scene_bytes}

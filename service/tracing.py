@@ -1,0 +1,161 @@
+"""Queries: what can be asked of a scene, and how the dacrt engine answers it.
+
+The only module that calls the engine. It builds one ``dacrt.Scene`` per scene version (cached
+in the snapshot), maps the engine's mesh positions to the meshes' stable indices, and turns the
+engine's ``ValueError`` (bad rays, named by the engine) into a 422.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from enum import Enum
+from typing import Any, Iterable
+
+import numpy as np
+
+import dacrt
+
+from .errors import Invalid
+from .store import Snapshot
+from .wire import MeshArrays, Rays
+
+
+class Query(str, Enum):
+    """Kinds of query. Later: HITS (``/hits``) and COUNT (``/count``) join here."""
+
+    CLOSEST = "closest"
+    OCCLUDED = "occluded"
+
+
+#: The answer keys of each query, in answer order; ``?fields=`` picks a subset.
+FIELDS: dict[Query, tuple[str, ...]] = {
+    Query.CLOSEST: ("t", "mesh", "prim", "u", "v", "normal"),
+    Query.OCCLUDED: ("occluded",),
+}
+
+
+def strategies() -> tuple[str, ...]:
+    """The engine's partitioning strategies; the first is the default."""
+    return tuple(dacrt.STRATEGIES)
+
+
+#: Face culling modes answered so far (API.md also has back and front).
+CULL_MODES = ("none",)
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of one query, for the whole batch. Later: ``max_hits``."""
+
+    query: Query
+    fields: tuple[str, ...]
+    strategy: str
+    stats: bool = False
+    threads: int | None = None
+    cull: str = "none"
+
+
+def make_options(query: Query | str, fields: str | None = None, strategy: str | None = None,
+                 stats: bool = False, threads: int | None = None, cull: str = "none") -> Options:
+    """Options from query-string values; 422 naming the choices for an unknown value."""
+    try:
+        query = Query(query)
+    except ValueError:
+        raise Invalid(f"unknown query {query!r}; choose from "
+                      f"{', '.join(q.value for q in Query)}") from None
+    known = FIELDS[query]
+    chosen = known
+    if fields is not None:
+        names = [name.strip() for name in fields.split(",") if name.strip()]
+        unknown = [name for name in names if name not in known]
+        if unknown or not names:
+            raise Invalid(f"?fields={fields} names {'unknown fields ' + ', '.join(map(repr, unknown)) if unknown else 'no field'} "
+                          f"for {query.value}; choose from {', '.join(known)}")
+        chosen = tuple(name for name in known if name in names)
+    if strategy is None:
+        strategy = strategies()[0]
+    elif strategy not in strategies():
+        raise Invalid(f"unknown strategy {strategy!r}; choose from {', '.join(strategies())}")
+    if cull not in CULL_MODES:
+        raise Invalid(f"cull={cull} is not supported by this server yet; it answers "
+                      f"cull={' or '.join(CULL_MODES)} only")
+    return Options(query, chosen, strategy, stats, threads, cull)
+
+
+@dataclass(frozen=True)
+class EngineScene:
+    """A built ``dacrt.Scene`` and, per engine mesh position, the stable mesh index."""
+
+    scene: Any
+    mesh_index: np.ndarray | None  #: (n_meshes + 1,) int32 ending in -1, or None if positions are indices
+
+    def map_mesh(self, positions: np.ndarray) -> np.ndarray:
+        """Engine mesh positions (-1 on a miss) -> stable indices (-1 on a miss)."""
+        if self.mesh_index is None:
+            return positions
+        return self.mesh_index[positions]  # a miss (-1) picks the trailing -1
+
+
+def build_engine_scene(meshes: Iterable[tuple[int, np.ndarray, np.ndarray]]) -> EngineScene:
+    """The engine scene of (index, vertices, faces) triples; meshes without triangles are left out."""
+    kept = [(index, vertices, faces) for index, vertices, faces in meshes if len(faces)]
+    indices = np.array([index for index, _, _ in kept] + [-1], dtype=np.int32)
+    try:
+        scene = dacrt.Scene([(vertices, faces) for _, vertices, faces in kept])
+    except ValueError as exc:
+        raise Invalid(str(exc)) from None
+    identity = np.array_equal(indices[:-1], np.arange(len(kept)))
+    return EngineScene(scene, None if identity else indices)
+
+
+def _snapshot_engine(snapshot: Snapshot) -> EngineScene:
+    return build_engine_scene((m.index, m.vertices, m.faces) for m in snapshot.meshes.values())
+
+
+@dataclass(frozen=True)
+class Answer:
+    """The arrays of an answer, the scene version it was computed on, and what it cost."""
+
+    arrays: dict[str, np.ndarray]
+    version: int
+    stats: dict[str, Any] | None
+    seconds: float  #: engine build (if not cached) + trace
+
+
+def trace(snapshot: Snapshot, rays: Rays, options: Options) -> Answer:
+    """Answer a query on one scene version (the engine scene is built once per version)."""
+    start = time.perf_counter()
+    engine = snapshot.cached("dacrt", _snapshot_engine)
+    return _run(engine, rays, options, snapshot.version, start)
+
+
+def trace_once(mesh: MeshArrays, rays: Rays, options: Options) -> Answer:
+    """Answer a query on a mesh sent with the rays (mesh index 0; version 0: no stored scene)."""
+    start = time.perf_counter()
+    engine = build_engine_scene([(0, mesh.vertices, mesh.faces)])
+    return _run(engine, rays, options, 0, start)
+
+
+def _run(engine: EngineScene, rays: Rays, options: Options, version: int, start: float) -> Answer:
+    kwargs = {"strategy": options.strategy, "threads": options.threads, "stats": options.stats}
+    try:
+        if options.query is Query.CLOSEST:
+            hits = engine.scene.closest(rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs)
+            stats = hits.stats
+            arrays = {name: getattr(hits, name) for name in options.fields}
+            if "mesh" in arrays:
+                arrays["mesh"] = engine.map_mesh(arrays["mesh"])
+        else:
+            result = engine.scene.occluded(rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs)
+            occluded, stats = result if options.stats else (result, None)
+            arrays = {"occluded": occluded}
+    except ValueError as exc:  # the engine names the first bad ray and how many there are
+        raise Invalid(str(exc)) from None
+    if stats is not None:
+        stats = {**stats, "strategy": options.strategy}
+    return Answer(arrays, version, stats, time.perf_counter() - start)
+
+
+def warmup() -> float:
+    """Compile every engine kernel; answers the seconds taken."""
+    return dacrt.warmup()

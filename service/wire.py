@@ -1,0 +1,618 @@
+"""The wire format: how request bodies become arrays, and answers become bodies.
+
+This docstring is the spec of every body the service reads and writes; API.md is the contract it
+implements. Everything here is plain NumPy (trimesh is imported only to read mesh files), so the
+client uses the same code to write requests and read answers.
+
+Body formats
+------------
+The format of a body is chosen by ``?format=`` if given, else by ``Content-Type``:
+
+=========  ==============================================  ==========================================
+format     Content-Type                                    read with
+=========  ==============================================  ==========================================
+``npy``    ``application/x-npy`` (or ``application/npy``)  a header parse, then ``np.frombuffer``
+``npz``    ``application/x-npz`` (``application/npz``,     ``zipfile``; stored members are viewed in
+           ``application/zip``)                            place, deflated ones decompressed once
+``json``   ``application/json``                            ``json.loads``
+``obj``    ``model/obj``                                   trimesh
+``ply``    ``application/ply`` (``model/ply``)             trimesh (binary or ASCII)
+``stl``    ``model/stl`` (``application/sla``)             trimesh (binary or ASCII)
+``glb``    ``model/gltf-binary``                           trimesh
+``off``    ``model/off`` (``application/off``)             trimesh
+=========  ==============================================  ==========================================
+
+With no ``Content-Type`` or ``application/octet-stream`` the format is sniffed from the first bytes
+(``\\x93NUMPY`` npy, ``PK`` npz, ``glTF`` glb, ``ply`` ply, ``OFF`` off, ``{`` json); anything else is
+415, as is a known format the endpoint does not read.
+
+Binary arrays must be little-endian with exactly the dtype below; a wrong dtype or shape is 422
+with the fix in the message (the binary path never converts behind the caller's back: that would
+be a hidden copy). ``allow_pickle`` is never on: an object array is 422 and is never unpickled.
+A ``.npy`` body whose data is shorter or longer than its header says is 400. An ``.npz`` whose
+members add up to more than ``max_bytes`` once decompressed is 413.
+
+Rays (``decode_rays``; formats npy, npz, json)
+    npy  float32 (N, 6) ``[ox, oy, oz, dx, dy, dz]`` or (N, 8) ``[..., tmin, tmax]``.
+    npz  ``origins`` float32 (N, 3), ``directions`` float32 (N, 3); optional ``tmin``, ``tmax``
+         float32 of shape (N,) or () (one value for the batch). No other keys.
+    json ``{"origins": [[x, y, z], ...], "directions": [...], "tmin": number | [..] | null,
+         "tmax": number | [..] | null}``; a null field means the default, a null element +inf.
+    Defaults: tmin 0, tmax +inf. More than ``max_rays`` rays is 413. Values (finite, non-zero
+    directions, tmin <= tmax) are checked by the engine, which names the first bad ray.
+
+Meshes (``decode_mesh``; formats npz, json, obj, ply, stl, glb, off)
+    npz  ``vertices`` float32 (V, 3) and ``faces`` int32 or uint32 (F, 3). No other keys.
+    json ``{"vertices": [[x, y, z], ...], "faces": [[i, j, k], ...]}`` (faces must be integers).
+    A mesh file is read with ``process=False`` (vertices and winding as in the file); all its
+    objects are merged into one mesh with their scene transforms applied; a file with no
+    triangles is 400. Every vertex must be finite and every face index in ``[0, V)``: otherwise
+    422 naming the first bad row and how many there are.
+
+Vertices (``decode_vertices``; formats npy, npz, json)
+    npy float32 (V, 3); npz key ``vertices``; json ``{"vertices": [[x, y, z], ...]}``.
+
+Frames (``decode_frame``; formats npz, json)
+    Keys ``MESH.vertices`` and optionally ``MESH.faces`` for any number of meshes (a mesh name may
+    itself contain dots: the suffix after the last dot is the array). JSON uses the same flat keys.
+
+One-shot trace (``decode_trace``; formats npz, json)
+    The keys of a mesh (``vertices``, ``faces``) and of rays (``origins``, ``directions``,
+    ``tmin``, ``tmax``) in one body.
+
+Answers (``negotiate`` and ``encode_answer``)
+    ``Accept`` picks ``application/x-npz``, ``application/x-npy`` or ``application/json`` (q-values
+    honoured); absent, ``*/*`` or ``application/*`` gives JSON for a JSON request and npz for any
+    other; naming none of these is 406.
+    npz  one uncompressed member per field (``t``, ``mesh``, ...); the body is sent as zip headers
+         around the answer arrays' own memory, never joined into one copy.
+    npy  a single field is a plain array; several fields are one structured array with a named
+         field each (``a["t"]``, ``a["normal"]`` of shape (N, 3)).
+    json ``{"t": [...], ...}``; float32 values in their shortest round-trip form, so
+         ``np.float32(json_value)`` gives back the binary answer bit for bit; inf (and nan) are null.
+"""
+from __future__ import annotations
+
+import io
+import json
+import struct
+import zipfile
+import zlib
+from dataclasses import dataclass
+from typing import Any, Iterable, Mapping, Union
+
+import numpy as np
+
+from .errors import BadBody, Invalid, NotAcceptable, TooLarge, UnsupportedMediaType
+
+try:  # ISA-L's CRC-32 is about 10x zlib's; the .npz answer's CRCs are most of its encode time
+    from isal.isal_zlib import crc32
+except ImportError:  # pragma: no cover - isal is a dependency, but the wire format works without it
+    from zlib import crc32
+
+NPY, NPZ, JSON = "application/x-npy", "application/x-npz", "application/json"
+Buffer = Union[bytes, memoryview]  #: a part of a body
+
+#: Content-Type (lower case, no parameters) -> format.
+CONTENT_TYPES: dict[str, str] = {
+    NPY: "npy", "application/npy": "npy",
+    NPZ: "npz", "application/npz": "npz", "application/zip": "npz",
+    JSON: "json",
+    "model/obj": "obj",
+    "application/ply": "ply", "model/ply": "ply",
+    "model/stl": "stl", "application/sla": "stl",
+    "model/gltf-binary": "glb",
+    "model/off": "off", "application/off": "off",
+}
+#: The preferred Content-Type of each format (for messages and for the client).
+MEDIA_TYPES: dict[str, str] = {"npy": NPY, "npz": NPZ, "json": JSON, "obj": "model/obj",
+                               "ply": "application/ply", "stl": "model/stl",
+                               "glb": "model/gltf-binary", "off": "model/off"}
+MESH_FILE_FORMATS = ("obj", "ply", "stl", "glb", "off")
+
+RAY_FORMATS = ("npy", "npz", "json")
+MESH_FORMATS = ("npz", "json", *MESH_FILE_FORMATS)
+VERTEX_FORMATS = ("npy", "npz", "json")
+FRAME_FORMATS = ("npz", "json")
+TRACE_FORMATS = ("npz", "json")
+ANSWER_FORMATS = ("npz", "npy", "json")
+
+_SNIFF = ((b"\x93NUMPY", "npy"), (b"PK\x03\x04", "npz"), (b"PK\x05\x06", "npz"),
+          (b"glTF", "glb"), (b"ply", "ply"), (b"OFF", "off"))
+_F32, _I32, _U32 = np.dtype("<f4"), np.dtype("<i4"), np.dtype("<u4")
+
+# Fixed parts of an uncompressed zip: local header, central directory entry, end record.
+_LOCAL = struct.Struct("<4s2B4HL2L2H")
+_CENTRAL = struct.Struct("<4s4B4HL2L5H2L")
+_END = struct.Struct("<4s4H2LH")
+_DOS_DATE = (1 << 5) | 1  # 1980-01-01, as zip tools write for "no date"
+
+
+@dataclass(frozen=True)
+class Rays:
+    """A ray batch as the engine takes it; arrays may be read-only strided views of the body."""
+
+    origins: np.ndarray                #: (N, 3) float32
+    directions: np.ndarray             #: (N, 3) float32
+    tmin: np.ndarray | float | None    #: (N,) float32, one value, or None (0)
+    tmax: np.ndarray | float | None    #: (N,) float32, one value, or None (+inf)
+
+    def __len__(self) -> int:
+        return len(self.origins)
+
+
+@dataclass(frozen=True)
+class MeshArrays:
+    """A checked triangle mesh: finite vertices, every face index in [0, V)."""
+
+    vertices: np.ndarray  #: (V, 3) float32
+    faces: np.ndarray     #: (F, 3) int32
+
+
+# --------------------------------------------------------------------------------------------
+# Which format a body is in
+
+
+def resolve_format(content_type: str | None, format: str | None, accepted: Iterable[str],
+                   body: bytes = b"", what: str = "this endpoint") -> str:
+    """The format of a body from ``?format=``, else ``Content-Type``, else its first bytes.
+
+    Raises UnsupportedMediaType (415) naming what ``what`` accepts.
+    """
+    accepted = tuple(accepted)
+    choices = ", ".join(f"{MEDIA_TYPES[f]} (?format={f})" for f in accepted)
+    if format:
+        fmt = format.strip().lower()
+        if fmt not in accepted:
+            raise UnsupportedMediaType(f"?format={format} is not read by {what}; use one of: {choices}")
+        return fmt
+    media = (content_type or "").split(";", 1)[0].strip().lower()
+    if media in ("", "application/octet-stream"):
+        head = bytes(body[:8]).lstrip()
+        fmt = next((f for magic, f in _SNIFF if head.startswith(magic)),
+                   "json" if head.startswith(b"{") else None)
+        if fmt is None or fmt not in accepted:
+            raise UnsupportedMediaType(
+                f"cannot tell the body's format from Content-Type {media or '(none)'!s}; "
+                f"set Content-Type to one of: {choices}")
+        return fmt
+    fmt = CONTENT_TYPES.get(media)
+    if fmt is None or fmt not in accepted:
+        raise UnsupportedMediaType(f"Content-Type {media} is not read by {what}; use one of: {choices}")
+    return fmt
+
+
+# --------------------------------------------------------------------------------------------
+# Reading .npy, .npz and JSON
+
+
+def read_npy(buf: bytes | memoryview, name: str = "body") -> np.ndarray:
+    """View a whole .npy held in ``buf`` as an array without copying its data (read-only)."""
+    view = memoryview(buf)
+    header = io.BytesIO(bytes(view[:65536 + 16]))
+    try:
+        version = np.lib.format.read_magic(header)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(header)
+        elif version in ((2, 0), (3, 0)):
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(header)
+        else:
+            raise ValueError(f"unsupported .npy version {version}")
+    except ValueError as exc:
+        raise BadBody(f"{name} is not a readable .npy: {exc}") from None
+    if dtype.hasobject:
+        raise Invalid(f"{name} holds Python objects ({dtype}); only numeric arrays are accepted "
+                      "(they are never unpickled)")
+    offset = header.tell()
+    count = int(np.prod(shape, dtype=np.int64))
+    expected = count * dtype.itemsize
+    if len(view) - offset != expected:
+        raise BadBody(f"{name} is {'truncated' if len(view) - offset < expected else 'longer than its header says'}: "
+                      f"its header promises {dtype} {shape} = {expected} bytes of data, "
+                      f"but {len(view) - offset} follow")
+    array = np.frombuffer(view, dtype=dtype, count=count, offset=offset)
+    return array.reshape(shape, order="F" if fortran else "C")
+
+
+def read_npz(buf: bytes, max_bytes: int | None = None) -> dict[str, np.ndarray]:
+    """All members of an .npz; stored members are views of ``buf``, deflated ones are read once."""
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(buf))
+        infos = archive.infolist()
+    except (zipfile.BadZipFile, ValueError, EOFError) as exc:
+        raise BadBody(f"body is not a readable .npz (zip): {exc}") from None
+    total = sum(info.file_size for info in infos)
+    if max_bytes is not None and total > max_bytes:
+        raise TooLarge(f".npz members add up to {total} bytes, over the limit of {max_bytes} bytes "
+                       "(DACRT_MAX_BODY_BYTES)")
+    view = memoryview(buf)
+    arrays: dict[str, np.ndarray] = {}
+    for info in infos:
+        key = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+        try:
+            if info.compress_type == zipfile.ZIP_STORED and not info.flag_bits & 0x1:
+                start = _member_data_offset(view, info)
+                member = view[start:start + info.file_size]
+                if len(member) != info.file_size:
+                    raise BadBody(f".npz member {key!r} is truncated")
+            else:
+                member = archive.read(info)
+        except (zipfile.BadZipFile, zlib.error, EOFError, struct.error, NotImplementedError) as exc:
+            raise BadBody(f".npz member {key!r} cannot be read: {exc}") from None
+        arrays[key] = read_npy(member, name=f".npz member {key!r}")
+    return arrays
+
+
+def _member_data_offset(view: memoryview, info: zipfile.ZipInfo) -> int:
+    """Where a stored member's bytes start: after its local header, name and extra field."""
+    fields = _LOCAL.unpack(bytes(view[info.header_offset:info.header_offset + _LOCAL.size]))
+    if fields[0] != b"PK\x03\x04":
+        raise BadBody(f".npz member {info.filename!r} has a bad local header")
+    name_length, extra_length = fields[10], fields[11]
+    return info.header_offset + _LOCAL.size + name_length + extra_length
+
+
+def read_json(buf: bytes, expected: str) -> dict[str, Any]:
+    """A JSON object; anything else is 400 naming the ``expected`` keys."""
+    try:
+        doc = json.loads(buf)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise BadBody(f"body is not valid JSON: {exc}") from None
+    if not isinstance(doc, dict):
+        raise BadBody(f"JSON body must be an object with {expected}, got {type(doc).__name__}")
+    return doc
+
+
+def read_mapping(body: bytes, fmt: str, expected: str, max_bytes: int | None = None) -> dict[str, Any]:
+    """The key -> value mapping of an npz or JSON body."""
+    if fmt == "npz":
+        return read_npz(body, max_bytes)
+    if fmt == "json":
+        return read_json(body, expected)
+    raise UnsupportedMediaType(f"{fmt} bodies hold no keys; send {expected} as .npz or JSON")
+
+
+def check_keys(mapping: Mapping[str, Any], required: Iterable[str], optional: Iterable[str] = ()) -> None:
+    """400 for missing or unknown keys, listing what is expected."""
+    required, optional = tuple(required), tuple(optional)
+    expected = ", ".join(required) + (f" (optional: {', '.join(optional)})" if optional else "")
+    missing = [k for k in required if k not in mapping]
+    unknown = [k for k in mapping if k not in required and k not in optional]
+    if missing:
+        raise BadBody(f"body lacks {', '.join(map(repr, missing))}; expected keys {expected}")
+    if unknown:
+        raise BadBody(f"body has unknown keys {', '.join(map(repr, unknown))}; expected keys {expected}")
+
+
+# --------------------------------------------------------------------------------------------
+# Arrays: dtype and shape rules, with messages that say how to fix the input
+
+
+def float_array(value: Any, name: str, columns: int | None) -> np.ndarray:
+    """A float32 array of shape (N, columns), or (N,)/() when ``columns`` is None."""
+    if isinstance(value, np.ndarray):
+        if value.dtype != _F32:
+            raise Invalid(f"{name} must be little-endian float32, got {value.dtype.str} "
+                          f"({value.dtype}); convert with .astype('<f4')")
+        array = value
+    else:
+        try:
+            array = np.asarray(nulls_to_inf(value), dtype=np.float32)
+        except (TypeError, ValueError) as exc:
+            raise Invalid(f"{name} must be numbers in nested lists: {exc}") from None
+    if columns is not None:
+        if array.size == 0 and array.ndim == 1:
+            array = array.reshape(0, columns)
+        if array.ndim != 2 or array.shape[1] != columns:
+            raise Invalid(f"{name} must have shape (N, {columns}), got {array.shape}")
+    elif array.ndim > 1:
+        raise Invalid(f"{name} must be one value or shape (N,), got {array.shape}")
+    return array
+
+
+def nulls_to_inf(value: Any) -> Any:
+    """A JSON list with null elements (+inf) made numeric; anything else unchanged."""
+    if isinstance(value, list) and any(x is None for x in value):
+        return [np.inf if x is None else x for x in value]
+    return value
+
+
+def index_array(value: Any, name: str) -> np.ndarray:
+    """An (F, 3) integer array: int32/uint32 when binary, any integers when from JSON."""
+    if isinstance(value, np.ndarray):
+        if value.dtype not in (_I32, _U32):
+            raise Invalid(f"{name} must be little-endian int32 or uint32, got {value.dtype.str} "
+                          f"({value.dtype}); convert with .astype('<i4')")
+        array = value
+    else:
+        try:
+            array = np.asarray(value)
+        except (TypeError, ValueError) as exc:
+            raise Invalid(f"{name} must be integers in nested lists: {exc}") from None
+        if array.size == 0:
+            array = array.astype(np.int32).reshape(0, 3) if array.ndim == 1 else array.astype(np.int32)
+        elif array.dtype.kind not in "iu":
+            raise Invalid(f"{name} must be integers, got {array.dtype} values")
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise Invalid(f"{name} must have shape (F, 3), got {array.shape}")
+    return array
+
+
+def check_vertices(vertices: np.ndarray, name: str = "vertices") -> np.ndarray:
+    """422 unless every vertex is finite; names the first bad row and how many there are."""
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        rows = np.flatnonzero(bad)
+        raise Invalid(f"{name}[{rows[0]}] is not finite ({vertices[rows[0]].tolist()}); "
+                      f"{rows.size} of {len(vertices)} vertices are not finite")
+    return vertices
+
+
+def check_faces(faces: np.ndarray, n_vertices: int, name: str = "faces") -> np.ndarray:
+    """422 unless every index is in [0, n_vertices); the answer is int32 (a view when possible)."""
+    if faces.size and (faces.min() < 0 or faces.max() >= n_vertices):
+        bad = ((faces < 0) | (faces >= n_vertices)).any(axis=1)
+        rows = np.flatnonzero(bad)
+        row = faces[rows[0]]
+        value = row[(row < 0) | (row >= n_vertices)][0]
+        raise Invalid(f"{name}[{rows[0]}] refers to vertex {value}, but there are {n_vertices} "
+                      f"vertices; {rows.size} of {len(faces)} faces are out of range")
+    if faces.dtype == _I32:
+        return faces
+    if faces.dtype == _U32:
+        return faces.view(_I32)  # every index is below n_vertices < 2**31: same bits
+    return faces.astype(np.int32)
+
+
+def mesh_arrays(vertices: Any, faces: Any, prefix: str = "") -> MeshArrays:
+    """Check a (vertices, faces) pair from any body kind."""
+    v = check_vertices(float_array(vertices, f"{prefix}vertices", 3), f"{prefix}vertices")
+    f = check_faces(index_array(faces, f"{prefix}faces"), len(v), f"{prefix}faces")
+    return MeshArrays(v, f)
+
+
+# --------------------------------------------------------------------------------------------
+# Decoding request bodies
+
+
+def decode_rays(body: bytes, fmt: str, max_rays: int | None = None,
+                max_bytes: int | None = None) -> Rays:
+    """A ray batch from an npy, npz or JSON body (see the module docstring)."""
+    if fmt == "npy":
+        array = read_npy(body, "rays body")
+        if array.ndim != 2 or array.shape[1] not in (6, 8):
+            raise Invalid(f"a .npy ray body must have shape (N, 6) or (N, 8), got {array.shape}")
+        _check_ray_count(len(array), max_rays)
+        array = float_array(array, "rays", array.shape[1])
+        has_t = array.shape[1] == 8
+        return Rays(array[:, 0:3], array[:, 3:6], array[:, 6] if has_t else None,
+                    array[:, 7] if has_t else None)
+    mapping = read_mapping(body, fmt, "origins, directions", max_bytes)
+    check_keys(mapping, ("origins", "directions"), ("tmin", "tmax"))
+    return rays_from_mapping(mapping, max_rays)
+
+
+def rays_from_mapping(mapping: Mapping[str, Any], max_rays: int | None) -> Rays:
+    """Rays from the keys origins, directions, tmin, tmax of an npz or JSON body."""
+    origins = mapping["origins"]
+    n = origins.shape[0] if isinstance(origins, np.ndarray) and origins.ndim else (
+        len(origins) if isinstance(origins, list) else 0)
+    _check_ray_count(n, max_rays)
+    origins = float_array(origins, "origins", 3)
+    directions = float_array(mapping["directions"], "directions", 3)
+    if len(directions) != len(origins):
+        raise Invalid(f"origins has {len(origins)} rays but directions has {len(directions)}")
+    bounds = []
+    for key in ("tmin", "tmax"):
+        value = mapping.get(key)
+        if value is not None:
+            value = float_array(value, key, None)
+            if value.ndim == 0:
+                value = float(value)
+            elif len(value) != len(origins):
+                raise Invalid(f"{key} has {len(value)} values but there are {len(origins)} rays")
+        bounds.append(value)
+    return Rays(origins, directions, *bounds)
+
+
+def _check_ray_count(n: int, max_rays: int | None) -> None:
+    if max_rays is not None and n > max_rays:
+        raise TooLarge(f"{n} rays in one request, over the limit of {max_rays} "
+                       "(DACRT_MAX_RAYS_PER_REQUEST); split the batch")
+
+
+def decode_mesh(body: bytes, fmt: str, max_bytes: int | None = None) -> MeshArrays:
+    """A checked mesh from an npz, JSON or mesh-file body."""
+    if fmt in MESH_FILE_FORMATS:
+        vertices, faces = read_mesh_file(body, fmt)
+        return mesh_arrays(vertices, faces)
+    mapping = read_mapping(body, fmt, "vertices, faces", max_bytes)
+    check_keys(mapping, ("vertices", "faces"))
+    return mesh_arrays(mapping["vertices"], mapping["faces"])
+
+
+def read_mesh_file(body: bytes, fmt: str) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices float32 (V,3), faces int32 (F,3)) of all triangles in a mesh file, merged."""
+    import trimesh  # only mesh files need it, and it is slow to import
+
+    try:
+        scene = trimesh.load_scene(io.BytesIO(bytes(body)), file_type=fmt, process=False)
+        mesh = scene.to_mesh()
+    except Exception as exc:  # trimesh raises anything from its parsers: all mean "unreadable"
+        raise BadBody(f"body cannot be read as {fmt.upper()}: {type(exc).__name__}: {exc}") from None
+    if len(mesh.faces) == 0:
+        raise BadBody(f"no triangles found in the {fmt.upper()} body; is it really {fmt.upper()}?")
+    vertices = np.asarray(mesh.vertices, dtype=np.float32)
+    faces = np.asarray(mesh.faces)
+    return vertices, check_faces(faces, len(vertices)).astype(np.int32, copy=False)
+
+
+def decode_vertices(body: bytes, fmt: str, max_bytes: int | None = None) -> np.ndarray:
+    """Checked (V, 3) float32 vertex positions from an npy, npz or JSON body."""
+    if fmt == "npy":
+        value = read_npy(body, "vertices body")
+    else:
+        mapping = read_mapping(body, fmt, "vertices", max_bytes)
+        check_keys(mapping, ("vertices",))
+        value = mapping["vertices"]
+    return check_vertices(float_array(value, "vertices", 3))
+
+
+def decode_frame(body: bytes, fmt: str, max_bytes: int | None = None
+                 ) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
+    """mesh name -> (vertices, faces or None) from ``MESH.vertices`` / ``MESH.faces`` keys.
+
+    Only shapes and dtypes are checked here; face indices are checked against the vertex count
+    of the mesh they end up with (``check_faces``) by the store.
+    """
+    mapping = read_mapping(body, fmt, "MESH.vertices (and optionally MESH.faces) keys", max_bytes)
+    parts: dict[str, dict[str, Any]] = {}
+    for key, value in mapping.items():
+        mesh, _, kind = key.rpartition(".")
+        if not mesh or kind not in ("vertices", "faces"):
+            raise BadBody(f"frame key {key!r} is not MESH.vertices or MESH.faces")
+        parts.setdefault(mesh, {})[kind] = value
+    if not parts:
+        raise BadBody("frame body holds no MESH.vertices keys")
+    frame = {}
+    for mesh, arrays in parts.items():
+        if "vertices" not in arrays:
+            raise BadBody(f"frame has {mesh}.faces but no {mesh}.vertices")
+        vertices = check_vertices(float_array(arrays["vertices"], f"{mesh}.vertices", 3),
+                                  f"{mesh}.vertices")
+        faces = arrays.get("faces")
+        if faces is not None:
+            faces = check_faces(index_array(faces, f"{mesh}.faces"), len(vertices), f"{mesh}.faces")
+        frame[mesh] = (vertices, faces)
+    return frame
+
+
+def decode_trace(body: bytes, fmt: str, max_rays: int | None = None,
+                 max_bytes: int | None = None) -> tuple[MeshArrays, Rays]:
+    """The mesh and the rays of a one-shot trace body."""
+    mapping = read_mapping(body, fmt, "vertices, faces, origins, directions", max_bytes)
+    check_keys(mapping, ("vertices", "faces", "origins", "directions"), ("tmin", "tmax"))
+    rays = rays_from_mapping(mapping, max_rays)
+    return mesh_arrays(mapping["vertices"], mapping["faces"]), rays
+
+
+# --------------------------------------------------------------------------------------------
+# Encoding answers
+
+
+def negotiate(accept: str | None, request_format: str) -> str:
+    """The answer format for an ``Accept`` header: npz, npy or json (406 if none fits)."""
+    default = "json" if request_format == "json" else "npz"
+    if not accept or not accept.strip():
+        return default
+    ranked = []
+    for position, part in enumerate(accept.split(",")):
+        media, *params = [p.strip() for p in part.split(";")]
+        q = 1.0
+        for param in params:
+            name, _, value = param.partition("=")
+            if name.strip().lower() == "q":
+                try:
+                    q = float(value)
+                except ValueError:
+                    q = 0.0
+        if q > 0:
+            ranked.append((-q, position, media.lower()))
+    for _, _, media in sorted(ranked):
+        if media in ("*/*", "application/*"):
+            return default
+        fmt = CONTENT_TYPES.get(media)
+        if fmt in ANSWER_FORMATS:
+            return fmt
+    raise NotAcceptable(f"Accept: {accept} names no answer format this service writes; "
+                        f"use {NPZ}, {NPY} or {JSON}")
+
+
+def encode_answer(arrays: Mapping[str, np.ndarray], fmt: str) -> tuple[list[Buffer], str]:
+    """(body as a list of buffers to send in order, Content-Type) of an answer: npz, npy or json.
+
+    The buffers of npy and npz bodies are mostly the answer arrays' own memory: nothing is copied.
+    """
+    if fmt == "npz":
+        return npz_parts(arrays), NPZ
+    if fmt == "npy":
+        return npy_parts(arrays), NPY
+    if fmt == "json":
+        return [encode_json(arrays)], JSON
+    raise ValueError(f"unknown answer format {fmt!r}")
+
+
+def npy_header(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
+    """The .npy header (format 1.0, C order) of an array of ``dtype`` and ``shape``."""
+    out = io.BytesIO()
+    np.lib.format.write_array_header_1_0(out, {"descr": np.lib.format.dtype_to_descr(dtype),
+                                               "fortran_order": False, "shape": shape})
+    return out.getvalue()
+
+
+def array_bytes(array: np.ndarray) -> Buffer:
+    """The bytes of an array in C order: a view of its memory when it is C-contiguous."""
+    array = np.ascontiguousarray(array)
+    return memoryview(array.reshape(-1)).cast("B") if array.size else b""
+
+
+def npy_parts(arrays: Mapping[str, np.ndarray]) -> list[Buffer]:
+    """One .npy: the array itself if there is one field, else a structured array of all of them."""
+    if len(arrays) == 1:
+        (array,) = arrays.values()
+        return [npy_header(array.dtype, array.shape), array_bytes(array)]
+    n = len(next(iter(arrays.values()))) if arrays else 0
+    records = np.empty(n, dtype=[(k, a.dtype, a.shape[1:]) for k, a in arrays.items()])
+    for key, array in arrays.items():
+        records[key] = array
+    return [npy_header(records.dtype, records.shape), array_bytes(records)]
+
+
+def npz_parts(arrays: Mapping[str, np.ndarray]) -> list[Buffer]:
+    """An uncompressed .npz of ``arrays``: zip headers around each array's own memory."""
+    parts: list[Buffer] = []
+    central, offset = [], 0
+    for key, array in arrays.items():
+        name, header, data = f"{key}.npy".encode(), npy_header(array.dtype, array.shape), array_bytes(array)
+        crc, length = crc32(data, crc32(header)), len(header) + len(data)
+        parts += [_LOCAL.pack(b"PK\x03\x04", 20, 0, 0, 0, 0, _DOS_DATE, crc, length, length, len(name), 0)
+                  + name + header, data]
+        central.append(_CENTRAL.pack(b"PK\x01\x02", 20, 0, 20, 0, 0, 0, 0, _DOS_DATE, crc, length, length,
+                                     len(name), 0, 0, 0, 0, 0, offset) + name)
+        offset += _LOCAL.size + len(name) + length
+    directory = b"".join(central)
+    if offset + len(directory) + _END.size >= 2**32 - 1:  # needs zip64: let zipfile write it
+        out = io.BytesIO()
+        np.savez(out, **arrays)
+        return [out.getbuffer()]
+    return parts + [directory + _END.pack(b"PK\x05\x06", 0, 0, len(central), len(central),
+                                          len(directory), offset, 0)]
+
+
+def encode_npz(arrays: Mapping[str, np.ndarray]) -> bytes:
+    """An uncompressed .npz of ``arrays`` in one bytes object."""
+    return b"".join(npz_parts(arrays))
+
+
+def encode_npy(arrays: Mapping[str, np.ndarray]) -> bytes:
+    """One .npy (see ``npy_parts``) in one bytes object."""
+    return b"".join(npy_parts(arrays))
+
+
+def encode_json(arrays: Mapping[str, np.ndarray]) -> bytes:
+    """``{"key": [...], ...}`` with float32 in shortest round-trip form and null for inf/nan."""
+    return json.dumps({key: json_ready(array) for key, array in arrays.items()},
+                      separators=(",", ":"), allow_nan=False).encode()
+
+
+def json_ready(array: np.ndarray) -> Any:
+    """Nested lists for ``json.dumps``: shortest float32 repr, None where not finite."""
+    if array.dtype.kind != "f":
+        return array.tolist()
+    shortest = array.astype(str).astype(np.float64)  # '0.1' for float32(0.1), not 0.10000000149
+    finite = np.isfinite(array)
+    if finite.all():
+        return shortest.tolist()
+    values = shortest.astype(object)
+    values[~finite] = None
+    return values.tolist()

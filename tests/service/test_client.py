@@ -1,0 +1,332 @@
+"""The service end to end: a real uvicorn process driven through service.client (and raw httpx
+where the wire itself is under test). Answers are compared with a plain-NumPy brute force."""
+from __future__ import annotations
+
+import io
+import json
+
+import numpy as np
+import pytest
+
+from service.client import APIError, Answer
+from service_helpers import NPY, NPZ, down_rays, grid, npy_bytes, npz_bytes, quad, rays_at
+from service_reference import closest as reference_closest
+
+CLOSEST_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")
+
+
+@pytest.fixture
+def teapot_scene(client, scene_name, teapot):
+    client.put_mesh(scene_name, "teapot", *teapot)
+    return scene_name
+
+
+def assert_same_answer(a: Answer, b: Answer) -> None:
+    assert list(a) == list(b)
+    for key in a:
+        assert a[key].dtype == b[key].dtype and np.array_equal(a[key], b[key]), key
+
+
+# ---- operations
+
+
+def test_health_is_ok_once_warm(client):
+    health = client.health()
+    assert health["status"] == "ok" and health["warmup_seconds"] >= 0
+
+
+def test_capabilities_list_formats_fields_strategies_and_limits(client):
+    caps = client.capabilities()
+    assert caps["fields"]["closest"] == list(CLOSEST_FIELDS) and caps["fields"]["occluded"] == ["occluded"]
+    assert caps["strategies"][0] == caps["default_strategy"] and len(caps["strategies"]) >= 1
+    assert "model/obj" in caps["formats"]["meshes"] and "application/x-npy" in caps["formats"]["rays"]
+    assert caps["limits"]["max_rays_per_request"] == 16 * 2**20 and caps["auth"] is False
+
+
+def test_metrics_count_requests_rays_and_memory(client, http, teapot_scene):
+    client.closest(teapot_scene, *down_rays(np.zeros((7, 2))))
+    text = http.get("/metrics").text
+    assert 'dacrt_requests_total{method="POST",route="/v1/scenes/{scene}/closest",status="200"}' in text
+    assert 'dacrt_rays_traced_total{query="closest"}' in text
+    assert "dacrt_trace_seconds_bucket" in text
+    memory = float(next(line.split()[-1] for line in text.splitlines()
+                        if line.startswith("dacrt_scene_memory_bytes ")))
+    assert memory >= 3644 * 12 + 6320 * 12
+
+
+# ---- meshes and scenes
+
+
+def test_put_mesh_is_201_then_200_with_mesh_info(http, scene_name):
+    vertices, faces = quad(-1, 2, 0, 1, 3)
+    body = npz_bytes(vertices=vertices, faces=faces)
+    first = http.put(f"/v1/scenes/{scene_name}/meshes/floor", content=body, headers=NPZ)
+    again = http.put(f"/v1/scenes/{scene_name}/meshes/floor", content=body, headers=NPZ)
+    assert (first.status_code, again.status_code) == (201, 200)
+    assert first.json() == {"scene": scene_name, "mesh": "floor", "index": 0, "vertices": 4,
+                            "triangles": 2, "bounds": [[-1, 0, 3], [2, 1, 3]], "version": 1}
+    assert again.json()["version"] == 2 and again.json()["index"] == 0
+
+
+def test_json_mesh_body(http, scene_name):
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    response = http.put(f"/v1/scenes/{scene_name}/meshes/m",
+                        json={"vertices": vertices.tolist(), "faces": faces.tolist()})
+    assert response.status_code == 201 and response.json()["triangles"] == 2
+
+
+def test_scene_info_and_list(client, scene_name):
+    client.put_mesh(scene_name, "a", *quad(0, 1, 0, 1, 0))
+    client.put_mesh(scene_name, "b", *grid(2, z=5))
+    info = client.scene(scene_name)
+    assert info["version"] == 2 and info["triangles"] == 10
+    assert info["bounds"] == [[0, 0, 0], [1, 1, 5]]
+    assert [(m["mesh"], m["index"], m["version"]) for m in info["meshes"]] == [("a", 0, 1), ("b", 1, 2)]
+    assert info in client.scenes()
+    assert client.http.get(f"/v1/scenes/{scene_name}/meshes/b").json() == info["meshes"][1]
+
+
+def test_delete_mesh_and_scene(client, scene_name):
+    client.put_mesh(scene_name, "a", *quad(0, 1, 0, 1, 0))
+    client.put_mesh(scene_name, "b", *quad(0, 1, 0, 1, 1))
+    client.delete_mesh(scene_name, "a")
+    assert [m["mesh"] for m in client.scene(scene_name)["meshes"]] == ["b"]
+    client.delete(scene_name)
+    with pytest.raises(APIError) as caught:
+        client.scene(scene_name)
+    assert caught.value.status == 404
+    assert all(s["scene"] != scene_name for s in client.scenes())
+
+
+def test_update_vertices_moves_the_mesh_and_keeps_faces(client, scene_name):
+    client.put_mesh(scene_name, "m", *quad(0, 1, 0, 1, 0))
+    info = client.update_vertices(scene_name, "m", quad(0, 1, 0, 1, 4)[0])
+    assert info["version"] == 2 and info["triangles"] == 2 and info["bounds"][0][2] == 4
+    hits = client.closest(scene_name, *down_rays([[0.5, 0.5]]))
+    assert hits.t.tolist() == [6.0] and hits.version == 2
+
+
+def test_json_vertices_update(http, client, scene_name):
+    client.put_mesh(scene_name, "m", *quad(0, 1, 0, 1, 0))
+    response = http.put(f"/v1/scenes/{scene_name}/meshes/m/vertices",
+                        json={"vertices": quad(0, 1, 0, 1, 2)[0].tolist()})
+    assert response.status_code == 200 and response.json()["bounds"][1][2] == 2
+
+
+def test_frame_moves_and_adds_meshes_in_one_version(client, scene_name):
+    client.put_mesh(scene_name, "a", *quad(0, 1, 0, 1, 0))
+    info = client.frame(scene_name, {"a": quad(0, 1, 0, 1, 2)[0], "b.part": quad(1, 2, 0, 1, 3)})
+    assert info["version"] == 2 and [m["mesh"] for m in info["meshes"]] == ["a", "b.part"]
+    hits = client.closest(scene_name, *down_rays([[0.5, 0.5], [1.5, 0.5]]))
+    assert hits.t.tolist() == [8.0, 7.0] and hits.mesh.tolist() == [0, 1]
+
+
+# ---- queries
+
+
+def test_closest_matches_the_reference(client, teapot_scene, teapot):
+    vertices, faces = teapot
+    origins, directions = rays_at(vertices, faces, 400, seed=1)
+    directions[::4] *= -1  # a quarter point away: mostly misses
+    hits = client.closest(teapot_scene, origins, directions)
+    t, prim = reference_closest(vertices, faces, origins, directions)
+    assert np.isfinite(t).sum() > 250
+    np.testing.assert_allclose(hits.t, t, rtol=1e-4)
+    assert np.mean(hits.prim == prim) > 0.99
+    hit = hits.prim >= 0
+    assert (hits.mesh[hit] == 0).all() and (hits.mesh[~hit] == -1).all()
+    # the hit point from u, v lies on the ray; the normal is the unit geometric normal
+    p = vertices[faces[hits.prim[hit]]].astype(np.float64)
+    u, v = hits.u[hit, None], hits.v[hit, None]
+    on_triangle = (1 - u - v) * p[:, 0] + u * p[:, 1] + v * p[:, 2]
+    on_ray = origins[hit] + hits.t[hit, None] * directions[hit]
+    np.testing.assert_allclose(on_triangle, on_ray, atol=1e-3)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    np.testing.assert_allclose(hits.normal[hit], n / np.linalg.norm(n, axis=1, keepdims=True), atol=1e-4)
+    assert (hits.normal[~hit] == 0).all() and (hits.u[~hit] == 0).all()
+
+
+def test_occluded_equals_closest_within_tmax(client, teapot_scene, teapot):
+    origins, directions = rays_at(*teapot, 300, seed=2)
+    tmax = np.random.default_rng(3).uniform(0.5, 1.5, 300).astype(np.float32)
+    hits = client.closest(teapot_scene, origins, directions)
+    occluded = client.occluded(teapot_scene, origins, directions, tmax=tmax)
+    assert occluded.occluded.dtype == bool
+    assert np.array_equal(occluded.occluded, hits.t <= tmax)
+
+
+def test_tmin_and_tmax_bound_the_hits(client, scene_name):
+    client.put_mesh(scene_name, "near", *quad(0, 1, 0, 1, 5))
+    client.put_mesh(scene_name, "far", *quad(0, 1, 0, 1, 1))
+    origins, directions = down_rays(np.full((3, 2), 0.5))
+    hits = client.closest(scene_name, origins, directions, tmin=[0, 6, 0], tmax=[np.inf, np.inf, 4])
+    assert hits.t.tolist() == [5, 9, np.inf] and hits.mesh.tolist() == [0, 1, -1]
+
+
+def test_fields_limit_the_answer(client, teapot_scene):
+    hits = client.closest(teapot_scene, *down_rays([[0, 0]], z=10), fields="t,prim")
+    assert list(hits) == ["t", "prim"]
+
+
+def test_every_strategy_gives_the_same_answer(client, teapot_scene, teapot):
+    origins, directions = rays_at(*teapot, 300, seed=4)
+    answers = [client.closest(teapot_scene, origins, directions, strategy=s)
+               for s in client.capabilities()["strategies"]]
+    for other in answers[1:]:
+        assert_same_answer(answers[0], other)
+
+
+def test_stats_header_has_the_engine_counters(client, teapot_scene, teapot):
+    hits = client.closest(teapot_scene, *rays_at(*teapot, 100), stats=True)
+    for key in ("rays", "triangles", "ray_box_tests", "ray_triangle_tests", "nodes",
+                "sampled_nodes", "skipped_filterings"):
+        assert isinstance(hits.stats[key], int), key
+    assert hits.stats["rays"] == 100 and hits.stats["triangles"] == 6320
+    occluded = client.occluded(teapot_scene, *rays_at(*teapot, 100), stats=True)
+    assert occluded.stats["rays"] == 100
+    assert client.closest(teapot_scene, *rays_at(*teapot, 5)).stats is None
+
+
+@pytest.mark.parametrize("query", ["closest", "occluded"])
+def test_every_query_answer_has_version_and_server_timing(http, teapot_scene, query):
+    response = http.post(f"/v1/scenes/{teapot_scene}/{query}", headers=NPY,
+                         content=npy_bytes(np.hstack(down_rays([[0, 0]])).astype(np.float32)))
+    assert response.status_code == 200 and response.headers["x-scene-version"] == "1"
+    timing = response.headers["server-timing"]
+    assert all(f"{name};dur=" in timing for name in ("decode", "trace", "encode"))
+
+
+def test_json_binary_and_npy_answers_are_equal(client, teapot_scene, teapot):
+    origins, directions = rays_at(*teapot, 200, seed=5)
+    directions[::3] *= -1
+    npz = client.closest(teapot_scene, origins, directions)
+    for answer in ("json", "npy"):
+        assert_same_answer(npz, client.closest(teapot_scene, origins, directions, answer=answer))
+    single = client.closest(teapot_scene, origins, directions, answer="npy", fields="t")
+    assert np.array_equal(single.t, npz.t)
+    occluded = client.occluded(teapot_scene, origins, directions)
+    assert_same_answer(occluded, client.occluded(teapot_scene, origins, directions, answer="json"))
+    assert_same_answer(occluded, client.occluded(teapot_scene, origins, directions, answer="npy"))
+
+
+def test_json_request_gets_json_with_null_for_misses(http, client, teapot_scene, teapot):
+    origins, directions = rays_at(*teapot, 50, seed=6)
+    directions[::2] *= -1
+    body = {"origins": origins.tolist(), "directions": directions.tolist(), "tmax": None}
+    response = http.post(f"/v1/scenes/{teapot_scene}/closest", json=body)
+    assert response.headers["content-type"] == "application/json"
+    document = response.json()
+    binary = client.closest(teapot_scene, origins, directions)
+    t = np.array([np.inf if x is None else x for x in document["t"]], np.float32)
+    assert None in document["t"] and np.array_equal(t, binary.t)
+    assert document["mesh"] == binary.mesh.tolist()
+    assert np.array_equal(np.array(document["normal"], np.float32), binary.normal)
+
+
+def test_npz_ray_body_equals_npy_ray_body(http, client, teapot_scene, teapot):
+    origins, directions = rays_at(*teapot, 50, seed=7)
+    tmax = np.float32(2.0)
+    body = npz_bytes(True, origins=origins, directions=directions, tmax=tmax)
+    response = http.post(f"/v1/scenes/{teapot_scene}/closest", content=body, headers=NPZ)
+    with np.load(io.BytesIO(response.content)) as got:
+        assert np.array_equal(got["t"], client.closest(teapot_scene, origins, directions, tmax=tmax).t)
+
+
+@pytest.mark.parametrize("query, key, shape", [("closest", "normal", (0, 3)), ("occluded", "occluded", (0,))])
+def test_empty_batch_answers_empty_arrays(client, teapot_scene, query, key, shape):
+    answer = client.query(teapot_scene, query, np.zeros((0, 3)), np.zeros((0, 3)))
+    assert answer[key].shape == shape
+    assert client.query(teapot_scene, query, np.zeros((0, 3)), np.zeros((0, 3)), answer="json")[key].shape == shape
+
+
+def test_scene_without_triangles_answers_misses(client, scene_name):
+    client.put_mesh(scene_name, "empty", np.zeros((0, 3)), np.zeros((0, 3)))
+    hits = client.closest(scene_name, *down_rays(np.zeros((4, 2))))
+    assert np.isinf(hits.t).all() and (hits.mesh == -1).all() and (hits.prim == -1).all()
+    assert not client.occluded(scene_name, *down_rays(np.zeros((4, 2)))).occluded.any()
+    client.delete_mesh(scene_name, "empty")
+    assert np.isinf(client.closest(scene_name, *down_rays(np.zeros((2, 2)))).t).all()
+
+
+def test_hits_report_each_mesh_by_its_stable_index(client, scene_name):
+    for i, name in enumerate(["a", "b", "c"]):
+        client.put_mesh(scene_name, name, *quad(i, i + 1, 0, 1, 0))
+    client.delete_mesh(scene_name, "b")
+    client.put_mesh(scene_name, "d", *quad(1, 2, 0, 1, 0))  # where b was: gets a new index, 3
+    client.put_mesh(scene_name, "e", np.zeros((0, 3)), np.zeros((0, 3)))  # no triangles: index 4
+    client.put_mesh(scene_name, "f", *quad(3, 4, 0, 1, 0))
+    hits = client.closest(scene_name, *down_rays([[0.5, 0.5], [1.5, 0.5], [2.5, 0.5], [3.5, 0.5], [9, 9]]))
+    assert hits.mesh.tolist() == [0, 3, 2, 5, -1]
+    assert {m["mesh"]: m["index"] for m in client.scene(scene_name)["meshes"]} == {
+        "a": 0, "c": 2, "d": 3, "e": 4, "f": 5}
+
+
+def test_prim_is_the_row_in_its_own_mesh(client, scene_name):
+    client.put_mesh(scene_name, "first", *grid(4, z=0))
+    client.put_mesh(scene_name, "second", *quad(0, 1, 0, 1, 3))
+    hits = client.closest(scene_name, *down_rays([[0.25, 0.75]]))
+    assert (hits.mesh[0], hits.prim[0]) == (1, 1)  # the second triangle of the quad
+
+
+# ---- one-shot
+
+
+def test_one_shot_trace_equals_a_stored_scene(client, teapot_scene, teapot):
+    origins, directions = rays_at(*teapot, 200, seed=8)
+    stored = client.closest(teapot_scene, origins, directions)
+    once = client.trace(*teapot, origins, directions)
+    assert once.version == 0
+    assert_same_answer(stored, once)
+    occluded = client.trace(*teapot, origins, directions, tmax=0.5, query="occluded")
+    assert np.array_equal(occluded.occluded, stored.t <= 0.5)
+
+
+def test_one_shot_trace_with_json(http):
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    origins, directions = down_rays([[0.5, 0.5], [5, 5]])
+    response = http.post("/v1/trace?query=closest&fields=t,mesh", json={
+        "vertices": vertices.tolist(), "faces": faces.tolist(),
+        "origins": origins.tolist(), "directions": directions.tolist()})
+    assert response.status_code == 200 and response.headers["x-scene-version"] == "0"
+    assert response.json() == {"t": [10.0, None], "mesh": [0, -1]}
+
+
+# ---- mesh files
+
+
+def _mesh_file(fmt: str) -> tuple[bytes, int, np.ndarray]:
+    """A two-object file (a 2x2x2 box at the origin, a ball at x = 4): body, triangles, bounds."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=[2, 2, 2])
+    ball = trimesh.creation.icosphere(subdivisions=2)
+    ball.apply_translation([4, 0, 0])
+    scene = trimesh.Scene({"box": box, "ball": ball})
+    data = scene.to_mesh().export(file_type=fmt) if fmt == "off" else scene.export(file_type=fmt)
+    return (data.encode() if isinstance(data, str) else data), len(box.faces) + len(ball.faces), scene.bounds
+
+
+@pytest.mark.parametrize("fmt, content_type", [
+    ("obj", "model/obj"), ("ply", "application/ply"), ("stl", "model/stl"),
+    ("glb", "model/gltf-binary"), ("off", "model/off")])
+def test_mesh_files_by_content_type(http, client, scene_name, fmt, content_type):
+    body, n_faces, bounds = _mesh_file(fmt)
+    response = http.put(f"/v1/scenes/{scene_name}/meshes/things", content=body,
+                        headers={"Content-Type": content_type})
+    assert response.status_code == 201, response.text
+    info = response.json()
+    assert info["triangles"] == n_faces
+    np.testing.assert_allclose(info["bounds"], bounds, atol=1e-5)
+    hits = client.closest(scene_name, [[0, 0, 10], [4, 0, 10]], [[0, 0, -1], [0, 0, -1]])
+    assert hits.t[0] == 9 and 9 <= hits.t[1] < 9.2  # the box's top, then the ball's
+
+
+@pytest.mark.parametrize("fmt", ["obj", "ply", "stl", "glb", "off"])
+def test_mesh_files_by_format_parameter(http, client, scene_name, tmp_path, fmt):
+    body, n_faces, _ = _mesh_file(fmt)
+    response = http.put(f"/v1/scenes/{scene_name}/meshes/raw", content=body, params={"format": fmt},
+                        headers={"Content-Type": "application/octet-stream"})
+    assert response.status_code == 201 and response.json()["triangles"] == n_faces
+    path = tmp_path / f"things.{fmt}"
+    path.write_bytes(body)
+    assert client.put_mesh(scene_name, "from-file", file=path)["triangles"] == n_faces

@@ -1,0 +1,402 @@
+"""The wire format in-process: every body kind parses, every answer kind round-trips, and each
+bad body gets the status and message the module docstring promises."""
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from service import wire
+from service.errors import BadBody, Invalid, NotAcceptable, TooLarge, UnsupportedMediaType
+
+from service_helpers import grid, quad
+
+
+def npy(array) -> bytes:
+    out = io.BytesIO()
+    np.save(out, array, allow_pickle=True)
+    return out.getvalue()
+
+
+def npz(compressed: bool = False, **arrays) -> bytes:
+    out = io.BytesIO()
+    (np.savez_compressed if compressed else np.savez)(out, **arrays)
+    return out.getvalue()
+
+
+def rays6(n: int = 5) -> np.ndarray:
+    rng = np.random.default_rng(n)
+    return rng.normal(size=(n, 6)).astype(np.float32)
+
+
+# ---- which format a body is in
+
+
+@pytest.mark.parametrize("content_type, fmt", [
+    ("application/x-npy", "npy"), ("application/npy", "npy"), ("application/x-npz", "npz"),
+    ("application/json; charset=utf-8", "json"), ("APPLICATION/JSON", "json"), ("model/obj", "obj"),
+    ("application/ply", "ply"), ("model/stl", "stl"), ("model/gltf-binary", "glb"), ("model/off", "off"),
+])
+def test_content_type_picks_the_format(content_type, fmt):
+    assert wire.resolve_format(content_type, None, wire.MESH_FORMATS + ("npy",)) == fmt
+
+
+@pytest.mark.parametrize("head, fmt", [
+    (npy(rays6()), "npy"), (npz(a=np.zeros(1)), "npz"), (b'  {"a": 1}', "json"),
+    (b"glTF\x02\x00\x00\x00", "glb"), (b"ply\nformat", "ply"), (b"OFF\n", "off"),
+])
+@pytest.mark.parametrize("content_type", [None, "application/octet-stream"])
+def test_format_is_sniffed_without_a_content_type(head, fmt, content_type):
+    assert wire.resolve_format(content_type, None, wire.MESH_FORMATS + ("npy",), head) == fmt
+
+
+def test_format_parameter_overrides_content_type():
+    assert wire.resolve_format("application/octet-stream", "OBJ", wire.MESH_FORMATS) == "obj"
+
+
+@pytest.mark.parametrize("content_type, format, body", [
+    ("text/plain", None, b"1 2 3"),
+    ("application/x-www-form-urlencoded", None, b"a=1"),
+    ("model/obj", None, b"v 0 0 0"),          # a known format this endpoint does not read
+    (None, "xyz", b""),
+    (None, None, b"v 0 0 0\nf 1 2 3"),        # OBJ cannot be sniffed
+])
+def test_unreadable_format_is_415_listing_the_choices(content_type, format, body):
+    with pytest.raises(UnsupportedMediaType, match="application/x-npy"):
+        wire.resolve_format(content_type, format, wire.RAY_FORMATS, body)
+
+
+# ---- .npy and .npz
+
+
+def test_npy_is_viewed_in_place():
+    rays = rays6(7)
+    body = npy(rays)
+    array = wire.read_npy(body)
+    assert np.array_equal(array, rays) and not array.flags.owndata and not array.flags.writeable
+    assert np.shares_memory(array, np.frombuffer(body, np.uint8))
+
+
+def test_fortran_order_npy_keeps_its_values():
+    rays = np.asfortranarray(rays6(4))
+    assert np.array_equal(wire.read_npy(npy(rays)), rays)
+
+
+@pytest.mark.parametrize("body, message", [
+    (b"", "not a readable .npy"),
+    (b"\x93NUMPY\x01\x00garbage", "not a readable .npy"),
+    (npy(rays6(3))[:-5], "truncated"),
+    (npy(rays6(3)) + b"xx", "longer than its header says"),
+])
+def test_unreadable_npy_is_400(body, message):
+    with pytest.raises(BadBody, match=message):
+        wire.read_npy(body)
+
+
+def test_object_array_is_422_and_never_unpickled():
+    body = npy(np.array([{"a": 1}, None], dtype=object))
+    with pytest.raises(Invalid, match="Python objects"):
+        wire.read_npy(body)
+    with pytest.raises(Invalid, match="Python objects"):
+        wire.decode_rays(body, "npy")
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_npz_members_are_read(compressed):
+    arrays = {"origins": rays6(4)[:, :3].copy(), "tmin": np.float32(0.5)}
+    body = npz(compressed, **arrays)
+    got = wire.read_npz(body)
+    assert set(got) == set(arrays)
+    assert all(np.array_equal(got[k], v) for k, v in arrays.items())
+    # stored members are views of the body, deflated ones are decompressed once
+    assert np.shares_memory(got["origins"], np.frombuffer(body, np.uint8)) != compressed
+
+
+def test_garbage_npz_is_400():
+    with pytest.raises(BadBody, match="npz"):
+        wire.read_npz(b"PK\x03\x04 not really a zip")
+
+
+def test_npz_over_the_size_limit_when_decompressed_is_413():
+    body = npz(True, big=np.zeros(100_000, np.float32))
+    assert len(body) < 10_000
+    with pytest.raises(TooLarge, match="DACRT_MAX_BODY_BYTES"):
+        wire.read_npz(body, max_bytes=10_000)
+
+
+# ---- rays
+
+
+@pytest.mark.parametrize("columns", [6, 8])
+def test_npy_rays(columns):
+    array = np.random.default_rng(0).uniform(0, 1, (9, columns)).astype(np.float32)
+    rays = wire.decode_rays(npy(array), "npy")
+    assert len(rays) == 9
+    assert np.array_equal(rays.origins, array[:, :3]) and np.array_equal(rays.directions, array[:, 3:6])
+    if columns == 8:
+        assert np.array_equal(rays.tmin, array[:, 6]) and np.array_equal(rays.tmax, array[:, 7])
+    else:
+        assert rays.tmin is None and rays.tmax is None
+
+
+def test_npz_rays_with_one_tmax_for_the_batch():
+    o, d = rays6(3)[:, :3], rays6(3)[:, 3:]
+    rays = wire.decode_rays(npz(origins=o, directions=d, tmax=np.float32(2.5)), "npz")
+    assert rays.tmax == 2.5 and rays.tmin is None and np.array_equal(rays.origins, o)
+
+
+def test_json_rays_with_null_as_infinity():
+    body = json.dumps({"origins": [[0, 0, 0], [1, 1, 1]], "directions": [[0, 0, 1], [1, 0, 0]],
+                       "tmin": 0.5, "tmax": [2, None]}).encode()
+    rays = wire.decode_rays(body, "json")
+    assert rays.origins.dtype == np.float32 and rays.tmin == 0.5
+    assert rays.tmax.tolist() == [2.0, np.inf]
+
+
+@pytest.mark.parametrize("fmt, body", [
+    ("npy", npy(np.zeros((0, 6), np.float32))),
+    ("npz", npz(origins=np.zeros((0, 3), np.float32), directions=np.zeros((0, 3), np.float32))),
+    ("json", b'{"origins": [], "directions": []}'),
+])
+def test_empty_batch_is_valid(fmt, body):
+    rays = wire.decode_rays(body, fmt)
+    assert len(rays) == 0 and rays.origins.shape == (0, 3) and rays.directions.shape == (0, 3)
+
+
+@pytest.mark.parametrize("fmt, body, error, message", [
+    ("npy", npy(np.zeros((4, 5), np.float32)), Invalid, r"\(N, 6\) or \(N, 8\), got \(4, 5\)"),
+    ("npy", npy(np.zeros((4, 6), np.float64)), Invalid, "float32, got <f8"),
+    ("npy", npy(np.zeros((4, 6), ">f4")), Invalid, "little-endian float32, got >f4"),
+    ("npz", npz(origins=np.zeros((2, 3), np.float32)), BadBody, "lacks 'directions'"),
+    ("npz", npz(origins=np.zeros((2, 3), np.float32), directions=np.ones((2, 3), np.float32),
+                mask=np.ones(2, np.uint32)), BadBody, "unknown keys 'mask'"),
+    ("npz", npz(origins=np.zeros((2, 3), np.float32), directions=np.ones((3, 3), np.float32)),
+     Invalid, "origins has 2 rays but directions has 3"),
+    ("npz", npz(origins=np.zeros((2, 3), np.float32), directions=np.ones((2, 3), np.float32),
+                tmax=np.ones(5, np.float32)), Invalid, "tmax has 5 values but there are 2 rays"),
+    ("json", b'{"origins": [[0, 0]], "directions": [[0, 0, 1]]}', Invalid, r"shape \(N, 3\)"),
+    ("json", b'{"origins": [[0, 0, "x"]], "directions": [[0, 0, 1]]}', Invalid, "numbers"),
+    ("json", b'[1, 2]', BadBody, "must be an object"),
+    ("json", b'{"origins": ', BadBody, "not valid JSON"),
+])
+def test_bad_ray_bodies(fmt, body, error, message):
+    with pytest.raises(error, match=message):
+        wire.decode_rays(body, fmt)
+
+
+@pytest.mark.parametrize("fmt", ["npy", "json"])
+def test_too_many_rays_is_413_naming_the_limit(fmt):
+    body = npy(rays6(11)) if fmt == "npy" else json.dumps(
+        {"origins": rays6(11)[:, :3].tolist(), "directions": rays6(11)[:, 3:].tolist()}).encode()
+    with pytest.raises(TooLarge, match="11 rays .* limit of 10 .*DACRT_MAX_RAYS_PER_REQUEST"):
+        wire.decode_rays(body, fmt, max_rays=10)
+
+
+# ---- meshes
+
+
+def test_npz_mesh_with_uint32_faces_becomes_int32_without_copy():
+    vertices, faces = grid(3)
+    mesh = wire.decode_mesh(npz(vertices=vertices, faces=faces.astype(np.uint32)), "npz")
+    assert mesh.faces.dtype == np.int32 and np.array_equal(mesh.faces, faces)
+    assert not mesh.faces.flags.owndata
+
+
+def test_json_mesh():
+    vertices, faces = quad(0, 1, 0, 1, 2)
+    mesh = wire.decode_mesh(json.dumps({"vertices": vertices.tolist(), "faces": faces.tolist()}).encode(),
+                            "json")
+    assert np.array_equal(mesh.vertices, vertices) and np.array_equal(mesh.faces, faces)
+    assert mesh.vertices.dtype == np.float32 and mesh.faces.dtype == np.int32
+
+
+def test_empty_mesh_is_valid():
+    mesh = wire.decode_mesh(b'{"vertices": [], "faces": []}', "json")
+    assert mesh.vertices.shape == (0, 3) and mesh.faces.shape == (0, 3)
+
+
+def test_face_out_of_range_names_the_face_and_the_vertex_count():
+    vertices = np.zeros((90000, 3), np.float32)
+    faces = np.zeros((2000, 3), np.int32)
+    faces[1043] = [5, 90211, 7]
+    faces[1500] = [-1, 0, 0]
+    with pytest.raises(Invalid) as caught:
+        wire.decode_mesh(npz(vertices=vertices, faces=faces), "npz")
+    assert caught.value.detail == ("faces[1043] refers to vertex 90211, but there are 90000 "
+                                   "vertices; 2 of 2000 faces are out of range")
+
+
+def test_non_finite_vertex_names_the_vertex():
+    vertices, faces = grid(2)
+    vertices[4, 1] = np.nan
+    vertices[7, 0] = np.inf
+    with pytest.raises(Invalid, match=r"vertices\[4\] is not finite .*2 of 9 vertices"):
+        wire.decode_mesh(npz(vertices=vertices, faces=faces), "npz")
+
+
+@pytest.mark.parametrize("arrays, message", [
+    ({"vertices": np.zeros((3, 3)), "faces": np.zeros((1, 3), np.int32)}, "vertices must be little-endian float32"),
+    ({"vertices": np.zeros((3, 3), np.float32), "faces": np.zeros((1, 3), np.int64)}, "faces must be little-endian int32 or uint32"),
+    ({"vertices": np.zeros((3, 2), np.float32), "faces": np.zeros((1, 3), np.int32)}, r"vertices must have shape \(N, 3\)"),
+    ({"vertices": np.zeros((3, 3), np.float32), "faces": np.zeros((3,), np.int32)}, r"faces must have shape \(F, 3\)"),
+])
+def test_wrong_dtype_or_shape_is_422(arrays, message):
+    with pytest.raises(Invalid, match=message):
+        wire.decode_mesh(npz(**arrays), "npz")
+
+
+def test_json_faces_must_be_integers():
+    with pytest.raises(Invalid, match="faces must be integers"):
+        wire.decode_mesh(b'{"vertices": [[0,0,0],[1,0,0],[0,1,0]], "faces": [[0, 1, 2.5]]}', "json")
+
+
+def test_mesh_body_with_wrong_keys_is_400():
+    with pytest.raises(BadBody, match="lacks 'faces'"):
+        wire.decode_mesh(npz(vertices=np.zeros((3, 3), np.float32)), "npz")
+
+
+def _two_object_scene():
+    import trimesh
+
+    box = trimesh.creation.box()
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    sphere.apply_translation([3, 0, 0])
+    return trimesh.Scene({"box": box, "sphere": sphere}), len(box.faces) + len(sphere.faces)
+
+
+@pytest.mark.parametrize("fmt", ["obj", "ply", "stl", "glb", "off"])
+def test_mesh_files_are_read_and_merged(fmt):
+    import trimesh
+
+    scene, n_faces = _two_object_scene()
+    if fmt == "off":  # trimesh writes OFF for one mesh only
+        data = scene.to_mesh().export(file_type="off")
+    else:
+        data = scene.export(file_type=fmt)
+    body = data.encode() if isinstance(data, str) else data
+    mesh = wire.decode_mesh(body, fmt)
+    assert len(mesh.faces) == n_faces
+    assert mesh.vertices.dtype == np.float32 and mesh.faces.dtype == np.int32
+    np.testing.assert_allclose(mesh.vertices.min(0), [-0.5, -1, -1], atol=1e-5)
+    np.testing.assert_allclose(mesh.vertices.max(0), [4, 1, 1], atol=1e-5)
+    assert isinstance(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), trimesh.Trimesh)
+
+
+@pytest.mark.parametrize("fmt, body", [("obj", b"this is not an obj"), ("ply", b"garbage"),
+                                       ("glb", b"glTF-garbage"), ("stl", b"")])
+def test_unreadable_mesh_file_is_400(fmt, body):
+    with pytest.raises(BadBody, match=fmt.upper()):
+        wire.decode_mesh(body, fmt)
+
+
+# ---- vertices, frames, one-shot
+
+
+@pytest.mark.parametrize("fmt", ["npy", "npz", "json"])
+def test_vertices_bodies(fmt):
+    vertices = grid(2)[0]
+    body = {"npy": lambda: npy(vertices), "npz": lambda: npz(vertices=vertices),
+            "json": lambda: json.dumps({"vertices": vertices.tolist()}).encode()}[fmt]()
+    assert np.array_equal(wire.decode_vertices(body, fmt), vertices)
+
+
+def test_frame_keys_split_at_the_last_dot():
+    v, f = quad(0, 1, 0, 1, 0)
+    frame = wire.decode_frame(npz(**{"car.body.vertices": v, "car.body.faces": f, "wheel.vertices": v}), "npz")
+    assert set(frame) == {"car.body", "wheel"}
+    assert np.array_equal(frame["car.body"][1], f) and frame["wheel"][1] is None
+
+
+@pytest.mark.parametrize("arrays, message", [
+    ({"car.faces": quad(0, 1, 0, 1, 0)[1]}, "car.faces but no car.vertices"),
+    ({"car.normals": np.zeros((1, 3), np.float32)}, "not MESH.vertices or MESH.faces"),
+    ({"vertices": np.zeros((1, 3), np.float32)}, "not MESH.vertices or MESH.faces"),
+    ({}, "no MESH.vertices"),
+])
+def test_bad_frames_are_400(arrays, message):
+    with pytest.raises(BadBody, match=message):
+        wire.decode_frame(npz(**arrays), "npz")
+
+
+def test_frame_faces_checked_against_their_vertices():
+    v, f = quad(0, 1, 0, 1, 0)
+    with pytest.raises(Invalid, match=r"car.faces\[1\] refers to vertex 9, but there are 4"):
+        wire.decode_frame(npz(**{"car.vertices": v, "car.faces": f + np.int32([[0, 0, 0], [0, 0, 6]])}), "npz")
+
+
+def test_one_shot_body():
+    v, f = quad(0, 1, 0, 1, 0)
+    o, d = rays6(2)[:, :3], rays6(2)[:, 3:]
+    mesh, rays = wire.decode_trace(npz(vertices=v, faces=f, origins=o, directions=d), "npz")
+    assert np.array_equal(mesh.faces, f) and np.array_equal(rays.directions, d)
+    with pytest.raises(BadBody, match="lacks 'faces'"):
+        wire.decode_trace(npz(vertices=v, origins=o, directions=d), "npz")
+
+
+# ---- answers
+
+
+@pytest.mark.parametrize("accept, request_format, fmt", [
+    (None, "npy", "npz"), ("", "json", "json"), ("*/*", "npz", "npz"), ("*/*", "json", "json"),
+    ("application/*", "npy", "npz"), ("application/json", "npy", "json"),
+    ("application/x-npy", "json", "npy"), ("application/x-npz;q=0.5, application/json", "npy", "json"),
+    ("text/html, application/x-npz;q=0.9, */*;q=0.1", "json", "npz"),
+    ("application/json;q=0, */*", "npy", "npz"),
+])
+def test_accept_negotiation(accept, request_format, fmt):
+    assert wire.negotiate(accept, request_format) == fmt
+
+
+def test_unacceptable_accept_is_406():
+    with pytest.raises(NotAcceptable, match="application/x-npz"):
+        wire.negotiate("text/csv", "npy")
+
+
+def _answer(n: int = 6) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(n)
+    t = rng.uniform(0, 10, n).astype(np.float32)
+    t[::3] = np.inf
+    normal = rng.normal(size=(n, 3)).astype(np.float32)
+    return {"t": t, "mesh": np.where(np.isinf(t), -1, 2).astype(np.int32), "normal": normal[:, ::-1]}
+
+
+@pytest.mark.parametrize("n", [0, 1, 6])
+def test_npz_answer_is_a_valid_zip_that_numpy_reads(n):
+    arrays = _answer(n)
+    parts, media = wire.encode_answer(arrays, "npz")
+    body = b"".join(parts)
+    assert media == wire.NPZ and body == wire.encode_npz(arrays)
+    assert any(isinstance(p, memoryview) and np.shares_memory(np.frombuffer(p, np.uint8), arrays["t"])
+               for p in parts) or n == 0  # the answer arrays are sent from their own memory
+    assert zipfile.ZipFile(io.BytesIO(body)).testzip() is None  # every CRC is right
+    with np.load(io.BytesIO(body), allow_pickle=False) as got:
+        assert list(got.keys()) == list(arrays)
+        for key, array in arrays.items():
+            assert got[key].dtype == array.dtype and np.array_equal(got[key], array)
+
+
+def test_npy_answer_single_field_and_structured():
+    arrays = _answer()
+    single = np.load(io.BytesIO(bytes(wire.encode_npy({"t": arrays["t"]}))))
+    assert np.array_equal(single, arrays["t"])
+    record = np.load(io.BytesIO(bytes(wire.encode_npy(arrays))))
+    assert record.dtype.names == ("t", "mesh", "normal")
+    assert all(np.array_equal(record[k], v) for k, v in arrays.items())
+
+
+def test_json_answer_round_trips_float32_with_null_for_inf():
+    arrays = _answer()
+    document = json.loads(wire.encode_json(arrays))
+    assert document["t"][0] is None and document["mesh"][0] == -1
+    t = np.array([np.inf if x is None else x for x in document["t"]], np.float32)
+    assert np.array_equal(t, arrays["t"])
+    assert np.array_equal(np.array(document["normal"], np.float32), arrays["normal"])
+    assert b"0.30000001" not in wire.encode_json({"t": np.float32([0.3])})  # shortest form
+
+
+def test_encode_answer_names_the_content_type():
+    assert wire.encode_answer({"occluded": np.array([True])}, "json") == ([b'{"occluded":[true]}'], wire.JSON)
+    assert wire.encode_answer({"occluded": np.array([True])}, "npy")[1] == wire.NPY
