@@ -24,6 +24,7 @@ from .contracts import (
 from .leaf import NO_HIT
 from .rays import RECORD_SIZE, pack_rays, unpack_best_t
 from .results import finish_closest
+from .triangles import gather_triangles, triangle_boxes
 from .rayspace import trace_ray_space
 from .traversal import trace_object_split
 from .validation import check_mesh, check_rays, check_strategy, check_threads
@@ -53,32 +54,26 @@ class Scene:
         self.mesh_offsets[1:] = np.cumsum(counts)
         self.n_triangles = int(self.mesh_offsets[-1])
 
-        corners = [vertices[faces].reshape(-1, 9) for vertices, faces in checked]
-        tri_verts = (np.concatenate(corners) if corners else np.empty((0, 9), FLOAT)).astype(
-            FLOAT, copy=False)
+        tri_verts = np.empty((self.n_triangles, 9), FLOAT)
+        live = np.empty(self.n_triangles, np.bool_)
+        corner_box = np.array([np.inf] * 3 + [-np.inf] * 3, FLOAT)
+        for (vertices, faces), first_row in zip(checked, self.mesh_offsets):
+            gather_triangles(vertices, faces, first_row, tri_verts, live, corner_box)
         # Degenerate (zero-area) triangles never hit: leave them out of every query.
-        p0 = tri_verts[:, 0:3].astype(np.float64)
-        normals = np.cross(tri_verts[:, 3:6] - p0, tri_verts[:, 6:9] - p0)
-        live = normals.any(axis=1)
         if live.all():
             self._tri_global = np.arange(self.n_triangles, dtype=INDEX)
         else:
             self._tri_global = np.flatnonzero(live).astype(INDEX)
             tri_verts = tri_verts[live]
-        self._tri_verts = np.ascontiguousarray(tri_verts)
-        lo = np.minimum(np.minimum(tri_verts[:, 0:3], tri_verts[:, 3:6]), tri_verts[:, 6:9])
-        hi = np.maximum(np.maximum(tri_verts[:, 0:3], tri_verts[:, 3:6]), tri_verts[:, 6:9])
-        self._tri_bounds = np.ascontiguousarray(np.concatenate([lo, hi], axis=1))
-        if len(tri_verts):
-            self._box = np.concatenate([lo.min(axis=0), hi.max(axis=0)]).astype(FLOAT)
-        else:
-            self._box = np.zeros(6, FLOAT)
-        used = [vertices[np.unique(faces)] for vertices, faces in checked if len(faces)]
-        if used:
-            all_used = np.concatenate(used)
-            self.bounds = np.stack([all_used.min(axis=0), all_used.max(axis=0)]).astype(FLOAT)
-        else:
-            self.bounds = np.zeros((2, 3), FLOAT)
+        self._tri_verts = tri_verts
+        self._tri_bounds = np.empty((len(tri_verts), 6), FLOAT)
+        self._box = np.empty(6, FLOAT)
+        triangle_boxes(tri_verts, self._tri_bounds, self._box)
+        if not len(tri_verts):
+            self._box[:] = 0
+        # Bounds of the referenced vertices: every corner, degenerate triangles included.
+        self.bounds = (corner_box.reshape(2, 3) if self.n_triangles
+                       else np.zeros((2, 3), FLOAT))
 
     @property
     def nbytes(self):

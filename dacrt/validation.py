@@ -4,6 +4,7 @@ import numpy as np
 
 from .config import jit
 from .contracts import FLOAT, STRATEGIES
+from .triangles import all_finite, faces_in_range
 
 
 def _first_bad(bad, what, reason, total_label):
@@ -29,7 +30,7 @@ def as_float_rows(array, name, width=3, check_finite=True):
 
 
 def check_mesh(index, vertices, faces):
-    """Validate one mesh; returns (vertices float32 (V,3), faces int64 (F,3))."""
+    """Validate one mesh; returns (vertices float32 (V,3), faces (F,3) integer, C-contiguous)."""
     label = f"mesh {index}"
     vertices = np.asarray(vertices)
     faces = np.asarray(faces)
@@ -45,12 +46,16 @@ def check_mesh(index, vertices, faces):
             faces = faces.astype(np.int64)
         else:
             raise ValueError(f"{label}: faces must be an integer array, got dtype {faces.dtype}")
-    vertices = as_float_rows(vertices, f"{label}: vertices")
-    faces = faces.astype(np.int64, copy=False)
+    vertices = as_float_rows(vertices, f"{label}: vertices", check_finite=False)
+    if not all_finite(vertices):
+        as_float_rows(vertices, f"{label}: vertices")  # names the first bad row
+    # Kernels are compiled for int32 and int64 faces; other integer types are converted once.
+    faces = np.ascontiguousarray(faces, dtype=None if faces.dtype in (np.int32, np.int64)
+                                 else np.int64)
     n_vertices = len(vertices)
-    out_of_range = ((faces < 0) | (faces >= n_vertices)).any(axis=1)
-    bad_rows = np.flatnonzero(out_of_range)
-    if len(bad_rows):
+    if not faces_in_range(faces, n_vertices):
+        out_of_range = ((faces < 0) | (faces >= n_vertices)).any(axis=1)
+        bad_rows = np.flatnonzero(out_of_range)
         row = bad_rows[0]
         bad_vertex = faces[row][(faces[row] < 0) | (faces[row] >= n_vertices)][0]
         raise ValueError(

@@ -12,6 +12,7 @@ def warmup():
     start = time.perf_counter()
     vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float32)
     faces = np.array([[0, 1, 2], [1, 3, 2]], np.int32)
+    Scene([(vertices, faces.astype(np.int64))])
     scene = Scene([(vertices, faces)])
     origins = np.tile(np.array([[0.25, 0.25, 1.0]], np.float32), (4, 1))
     directions = np.tile(np.array([[0.0, 0.0, -1.0]], np.float32), (4, 1))

@@ -1,0 +1,73 @@
+"""Preparing a scene's triangles: gathered corners, degenerate flags and boxes, in one pass.
+
+This is all a Scene derives from its meshes (O(F), a few milliseconds per 100K triangles);
+nothing here outlives the Scene or depends on the rays.
+"""
+import numpy as np
+
+from .config import jit
+
+
+@jit
+def faces_in_range(faces, n_vertices):
+    """True if every index of ``faces`` (F, 3) lies in [0, n_vertices)."""
+    for f in range(faces.shape[0]):
+        for k in range(3):
+            if faces[f, k] < 0 or faces[f, k] >= n_vertices:
+                return False
+    return True
+
+
+@jit
+def all_finite(values):
+    """True if every entry of the (n, 3) float array is finite."""
+    for i in range(values.shape[0]):
+        for k in range(3):
+            if not np.isfinite(values[i, k]):
+                return False
+    return True
+
+
+@jit
+def gather_triangles(vertices, faces, first_row, tri_verts, live, bounds):
+    """Write the corners of ``faces`` into rows ``first_row:`` of ``tri_verts`` (F, 9).
+
+    live[row] is False for a degenerate triangle (its edge cross product is exactly zero in
+    float64). ``bounds`` (6,) grows to cover every corner, degenerate triangles included."""
+    for f in range(faces.shape[0]):
+        row = first_row + f
+        for c in range(3):
+            v = faces[f, c]
+            for a in range(3):
+                x = vertices[v, a]
+                tri_verts[row, 3 * c + a] = x
+                if x < bounds[a]:
+                    bounds[a] = x
+                if x > bounds[a + 3]:
+                    bounds[a + 3] = x
+        e1x = np.float64(tri_verts[row, 3]) - np.float64(tri_verts[row, 0])
+        e1y = np.float64(tri_verts[row, 4]) - np.float64(tri_verts[row, 1])
+        e1z = np.float64(tri_verts[row, 5]) - np.float64(tri_verts[row, 2])
+        e2x = np.float64(tri_verts[row, 6]) - np.float64(tri_verts[row, 0])
+        e2y = np.float64(tri_verts[row, 7]) - np.float64(tri_verts[row, 1])
+        e2z = np.float64(tri_verts[row, 8]) - np.float64(tri_verts[row, 2])
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        live[row] = nx != 0.0 or ny != 0.0 or nz != 0.0
+
+
+@jit
+def triangle_boxes(tri_verts, tri_bounds, box):
+    """Box of each triangle into ``tri_bounds`` (F, 6) and of them all into ``box`` (6,)."""
+    for a in range(3):
+        box[a] = np.inf
+        box[a + 3] = -np.inf
+    for row in range(tri_verts.shape[0]):
+        for a in range(3):
+            lo = min(tri_verts[row, a], tri_verts[row, 3 + a], tri_verts[row, 6 + a])
+            hi = max(tri_verts[row, a], tri_verts[row, 3 + a], tri_verts[row, 6 + a])
+            tri_bounds[row, a] = lo
+            tri_bounds[row, a + 3] = hi
+            box[a] = min(box[a], lo)
+            box[a + 3] = max(box[a + 3], hi)
