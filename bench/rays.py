@@ -11,8 +11,9 @@ Conventions (the same for dacrt, Embree and Open3D):
   so ``tmin`` is always 0 and ``tmax`` is one scalar per ray set.
 - secondary rays start at the hit point moved by ``eps`` along the normal flipped to face the
   incoming ray, so they do not hit the surface they start on.
-- shadow rays start only from points that face the light; their directions are ``light - origin`` (not unit length) so that the light sits at t = 1
-  for every ray and one scalar ``tmax`` just below 1 stops short of it.
+- shadow rays start only from points that face the light; their directions are
+  ``light - origin`` (not unit length), so the light sits at t = 1 for every ray and one
+  scalar ``tmax`` just below 1 stops short of it.
 - a kind built from hit points needs as many hit points as rays: when some of the previous
   rays missed, hit points are drawn again (with replacement) until there are ``n``, kept in the
   order of the rays they came from so that coherent sets stay coherent.

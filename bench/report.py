@@ -32,6 +32,10 @@ def _fmt_x(value):
     return None if value is None else f"{value:.2f}×"
 
 
+def _vec(v) -> str:
+    return "—" if v is None else "(" + ", ".join(f"{float(x):.4g}" for x in v) + ")"
+
+
 def header(res: dict) -> str:
     m, s = res["machine"], res["scene"]
     cores = f"{m['logical_cores']} logical"
@@ -48,10 +52,10 @@ def header(res: dict) -> str:
         f"- machine: {m['cpu_model']} ({cores}{mem}); Python {m['python']}; {versions}",
         f"- scene: `{s['path']}`: {s['triangles']:,} triangles, {s['vertices']:,} vertices, "
         f"bounds {np.round(b[0], 3).tolist()} → {np.round(b[1], 3).tolist()}, diagonal {s['diagonal']:.4g}",
-        f"- view `{s['view_key']}`: eye {s['view']['eye']}, target {s['view']['target']}, "
-        f"fov {s['view']['fov_deg']}°, light {s['view'].get('light')}",
-        f"- medians of {res['args']['repeat']} runs, engines alternating within each run; seed {res['args']['seed']}; "
-        f"dacrt.warmup() {_cell(res.get('dacrt_warmup_s'))} s",
+        f"- view `{s['view_key']}`: eye {_vec(s['view']['eye'])}, target {_vec(s['view']['target'])}, "
+        f"up {_vec(s['view']['up'])}, fov {s['view']['fov_deg']:.4g}°, light {_vec(s['view'].get('light'))}",
+        f"- medians of {res['args']['repeat']} runs, engines alternating within each run; seed {res['args']['seed']}"
+        + (f"; dacrt.warmup() {_cell(res['dacrt_warmup_s'])} s" if res.get("dacrt_warmup_s") is not None else ""),
     ]
     for family, reason in res.get("missing", {}).items():
         lines.append(f"- **{family} not available**: {reason}")
@@ -94,7 +98,7 @@ def speed_tables(res: dict, field: str, title: str) -> str:
             if strategies and "embree" in names:
                 row.append(_fmt_x(_ratio(get(strategies[0]), get("embree"))))
             rows.append(row)
-    cut = sorted({f"{run['name']}@{run['threads']} ({kind}: {len(run['trace_s'])} run)"
+    cut = sorted({f"{run['name']}@{run['threads']} ({kind}: {len(run['trace_s'])} of {res['args']['repeat']} runs)"
                   for kind, info in res["kinds"].items() for run in info["runs"].values() if run.get("cut_short")})
     note = f"\n\nFewer runs (a trace took longer than --slow): {', '.join(cut)}" if cut else ""
     return f"## {title}\n\n" + table(heads, rows, right_from=1) + note

@@ -85,7 +85,7 @@ def parse_args(argv=None):
 
 # --- ray sets -------------------------------------------------------------------------------------
 
-def reference_tracer(vertices, faces, engines_wanted):
+def reference_tracer(vertices, faces):
     """(name, trace) where trace(o, d) -> (t, normals) finds hits for building secondary rays.
 
     Embree when installed (the same reference the agreement columns use), else Open3D, else dacrt;
@@ -300,7 +300,7 @@ def main(argv=None) -> int:
         res["resolutions"], res["resolution_runs"] = run_resolutions(args, view, engines, vertices, faces, diag, res["errors"])
         ray_sets = []
     else:
-        ref_name, trace = reference_tracer(vertices, faces, args.engines)
+        ref_name, trace = reference_tracer(vertices, faces)
         start = time.perf_counter()
         ray_sets = make_ray_sets(args, view, bounds, trace, args.rays, args.kinds)
         res["ray_generation"] = {"tracer": ref_name, "seconds": time.perf_counter() - start,
