@@ -14,7 +14,8 @@ STRATEGY_CODES = {"middle": 0, "sah": 1, "sampling": 2, "rayspace": 3}
 MODE_CLOSEST = 0
 MODE_OCCLUDED = 1
 
-# Order of the counters in a kernel's stats array.
+# Order of the counters in a kernel's stats array. ray_box_tests counts every ray-box test,
+# sample_box_tests the part of them that ray sampling made (Algorithm 2 of Nabata et al.).
 STAT_NAMES = (
     "rays",
     "triangles",
@@ -25,6 +26,7 @@ STAT_NAMES = (
     "sampled_nodes",
     "skipped_filterings",
     "max_depth",
+    "sample_box_tests",
 )
 (
     STAT_RAYS,
@@ -36,6 +38,7 @@ STAT_NAMES = (
     STAT_SAMPLED,
     STAT_SKIPPED,
     STAT_MAX_DEPTH,
+    STAT_SAMPLE_BOX_TESTS,
 ) = range(len(STAT_NAMES))
 
 

@@ -8,6 +8,7 @@ children, the one the rays reach first on top. No tree outlives the call.
 import numpy as np
 
 from .config import (
+    BOX_TO_TRIANGLE_COST,
     LEAF_RAYS,
     LEAF_TRIANGLES,
     MAX_DEPTH,
@@ -25,6 +26,7 @@ from .contracts import (
     STAT_MAX_DEPTH,
     STAT_NODES,
     STAT_SAMPLED,
+    STAT_SAMPLE_BOX_TESTS,
     STAT_SKIPPED,
     STAT_TRIANGLE_TESTS,
 )
@@ -132,9 +134,11 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
                 if strategy == SAMPLING and n_rays > MIN_RAYS_TO_SAMPLE:
                     sampled = True
                     stats[STAT_SAMPLED] += 1
-                    stats[STAT_BOX_TESTS] += sample_rays(
+                    n_sample_tests = sample_rays(
                         rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box,
                         samples, hits_left, hits_right, nearer_left)
+                    stats[STAT_BOX_TESTS] += n_sample_tests
+                    stats[STAT_SAMPLE_BOX_TESTS] += n_sample_tests
                     split = cheapest_sampled_split(left_count, right_count, hits_left,
                                                    hits_right)
                 else:
@@ -154,9 +158,9 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         if sampled:
             n_samples = min(N_SAMPLE_RAYS, n_rays)
             left_first = nearer_left[split] >= n_samples - nearer_left[split]
-            # Eq. (6): skip filtering a child that more than half the sample rays reach.
-            filter_left = 2 * hits_left[split] <= n_samples
-            filter_right = 2 * hits_right[split] <= n_samples
+            # Eq. (5)-(6): skip filtering a child that most sample rays reach anyway.
+            filter_left = hits_left[split] <= skip_threshold(tri_mid - tri_lo) * n_samples
+            filter_right = hits_right[split] <= skip_threshold(tri_hi - tri_mid) * n_samples
         else:
             left_first = rays[DIRECTION + axis, ray_lo] >= 0
             filter_left = True
@@ -246,6 +250,17 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
         hits_right[j] = n_right
         nearer_left[j] = n_nearer
     return n_tests
+
+
+@jit
+def skip_threshold(n_child_tris):
+    """Eq. (5): the sampled hit ratio above which filtering a child's rays does not pay.
+
+    An inner child has two boxes to test (1 - C_bv / (2 C_bv) = 0.5, Eq. 6); a child that will
+    be a leaf has its triangles, each a C_tri test, so skipping pays only at higher ratios."""
+    if n_child_tris > LEAF_TRIANGLES:
+        return 0.5
+    return 1.0 - BOX_TO_TRIANGLE_COST / n_child_tris
 
 
 @jit
