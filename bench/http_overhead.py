@@ -9,6 +9,11 @@ Side by side in one run, alternating, medians of ``--repeat``:
 The overhead is ``end to end - engine``: receive + decode + encode + transport, on both sides.
 The server's own Server-Timing (receive, decode, trace, encode) is shown too. BENCHMARKS.md asks
 for at most 10% of the trace time; the service issue for at most ~15%.
+
+With ``--frame``, also the per-frame loop of a dynamic scene, side by side in the same run:
+  http frame    upload the mesh (moved a little every frame, .npz) then POST the rays
+  dacrt frame   a new ``dacrt.Scene`` plus ``closest``, in process
+  embree frame  a new Embree scene (embreex) plus ``run``, in process (needs embreex)
 """
 from __future__ import annotations
 
@@ -82,6 +87,8 @@ def main() -> None:
     parser.add_argument("--rays", type=int, default=1_000_000)
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--fields", default=None, help="e.g. t,mesh,prim (default: all)")
+    parser.add_argument("--frame", action="store_true",
+                        help="also time the per-frame loop (new mesh + rays) against Embree")
     args = parser.parse_args()
 
     with np.load(args.scene) as archive:
@@ -94,6 +101,7 @@ def main() -> None:
     scene = dacrt.Scene([(vertices, faces)])
     process, url = start_server({"DACRT_MAX_RAYS_PER_REQUEST": str(max(args.rays, 1))})
     engine, end_to_end, server = [], [], []
+    frames = None
     try:
         with Client(url) as client:
             client.put_mesh("bench", "mesh", vertices, faces)
@@ -107,6 +115,7 @@ def main() -> None:
                 end_to_end.append(time.perf_counter() - start)
                 server.append(answer.timing)
             assert np.array_equal(answer.t, reference.t), "the server's answer differs from the engine's"
+            frames = time_frames(client, vertices, faces, origins, directions, rays, args) if args.frame else None
     finally:
         process.terminate()
         process.wait(timeout=30)
@@ -127,7 +136,43 @@ def main() -> None:
     print(f"HTTP overhead          {overhead_ms:9.1f} ms = {100 * overhead_ms / engine_ms:.1f}% of engine time")
     print(f"  (end to end - server trace = {e2e_ms - server_trace_ms:.1f} ms = "
           f"{100 * (e2e_ms - server_trace_ms) / server_trace_ms:.1f}% of the server's trace time)")
+    if frames:
+        print(f"per frame (new mesh + {args.rays} rays), medians of {args.repeat}:")
+        for name, seconds in frames.items():
+            print(f"  {name:<14} {median_ms(seconds):9.1f} ms")
+        if "embree frame" in frames:
+            embree_ms = median_ms(frames["embree frame"])
+            for name in ("http frame", "dacrt frame"):
+                print(f"  {name} / embree frame = {median_ms(frames[name]) / embree_ms:.2f}")
     print(f"load average during the run: {os.getloadavg()[0]:.2f}")
+
+
+def time_frames(client, vertices, faces, origins, directions, rays, args):
+    """Per-frame loops, alternating: every frame the mesh moves, so nothing can be reused."""
+    try:
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+    except ImportError:
+        rtcore_scene = None
+    seconds = {"http frame": [], "dacrt frame": []}
+    if rtcore_scene is not None:
+        seconds["embree frame"] = []
+    for frame in range(args.repeat):
+        moved = vertices + np.float32(1e-3 * (frame + 1))
+        start = time.perf_counter()
+        client.put_mesh("bench", "mesh", moved, faces)
+        client.closest("bench", rays, fields=args.fields)
+        seconds["http frame"].append(time.perf_counter() - start)
+        start = time.perf_counter()
+        dacrt.Scene([(moved, faces)]).closest(origins, directions)
+        seconds["dacrt frame"].append(time.perf_counter() - start)
+        if rtcore_scene is not None:
+            start = time.perf_counter()
+            embree = rtcore_scene.EmbreeScene()
+            TriangleMesh(embree, moved[faces])
+            embree.run(origins, directions, output=1)
+            seconds["embree frame"].append(time.perf_counter() - start)
+    return seconds
 
 
 if __name__ == "__main__":

@@ -129,3 +129,15 @@ def intersect_triangle(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz):
     scaled_t = e0 * (sz * az) + e1 * (sz * bz) + e2 * (sz * cz)
     inv_det = 1.0 / det
     return True, scaled_t * inv_det, e1 * inv_det, e2 * inv_det
+
+
+@inline
+def triangle_normal(tri_verts, row):
+    """Unnormalised geometric normal (p1 - p0) x (p2 - p0) of a triangle, in float64."""
+    e1x = np.float64(tri_verts[row, 3]) - np.float64(tri_verts[row, 0])
+    e1y = np.float64(tri_verts[row, 4]) - np.float64(tri_verts[row, 1])
+    e1z = np.float64(tri_verts[row, 5]) - np.float64(tri_verts[row, 2])
+    e2x = np.float64(tri_verts[row, 6]) - np.float64(tri_verts[row, 0])
+    e2y = np.float64(tri_verts[row, 7]) - np.float64(tri_verts[row, 1])
+    e2z = np.float64(tri_verts[row, 8]) - np.float64(tri_verts[row, 2])
+    return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x

@@ -2,6 +2,7 @@
 import numpy as np
 
 from .config import jit
+from .geometry import triangle_normal
 from .leaf import NO_HIT
 
 
@@ -24,15 +25,7 @@ def finish_closest(best_t, best_tri, hit_u, hit_v, tri_global, mesh_offsets, tri
         u[ray] = hit_u[ray]
         v[ray] = hit_v[ray]
         # Geometric normal (p1 - p0) x (p2 - p0), normalised in float64.
-        e1x = np.float64(tri_verts[row, 3]) - np.float64(tri_verts[row, 0])
-        e1y = np.float64(tri_verts[row, 4]) - np.float64(tri_verts[row, 1])
-        e1z = np.float64(tri_verts[row, 5]) - np.float64(tri_verts[row, 2])
-        e2x = np.float64(tri_verts[row, 6]) - np.float64(tri_verts[row, 0])
-        e2y = np.float64(tri_verts[row, 7]) - np.float64(tri_verts[row, 1])
-        e2z = np.float64(tri_verts[row, 8]) - np.float64(tri_verts[row, 2])
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
+        nx, ny, nz = triangle_normal(tri_verts, row)
         inv_length = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
         normal[ray, 0] = nx * inv_length
         normal[ray, 1] = ny * inv_length

@@ -6,6 +6,7 @@ nothing here outlives the Scene or depends on the rays.
 import numpy as np
 
 from .config import jit
+from .geometry import triangle_normal
 
 
 @jit
@@ -45,15 +46,7 @@ def gather_triangles(vertices, faces, first_row, tri_verts, live, bounds):
                     bounds[a] = x
                 if x > bounds[a + 3]:
                     bounds[a + 3] = x
-        e1x = np.float64(tri_verts[row, 3]) - np.float64(tri_verts[row, 0])
-        e1y = np.float64(tri_verts[row, 4]) - np.float64(tri_verts[row, 1])
-        e1z = np.float64(tri_verts[row, 5]) - np.float64(tri_verts[row, 2])
-        e2x = np.float64(tri_verts[row, 6]) - np.float64(tri_verts[row, 0])
-        e2y = np.float64(tri_verts[row, 7]) - np.float64(tri_verts[row, 1])
-        e2z = np.float64(tri_verts[row, 8]) - np.float64(tri_verts[row, 2])
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
+        nx, ny, nz = triangle_normal(tri_verts, row)
         live[row] = nx != 0.0 or ny != 0.0 or nz != 0.0
 
 
