@@ -31,6 +31,9 @@ RAYSPACE_LEAF_TRIANGLES = 64
 # its parent's triangles (rays too incoherent for ray-space splits to pay).
 RAYSPACE_MIN_DEPTH_TO_GIVE_UP = 4
 RAYSPACE_KEPT_TO_GIVE_UP = 0.8
+# ... at any depth when the rays' origins spread over more than this fraction of the scene
+# (secondary and random rays): each hand-off re-partitions the triangles, so hand off early.
+RAYSPACE_ORIGIN_SPREAD_TO_GIVE_UP = 0.1
 # Cost of a ray-box test over a ray-triangle test (C_bv / C_tri of Eq. 5), as measured here:
 # about 4 ns for a vectorised filter step against 15 ns for a watertight triangle test.
 BOX_TO_TRIANGLE_COST = 0.25

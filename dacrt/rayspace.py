@@ -16,6 +16,7 @@ from .config import (
     RAYSPACE_KEPT_TO_GIVE_UP,
     RAYSPACE_LEAF_TRIANGLES,
     RAYSPACE_MIN_DEPTH_TO_GIVE_UP,
+    RAYSPACE_ORIGIN_SPREAD_TO_GIVE_UP,
     inline,
     jit,
 )
@@ -251,8 +252,12 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                 continue
             # Rays too incoherent for their frustum to cull: dividing them further only repeats
             # the cull, so object splits take over.
-            incoherent = (depth >= RAYSPACE_MIN_DEPTH_TO_GIVE_UP
-                          and n_tris > RAYSPACE_KEPT_TO_GIVE_UP * n_tris_before)
+            origin_spread = 0.0
+            for a in range(3):
+                origin_spread = max(origin_spread, frustum[_O_MAX + a] - frustum[_O_MIN + a])
+            incoherent = (n_tris > RAYSPACE_KEPT_TO_GIVE_UP * n_tris_before
+                          and (depth >= RAYSPACE_MIN_DEPTH_TO_GIVE_UP
+                               or origin_spread > RAYSPACE_ORIGIN_SPREAD_TO_GIVE_UP * scene_size))
             if (n_rays * n_tris < RAYSPACE_C_R * n_rays + RAYSPACE_C_G * n_tris
                     or depth >= MAX_DEPTH or incoherent):
                 if n_tris > RAYSPACE_LEAF_TRIANGLES:
