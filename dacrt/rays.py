@@ -11,7 +11,6 @@ where best_t starts at tmax, shrinks as closer hits are found, and is -inf once 
 ray has hit (which culls it from every later box). The ray's id travels in a parallel int32
 array. 32 bytes per ray; 1/d is recomputed where needed, which costs less than moving it.
 """
-import numpy as np
 
 from .config import inline, jit
 

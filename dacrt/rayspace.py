@@ -258,47 +258,44 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
             incoherent = (n_tris > RAYSPACE_KEPT_TO_GIVE_UP * n_tris_before
                           and (depth >= RAYSPACE_MIN_DEPTH_TO_GIVE_UP
                                or origin_spread > RAYSPACE_ORIGIN_SPREAD_TO_GIVE_UP * scene_size))
-            if (n_rays * n_tris < RAYSPACE_C_R * n_rays + RAYSPACE_C_G * n_tris
-                    or depth >= MAX_DEPTH or incoherent):
+            stop = (n_rays * n_tris < RAYSPACE_C_R * n_rays + RAYSPACE_C_G * n_tris
+                    or depth >= MAX_DEPTH or incoherent)
+            if not stop:
+                # Split the rays at the middle of their widest dimension; slopes are weighed by
+                # the distance they travel across the scene, so both kinds are in world units.
+                spread = 0.0
+                dim = -1
+                for d in range(5):
+                    if d < 3:
+                        extent = frustum[_O_MAX + d] - frustum[_O_MIN + d]
+                    else:
+                        k = _U if d == 3 else _V
+                        extent = (frustum[k + 1] - frustum[k]) * scene_size
+                    if extent > spread:
+                        spread = extent
+                        dim = d
+                # Rays alike in every dimension leave nothing to divide.
+                stop = True
+                if dim >= 0:
+                    if dim < 3:
+                        split = 0.5 * (frustum[_O_MIN + dim] + frustum[_O_MAX + dim])
+                    else:
+                        k = _U if dim == 3 else _V
+                        split = 0.5 * (frustum[k] + frustum[k + 1])
+                    ray_mid = partition_rays(rays, ray_ids, ray_lo, ray_hi, axis, dim, split)
+                    stop = not ray_lo < ray_mid < ray_hi
+            if stop:
+                # Finish the node here: brute force, or object splits for many triangles.
                 if n_tris > RAYSPACE_LEAF_TRIANGLES:
                     triangle_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, node_box)
                     trace_object_split(SAMPLING, mode, tri_verts, tri_bounds, node_box, rays,
                                        ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
                                        best_tri, hit_u, hit_v, hit_mask, stats)
-                    continue
-                stats[STAT_LEAVES] += 1
-                stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
-                    mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                    best_tri, hit_u, hit_v)
-                continue
-            # Split the rays at the middle of their widest dimension; slopes are weighed by the
-            # distance they travel across the scene, so both kinds are in world units.
-            spread = 0.0
-            dim = -1
-            for d in range(5):
-                if d < 3:
-                    extent = frustum[_O_MAX + d] - frustum[_O_MIN + d]
                 else:
-                    k = _U if d == 3 else _V
-                    extent = (frustum[k + 1] - frustum[k]) * scene_size
-                if extent > spread:
-                    spread = extent
-                    dim = d
-            split_ok = False
-            if dim >= 0:
-                if dim < 3:
-                    split = 0.5 * (frustum[_O_MIN + dim] + frustum[_O_MAX + dim])
-                else:
-                    k = _U if dim == 3 else _V
-                    split = 0.5 * (frustum[k] + frustum[k + 1])
-                ray_mid = partition_rays(rays, ray_ids, ray_lo, ray_hi, axis, dim, split)
-                split_ok = ray_lo < ray_mid < ray_hi
-            if not split_ok:
-                # All rays alike in every dimension: nothing left to divide.
-                stats[STAT_LEAVES] += 1
-                stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
-                    mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                    best_tri, hit_u, hit_v)
+                    stats[STAT_LEAVES] += 1
+                    stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
+                        mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
+                        best_tri, hit_u, hit_v)
                 continue
             for half in range(2):
                 stack[sp, 0] = ray_mid if half == 0 else ray_lo

@@ -46,10 +46,11 @@ from .partition import (
 )
 
 MIDDLE = 0
-_INF32 = np.float32(np.inf)
-_ONE32 = np.float32(1.0)
 SAH = 1
 SAMPLING = 2
+
+_INF32 = np.float32(np.inf)
+_ONE32 = np.float32(1.0)
 
 
 @jit

@@ -3,7 +3,6 @@ where the wire itself is under test). Answers are compared with a plain-NumPy br
 from __future__ import annotations
 
 import io
-import json
 
 import numpy as np
 import pytest
