@@ -29,7 +29,7 @@ from .contracts import (
     STAT_TRIANGLE_TESTS,
 )
 from .geometry import cull_distance
-from .leaf import intersect_leaf
+from .leaf import intersect_leaf, leaf_scratch
 from .partition import triangle_bounds
 from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, swap_rays
 from .traversal import SAMPLING, trace_object_split
@@ -103,52 +103,74 @@ def slope_range(o_lo, o_hi, s_lo, s_hi, lo, hi):
     return o_lo + min(min(p0, p1), min(p2, p3)), o_hi + max(max(p0, p1), max(p2, p3))
 
 
-@inline
-def frustum_overlaps_box(frustum, axis, negative, tolerance, tri_bounds, tri):
-    """Conservative test: can a ray of the frustum pass through the triangle's box?
+@jit
+def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, tolerance, keep,
+                   bounds):
+    """Move the triangles whose boxes a ray of the frustum can pass through to the front;
+    returns how many they are.
 
-    Interval arithmetic over the five ray dimensions and the distance range; ``tolerance``
-    (world units) absorbs rounding."""
+    Conservative: interval arithmetic over the five ray dimensions and the distance range,
+    ``tolerance`` (world units) absorbing rounding. ``keep`` (one entry per triangle) and
+    ``bounds`` (6 rows of as many) are scratch: the boxes are gathered into rows first, so the
+    tests, written with selects only, run as one vectorised loop."""
     a1 = (axis + 1) % 3
     a2 = (axis + 2) % 3
-    b_lo = np.float64(tri_bounds[tri, axis]) - tolerance
-    b_hi = np.float64(tri_bounds[tri, axis + 3]) + tolerance
-    # Distances along the dominant axis at which a ray can be inside the box's slab.
-    if negative:
-        s_lo = frustum[_O_MIN + axis] - b_hi
-        s_hi = frustum[_O_MAX + axis] - b_lo
-    else:
-        s_lo = b_lo - frustum[_O_MAX + axis]
-        s_hi = b_hi - frustum[_O_MIN + axis]
-    s_lo = max(s_lo, frustum[_S] - tolerance)
-    s_hi = min(s_hi, frustum[_S + 1] + tolerance)
-    if s_lo > s_hi:
-        return False
-    lo, hi = slope_range(frustum[_O_MIN + a1], frustum[_O_MAX + a1], s_lo, s_hi,
-                         frustum[_U], frustum[_U + 1])
-    if hi < np.float64(tri_bounds[tri, a1]) - tolerance or lo > np.float64(tri_bounds[tri, a1 + 3]) + tolerance:
-        return False
-    lo, hi = slope_range(frustum[_O_MIN + a2], frustum[_O_MAX + a2], s_lo, s_hi,
-                         frustum[_V], frustum[_V + 1])
-    if hi < np.float64(tri_bounds[tri, a2]) - tolerance or lo > np.float64(tri_bounds[tri, a2 + 3]) + tolerance:
-        return False
-    return True
-
-
-@jit
-def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, tolerance):
-    """Move the triangles the frustum can reach to the front; returns how many they are."""
-    i = lo
-    j = hi
+    n = hi - lo
+    lo0 = bounds[0]
+    hi0 = bounds[1]
+    lo1 = bounds[2]
+    hi1 = bounds[3]
+    lo2 = bounds[4]
+    hi2 = bounds[5]
+    for k in range(n):
+        tri = tri_ids[lo + k]
+        lo0[k] = tri_bounds[tri, axis]
+        hi0[k] = tri_bounds[tri, axis + 3]
+        lo1[k] = tri_bounds[tri, a1]
+        hi1[k] = tri_bounds[tri, a1 + 3]
+        lo2[k] = tri_bounds[tri, a2]
+        hi2[k] = tri_bounds[tri, a2 + 3]
+    # The frustum in locals (loads from an array would be repeated in the loop). Distances
+    # along the dominant axis to a slab [b_lo, b_hi] are b_lo - o_far .. b_hi - o_near, or
+    # mirrored for a negative direction: s = sign * b + offset.
+    sign = -1.0 if negative else 1.0
+    o_near = frustum[_O_MAX + axis] if negative else frustum[_O_MIN + axis]
+    o_far = frustum[_O_MIN + axis] if negative else frustum[_O_MAX + axis]
+    s_min = frustum[_S] - tolerance
+    s_max = frustum[_S + 1] + tolerance
+    o1_lo = frustum[_O_MIN + a1]
+    o1_hi = frustum[_O_MAX + a1]
+    o2_lo = frustum[_O_MIN + a2]
+    o2_hi = frustum[_O_MAX + a2]
+    u_lo = frustum[_U]
+    u_hi = frustum[_U + 1]
+    v_lo = frustum[_V]
+    v_hi = frustum[_V + 1]
+    for k in range(n):
+        b_lo = lo0[k] - tolerance
+        b_hi = hi0[k] + tolerance
+        near_plane = b_hi if negative else b_lo
+        far_plane = b_lo if negative else b_hi
+        s_lo = max(sign * (near_plane - o_far), s_min)
+        s_hi = min(sign * (far_plane - o_near), s_max)
+        p_lo, p_hi = slope_range(o1_lo, o1_hi, s_lo, s_hi, u_lo, u_hi)
+        q_lo, q_hi = slope_range(o2_lo, o2_hi, s_lo, s_hi, v_lo, v_hi)
+        # ~(a > b) rather than a <= b: a NaN never culls.
+        keep[k] = (~(s_lo > s_hi) & ~(p_hi < lo1[k] - tolerance) & ~(p_lo > hi1[k] + tolerance)
+                   & ~(q_hi < lo2[k] - tolerance) & ~(q_lo > hi2[k] + tolerance))
+    i = 0
+    j = n
     while i < j:
-        tri = tri_ids[i]
-        if frustum_overlaps_box(frustum, axis, negative, tolerance, tri_bounds, tri):
+        if keep[i]:
             i += 1
         else:
             j -= 1
-            tri_ids[i] = tri_ids[j]
-            tri_ids[j] = tri
-    return i - lo
+            if keep[j]:
+                tri = tri_ids[lo + i]
+                tri_ids[lo + i] = tri_ids[lo + j]
+                tri_ids[lo + j] = tri
+                i += 1
+    return i
 
 
 @jit
@@ -216,6 +238,9 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
     stack = np.empty((n_stack, 5), np.int64)  # ray_lo, ray_hi, tri_lo, tri_hi, depth
     frustum = np.empty(_FRUSTUM_SIZE)
     node_box = np.empty(6, np.float32)
+    corners, t_block = leaf_scratch()
+    keep = np.empty(n_tris_all, np.bool_)
+    bounds = np.empty((6, n_tris_all), np.float64)
     for g in range(6):
         if group_start[g + 1] == group_start[g]:
             continue
@@ -246,7 +271,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
             n_tris_before = tri_hi - tri_lo
             stats[STAT_BOX_TESTS] += n_tris_before
             tri_hi = tri_lo + cull_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, frustum, axis,
-                                             negative, tolerance)
+                                             negative, tolerance, keep, bounds)
             n_tris = tri_hi - tri_lo
             if n_tris == 0:
                 continue
@@ -295,7 +320,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                     stats[STAT_LEAVES] += 1
                     stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
                         mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                        best_tri, hit_u, hit_v)
+                        best_tri, hit_u, hit_v, corners, t_block)
                 continue
             for half in range(2):
                 stack[sp, 0] = ray_mid if half == 0 else ray_lo

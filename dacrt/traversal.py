@@ -31,7 +31,7 @@ from .contracts import (
     STAT_TRIANGLE_TESTS,
 )
 from .geometry import cull_distance, intersect_box
-from .leaf import intersect_leaf
+from .leaf import intersect_leaf, leaf_scratch
 from .rays import BEST_T, DIRECTION, ORIGIN, TMIN
 from .partition import (
     bin_scale,
@@ -81,6 +81,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     c_box = np.empty(6, np.float32)
     box_a = np.empty(6, np.float32)
     box_b = np.empty(6, np.float32)
+    corners, t_block = leaf_scratch()
 
     stack_tri[0, 0] = tri_lo
     stack_tri[0, 1] = tri_hi
@@ -114,7 +115,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
             stats[STAT_LEAVES] += 1
             stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
                 mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                best_tri, hit_u, hit_v)
+                best_tri, hit_u, hit_v, corners, t_block)
             continue
 
         # Choose the split; it leaves left triangles in [tri_lo, tri_mid), boxes in box_a/box_b.
