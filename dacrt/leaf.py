@@ -20,9 +20,31 @@ def leaf_scratch():
 
 
 @inline
+def woop_distance(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz):
+    """The float32 hit distance of ``intersect_triangle`` from the corners relative to the ray
+    origin, in the ray's axis order, or NaN for a miss. Selects only, no branches, so loops
+    calling it vectorise; the same operations in the same order, so the same bits."""
+    ax = ax - sx * az
+    ay = ay - sy * az
+    bx = bx - sx * bz
+    by = by - sy * bz
+    cx = cx - sx * cz
+    cy = cy - sy * cz
+    e0 = cx * by - cy * bx
+    e1 = ax * cy - ay * cx
+    e2 = bx * ay - by * ax
+    mixed = ((e0 < 0.0) | (e1 < 0.0) | (e2 < 0.0)) & ((e0 > 0.0) | (e1 > 0.0) | (e2 > 0.0))
+    det = e0 + e1 + e2
+    noise = (abs(cx * by) + abs(cy * bx) + abs(ax * cy) + abs(ay * cx) + abs(bx * ay)
+             + abs(by * ax)) * _EDGE_ON_TOLERANCE
+    scaled_t = e0 * (sz * az) + e1 * (sz * bz) + e2 * (sz * cz)
+    t = np.float32(scaled_t * (1.0 / det))
+    return _NAN32 if mixed | (abs(det) <= noise) else t
+
+
+@inline
 def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_block):
-    """t_block[k] = the float32 hit distance of the ray on triangle k of the block, NaN for a
-    miss: the arithmetic of ``intersect_triangle``, without branches, so the loop vectorises.
+    """t_block[k] = woop_distance of one ray to triangle k of a gathered block.
 
     ``corners`` holds coordinate c of the block's triangle k at [c * LEAF_BLOCK + k]; one array,
     so LLVM needs a single alias check against ``t_block``."""
@@ -30,31 +52,66 @@ def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_block):
     ay_row = ky * LEAF_BLOCK
     az_row = kz * LEAF_BLOCK
     for k in range(n):
-        ax = corners[ax_row + k] - okx
-        ay = corners[ay_row + k] - oky
-        az = corners[az_row + k] - okz
-        bx = corners[3 * LEAF_BLOCK + ax_row + k] - okx
-        by = corners[3 * LEAF_BLOCK + ay_row + k] - oky
-        bz = corners[3 * LEAF_BLOCK + az_row + k] - okz
-        cx = corners[6 * LEAF_BLOCK + ax_row + k] - okx
-        cy = corners[6 * LEAF_BLOCK + ay_row + k] - oky
-        cz = corners[6 * LEAF_BLOCK + az_row + k] - okz
-        ax = ax - sx * az
-        ay = ay - sy * az
-        bx = bx - sx * bz
-        by = by - sy * bz
-        cx = cx - sx * cz
-        cy = cy - sy * cz
-        e0 = cx * by - cy * bx
-        e1 = ax * cy - ay * cx
-        e2 = bx * ay - by * ax
-        mixed = ((e0 < 0.0) | (e1 < 0.0) | (e2 < 0.0)) & ((e0 > 0.0) | (e1 > 0.0) | (e2 > 0.0))
-        det = e0 + e1 + e2
-        noise = (abs(cx * by) + abs(cy * bx) + abs(ax * cy) + abs(ay * cx) + abs(bx * ay)
-                 + abs(by * ax)) * _EDGE_ON_TOLERANCE
-        scaled_t = e0 * (sz * az) + e1 * (sz * bz) + e2 * (sz * cz)
-        t = np.float32(scaled_t * (1.0 / det))
-        t_block[k] = _NAN32 if mixed | (abs(det) <= noise) else t
+        t_block[k] = woop_distance(
+            corners[ax_row + k] - okx, corners[ay_row + k] - oky, corners[az_row + k] - okz,
+            corners[3 * LEAF_BLOCK + ax_row + k] - okx, corners[3 * LEAF_BLOCK + ay_row + k] - oky,
+            corners[3 * LEAF_BLOCK + az_row + k] - okz,
+            corners[6 * LEAF_BLOCK + ax_row + k] - okx, corners[6 * LEAF_BLOCK + ay_row + k] - oky,
+            corners[6 * LEAF_BLOCK + az_row + k] - okz, sx, sy, sz)
+
+
+@inline
+def pick(k, x, y, z):
+    """Component k of (x, y, z), as selects."""
+    return x if k == 0 else (y if k == 1 else z)
+
+
+@inline
+def ray_distances(rays, lo, n, tri_verts, tri, t_block):
+    """t_block[i] = woop_distance of ray record lo + i to one triangle.
+
+    The per-ray axis order of ``watertight_setup`` is done with selects, so the loop over rays
+    vectorises: this is the leaf of many rays and few triangles."""
+    p0x = np.float64(tri_verts[tri, 0])
+    p0y = np.float64(tri_verts[tri, 1])
+    p0z = np.float64(tri_verts[tri, 2])
+    p1x = np.float64(tri_verts[tri, 3])
+    p1y = np.float64(tri_verts[tri, 4])
+    p1z = np.float64(tri_verts[tri, 5])
+    p2x = np.float64(tri_verts[tri, 6])
+    p2y = np.float64(tri_verts[tri, 7])
+    p2z = np.float64(tri_verts[tri, 8])
+    for i in range(n):
+        r = lo + i
+        dx = np.float64(rays[DIRECTION, r])
+        dy = np.float64(rays[DIRECTION + 1, r])
+        dz = np.float64(rays[DIRECTION + 2, r])
+        abs_x = abs(dx)
+        abs_y = abs(dy)
+        abs_z = abs(dz)
+        x_dominant = (abs_x >= abs_y) & (abs_x >= abs_z)
+        kz = 0 if x_dominant else (1 if abs_y >= abs_z else 2)
+        dk = pick(kz, dx, dy, dz)
+        kx = kz + 1 if kz < 2 else 0
+        ky = kx + 1 if kx < 2 else 0
+        swap = dk < 0
+        kx, ky = (ky, kx) if swap else (kx, ky)
+        sx = pick(kx, dx, dy, dz) / dk
+        sy = pick(ky, dx, dy, dz) / dk
+        sz = 1.0 / dk
+        ox = np.float64(rays[ORIGIN, r])
+        oy = np.float64(rays[ORIGIN + 1, r])
+        oz = np.float64(rays[ORIGIN + 2, r])
+        okx = pick(kx, ox, oy, oz)
+        oky = pick(ky, ox, oy, oz)
+        okz = pick(kz, ox, oy, oz)
+        t_block[i] = woop_distance(
+            pick(kx, p0x, p0y, p0z) - okx, pick(ky, p0x, p0y, p0z) - oky,
+            pick(kz, p0x, p0y, p0z) - okz,
+            pick(kx, p1x, p1y, p1z) - okx, pick(ky, p1x, p1y, p1z) - oky,
+            pick(kz, p1x, p1y, p1z) - okz,
+            pick(kx, p2x, p2y, p2z) - okx, pick(ky, p2x, p2y, p2z) - oky,
+            pick(kz, p2x, p2y, p2z) - okz, sx, sy, sz)
 
 
 @inline
@@ -66,9 +123,55 @@ def intersect_leaf(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_
     lives in the ray record, the rest in arrays indexed by ray id. In occlusion mode a ray
     stops at its first hit and its best_t becomes -inf. Returns the ray-triangle tests made.
 
-    Triangles go in blocks of LEAF_BLOCK, copied to float64 rows (``corners``) so each ray's
-    tests over a block run as one vectorised loop (``block_distances``); the winner's u, v are
-    then recomputed by the scalar test, which is the same arithmetic."""
+    The tests run as vectorised loops, over triangles (a few rays) or over rays (a few
+    triangles, more rays than LEAF_BLOCK); the order of tests changes no answer."""
+    if tri_hi - tri_lo < 8 and ray_hi - ray_lo >= LEAF_BLOCK:
+        return intersect_leaf_by_rays(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids,
+                                      tri_lo, tri_hi, best_tri, hit_u, hit_v, t_block)
+    return intersect_leaf_by_triangles(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids,
+                                       tri_lo, tri_hi, best_tri, hit_u, hit_v, corners, t_block)
+
+
+@inline
+def intersect_leaf_by_rays(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo,
+                           tri_hi, best_tri, hit_u, hit_v, t_block):
+    """intersect_leaf for few triangles: per triangle, blocks of LEAF_BLOCK rays in one
+    vectorised loop; the winner's u, v come from the scalar test, which is the same arithmetic."""
+    n_tests = 0
+    for k in range(tri_lo, tri_hi):
+        tri = tri_ids[k]
+        for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
+            n = min(LEAF_BLOCK, ray_hi - block_lo)
+            n_tests += n
+            ray_distances(rays, block_lo, n, tri_verts, tri, t_block)
+            for i in range(n):
+                t = t_block[i]
+                r = block_lo + i
+                best = rays[BEST_T, r]
+                if not (t >= rays[TMIN, r] and t <= best):
+                    continue
+                ray = ray_ids[r]
+                if t == best and tri >= best_tri[ray]:
+                    continue
+                kx, ky, kz, sx, sy, sz = watertight_setup(
+                    rays[DIRECTION, r], rays[DIRECTION + 1, r], rays[DIRECTION + 2, r])
+                _, _, u, v = intersect_triangle(
+                    tri_verts, tri, np.float64(rays[ORIGIN + kx, r]),
+                    np.float64(rays[ORIGIN + ky, r]), np.float64(rays[ORIGIN + kz, r]), kx, ky,
+                    kz, sx, sy, sz)
+                rays[BEST_T, r] = -np.inf if mode == MODE_OCCLUDED else t
+                best_tri[ray] = tri
+                hit_u[ray] = u
+                hit_v[ray] = v
+    return n_tests
+
+
+@inline
+def intersect_leaf_by_triangles(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids,
+                                tri_lo, tri_hi, best_tri, hit_u, hit_v, corners, t_block):
+    """intersect_leaf for few rays: triangles go in blocks of LEAF_BLOCK, copied to float64
+    rows (``corners``), so each ray's tests over a block run as one vectorised loop; the
+    winner's u, v then come from the scalar test, which is the same arithmetic."""
     n_tests = 0
     for block_lo in range(tri_lo, tri_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, tri_hi - block_lo)
