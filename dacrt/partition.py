@@ -180,14 +180,21 @@ def filter_rays(rays, ray_ids, lo, hi, box, hit_mask):
     """Move the rays that can hit ``box`` (within [tmin, best_t]) to the front of the range;
     returns how many they are. ``hit_mask`` is scratch, one entry per ray."""
     mark_rays_hitting_box(rays, lo, hi, box, hit_mask)
+    return partition_by_mask(rays, ray_ids, lo, hi, hit_mask) - lo
+
+
+@inline
+def partition_by_mask(rays, ray_ids, lo, hi, mask):
+    """Move the ray records whose ``mask`` entry is true to the front of [lo, hi); returns the
+    index of the first other record. Only misplaced records are swapped, each once."""
     i = lo
     j = hi
     while i < j:
-        if hit_mask[i]:
+        if mask[i]:
             i += 1
         else:
             j -= 1
-            if hit_mask[j]:
+            if mask[j]:
                 swap_rays(rays, ray_ids, i, j)
                 i += 1
-    return i - lo
+    return i

@@ -30,7 +30,7 @@ from .contracts import (
 )
 from .geometry import cull_distance
 from .leaf import intersect_leaf, leaf_scratch
-from .partition import triangle_bounds
+from .partition import partition_by_mask, triangle_bounds
 from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, swap_rays
 from .traversal import SAMPLING, trace_object_split
 
@@ -56,41 +56,53 @@ def dominant_class(dx, dy, dz):
     return 4 if dz >= 0 else 5
 
 
-@inline
-def ray_coordinate(rays, r, axis, dim):
-    """Dimension ``dim`` of ray record r in its group: 0-2 origin, 3 slope u, 4 slope v."""
-    if dim < 3:
-        return np.float64(rays[ORIGIN + dim, r])
-    a = (axis + 1) % 3 if dim == 3 else (axis + 2) % 3
-    return np.float64(rays[DIRECTION + a, r]) / abs(np.float64(rays[DIRECTION + axis, r]))
-
-
 @jit
 def bound_rays(rays, lo, hi, axis, frustum):
     """Frustum of the ray records ``lo:hi`` of one group into ``frustum`` (12,)."""
-    a1 = (axis + 1) % 3
-    a2 = (axis + 2) % 3
-    for k in range(_FRUSTUM_SIZE):
-        frustum[k] = np.inf if k % 2 == 0 else -np.inf
-    for a in range(3):
-        frustum[_O_MIN + a] = np.inf
-        frustum[_O_MAX + a] = -np.inf
+    ox = rays[ORIGIN]
+    oy = rays[ORIGIN + 1]
+    oz = rays[ORIGIN + 2]
+    d_axis = rays[DIRECTION + axis]
+    d_u = rays[DIRECTION + (axis + 1) % 3]
+    d_v = rays[DIRECTION + (axis + 2) % 3]
+    tmin = rays[TMIN]
+    best_t = rays[BEST_T]
+    x_lo = y_lo = z_lo = u_lo = v_lo = s_lo = np.inf
+    x_hi = y_hi = z_hi = u_hi = v_hi = s_hi = -np.inf
     for r in range(lo, hi):
-        for a in range(3):
-            o = np.float64(rays[ORIGIN + a, r])
-            frustum[_O_MIN + a] = min(frustum[_O_MIN + a], o)
-            frustum[_O_MAX + a] = max(frustum[_O_MAX + a], o)
-        da = abs(np.float64(rays[DIRECTION + axis, r]))
-        u = np.float64(rays[DIRECTION + a1, r]) / da
-        v = np.float64(rays[DIRECTION + a2, r]) / da
-        frustum[_U] = min(frustum[_U], u)
-        frustum[_U + 1] = max(frustum[_U + 1], u)
-        frustum[_V] = min(frustum[_V], v)
-        frustum[_V + 1] = max(frustum[_V + 1], v)
+        x = np.float64(ox[r])
+        y = np.float64(oy[r])
+        z = np.float64(oz[r])
+        da = abs(np.float64(d_axis[r]))
+        u = np.float64(d_u[r]) / da
+        v = np.float64(d_v[r]) / da
         # Distance along the dominant axis: t * |d_axis|.
-        frustum[_S] = min(frustum[_S], np.float64(rays[TMIN, r]) * da)
-        frustum[_S + 1] = max(frustum[_S + 1],
-                              np.float64(cull_distance(rays[BEST_T, r])) * da)
+        near = np.float64(tmin[r]) * da
+        far = np.float64(cull_distance(best_t[r])) * da
+        x_lo = x if x < x_lo else x_lo
+        x_hi = x if x > x_hi else x_hi
+        y_lo = y if y < y_lo else y_lo
+        y_hi = y if y > y_hi else y_hi
+        z_lo = z if z < z_lo else z_lo
+        z_hi = z if z > z_hi else z_hi
+        u_lo = u if u < u_lo else u_lo
+        u_hi = u if u > u_hi else u_hi
+        v_lo = v if v < v_lo else v_lo
+        v_hi = v if v > v_hi else v_hi
+        s_lo = near if near < s_lo else s_lo
+        s_hi = far if far > s_hi else s_hi
+    frustum[_O_MIN] = x_lo
+    frustum[_O_MIN + 1] = y_lo
+    frustum[_O_MIN + 2] = z_lo
+    frustum[_O_MAX] = x_hi
+    frustum[_O_MAX + 1] = y_hi
+    frustum[_O_MAX + 2] = z_hi
+    frustum[_U] = u_lo
+    frustum[_U + 1] = u_hi
+    frustum[_V] = v_lo
+    frustum[_V + 1] = v_hi
+    frustum[_S] = s_lo
+    frustum[_S + 1] = s_hi
 
 
 @inline
@@ -174,18 +186,20 @@ def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, toleran
 
 
 @jit
-def partition_rays(rays, ray_ids, lo, hi, axis, dim, split):
-    """Move rays whose coordinate ``dim`` is below ``split`` to the front; returns the index
-    of the first other ray."""
-    i = lo
-    j = hi
-    while i < j:
-        if ray_coordinate(rays, i, axis, dim) < split:
-            i += 1
-        else:
-            j -= 1
-            swap_rays(rays, ray_ids, i, j)
-    return i
+def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below):
+    """Move rays whose coordinate ``dim`` (0-2: origin x, y, z; 3, 4: slopes u, v of the
+    direction against the dominant ``axis``) is below ``split`` to the front; returns the index of the first other ray. ``below`` is scratch, one entry per ray:
+    the coordinates are compared first, in one vectorised loop."""
+    if dim < 3:
+        o = rays[ORIGIN + dim]
+        for r in range(lo, hi):
+            below[r] = np.float64(o[r]) < split
+    else:
+        d_axis = rays[DIRECTION + axis]
+        d_slope = rays[DIRECTION + (axis + 1) % 3] if dim == 3 else rays[DIRECTION + (axis + 2) % 3]
+        for r in range(lo, hi):
+            below[r] = np.float64(d_slope[r]) / abs(np.float64(d_axis[r])) < split
+    return partition_by_mask(rays, ray_ids, lo, hi, below)
 
 
 @jit
@@ -307,7 +321,8 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                     else:
                         k = _U if dim == 3 else _V
                         split = 0.5 * (frustum[k] + frustum[k + 1])
-                    ray_mid = partition_rays(rays, ray_ids, ray_lo, ray_hi, axis, dim, split)
+                    ray_mid = partition_rays(rays, ray_ids, ray_lo, ray_hi, axis, dim, split,
+                                             hit_mask)
                     stop = not ray_lo < ray_mid < ray_hi
             if stop:
                 # Finish the node here: brute force, or object splits for many triangles.
