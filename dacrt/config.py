@@ -29,7 +29,7 @@ RAYSPACE_C_G = 16.0
 RAYSPACE_LEAF_TRIANGLES = 64
 # ... and so does a node, at this depth or deeper, whose frustum kept more than this fraction of
 # its parent's triangles (rays too incoherent for ray-space splits to pay).
-RAYSPACE_MIN_DEPTH_TO_GIVE_UP = 4
+RAYSPACE_MIN_DEPTH_TO_GIVE_UP = 8
 RAYSPACE_KEPT_TO_GIVE_UP = 0.8
 # ... at any depth when the rays' origins spread over more than this fraction of the scene
 # (secondary and random rays): each hand-off re-partitions the triangles, so hand off early.

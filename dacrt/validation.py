@@ -14,15 +14,18 @@ def _first_bad(bad, what, reason, total_label):
         raise ValueError(f"{what}[{bad_rows[0]}] {reason} ({len(bad_rows)} {total_label})")
 
 
-def as_float_rows(array, name, width=3, check_finite=True):
-    """``array`` as a C-contiguous float32 (n, width) array; finite values required."""
+def as_float_rows(array, name, width=3, check_finite=True, contiguous=True):
+    """``array`` as a float32 (n, width) array, C-contiguous unless ``contiguous`` is false
+    (then a float32 view, such as the columns of a wider array, is used as it is, no copy);
+    finite values required."""
     array = np.asarray(array)
     if array.ndim != 2 or array.shape[1] != width:
         raise ValueError(f"{name} must have shape (n, {width}), got {array.shape}")
     if array.dtype.kind not in "fiu" or array.dtype.kind == "b":
         raise ValueError(f"{name} must be a float array, got dtype {array.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
-        converted = np.ascontiguousarray(array, dtype=FLOAT)
+        converted = (np.ascontiguousarray(array, dtype=FLOAT) if contiguous
+                     else np.asarray(array, dtype=FLOAT))
     if check_finite:
             _first_bad(~np.isfinite(converted).all(axis=1), name,
                    "has a non-finite value (or one too large for float32)", "rows are not finite")
@@ -65,9 +68,11 @@ def check_mesh(index, vertices, faces):
 
 
 def check_rays(origins, directions, tmin, tmax):
-    """Validate a ray batch; returns float32 C-contiguous origins, directions, tmin, tmax."""
-    origins = as_float_rows(origins, "origins", check_finite=False)
-    directions = as_float_rows(directions, "directions", check_finite=False)
+    """Validate a ray batch; returns float32 origins, directions, tmin, tmax. Origins and
+    directions may be strided views (the columns of one (n, 6) array): the kernels read
+    them as they are, which saves a copy of the batch."""
+    origins = as_float_rows(origins, "origins", check_finite=False, contiguous=False)
+    directions = as_float_rows(directions, "directions", check_finite=False, contiguous=False)
     n = len(origins)
     if len(directions) != n:
         raise ValueError(f"origins has {n} rows but directions has {len(directions)}")
