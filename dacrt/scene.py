@@ -5,6 +5,7 @@ O(F) and cheap to derive from them (gathered vertices, boxes); every query parti
 triangles from scratch and keeps nothing afterwards.
 """
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -30,10 +31,16 @@ from .traversal import trace_object_split
 from .validation import check_mesh, check_rays, check_strategy, check_threads
 
 N_CORES = os.cpu_count() or 1
-# Rays are dealt to threads in blocks of this many (see rays_of_chunk).
-RAY_BLOCK = 4096
 # Below this many rays a single thread is quicker than splitting the triangles' work twice.
 MIN_RAYS_PER_THREAD = 16384
+# Rays from about one point (a camera, a point light: origins within this fraction of the
+# scene's size) are traced in contiguous chunks of at most COHERENT_CHUNK_RAYS, in input
+# order: a chunk's records stay in cache (4 MiB), its rays see fewer triangles, and chunks
+# balance the threads. Measured on 1M camera rays (Sibenik, Sponza): 1.05-1.25x on one
+# thread, 1.2-1.3x on two. Other rays go as one contiguous range per thread, since each chunk
+# repeats the work on the triangles that their rays, spread everywhere, all reach.
+COHERENT_ORIGIN_SPREAD = 0.1
+COHERENT_CHUNK_RAYS = 131072
 
 _pool = ThreadPoolExecutor(max_workers=max(N_CORES, 2), thread_name_prefix="dacrt")
 
@@ -119,6 +126,14 @@ class Scene:
         occluded = best_tri != NO_HIT
         return (occluded, counters) if stats else occluded
 
+    def _from_one_point(self, origins):
+        """Whether the rays (a sample of up to 1024) start within COHERENT_ORIGIN_SPREAD of
+        the scene's size of each other."""
+        sample = origins[::max(1, len(origins) // 1024)]
+        spread = float(np.max(sample.max(axis=0) - sample.min(axis=0)))
+        size = float(np.max(self._box[3:] - self._box[:3]))
+        return spread <= COHERENT_ORIGIN_SPREAD * size
+
     def _trace(self, mode, origins, directions, tmin, tmax, strategy, threads):
         """Run the kernels; returns best_t, best_tri (kernel rows), u, v and the counters."""
         strategy = check_strategy(strategy)
@@ -136,10 +151,13 @@ class Scene:
         if n_rays == 0 or n_live == 0:
             return best_t, best_tri, hit_u, hit_v, counters
         n_chunks = max(1, min(threads, n_rays // MIN_RAYS_PER_THREAD))
+        if self._from_one_point(origins):
+            n_chunks = max(n_chunks, -(-n_rays // COHERENT_CHUNK_RAYS))
         code = STRATEGY_CODES[strategy]
 
         def run(chunk):
-            ray_ids = rays_of_chunk(n_rays, chunk, n_chunks)
+            ray_ids = np.arange(chunk * n_rays // n_chunks, (chunk + 1) * n_rays // n_chunks,
+                                dtype=INDEX)
             rays = np.empty((RECORD_SIZE, len(ray_ids)), FLOAT)
             pack_rays(origins, directions, tmin, tmax, ray_ids, rays)
             tri_ids = np.arange(n_live, dtype=INDEX)
@@ -155,24 +173,28 @@ class Scene:
             unpack_best_t(rays, ray_ids, best_t)
             return chunk_stats
 
-        if n_chunks == 1:
-            per_chunk = [run(0)]
+        n_workers = min(threads, n_chunks)
+        if n_workers == 1:
+            per_chunk = [run(chunk) for chunk in range(n_chunks)]
         else:
-            per_chunk = list(_pool.map(run, range(n_chunks)))
+            # Each worker takes the next chunk when it is done with one (balances the threads).
+            chunks = iter(range(n_chunks))
+            lock = threading.Lock()
+
+            def worker():
+                done = []
+                while True:
+                    with lock:
+                        chunk = next(chunks, None)
+                    if chunk is None:
+                        return done
+                    done.append(run(chunk))
+
+            futures = [_pool.submit(worker) for _ in range(n_workers)]
+            per_chunk = [stats for future in futures for stats in future.result()]
         totals = np.sum(per_chunk, axis=0)
         for i, name in enumerate(STAT_NAMES):
             if i not in (STAT_RAYS, STAT_TRIANGLES):
                 counters[name] = int(totals[i])
         counters["max_depth"] = int(max(c[STAT_NAMES.index("max_depth")] for c in per_chunk))
         return best_t, best_tri, hit_u, hit_v, counters
-
-
-def rays_of_chunk(n_rays, chunk, n_chunks):
-    """Row numbers of the rays thread ``chunk`` traces: blocks of RAY_BLOCK rays, dealt round
-    robin, so each thread gets rays from every part of the batch (balanced work) while
-    neighbours stay together (coherence)."""
-    if n_chunks == 1:
-        return np.arange(n_rays, dtype=INDEX)
-    starts = np.arange(chunk * RAY_BLOCK, n_rays, n_chunks * RAY_BLOCK)
-    return np.concatenate([np.arange(s, min(s + RAY_BLOCK, n_rays), dtype=INDEX)
-                           for s in starts])
