@@ -46,18 +46,22 @@ def woop_distance(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz):
 def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_block):
     """t_block[k] = woop_distance of one ray to triangle k of a gathered block.
 
-    ``corners`` holds coordinate c of the block's triangle k at [c * LEAF_BLOCK + k]; one array,
-    so LLVM needs a single alias check against ``t_block``."""
-    ax_row = kx * LEAF_BLOCK
-    ay_row = ky * LEAF_BLOCK
-    az_row = kz * LEAF_BLOCK
+    ``corners`` holds coordinate c of the block's triangle k at [c * LEAF_BLOCK + k]: the rows
+    are views of one array, so LLVM needs a single alias check against ``t_block``, and are
+    indexed from 0 (see mark_rays_hitting_box)."""
+    a_x = corners[kx * LEAF_BLOCK:kx * LEAF_BLOCK + n]
+    a_y = corners[ky * LEAF_BLOCK:ky * LEAF_BLOCK + n]
+    a_z = corners[kz * LEAF_BLOCK:kz * LEAF_BLOCK + n]
+    b_x = corners[(3 + kx) * LEAF_BLOCK:(3 + kx) * LEAF_BLOCK + n]
+    b_y = corners[(3 + ky) * LEAF_BLOCK:(3 + ky) * LEAF_BLOCK + n]
+    b_z = corners[(3 + kz) * LEAF_BLOCK:(3 + kz) * LEAF_BLOCK + n]
+    c_x = corners[(6 + kx) * LEAF_BLOCK:(6 + kx) * LEAF_BLOCK + n]
+    c_y = corners[(6 + ky) * LEAF_BLOCK:(6 + ky) * LEAF_BLOCK + n]
+    c_z = corners[(6 + kz) * LEAF_BLOCK:(6 + kz) * LEAF_BLOCK + n]
     for k in range(n):
-        t_block[k] = woop_distance(
-            corners[ax_row + k] - okx, corners[ay_row + k] - oky, corners[az_row + k] - okz,
-            corners[3 * LEAF_BLOCK + ax_row + k] - okx, corners[3 * LEAF_BLOCK + ay_row + k] - oky,
-            corners[3 * LEAF_BLOCK + az_row + k] - okz,
-            corners[6 * LEAF_BLOCK + ax_row + k] - okx, corners[6 * LEAF_BLOCK + ay_row + k] - oky,
-            corners[6 * LEAF_BLOCK + az_row + k] - okz, sx, sy, sz)
+        t_block[k] = woop_distance(a_x[k] - okx, a_y[k] - oky, a_z[k] - okz,
+                                   b_x[k] - okx, b_y[k] - oky, b_z[k] - okz,
+                                   c_x[k] - okx, c_y[k] - oky, c_z[k] - okz, sx, sy, sz)
 
 
 @inline
@@ -81,11 +85,17 @@ def ray_distances(rays, lo, n, tri_verts, tri, t_block):
     p2x = np.float64(tri_verts[tri, 6])
     p2y = np.float64(tri_verts[tri, 7])
     p2z = np.float64(tri_verts[tri, 8])
+    ox_row = rays[ORIGIN, lo:lo + n]
+    oy_row = rays[ORIGIN + 1, lo:lo + n]
+    oz_row = rays[ORIGIN + 2, lo:lo + n]
+    dx_row = rays[DIRECTION, lo:lo + n]
+    dy_row = rays[DIRECTION + 1, lo:lo + n]
+    dz_row = rays[DIRECTION + 2, lo:lo + n]
+    # Views from lo indexed from 0 (see mark_rays_hitting_box).
     for i in range(n):
-        r = lo + i
-        dx = np.float64(rays[DIRECTION, r])
-        dy = np.float64(rays[DIRECTION + 1, r])
-        dz = np.float64(rays[DIRECTION + 2, r])
+        dx = np.float64(dx_row[i])
+        dy = np.float64(dy_row[i])
+        dz = np.float64(dz_row[i])
         abs_x = abs(dx)
         abs_y = abs(dy)
         abs_z = abs(dz)
@@ -99,9 +109,9 @@ def ray_distances(rays, lo, n, tri_verts, tri, t_block):
         sx = pick(kx, dx, dy, dz) / dk
         sy = pick(ky, dx, dy, dz) / dk
         sz = 1.0 / dk
-        ox = np.float64(rays[ORIGIN, r])
-        oy = np.float64(rays[ORIGIN + 1, r])
-        oz = np.float64(rays[ORIGIN + 2, r])
+        ox = np.float64(ox_row[i])
+        oy = np.float64(oy_row[i])
+        oz = np.float64(oz_row[i])
         okx = pick(kx, ox, oy, oz)
         oky = pick(ky, ox, oy, oz)
         okz = pick(kz, ox, oy, oz)

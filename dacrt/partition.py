@@ -152,27 +152,30 @@ def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins,
 def mark_rays_hitting_box(rays, lo, hi, box, hit_mask):
     """hit_mask[i] = can ray i hit ``box`` within [tmin, best_t], for i in [lo, hi).
 
-    A branch-free loop over the structure-of-arrays records: LLVM vectorises it."""
+    A branch-free loop over the structure-of-arrays records: LLVM vectorises it. The loop runs
+    over views that start at ``lo`` with an index from 0: Numba wraps negative indices, and an
+    index LLVM cannot prove non-negative turns every load into a gather (3.4x slower)."""
     x0 = box[0]
     y0 = box[1]
     z0 = box[2]
     x1 = box[3]
     y1 = box[4]
     z1 = box[5]
-    ox = rays[ORIGIN]
-    oy = rays[ORIGIN + 1]
-    oz = rays[ORIGIN + 2]
-    dx = rays[DIRECTION]
-    dy = rays[DIRECTION + 1]
-    dz = rays[DIRECTION + 2]
-    tmin = rays[TMIN]
-    best_t = rays[BEST_T]
-    for i in range(lo, hi):
+    ox = rays[ORIGIN, lo:hi]
+    oy = rays[ORIGIN + 1, lo:hi]
+    oz = rays[ORIGIN + 2, lo:hi]
+    dx = rays[DIRECTION, lo:hi]
+    dy = rays[DIRECTION + 1, lo:hi]
+    dz = rays[DIRECTION + 2, lo:hi]
+    tmin = rays[TMIN, lo:hi]
+    best_t = rays[BEST_T, lo:hi]
+    mask = hit_mask[lo:hi]
+    for i in range(hi - lo):
         # 1/d is +-inf for a zero component, which the slab test expects.
         hit, _ = intersect_box(ox[i], oy[i], oz[i], _ONE32 / dx[i], _ONE32 / dy[i],
                                _ONE32 / dz[i], tmin[i],
                                cull_distance(best_t[i]), x0, y0, z0, x1, y1, z1)
-        hit_mask[i] = hit
+        mask[i] = hit
 
 
 @inline

@@ -59,17 +59,17 @@ def dominant_class(dx, dy, dz):
 @jit
 def bound_rays(rays, lo, hi, axis, frustum):
     """Frustum of the ray records ``lo:hi`` of one group into ``frustum`` (12,)."""
-    ox = rays[ORIGIN]
-    oy = rays[ORIGIN + 1]
-    oz = rays[ORIGIN + 2]
-    d_axis = rays[DIRECTION + axis]
-    d_u = rays[DIRECTION + (axis + 1) % 3]
-    d_v = rays[DIRECTION + (axis + 2) % 3]
-    tmin = rays[TMIN]
-    best_t = rays[BEST_T]
+    ox = rays[ORIGIN, lo:hi]
+    oy = rays[ORIGIN + 1, lo:hi]
+    oz = rays[ORIGIN + 2, lo:hi]
+    d_axis = rays[DIRECTION + axis, lo:hi]
+    d_u = rays[DIRECTION + (axis + 1) % 3, lo:hi]
+    d_v = rays[DIRECTION + (axis + 2) % 3, lo:hi]
+    tmin = rays[TMIN, lo:hi]
+    best_t = rays[BEST_T, lo:hi]
     x_lo = y_lo = z_lo = u_lo = v_lo = s_lo = np.inf
     x_hi = y_hi = z_hi = u_hi = v_hi = s_hi = -np.inf
-    for r in range(lo, hi):
+    for r in range(hi - lo):
         x = np.float64(ox[r])
         y = np.float64(oy[r])
         z = np.float64(oz[r])
@@ -188,17 +188,19 @@ def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, toleran
 @jit
 def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below):
     """Move rays whose coordinate ``dim`` (0-2: origin x, y, z; 3, 4: slopes u, v of the
-    direction against the dominant ``axis``) is below ``split`` to the front; returns the index of the first other ray. ``below`` is scratch, one entry per ray:
-    the coordinates are compared first, in one vectorised loop."""
+    direction against the dominant ``axis``) is below ``split`` to the front; returns the index
+    of the first other ray. ``below`` is scratch, one entry per ray: the coordinates are
+    compared first, in one vectorised loop (over views from ``lo``, see mark_rays_hitting_box)."""
+    mask = below[lo:hi]
     if dim < 3:
-        o = rays[ORIGIN + dim]
-        for r in range(lo, hi):
-            below[r] = np.float64(o[r]) < split
+        o = rays[ORIGIN + dim, lo:hi]
+        for i in range(hi - lo):
+            mask[i] = np.float64(o[i]) < split
     else:
-        d_axis = rays[DIRECTION + axis]
-        d_slope = rays[DIRECTION + (axis + 1) % 3] if dim == 3 else rays[DIRECTION + (axis + 2) % 3]
-        for r in range(lo, hi):
-            below[r] = np.float64(d_slope[r]) / abs(np.float64(d_axis[r])) < split
+        d_axis = rays[DIRECTION + axis, lo:hi]
+        d_slope = rays[DIRECTION + (axis + 1 if dim == 3 else axis + 2) % 3, lo:hi]
+        for i in range(hi - lo):
+            mask[i] = np.float64(d_slope[i]) / abs(np.float64(d_axis[i])) < split
     return partition_by_mask(rays, ray_ids, lo, hi, below)
 
 
