@@ -42,8 +42,8 @@ def centroid_bounds(tri_ids, lo, hi, tri_bounds, out):
     for a in range(3):
         out[a] = np.inf
         out[a + 3] = -np.inf
-    for k in range(lo, hi):
-        tri = tri_ids[k]
+    for tri_id in tri_ids[lo:hi]:
+        tri = np.uint32(tri_id)  # unsigned: no index wraparound (see partition_by_mask)
         for a in range(3):
             c = centroid(tri_bounds, tri, a)
             if c < out[a]:
@@ -58,8 +58,8 @@ def triangle_bounds(tri_ids, lo, hi, tri_bounds, out):
     for a in range(3):
         out[a] = np.inf
         out[a + 3] = -np.inf
-    for k in range(lo, hi):
-        tri = tri_ids[k]
+    for tri_id in tri_ids[lo:hi]:
+        tri = np.uint32(tri_id)  # unsigned: no index wraparound
         for a in range(3):
             if tri_bounds[tri, a] < out[a]:
                 out[a] = tri_bounds[tri, a]
@@ -95,8 +95,8 @@ def bin_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, bin_c
         for a in range(3):
             bin_box[b, a] = np.inf
             bin_box[b, a + 3] = -np.inf
-    for k in range(lo, hi):
-        tri = tri_ids[k]
+    for tri_id in tri_ids[lo:hi]:
+        tri = np.uint32(tri_id)  # unsigned: no index wraparound
         b = bin_of(centroid(tri_bounds, tri, axis), c_min, scale, n_bins)
         bin_count[b] += 1
         for a in range(3):
@@ -135,17 +135,19 @@ def sweep_bins(n_bins, bin_count, bin_box, left_count, left_box, right_count, ri
 @inline
 def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, split_bin):
     """Move triangles whose bin is <= split_bin to the front; returns the first right index."""
-    i = lo
-    j = hi
+    ids = tri_ids[lo:hi]
+    one = np.uint64(1)
+    i = np.uint64(0)
+    j = np.uint64(hi - lo)
     while i < j:
-        tri = tri_ids[i]
-        if bin_of(centroid(tri_bounds, tri, axis), c_min, scale, n_bins) <= split_bin:
-            i += 1
+        tri = ids[i]
+        if bin_of(centroid(tri_bounds, np.uint32(tri), axis), c_min, scale, n_bins) <= split_bin:
+            i += one
         else:
-            j -= 1
-            tri_ids[i] = tri_ids[j]
-            tri_ids[j] = tri
-    return i
+            j -= one
+            ids[i] = ids[j]
+            ids[j] = tri
+    return lo + np.int64(i)
 
 
 @inline
