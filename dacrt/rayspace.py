@@ -123,8 +123,8 @@ def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, toleran
 
     Conservative: interval arithmetic over the five ray dimensions and the distance range,
     ``tolerance`` (world units) absorbing rounding. ``keep`` (one entry per triangle) and
-    ``bounds`` (6 rows of as many) are scratch: the boxes are gathered into rows first, so the
-    tests, written with selects only, run as one vectorised loop."""
+    ``bounds`` (6 float32 rows of as many) are scratch: the boxes are gathered into rows first,
+    so the tests, written with selects only, run as one vectorised loop."""
     a1 = (axis + 1) % 3
     a2 = (axis + 2) % 3
     n = hi - lo
@@ -134,8 +134,9 @@ def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, toleran
     hi1 = bounds[3]
     lo2 = bounds[4]
     hi2 = bounds[5]
+    ids = tri_ids[lo:hi]
     for k in range(n):
-        tri = tri_ids[lo + k]
+        tri = np.uint32(ids[k])  # unsigned: no index wraparound
         lo0[k] = tri_bounds[tri, axis]
         hi0[k] = tri_bounds[tri, axis + 3]
         lo1[k] = tri_bounds[tri, a1]
@@ -256,7 +257,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
     node_box = np.empty(6, np.float32)
     corners, t_block = leaf_scratch()
     keep = np.empty(n_tris_all, np.bool_)
-    bounds = np.empty((6, n_tris_all), np.float64)
+    bounds = np.empty((6, n_tris_all), np.float32)  # exact copies of the boxes
     for g in range(6):
         if group_start[g + 1] == group_start[g]:
             continue
