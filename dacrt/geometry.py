@@ -106,6 +106,18 @@ def intersect_triangle(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz):
     cx = np.float64(tri_verts[tri, 6 + kx]) - okx
     cy = np.float64(tri_verts[tri, 6 + ky]) - oky
     cz = np.float64(tri_verts[tri, 6 + kz]) - okz
+    e0, e1, e2, det, noise, scaled_t = woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
+    if woop_miss(e0, e1, e2, det, noise):
+        return False, 0.0, 0.0, 0.0
+    inv_det = 1.0 / det
+    return True, scaled_t * inv_det, e1 * inv_det, e2 * inv_det
+
+
+@inline
+def woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz):
+    """The watertight test's arithmetic, from the corners relative to the ray origin in the
+    ray's axis order: (e0, e1, e2, det, noise, scaled_t). No branches, so loops vectorise, and
+    every caller gets the same bits from the same operations."""
     # Shear so the ray runs along +z through the origin.
     ax = ax - sx * az
     ay = ay - sy * az
@@ -117,18 +129,20 @@ def intersect_triangle(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz):
     e0 = cx * by - cy * bx
     e1 = ax * cy - ay * cx
     e2 = bx * ay - by * ax
-    if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
-        return False, 0.0, 0.0, 0.0
     det = e0 + e1 + e2
     # A triangle seen exactly edge-on projects to a segment: det is then rounding noise and so
-    # would be t. Treat det within the edge functions' rounding error as zero (a miss).
+    # would be t. det within the edge functions' rounding error counts as zero (a miss).
     noise = (abs(cx * by) + abs(cy * bx) + abs(ax * cy) + abs(ay * cx) + abs(bx * ay)
              + abs(by * ax)) * _EDGE_ON_TOLERANCE
-    if abs(det) <= noise:
-        return False, 0.0, 0.0, 0.0
     scaled_t = e0 * (sz * az) + e1 * (sz * bz) + e2 * (sz * cz)
-    inv_det = 1.0 / det
-    return True, scaled_t * inv_det, e1 * inv_det, e2 * inv_det
+    return e0, e1, e2, det, noise, scaled_t
+
+
+@inline
+def woop_miss(e0, e1, e2, det, noise):
+    """Whether the ray misses: edge functions of both signs, or an edge-on triangle."""
+    mixed = ((e0 < 0.0) | (e1 < 0.0) | (e2 < 0.0)) & ((e0 > 0.0) | (e1 > 0.0) | (e2 > 0.0))
+    return mixed | (abs(det) <= noise)
 
 
 @inline

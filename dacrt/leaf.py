@@ -3,7 +3,7 @@ import numpy as np
 
 from .config import inline
 from .contracts import MODE_OCCLUDED
-from .geometry import _EDGE_ON_TOLERANCE, intersect_triangle, watertight_setup
+from .geometry import intersect_triangle, watertight_setup, woop_edges, woop_miss
 from .rays import BEST_T, DIRECTION, ORIGIN, TMIN
 
 # best_tri of a ray with no hit yet: larger than any triangle, so the tie rule needs no branch.
@@ -22,24 +22,10 @@ def leaf_scratch():
 @inline
 def woop_distance(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz):
     """The float32 hit distance of ``intersect_triangle`` from the corners relative to the ray
-    origin, in the ray's axis order, or NaN for a miss. Selects only, no branches, so loops
-    calling it vectorise; the same operations in the same order, so the same bits."""
-    ax = ax - sx * az
-    ay = ay - sy * az
-    bx = bx - sx * bz
-    by = by - sy * bz
-    cx = cx - sx * cz
-    cy = cy - sy * cz
-    e0 = cx * by - cy * bx
-    e1 = ax * cy - ay * cx
-    e2 = bx * ay - by * ax
-    mixed = ((e0 < 0.0) | (e1 < 0.0) | (e2 < 0.0)) & ((e0 > 0.0) | (e1 > 0.0) | (e2 > 0.0))
-    det = e0 + e1 + e2
-    noise = (abs(cx * by) + abs(cy * bx) + abs(ax * cy) + abs(ay * cx) + abs(bx * ay)
-             + abs(by * ax)) * _EDGE_ON_TOLERANCE
-    scaled_t = e0 * (sz * az) + e1 * (sz * bz) + e2 * (sz * cz)
+    origin, in the ray's axis order, or NaN for a miss; selects only, so loops vectorise."""
+    e0, e1, e2, det, noise, scaled_t = woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
     t = np.float32(scaled_t * (1.0 / det))
-    return _NAN32 if mixed | (abs(det) <= noise) else t
+    return _NAN32 if woop_miss(e0, e1, e2, det, noise) else t
 
 
 @inline

@@ -7,7 +7,7 @@ import numpy as np
 
 from .config import inline
 from .geometry import cull_distance, intersect_box
-from .rays import BEST_T, DIRECTION, ORIGIN, RECORD_SIZE, TMIN
+from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, swap_rays
 
 _BIN_SHRINK = 1.0 - 1e-6
 _ONE32 = np.float32(1.0)
@@ -207,12 +207,6 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask):
         else:
             j -= one
             if keep[j]:
-                for k in range(RECORD_SIZE):
-                    tmp = records[k, i]
-                    records[k, i] = records[k, j]
-                    records[k, j] = tmp
-                tmp_id = ids[i]
-                ids[i] = ids[j]
-                ids[j] = tmp_id
+                swap_rays(records, ids, i, j)
                 i += one
     return lo + np.int64(i)
