@@ -4,8 +4,8 @@ This is the only module that checks and converts input. A Scene keeps its triang
 O(F) and cheap to derive from them (gathered vertices, boxes); every query partitions rays and
 triangles from scratch and keeps nothing afterwards.
 """
+import functools
 import os
-import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -42,7 +42,11 @@ MIN_RAYS_PER_THREAD = 16384
 COHERENT_ORIGIN_SPREAD = 0.1
 COHERENT_CHUNK_RAYS = 131072
 
-_pool = ThreadPoolExecutor(max_workers=max(N_CORES, 2), thread_name_prefix="dacrt")
+
+@functools.cache
+def _pool(n_workers):
+    """A thread pool of n_workers, kept for later queries with the same thread count."""
+    return ThreadPoolExecutor(max_workers=n_workers, thread_name_prefix="dacrt")
 
 
 class Scene:
@@ -177,21 +181,8 @@ class Scene:
         if n_workers == 1:
             per_chunk = [run(chunk) for chunk in range(n_chunks)]
         else:
-            # Each worker takes the next chunk when it is done with one (balances the threads).
-            chunks = iter(range(n_chunks))
-            lock = threading.Lock()
-
-            def worker():
-                done = []
-                while True:
-                    with lock:
-                        chunk = next(chunks, None)
-                    if chunk is None:
-                        return done
-                    done.append(run(chunk))
-
-            futures = [_pool.submit(worker) for _ in range(n_workers)]
-            per_chunk = [stats for future in futures for stats in future.result()]
+            # The pool's queue hands each thread the next chunk when it is done with one.
+            per_chunk = list(_pool(n_workers).map(run, range(n_chunks)))
         totals = np.sum(per_chunk, axis=0)
         for i, name in enumerate(STAT_NAMES):
             if i not in (STAT_RAYS, STAT_TRIANGLES):
