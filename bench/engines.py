@@ -165,6 +165,19 @@ def import_dacrt():
         return None, f"{type(exc).__name__}: {exc}"
 
 
+def comma_list(text: str) -> tuple[str, ...]:
+    return tuple(item for item in text.split(",") if item)
+
+
+def add_engine_arguments(parser) -> None:
+    """--engines, --strategies and --seed, as bench.run and bench.plots both take them."""
+    parser.add_argument("--engines", type=comma_list, default="dacrt,embree,open3d",
+                        help="comma list of dacrt,embree,open3d")
+    parser.add_argument("--strategies", type=comma_list, default=None,
+                        help="dacrt strategies (default: all of dacrt.STRATEGIES)")
+    parser.add_argument("--seed", type=int, default=1)
+
+
 def available_engines(threads: list[int], strategies: list[str] | None = None,
                       want=("dacrt", "embree", "open3d")):
     """(engines, dacrt module or None, {family: reason unavailable}) for the requested families.

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import rays as R
-from bench.engines import available_engines
+from bench.engines import add_engine_arguments, available_engines
 from bench.measure import build_and_trace, machine_info, median, mrays
 from bench.run import KIND_SEED, WARMUP_RAYS, _clean, _error, _json_default, key_of, log, run_kind
 from bench.scene_io import load_mesh, load_view, mesh_bounds
@@ -61,9 +61,7 @@ def parse_args(argv=None):
                    help="the mesh copied into grids for frame-vs-triangles (default the dragon)")
     p.add_argument("--figures", default="rays,triangles",
                    help="which measurements: 'rays' (the two per-scene figures), 'triangles', or both")
-    p.add_argument("--engines", default="dacrt,embree,open3d", help="comma list of dacrt,embree,open3d")
-    p.add_argument("--strategies", default=None, help="dacrt strategies (default: all of dacrt.STRATEGIES)")
-    p.add_argument("--seed", type=int, default=1)
+    add_engine_arguments(p)
     p.add_argument("--slow", type=float, default=60.0,
                    help="an engine whose run takes longer than this many seconds is not repeated at that point")
     p.add_argument("--replot", default=None, metavar="JSON",
@@ -72,8 +70,6 @@ def parse_args(argv=None):
     args.figures = {f for f in args.figures.split(",") if f}
     if args.figures - {"rays", "triangles"}:
         p.error("--figures takes rays, triangles or rays,triangles")
-    args.engines = tuple(e for e in args.engines.split(",") if e)
-    args.strategies = args.strategies.split(",") if args.strategies else None
     args.scene = args.scene or [str(SHARED_SCENES / f"{s}.npz") for s in DEFAULT_SCENES]
     args.widths = [w for w in WIDTHS if w * w <= args.max_rays]
     args.frame_rays = min(args.frame_rays, args.max_rays)

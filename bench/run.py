@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import rays as R
-from bench.engines import available_engines
+from bench.engines import add_engine_arguments, available_engines
 from bench.measure import (agreement, build_and_trace, current_rss_bytes, machine_info, measure_memory,
                            median, mrays, peak_rss_bytes, timed)
 from bench.report import render
@@ -54,13 +54,11 @@ def parse_args(argv=None):
     p.add_argument("--out", default=None, help="JSON results file (default results-SCENE.json)")
     p.add_argument("--resolutions", default=None,
                    help="ablation mode: primary rays at these square resolutions, e.g. 512,1024,2048")
-    p.add_argument("--engines", default="dacrt,embree,open3d", help="comma list of dacrt,embree,open3d")
-    p.add_argument("--strategies", default=None, help="dacrt strategies (default: all of dacrt.STRATEGIES)")
+    add_engine_arguments(p)
     p.add_argument("--memory-kinds", default="primary,random",
                    help="kinds whose peak memory is measured in fresh processes, or 'none'")
     p.add_argument("--no-stats", action="store_true", help="skip the dacrt stats=True runs")
     p.add_argument("--view", default=None, help="view name in scenes/views.json (default: scene file stem)")
-    p.add_argument("--seed", type=int, default=1)
     p.add_argument("--slow", type=float, default=60.0,
                    help="an engine whose trace takes longer than this many seconds is not repeated "
                         "for that kind (its figure is then from fewer runs; default 60)")
@@ -73,8 +71,6 @@ def parse_args(argv=None):
     args.bounces = int_list(args.bounces)
     if args.resolutions:
         args.resolutions = int_list(args.resolutions)
-    args.engines = tuple(e for e in args.engines.split(",") if e)
-    args.strategies = args.strategies.split(",") if args.strategies else None
     args.memory_kinds = [] if args.memory_kinds == "none" else args.memory_kinds.split(",")
     if args.rays < 1 or args.repeat < 1 or not args.threads or min(args.threads) < 1:
         p.error("--rays, --repeat and --threads must be positive")
