@@ -58,33 +58,32 @@ def cull_distance(best_t):
 
 
 @inline
+def pick(k, x, y, z):
+    """Component k of (x, y, z), as selects."""
+    return x if k == 0 else (y if k == 1 else z)
+
+
+@inline
 def watertight_setup(dx, dy, dz):
     """Per-ray constants of the watertight test (Woop, Benthin & Wald 2013).
 
     Returns the axis permutation (kx, ky, kz), kz being the dominant direction axis, and the
-    shear constants (sx, sy, sz) that map the ray onto +z."""
+    shear constants (sx, sy, sz) that map the ray onto +z. Selects only, so a loop over rays
+    that calls it vectorises."""
+    dx = np.float64(dx)
+    dy = np.float64(dy)
+    dz = np.float64(dz)
     abs_x = abs(dx)
     abs_y = abs(dy)
     abs_z = abs(dz)
-    if abs_x >= abs_y and abs_x >= abs_z:
-        kz = 0
-        dk = np.float64(dx)
-    elif abs_y >= abs_z:
-        kz = 1
-        dk = np.float64(dy)
-    else:
-        kz = 2
-        dk = np.float64(dz)
+    x_dominant = (abs_x >= abs_y) & (abs_x >= abs_z)
+    kz = 0 if x_dominant else (1 if abs_y >= abs_z else 2)
+    dk = pick(kz, dx, dy, dz)
     kx = kz + 1 if kz < 2 else 0
     ky = kx + 1 if kx < 2 else 0
     # Swap to keep the winding, so the sign of det tells front from back.
-    if dk < 0:
-        kx, ky = ky, kx
-    d = (np.float64(dx), np.float64(dy), np.float64(dz))
-    sx = d[kx] / dk
-    sy = d[ky] / dk
-    sz = 1.0 / dk
-    return kx, ky, kz, sx, sy, sz
+    kx, ky = (ky, kx) if dk < 0 else (kx, ky)
+    return kx, ky, kz, pick(kx, dx, dy, dz) / dk, pick(ky, dx, dy, dz) / dk, 1.0 / dk
 
 
 @inline

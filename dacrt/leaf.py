@@ -3,7 +3,7 @@ import numpy as np
 
 from .config import inline
 from .contracts import MODE_OCCLUDED
-from .geometry import intersect_triangle, watertight_setup, woop_edges, woop_miss
+from .geometry import intersect_triangle, pick, watertight_setup, woop_edges, woop_miss
 from .rays import BEST_T, DIRECTION, ORIGIN, TMIN
 
 # best_tri of a ray with no hit yet: larger than any triangle, so the tie rule needs no branch.
@@ -51,17 +51,9 @@ def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_block):
 
 
 @inline
-def pick(k, x, y, z):
-    """Component k of (x, y, z), as selects."""
-    return x if k == 0 else (y if k == 1 else z)
-
-
-@inline
 def ray_distances(rays, lo, n, tri_verts, tri, t_block):
-    """t_block[i] = woop_distance of ray record lo + i to one triangle.
-
-    The per-ray axis order of ``watertight_setup`` is done with selects, so the loop over rays
-    vectorises: this is the leaf of many rays and few triangles."""
+    """t_block[i] = woop_distance of ray record lo + i to one triangle: the leaf of many rays
+    and few triangles, one vectorised loop (``watertight_setup`` and ``pick`` are selects)."""
     p0x = np.float64(tri_verts[tri, 0])
     p0y = np.float64(tri_verts[tri, 1])
     p0z = np.float64(tri_verts[tri, 2])
@@ -79,22 +71,7 @@ def ray_distances(rays, lo, n, tri_verts, tri, t_block):
     dz_row = rays[DIRECTION + 2, lo:lo + n]
     # Views from lo indexed from 0 (see mark_rays_hitting_box).
     for i in range(n):
-        dx = np.float64(dx_row[i])
-        dy = np.float64(dy_row[i])
-        dz = np.float64(dz_row[i])
-        abs_x = abs(dx)
-        abs_y = abs(dy)
-        abs_z = abs(dz)
-        x_dominant = (abs_x >= abs_y) & (abs_x >= abs_z)
-        kz = 0 if x_dominant else (1 if abs_y >= abs_z else 2)
-        dk = pick(kz, dx, dy, dz)
-        kx = kz + 1 if kz < 2 else 0
-        ky = kx + 1 if kx < 2 else 0
-        swap = dk < 0
-        kx, ky = (ky, kx) if swap else (kx, ky)
-        sx = pick(kx, dx, dy, dz) / dk
-        sy = pick(ky, dx, dy, dz) / dk
-        sz = 1.0 / dk
+        kx, ky, kz, sx, sy, sz = watertight_setup(dx_row[i], dy_row[i], dz_row[i])
         ox = np.float64(ox_row[i])
         oy = np.float64(oy_row[i])
         oz = np.float64(oz_row[i])
