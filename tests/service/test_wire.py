@@ -12,19 +12,7 @@ import pytest
 from service import wire
 from service.errors import BadBody, Invalid, NotAcceptable, TooLarge, UnsupportedMediaType
 
-from service_helpers import grid, quad
-
-
-def npy(array) -> bytes:
-    out = io.BytesIO()
-    np.save(out, array, allow_pickle=True)
-    return out.getvalue()
-
-
-def npz(compressed: bool = False, **arrays) -> bytes:
-    out = io.BytesIO()
-    (np.savez_compressed if compressed else np.savez)(out, **arrays)
-    return out.getvalue()
+from service_helpers import grid, npy_bytes, npz_bytes, quad
 
 
 def rays6(n: int = 5) -> np.ndarray:
@@ -45,7 +33,7 @@ def test_content_type_picks_the_format(content_type, fmt):
 
 
 @pytest.mark.parametrize("head, fmt", [
-    (npy(rays6()), "npy"), (npz(a=np.zeros(1)), "npz"), (b'  {"a": 1}', "json"),
+    (npy_bytes(rays6()), "npy"), (npz_bytes(a=np.zeros(1)), "npz"), (b'  {"a": 1}', "json"),
     (b"glTF\x02\x00\x00\x00", "glb"), (b"ply\nformat", "ply"), (b"OFF\n", "off"),
 ])
 @pytest.mark.parametrize("content_type", [None, "application/octet-stream"])
@@ -74,7 +62,7 @@ def test_unreadable_format_is_415_listing_the_choices(content_type, format, body
 
 def test_npy_is_viewed_in_place():
     rays = rays6(7)
-    body = npy(rays)
+    body = npy_bytes(rays)
     array = wire.read_npy(body)
     assert np.array_equal(array, rays) and not array.flags.owndata and not array.flags.writeable
     assert np.shares_memory(array, np.frombuffer(body, np.uint8))
@@ -82,14 +70,14 @@ def test_npy_is_viewed_in_place():
 
 def test_fortran_order_npy_keeps_its_values():
     rays = np.asfortranarray(rays6(4))
-    assert np.array_equal(wire.read_npy(npy(rays)), rays)
+    assert np.array_equal(wire.read_npy(npy_bytes(rays)), rays)
 
 
 @pytest.mark.parametrize("body, message", [
     (b"", "not a readable .npy"),
     (b"\x93NUMPY\x01\x00garbage", "not a readable .npy"),
-    (npy(rays6(3))[:-5], "truncated"),
-    (npy(rays6(3)) + b"xx", "longer than its header says"),
+    (npy_bytes(rays6(3))[:-5], "truncated"),
+    (npy_bytes(rays6(3)) + b"xx", "longer than its header says"),
 ])
 def test_unreadable_npy_is_400(body, message):
     with pytest.raises(BadBody, match=message):
@@ -97,7 +85,7 @@ def test_unreadable_npy_is_400(body, message):
 
 
 def test_object_array_is_422_and_never_unpickled():
-    body = npy(np.array([{"a": 1}, None], dtype=object))
+    body = npy_bytes(np.array([{"a": 1}, None], dtype=object))
     with pytest.raises(Invalid, match="Python objects"):
         wire.read_npy(body)
     with pytest.raises(Invalid, match="Python objects"):
@@ -107,7 +95,7 @@ def test_object_array_is_422_and_never_unpickled():
 @pytest.mark.parametrize("compressed", [False, True])
 def test_npz_members_are_read(compressed):
     arrays = {"origins": rays6(4)[:, :3].copy(), "tmin": np.float32(0.5)}
-    body = npz(compressed, **arrays)
+    body = npz_bytes(compressed, **arrays)
     got = wire.read_npz(body)
     assert set(got) == set(arrays)
     assert all(np.array_equal(got[k], v) for k, v in arrays.items())
@@ -121,7 +109,7 @@ def test_garbage_npz_is_400():
 
 
 def test_npz_over_the_size_limit_when_decompressed_is_413():
-    body = npz(True, big=np.zeros(100_000, np.float32))
+    body = npz_bytes(True, big=np.zeros(100_000, np.float32))
     assert len(body) < 10_000
     with pytest.raises(TooLarge, match="DACRT_MAX_BODY_BYTES"):
         wire.read_npz(body, max_bytes=10_000)
@@ -133,7 +121,7 @@ def test_npz_over_the_size_limit_when_decompressed_is_413():
 @pytest.mark.parametrize("columns", [6, 8])
 def test_npy_rays(columns):
     array = np.random.default_rng(0).uniform(0, 1, (9, columns)).astype(np.float32)
-    rays = wire.decode_rays(npy(array), "npy")
+    rays = wire.decode_rays(npy_bytes(array), "npy")
     assert len(rays) == 9
     assert np.array_equal(rays.origins, array[:, :3]) and np.array_equal(rays.directions, array[:, 3:6])
     if columns == 8:
@@ -144,7 +132,7 @@ def test_npy_rays(columns):
 
 def test_npz_rays_with_one_tmax_for_the_batch():
     o, d = rays6(3)[:, :3], rays6(3)[:, 3:]
-    rays = wire.decode_rays(npz(origins=o, directions=d, tmax=np.float32(2.5)), "npz")
+    rays = wire.decode_rays(npz_bytes(origins=o, directions=d, tmax=np.float32(2.5)), "npz")
     assert rays.tmax == 2.5 and rays.tmin is None and np.array_equal(rays.origins, o)
 
 
@@ -157,8 +145,8 @@ def test_json_rays_with_null_as_infinity():
 
 
 @pytest.mark.parametrize("fmt, body", [
-    ("npy", npy(np.zeros((0, 6), np.float32))),
-    ("npz", npz(origins=np.zeros((0, 3), np.float32), directions=np.zeros((0, 3), np.float32))),
+    ("npy", npy_bytes(np.zeros((0, 6), np.float32))),
+    ("npz", npz_bytes(origins=np.zeros((0, 3), np.float32), directions=np.zeros((0, 3), np.float32))),
     ("json", b'{"origins": [], "directions": []}'),
 ])
 def test_empty_batch_is_valid(fmt, body):
@@ -167,15 +155,15 @@ def test_empty_batch_is_valid(fmt, body):
 
 
 @pytest.mark.parametrize("fmt, body, error, message", [
-    ("npy", npy(np.zeros((4, 5), np.float32)), Invalid, r"\(N, 6\) or \(N, 8\), got \(4, 5\)"),
-    ("npy", npy(np.zeros((4, 6), np.float64)), Invalid, "float32, got <f8"),
-    ("npy", npy(np.zeros((4, 6), ">f4")), Invalid, "little-endian float32, got >f4"),
-    ("npz", npz(origins=np.zeros((2, 3), np.float32)), BadBody, "lacks 'directions'"),
-    ("npz", npz(origins=np.zeros((2, 3), np.float32), directions=np.ones((2, 3), np.float32),
+    ("npy", npy_bytes(np.zeros((4, 5), np.float32)), Invalid, r"\(N, 6\) or \(N, 8\), got \(4, 5\)"),
+    ("npy", npy_bytes(np.zeros((4, 6), np.float64)), Invalid, "float32, got <f8"),
+    ("npy", npy_bytes(np.zeros((4, 6), ">f4")), Invalid, "little-endian float32, got >f4"),
+    ("npz", npz_bytes(origins=np.zeros((2, 3), np.float32)), BadBody, "lacks 'directions'"),
+    ("npz", npz_bytes(origins=np.zeros((2, 3), np.float32), directions=np.ones((2, 3), np.float32),
                 mask=np.ones(2, np.uint32)), BadBody, "unknown keys 'mask'"),
-    ("npz", npz(origins=np.zeros((2, 3), np.float32), directions=np.ones((3, 3), np.float32)),
+    ("npz", npz_bytes(origins=np.zeros((2, 3), np.float32), directions=np.ones((3, 3), np.float32)),
      Invalid, "origins has 2 rays but directions has 3"),
-    ("npz", npz(origins=np.zeros((2, 3), np.float32), directions=np.ones((2, 3), np.float32),
+    ("npz", npz_bytes(origins=np.zeros((2, 3), np.float32), directions=np.ones((2, 3), np.float32),
                 tmax=np.ones(5, np.float32)), Invalid, "tmax has 5 values but there are 2 rays"),
     ("json", b'{"origins": [[0, 0]], "directions": [[0, 0, 1]]}', Invalid, r"shape \(N, 3\)"),
     ("json", b'{"origins": [[0, 0, "x"]], "directions": [[0, 0, 1]]}', Invalid, "numbers"),
@@ -189,7 +177,7 @@ def test_bad_ray_bodies(fmt, body, error, message):
 
 @pytest.mark.parametrize("fmt", ["npy", "json"])
 def test_too_many_rays_is_413_naming_the_limit(fmt):
-    body = npy(rays6(11)) if fmt == "npy" else json.dumps(
+    body = npy_bytes(rays6(11)) if fmt == "npy" else json.dumps(
         {"origins": rays6(11)[:, :3].tolist(), "directions": rays6(11)[:, 3:].tolist()}).encode()
     with pytest.raises(TooLarge, match="11 rays .* limit of 10 .*DACRT_MAX_RAYS_PER_REQUEST"):
         wire.decode_rays(body, fmt, max_rays=10)
@@ -200,7 +188,7 @@ def test_too_many_rays_is_413_naming_the_limit(fmt):
 
 def test_npz_mesh_with_uint32_faces_becomes_int32_without_copy():
     vertices, faces = grid(3)
-    mesh = wire.decode_mesh(npz(vertices=vertices, faces=faces.astype(np.uint32)), "npz")
+    mesh = wire.decode_mesh(npz_bytes(vertices=vertices, faces=faces.astype(np.uint32)), "npz")
     assert mesh.faces.dtype == np.int32 and np.array_equal(mesh.faces, faces)
     assert not mesh.faces.flags.owndata
 
@@ -224,7 +212,7 @@ def test_face_out_of_range_names_the_face_and_the_vertex_count():
     faces[1043] = [5, 90211, 7]
     faces[1500] = [-1, 0, 0]
     with pytest.raises(Invalid) as caught:
-        wire.decode_mesh(npz(vertices=vertices, faces=faces), "npz")
+        wire.decode_mesh(npz_bytes(vertices=vertices, faces=faces), "npz")
     assert caught.value.detail == ("faces[1043] refers to vertex 90211, but there are 90000 "
                                    "vertices; 2 of 2000 faces are out of range")
 
@@ -234,7 +222,7 @@ def test_non_finite_vertex_names_the_vertex():
     vertices[4, 1] = np.nan
     vertices[7, 0] = np.inf
     with pytest.raises(Invalid, match=r"vertices\[4\] is not finite .*2 of 9 vertices"):
-        wire.decode_mesh(npz(vertices=vertices, faces=faces), "npz")
+        wire.decode_mesh(npz_bytes(vertices=vertices, faces=faces), "npz")
 
 
 @pytest.mark.parametrize("arrays, message", [
@@ -245,7 +233,7 @@ def test_non_finite_vertex_names_the_vertex():
 ])
 def test_wrong_dtype_or_shape_is_422(arrays, message):
     with pytest.raises(Invalid, match=message):
-        wire.decode_mesh(npz(**arrays), "npz")
+        wire.decode_mesh(npz_bytes(**arrays), "npz")
 
 
 def test_json_faces_must_be_integers():
@@ -255,7 +243,7 @@ def test_json_faces_must_be_integers():
 
 def test_mesh_body_with_wrong_keys_is_400():
     with pytest.raises(BadBody, match="lacks 'faces'"):
-        wire.decode_mesh(npz(vertices=np.zeros((3, 3), np.float32)), "npz")
+        wire.decode_mesh(npz_bytes(vertices=np.zeros((3, 3), np.float32)), "npz")
 
 
 def _two_object_scene():
@@ -298,14 +286,14 @@ def test_unreadable_mesh_file_is_400(fmt, body):
 @pytest.mark.parametrize("fmt", ["npy", "npz", "json"])
 def test_vertices_bodies(fmt):
     vertices = grid(2)[0]
-    body = {"npy": lambda: npy(vertices), "npz": lambda: npz(vertices=vertices),
+    body = {"npy": lambda: npy_bytes(vertices), "npz": lambda: npz_bytes(vertices=vertices),
             "json": lambda: json.dumps({"vertices": vertices.tolist()}).encode()}[fmt]()
     assert np.array_equal(wire.decode_vertices(body, fmt), vertices)
 
 
 def test_frame_keys_split_at_the_last_dot():
     v, f = quad(0, 1, 0, 1, 0)
-    frame = wire.decode_frame(npz(**{"car.body.vertices": v, "car.body.faces": f, "wheel.vertices": v}), "npz")
+    frame = wire.decode_frame(npz_bytes(**{"car.body.vertices": v, "car.body.faces": f, "wheel.vertices": v}), "npz")
     assert set(frame) == {"car.body", "wheel"}
     assert np.array_equal(frame["car.body"][1], f) and frame["wheel"][1] is None
 
@@ -318,22 +306,22 @@ def test_frame_keys_split_at_the_last_dot():
 ])
 def test_bad_frames_are_400(arrays, message):
     with pytest.raises(BadBody, match=message):
-        wire.decode_frame(npz(**arrays), "npz")
+        wire.decode_frame(npz_bytes(**arrays), "npz")
 
 
 def test_frame_faces_checked_against_their_vertices():
     v, f = quad(0, 1, 0, 1, 0)
     with pytest.raises(Invalid, match=r"car.faces\[1\] refers to vertex 9, but there are 4"):
-        wire.decode_frame(npz(**{"car.vertices": v, "car.faces": f + np.int32([[0, 0, 0], [0, 0, 6]])}), "npz")
+        wire.decode_frame(npz_bytes(**{"car.vertices": v, "car.faces": f + np.int32([[0, 0, 0], [0, 0, 6]])}), "npz")
 
 
 def test_one_shot_body():
     v, f = quad(0, 1, 0, 1, 0)
     o, d = rays6(2)[:, :3], rays6(2)[:, 3:]
-    mesh, rays = wire.decode_trace(npz(vertices=v, faces=f, origins=o, directions=d), "npz")
+    mesh, rays = wire.decode_trace(npz_bytes(vertices=v, faces=f, origins=o, directions=d), "npz")
     assert np.array_equal(mesh.faces, f) and np.array_equal(rays.directions, d)
     with pytest.raises(BadBody, match="lacks 'faces'"):
-        wire.decode_trace(npz(vertices=v, origins=o, directions=d), "npz")
+        wire.decode_trace(npz_bytes(vertices=v, origins=o, directions=d), "npz")
 
 
 # ---- answers
