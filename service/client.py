@@ -114,20 +114,42 @@ class Client:
         """Send a request; raise APIError for any error status."""
         response = self.http.request(method, path, **kwargs)
         if response.status_code >= 400:
-            try:
-                detail = response.json()["detail"]
-            except (ValueError, KeyError, TypeError):
-                detail = response.text
-            raise APIError(response.status_code, str(detail), response)
+            raise _api_error(response)
         return response
 
-    def _binary(self, method: str, path: str, arrays: Mapping[str, np.ndarray], fmt: str = "npz",
-                **kwargs: Any) -> httpx.Response:
-        """Send arrays as one .npy (a single array) or .npz body: headers around the arrays' memory."""
+    def fetch(self, method: str, path: str, **kwargs: Any) -> tuple[httpx.Response, memoryview]:
+        """Send a request and read its body into one buffer (``wire.BodyBuffer``, cheaper than
+        ``response.content`` for big answers); raise APIError for any error status."""
+        with self.http.stream(method, path, **kwargs) as response:
+            if response.status_code >= 400:
+                response.read()
+                raise _api_error(response)
+            declared = response.headers.get("content-length", "")
+            encoded = response.headers.get("content-encoding", "identity") != "identity"
+            body = wire.BodyBuffer(int(declared) if declared.isdigit() and not encoded else None)
+            for chunk in response.iter_bytes():
+                body.add(chunk)
+        return response, body.finish()
+
+    @staticmethod
+    def _binary_body(arrays: Mapping[str, np.ndarray], fmt: str, kwargs: dict[str, Any]) -> dict[str, Any]:
+        """Request arguments sending arrays as one .npy (a single array) or .npz body: headers
+        around the arrays' memory."""
         parts = wire.npy_parts(arrays) if fmt == "npy" else wire.npz_parts(arrays)
         headers = {"Content-Type": wire.MEDIA_TYPES[fmt],
                    "Content-Length": str(sum(len(part) for part in parts)), **kwargs.pop("headers", {})}
-        return self.request(method, path, content=_slices(parts), headers=headers, **kwargs)
+        return {"content": _slices(parts), "headers": headers, **kwargs}
+
+    def _binary(self, method: str, path: str, arrays: Mapping[str, np.ndarray], fmt: str = "npz",
+                **kwargs: Any) -> httpx.Response:
+        return self.request(method, path, **self._binary_body(arrays, fmt, kwargs))
+
+    def _query(self, path: str, arrays: Mapping[str, np.ndarray], fmt: str, **kwargs: Any) -> Answer:
+        response, body = self.fetch("POST", path, **self._binary_body(arrays, fmt, kwargs))
+        return Answer(read_answer(response, body), int(response.headers["x-scene-version"]),
+                      parse_server_timing(response.headers.get("server-timing", "")),
+                      json.loads(response.headers["x-trace-stats"])
+                      if "x-trace-stats" in response.headers else None)
 
     # ---- operations
 
@@ -202,9 +224,9 @@ class Client:
         """A query on a stored scene. ``origins`` may be a whole (N, 6|8) ray array when
         ``directions`` is None. ``answer`` is npz, npy or json (the format the server writes)."""
         rays = rays_array(origins, directions, tmin, tmax)
-        return self._answer(self._binary("POST", f"/v1/scenes/{scene}/{query}", {"rays": rays}, "npy",
-                                         params=_params(fields, strategy, stats),
-                                         headers={"Accept": wire.MEDIA_TYPES[answer]}))
+        return self._query(f"/v1/scenes/{scene}/{query}", {"rays": rays}, "npy",
+                           params=_params(fields, strategy, stats),
+                           headers={"Accept": wire.MEDIA_TYPES[answer]})
 
     def trace(self, vertices: Any, faces: Any, origins: Any, directions: Any, tmin: Any = None,
               tmax: Any = None, *, query: str = "closest", fields: Any = None,
@@ -217,15 +239,8 @@ class Client:
         if tmax is not None:
             arrays["tmax"] = np.asarray(tmax, dtype="<f4")
         params = {"query": query, **_params(fields, strategy, stats)}
-        return self._answer(self._binary("POST", "/v1/trace", arrays, params=params,
-                                         headers={"Accept": wire.MEDIA_TYPES[answer]}))
-
-    @staticmethod
-    def _answer(response: httpx.Response) -> Answer:
-        return Answer(read_answer(response), int(response.headers["x-scene-version"]),
-                      parse_server_timing(response.headers.get("server-timing", "")),
-                      json.loads(response.headers["x-trace-stats"])
-                      if "x-trace-stats" in response.headers else None)
+        return self._query("/v1/trace", arrays, "npz", params=params,
+                           headers={"Accept": wire.MEDIA_TYPES[answer]})
 
 
 def _slices(parts: list, size: int = 1 << 20) -> list[memoryview]:
@@ -245,18 +260,28 @@ def _params(fields: Any, strategy: str | None, stats: bool) -> dict[str, str]:
     return params
 
 
-def read_answer(response: httpx.Response) -> dict[str, np.ndarray]:
-    """The arrays of an answer body, whatever its format (npz, npy, JSON)."""
+def _api_error(response: httpx.Response) -> APIError:
+    try:
+        detail = response.json()["detail"]
+    except (ValueError, KeyError, TypeError):
+        detail = response.text
+    return APIError(response.status_code, str(detail), response)
+
+
+def read_answer(response: httpx.Response, body: wire.Buffer | None = None) -> dict[str, np.ndarray]:
+    """The arrays of an answer body (``body``, else ``response.content``), whatever its format
+    (npz, npy, JSON)."""
+    body = response.content if body is None else body
     media = response.headers.get("content-type", "").split(";")[0].strip()
     if media == wire.NPZ:
-        return wire.read_npz(response.content)
+        return wire.read_npz(body)
     if media == wire.NPY:
-        array = wire.read_npy(response.content)
+        array = wire.read_npy(body)
         if array.dtype.names:
             return {name: array[name] for name in array.dtype.names}
         # one array: the single ?fields= name, or occluded (closest with all fields is structured)
         return {response.request.url.params.get("fields") or "occluded": array}
-    document = response.json()
+    document = wire.read_json(body, "the answer's fields")
     return {key: _from_json(key, value) for key, value in document.items()}
 
 

@@ -11,6 +11,7 @@ from .errors import TooLarge, Unauthorized
 from .metrics import Metrics
 from .settings import Settings
 from .store import Store
+from .wire import BodyBuffer
 
 
 @dataclass
@@ -48,17 +49,18 @@ def require_token(request: Request) -> None:
         raise Unauthorized("the bearer token is wrong; use the server's DACRT_TOKEN")
 
 
-async def read_body(request: Request) -> bytes:
-    """The whole body, refused (413) as soon as it is known to exceed DACRT_MAX_BODY_BYTES."""
+async def read_body(request: Request) -> memoryview:
+    """The whole body (a read-only ``wire.BodyBuffer``), refused (413) as soon as it is known to
+    exceed DACRT_MAX_BODY_BYTES."""
     limit = settings_of(request).max_body_bytes
     declared = request.headers.get("content-length")
-    if declared is not None and declared.isdigit() and int(declared) > limit:
-        raise TooLarge(f"body of {int(declared)} bytes is over the limit of {limit} bytes "
+    expected = int(declared) if declared is not None and declared.isdigit() else None
+    if expected is not None and expected > limit:
+        raise TooLarge(f"body of {expected} bytes is over the limit of {limit} bytes "
                        "(DACRT_MAX_BODY_BYTES)")
-    chunks, size = [], 0
+    body = BodyBuffer(expected)
     async for chunk in request.stream():
-        size += len(chunk)
-        if size > limit:
+        if body.size + len(chunk) > limit:
             raise TooLarge(f"body is over the limit of {limit} bytes (DACRT_MAX_BODY_BYTES)")
-        chunks.append(chunk)
-    return b"".join(chunks)  # one chunk: no copy
+        body.add(chunk)
+    return body.finish()
