@@ -30,7 +30,7 @@ from .contracts import (
 )
 from .geometry import cull_distance
 from .leaf import intersect_leaf, leaf_scratch
-from .partition import partition_by_mask, triangle_bounds
+from .partition import partition_by_mask, partition_scratch, triangle_bounds
 from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, swap_rays
 from .traversal import SAMPLING, trace_object_split
 
@@ -187,7 +187,7 @@ def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, toleran
 
 
 @jit
-def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below):
+def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets):
     """Move rays whose coordinate ``dim`` (0-2: origin x, y, z; 3, 4: slopes u, v of the
     direction against the dominant ``axis``) is below ``split`` to the front; returns the index
     of the first other ray. ``below`` is scratch, one entry per ray: the coordinates are
@@ -202,7 +202,7 @@ def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below):
         d_slope = rays[DIRECTION + (axis + 1 if dim == 3 else axis + 2) % 3, lo:hi]
         for i in range(hi - lo):
             mask[i] = np.float64(d_slope[i]) / abs(np.float64(d_axis[i])) < split
-    return partition_by_mask(rays, ray_ids, lo, hi, below)
+    return partition_by_mask(rays, ray_ids, lo, hi, below, offsets)
 
 
 @jit
@@ -255,6 +255,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
     stack = np.empty((n_stack, 5), np.int64)  # ray_lo, ray_hi, tri_lo, tri_hi, depth
     frustum = np.empty(_FRUSTUM_SIZE)
     node_box = np.empty(6, np.float32)
+    offsets = partition_scratch()
     corners, t_block = leaf_scratch()
     keep = np.empty(n_tris_all, np.bool_)
     bounds = np.empty((6, n_tris_all), np.float32)  # exact copies of the boxes
@@ -325,7 +326,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                         k = _U if dim == 3 else _V
                         split = 0.5 * (frustum[k] + frustum[k + 1])
                     ray_mid = partition_rays(rays, ray_ids, ray_lo, ray_hi, axis, dim, split,
-                                             hit_mask)
+                                             hit_mask, offsets)
                     stop = not ray_lo < ray_mid < ray_hi
             if stop:
                 # Finish the node here: brute force, or object splits for many triangles.

@@ -40,6 +40,7 @@ from .partition import (
     centroid_bounds,
     filter_rays,
     longest_axis,
+    partition_scratch,
     partition_triangles,
     sweep_bins,
     triangle_bounds,
@@ -82,6 +83,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     box_a = np.empty(6, np.float32)
     box_b = np.empty(6, np.float32)
     corners, t_block = leaf_scratch()
+    offsets = partition_scratch()
 
     stack_tri[0, 0] = tri_lo
     stack_tri[0, 1] = tri_hi
@@ -104,7 +106,8 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         # Ray filtering: keep the rays that can reach this node's box.
         if stack_filter[sp]:
             stats[STAT_BOX_TESTS] += ray_hi - ray_lo
-            ray_hi = ray_lo + filter_rays(rays, ray_ids, ray_lo, ray_hi, stack_box[sp], hit_mask)
+            ray_hi = ray_lo + filter_rays(rays, ray_ids, ray_lo, ray_hi, stack_box[sp], hit_mask,
+                                             offsets)
         else:
             stats[STAT_SKIPPED] += 1
         n_rays = ray_hi - ray_lo
