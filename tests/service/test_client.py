@@ -7,6 +7,7 @@ import io
 import numpy as np
 import pytest
 
+from service import wire
 from service.client import APIError, Answer
 from service_helpers import NPY, NPZ, down_rays, grid, npy_bytes, npz_bytes, quad, rays_at
 from service_reference import closest as reference_closest
@@ -143,6 +144,19 @@ def test_closest_matches_the_reference(client, teapot_scene, teapot):
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     np.testing.assert_allclose(hits.normal[hit], n / np.linalg.norm(n, axis=1, keepdims=True), atol=1e-4)
     assert (hits.normal[~hit] == 0).all() and (hits.u[~hit] == 0).all()
+
+
+def test_chunked_ray_body_without_content_length_gets_the_same_answer(http, client, teapot_scene, teapot):
+    origins, directions = rays_at(*teapot, 3000, seed=4)
+    body = npy_bytes(np.hstack([origins, directions]).astype(np.float32))
+    pieces = (body[i:i + 4096] for i in range(0, len(body), 4096))  # a generator: sent chunked
+    response = http.post(f"/v1/scenes/{teapot_scene}/closest", content=pieces,
+                         headers={**NPY, "Accept": wire.NPZ})
+    assert response.status_code == 200 and "content-length" not in response.request.headers
+    chunked = np.load(io.BytesIO(response.content))
+    expected = client.closest(teapot_scene, origins, directions)
+    assert np.isfinite(expected.t).sum() > 1000
+    assert np.array_equal(chunked["t"], expected.t) and np.array_equal(chunked["prim"], expected.prim)
 
 
 def test_occluded_equals_closest_within_tmax(client, teapot_scene, teapot):

@@ -103,6 +103,30 @@ def test_npz_members_are_read(compressed):
     assert np.shares_memory(got["origins"], np.frombuffer(body, np.uint8)) != compressed
 
 
+@pytest.mark.parametrize("expected", [None, 0, 10, 23, 24, 40])
+def test_body_buffer_holds_the_chunks_in_order_whatever_the_expected_size(expected):
+    chunks = [bytes(range(k, k + 8)) for k in (0, 8, 16)]  # 24 bytes
+    body = wire.BodyBuffer(expected)
+    for chunk in chunks:
+        body.add(chunk)
+    view = body.finish()
+    assert bytes(view) == b"".join(chunks) and body.size == 24
+    assert view.readonly  # views of it (rays, vertices) cannot be written, as views of bytes
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_npz_in_a_body_buffer_is_read_in_place(compressed):
+    arrays = {"origins": rays6(4)[:, :3].copy(), "tmin": np.float32(0.5)}
+    raw = npz_bytes(compressed, **arrays)
+    body = wire.BodyBuffer(len(raw))
+    for start in range(0, len(raw), 100):
+        body.add(raw[start:start + 100])
+    view = body.finish()
+    got = wire.read_npz(view)
+    assert all(np.array_equal(got[k], v) for k, v in arrays.items())
+    assert np.shares_memory(got["origins"], np.asarray(view)) != compressed
+
+
 def test_garbage_npz_is_400():
     with pytest.raises(BadBody, match="npz"):
         wire.read_npz(b"PK\x03\x04 not really a zip")
