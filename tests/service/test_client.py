@@ -159,6 +159,17 @@ def test_chunked_ray_body_without_content_length_gets_the_same_answer(http, clie
     assert np.array_equal(chunked["t"], expected.t) and np.array_equal(chunked["prim"], expected.prim)
 
 
+def test_query_errors_raise_api_error_with_the_servers_message(client, teapot_scene, scene_name):
+    origins, directions = down_rays(np.full((3, 2), 0.5))
+    with pytest.raises(APIError) as missing:
+        client.closest(scene_name + "-missing", origins, directions)
+    assert missing.value.status == 404 and "missing" in missing.value.detail
+    directions[1] = np.nan
+    with pytest.raises(APIError) as bad:
+        client.occluded(teapot_scene, origins, directions)
+    assert bad.value.status == 422 and "directions[1]" in bad.value.detail
+
+
 def test_occluded_equals_closest_within_tmax(client, teapot_scene, teapot):
     origins, directions = rays_at(*teapot, 300, seed=2)
     tmax = np.random.default_rng(3).uniform(0.5, 1.5, 300).astype(np.float32)
