@@ -4,7 +4,7 @@ import time
 import numpy as np
 
 from .contracts import STRATEGIES
-from .scene import Scene
+from .scene import Scene, ids_by_slab
 
 
 def warmup():
@@ -23,4 +23,6 @@ def warmup():
     rays = np.hstack([origins, directions])
     rays.flags.writeable = False
     scene.closest(rays[:, :3], rays[:, 3:], threads=1)
+    # Incoherent batches on several threads are cut into slabs of origins.
+    ids_by_slab(np.ascontiguousarray(origins[:, 0]), np.zeros(1, np.float32))
     return time.perf_counter() - start

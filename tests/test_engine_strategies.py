@@ -140,3 +140,25 @@ def test_stats_count_every_ray_across_threads(threads, default_answers):
     assert hits.stats["rays"] == len(o)
     assert hits.stats["ray_triangle_tests"] >= len(o)  # every ray hits
     check.assert_bitwise_equal(hits, closest, f"threads={threads} with stats")
+
+
+def test_chunks_cover_every_ray_once_as_slabs_or_in_input_order():
+    """Incoherent batches go to threads as slabs of origins unless their input order is already
+    coherent; either way every ray is in exactly one chunk, and chunks are balanced."""
+    from dacrt.scene import Scene
+
+    n = 50_000
+    scattered = np.random.default_rng(46).uniform(-1, 1, (n, 3)).astype(np.float32)
+    scattered[:, 1] *= 3  # y is the widest axis
+    ordered = np.sort(scattered, axis=0)  # neighbours in input order start near each other
+    for origins, expect_slabs in ((scattered, True), (ordered, False)):
+        chunks = Scene._chunk_ids(origins, 3, keep_order=False)
+        assert np.array_equal(np.sort(np.concatenate(chunks)), np.arange(n))
+        assert all((np.diff(chunk) > 0).all() for chunk in chunks)
+        assert max(map(len, chunks)) < 1.1 * n / 3
+        in_order = all(np.array_equal(c, np.arange(c[0], c[0] + len(c))) for c in chunks)
+        assert in_order != expect_slabs
+    slabs = Scene._chunk_ids(scattered, 3, keep_order=False)
+    for lower, upper in zip(slabs, slabs[1:]):
+        assert scattered[lower, 1].max() <= scattered[upper, 1].min()
+    assert np.array_equal(np.concatenate(Scene._chunk_ids(scattered, 3, keep_order=True)), np.arange(n))
