@@ -181,15 +181,19 @@ class Scene:
         (two threads, 1M rays: 1.08-1.16x on Sponza's rays from a sphere around it and on
         uniform random rays, 1.01-1.08x on Sibenik's). Answers do not depend on the chunks."""
         n_rays = len(origins)
-        step = max(1, n_rays // CHUNK_SAMPLE_RAYS)
-        sample = origins[::step]
-        if not keep_order and n_chunks > 1 and step > 1:
-            near = np.linalg.norm(origins[1::step][:len(sample)] - sample[:len(origins[1::step])], axis=1)
-            far = np.linalg.norm(sample - sample[::-1], axis=1)
-            keep_order = np.mean(near) < ORDERED_NEIGHBOUR_DISTANCE * np.mean(far)
-        if keep_order or n_chunks == 1 or step == 1:
+
+        def in_order():
             return [np.arange(k * n_rays // n_chunks, (k + 1) * n_rays // n_chunks, dtype=INDEX)
                     for k in range(n_chunks)]
+
+        step = max(1, n_rays // CHUNK_SAMPLE_RAYS)
+        if keep_order or n_chunks == 1 or step == 1:
+            return in_order()
+        sample = origins[::step]
+        near = np.linalg.norm(origins[1::step] - origins[:-1:step], axis=1)  # input neighbours
+        far = np.linalg.norm(sample - sample[::-1], axis=1)
+        if np.mean(near) < ORDERED_NEIGHBOUR_DISTANCE * np.mean(far):
+            return in_order()
         axis = int(np.argmax(sample.max(axis=0) - sample.min(axis=0)))
         cuts = np.quantile(sample[:, axis], np.arange(1, n_chunks) / n_chunks).astype(origins.dtype)
         ids, starts = ids_by_slab(np.ascontiguousarray(origins[:, axis]), cuts)  # one signature
@@ -216,8 +220,9 @@ class Scene:
         if coherent:
             n_chunks = max(n_chunks, -(-n_rays // COHERENT_CHUNK_RAYS))
         code = STRATEGY_CODES[strategy]
+        ray_space = code == STRATEGY_CODES["rayspace"]
         # rayspace splits the rays by origin and direction itself: it keeps the input order.
-        chunk_ids = self._chunk_ids(origins, n_chunks, coherent or strategy == "rayspace")
+        chunk_ids = self._chunk_ids(origins, n_chunks, coherent or ray_space)
 
         def run(chunk):
             ray_ids = chunk_ids[chunk]
@@ -226,7 +231,7 @@ class Scene:
             tri_ids = np.arange(n_live, dtype=INDEX)
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
             hit_mask = np.empty(len(ray_ids), np.bool_)
-            if code == STRATEGY_CODES["rayspace"]:
+            if ray_space:
                 trace_ray_space(mode, self._tri_verts, self._tri_bounds, self._box, rays,
                                 ray_ids, tri_ids, best_tri, hit_u, hit_v, hit_mask, chunk_stats)
             else:
