@@ -21,6 +21,7 @@ from .config import (
     jit,
 )
 from .contracts import (
+    MODE_OCCLUDED,
     STAT_BOX_TESTS,
     STAT_LEAVES,
     STAT_MAX_DEPTH,
@@ -78,6 +79,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     hits_left = np.empty(N_BINS - 1, np.int64)
     hits_right = np.empty(N_BINS - 1, np.int64)
     nearer_left = np.empty(N_BINS - 1, np.int64)
+    forward_left = np.empty(N_BINS - 1, np.int64)
     samples = np.empty((8, N_SAMPLE_RAYS), np.float32)
     c_box = np.empty(6, np.float32)
     box_a = np.empty(6, np.float32)
@@ -141,7 +143,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
                     stats[STAT_SAMPLED] += 1
                     n_sample_tests = sample_rays(
                         rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box,
-                        samples, hits_left, hits_right, nearer_left)
+                        axis, samples, hits_left, hits_right, nearer_left, forward_left)
                     stats[STAT_BOX_TESTS] += n_sample_tests
                     stats[STAT_SAMPLE_BOX_TESTS] += n_sample_tests
                     split = cheapest_sampled_split(left_count, right_count, hits_left,
@@ -162,7 +164,14 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         # Traversal order and ray-filter skipping.
         if sampled:
             n_samples = min(N_SAMPLE_RAYS, n_rays)
-            left_first = nearer_left[split] >= n_samples - nearer_left[split]
+            if mode == MODE_OCCLUDED:
+                # Any hit ends a ray: first the side most sample rays enter first.
+                left_first = nearer_left[split] >= n_samples - nearer_left[split]
+            else:
+                # Only rays reaching both sides care which is first: their majority direction
+                # along the axis (measured better than their entry distances on closest hits).
+                votes = forward_left[split]
+                left_first = votes > 0 or (votes == 0 and rays[DIRECTION + axis, ray_lo] >= 0)
             # Eq. (5)-(6): skip filtering a child that most sample rays reach anyway.
             filter_left = hits_left[split] <= skip_threshold(tri_mid - tri_lo) * n_samples
             filter_right = hits_right[split] <= skip_threshold(tri_hi - tri_mid) * n_samples
@@ -190,12 +199,13 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
 
 
 @jit
-def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box, samples,
-                hits_left, hits_right, nearer_left):
+def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box, axis,
+                samples, hits_left, hits_right, nearer_left, forward_left):
     """Algorithm 2 of Nabata et al.: test sample rays against both sides of every candidate.
 
-    Per candidate j: how many sample rays hit the left and right boxes, and how many enter the
-    left box first. Samples are evenly strided over the active rays and copied to ``samples``
+    Per candidate j: how many sample rays hit the left and right boxes, how many enter the
+    left box first, and of those that hit both, how many more go up ``axis`` (left to right)
+    than down. Samples are evenly strided over the active rays and copied to ``samples``
     (8, N_SAMPLE_RAYS) so the loop over them vectorises. Returns the box tests made."""
     n_rays = ray_hi - ray_lo
     n_samples = min(N_SAMPLE_RAYS, n_rays)
@@ -217,11 +227,13 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
     iz = samples[5]
     t_lo = samples[6]
     t_hi = samples[7]
+    going_up = samples[3 + axis]  # 1/d has the sign of d
     n_tests = 0
     for j in range(left_count.shape[0]):
         hits_left[j] = 0
         hits_right[j] = 0
         nearer_left[j] = 0
+        forward_left[j] = 0
         if left_count[j] == 0 or right_count[j] == 0:
             continue
         n_tests += 2 * n_samples
@@ -240,6 +252,7 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
         n_left = 0
         n_right = 0
         n_nearer = 0
+        n_forward = 0
         for s in range(n_samples):
             hit_l, near_l = intersect_box(ox[s], oy[s], oz[s], ix[s], iy[s], iz[s], t_lo[s],
                                           t_hi[s], lx0, ly0, lz0, lx1, ly1, lz1)
@@ -251,9 +264,11 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
             entry_l = near_l if hit_l else _INF32
             entry_r = near_r if hit_r else _INF32
             n_nearer += 1 if entry_l < entry_r else 0
+            n_forward += (1 if going_up[s] >= 0 else -1) if hit_l and hit_r else 0
         hits_left[j] = n_left
         hits_right[j] = n_right
         nearer_left[j] = n_nearer
+        forward_left[j] = n_forward
     return n_tests
 
 
