@@ -58,12 +58,7 @@ def centroid_bounds(tri_ids, lo, hi, tri_bounds, out):
         x1 = max(x1, cx)
         y1 = max(y1, cy)
         z1 = max(z1, cz)
-    out[0] = x0
-    out[1] = y0
-    out[2] = z0
-    out[3] = x1
-    out[4] = y1
-    out[5] = z1
+    set_box(out, x0, y0, z0, x1, y1, z1)
 
 
 @inline
@@ -79,12 +74,7 @@ def triangle_bounds(tri_ids, lo, hi, tri_bounds, out):
         x1 = max(x1, tri_bounds[tri, 3])
         y1 = max(y1, tri_bounds[tri, 4])
         z1 = max(z1, tri_bounds[tri, 5])
-    out[0] = x0
-    out[1] = y0
-    out[2] = z0
-    out[3] = x1
-    out[4] = y1
-    out[5] = z1
+    set_box(out, x0, y0, z0, x1, y1, z1)
 
 
 @inline
@@ -109,21 +99,51 @@ def box_area(box):
 
 @inline
 def bin_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, bin_count, bin_box):
-    """Count triangles per bin and the box of each bin's triangles."""
+    """Count triangles per bin and the box of each bin's triangles.
+
+    A run of triangles in one bin (the usual case: ranges keep much of the mesh's spatial order)
+    is bounded in locals and added to its bin when the run ends; updating the bin's box for every
+    triangle made each wait on the previous one's store."""
     for b in range(n_bins):
         bin_count[b] = 0
         for a in range(3):
             bin_box[b, a] = np.inf
             bin_box[b, a + 3] = -np.inf
+    cur = -1
+    cnt = 0
+    x0 = y0 = z0 = np.float32(np.inf)
+    x1 = y1 = z1 = np.float32(-np.inf)
     for tri_id in tri_ids[lo:hi]:
         tri = np.uint32(tri_id)  # unsigned: no index wraparound
         b = bin_of(centroid(tri_bounds, tri, axis), c_min, scale, n_bins)
-        bin_count[b] += 1
-        for a in range(3):
-            if tri_bounds[tri, a] < bin_box[b, a]:
-                bin_box[b, a] = tri_bounds[tri, a]
-            if tri_bounds[tri, a + 3] > bin_box[b, a + 3]:
-                bin_box[b, a + 3] = tri_bounds[tri, a + 3]
+        if b != cur:
+            if cur >= 0:
+                flush_bin(bin_count, bin_box, cur, cnt, x0, y0, z0, x1, y1, z1)
+            cur = b
+            cnt = 0
+            x0 = y0 = z0 = np.float32(np.inf)
+            x1 = y1 = z1 = np.float32(-np.inf)
+        cnt += 1
+        x0 = min(x0, tri_bounds[tri, 0])
+        y0 = min(y0, tri_bounds[tri, 1])
+        z0 = min(z0, tri_bounds[tri, 2])
+        x1 = max(x1, tri_bounds[tri, 3])
+        y1 = max(y1, tri_bounds[tri, 4])
+        z1 = max(z1, tri_bounds[tri, 5])
+    if cur >= 0:
+        flush_bin(bin_count, bin_box, cur, cnt, x0, y0, z0, x1, y1, z1)
+
+
+@inline
+def flush_bin(bin_count, bin_box, b, cnt, x0, y0, z0, x1, y1, z1):
+    """Add a run of ``cnt`` triangles bounded by (x0, y0, z0)-(x1, y1, z1) to bin ``b``."""
+    bin_count[b] += cnt
+    bin_box[b, 0] = min(bin_box[b, 0], x0)
+    bin_box[b, 1] = min(bin_box[b, 1], y0)
+    bin_box[b, 2] = min(bin_box[b, 2], z0)
+    bin_box[b, 3] = max(bin_box[b, 3], x1)
+    bin_box[b, 4] = max(bin_box[b, 4], y1)
+    bin_box[b, 5] = max(bin_box[b, 5], z1)
 
 
 @inline
@@ -153,21 +173,52 @@ def sweep_bins(n_bins, bin_count, bin_box, left_count, left_box, right_count, ri
 
 
 @inline
-def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, split_bin):
-    """Move triangles whose bin is <= split_bin to the front; returns the first right index."""
+def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, split_bin,
+                        box_left, box_right):
+    """Move triangles whose bin is <= split_bin to the front; returns the first right index.
+
+    The boxes of both sides go to ``box_left`` and ``box_right`` (6,), bounded in the same pass
+    (each triangle is looked at once) instead of two more passes over the triangles."""
     ids = tri_ids[lo:hi]
     one = np.uint64(1)
     i = np.uint64(0)
     j = np.uint64(hi - lo)
+    lx0 = ly0 = lz0 = rx0 = ry0 = rz0 = np.float32(np.inf)
+    lx1 = ly1 = lz1 = rx1 = ry1 = rz1 = np.float32(-np.inf)
     while i < j:
-        tri = ids[i]
-        if bin_of(centroid(tri_bounds, np.uint32(tri), axis), c_min, scale, n_bins) <= split_bin:
+        tri_id = ids[i]
+        tri = np.uint32(tri_id)  # unsigned: no index wraparound
+        if bin_of(centroid(tri_bounds, tri, axis), c_min, scale, n_bins) <= split_bin:
+            lx0 = min(lx0, tri_bounds[tri, 0])
+            ly0 = min(ly0, tri_bounds[tri, 1])
+            lz0 = min(lz0, tri_bounds[tri, 2])
+            lx1 = max(lx1, tri_bounds[tri, 3])
+            ly1 = max(ly1, tri_bounds[tri, 4])
+            lz1 = max(lz1, tri_bounds[tri, 5])
             i += one
         else:
+            rx0 = min(rx0, tri_bounds[tri, 0])
+            ry0 = min(ry0, tri_bounds[tri, 1])
+            rz0 = min(rz0, tri_bounds[tri, 2])
+            rx1 = max(rx1, tri_bounds[tri, 3])
+            ry1 = max(ry1, tri_bounds[tri, 4])
+            rz1 = max(rz1, tri_bounds[tri, 5])
             j -= one
             ids[i] = ids[j]
-            ids[j] = tri
+            ids[j] = tri_id
+    set_box(box_left, lx0, ly0, lz0, lx1, ly1, lz1)
+    set_box(box_right, rx0, ry0, rz0, rx1, ry1, rz1)
     return lo + np.int64(i)
+
+
+@inline
+def set_box(box, x0, y0, z0, x1, y1, z1):
+    box[0] = x0
+    box[1] = y0
+    box[2] = z0
+    box[3] = x1
+    box[4] = y1
+    box[5] = z1
 
 
 @inline

@@ -152,14 +152,10 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
                     split = cheapest_sah_split(left_count, left_box, right_count, right_box,
                                                stack_box[sp])
                 tri_mid = partition_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, axis, c_min,
-                                              scale, N_BINS, split)
-                box_a[:] = left_box[split]
-                box_b[:] = right_box[split]
+                                              scale, N_BINS, split, box_a, box_b)
         if split < 0:
             axis, tri_mid = split_middle(tri_ids, tri_lo, tri_hi, tri_bounds, stack_box[sp],
-                                         c_box)
-            triangle_bounds(tri_ids, tri_lo, tri_mid, tri_bounds, box_a)
-            triangle_bounds(tri_ids, tri_mid, tri_hi, tri_bounds, box_b)
+                                         c_box, box_a, box_b)
 
         # Traversal order and ray-filter skipping.
         if sampled:
@@ -317,16 +313,17 @@ def cheapest_sah_split(left_count, left_box, right_count, right_box, node_box):
 
 
 @jit
-def split_middle(tri_ids, tri_lo, tri_hi, tri_bounds, node_box, c_box):
+def split_middle(tri_ids, tri_lo, tri_hi, tri_bounds, node_box, c_box, box_a, box_b):
     """Keller & Waechter: split at the middle of the node box's longest axis.
 
     Falls back to the middle of the centroids' box, then to the median index, so both sides are
-    never empty. Returns (axis, tri_mid)."""
+    never empty. Returns (axis, tri_mid); the sides' boxes go to box_a and box_b."""
     axis, extent = longest_axis(node_box)
     if extent > 0:
         c_min = np.float64(node_box[axis])
         tri_mid = partition_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, axis, c_min,
-                                      2.0 / (np.float64(node_box[axis + 3]) - c_min), 2, 0)
+                                      2.0 / (np.float64(node_box[axis + 3]) - c_min), 2, 0,
+                                      box_a, box_b)
         if tri_lo < tri_mid < tri_hi:
             return axis, tri_mid
     centroid_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, c_box)
@@ -334,7 +331,11 @@ def split_middle(tri_ids, tri_lo, tri_hi, tri_bounds, node_box, c_box):
     if c_extent > 0:
         c_min = np.float64(c_box[c_axis])
         tri_mid = partition_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, c_axis, c_min,
-                                      bin_scale(c_min, np.float64(c_box[c_axis + 3]), 2), 2, 0)
+                                      bin_scale(c_min, np.float64(c_box[c_axis + 3]), 2), 2, 0,
+                                      box_a, box_b)
         if tri_lo < tri_mid < tri_hi:
             return c_axis, tri_mid
-    return axis, (tri_lo + tri_hi) // 2
+    tri_mid = (tri_lo + tri_hi) // 2
+    triangle_bounds(tri_ids, tri_lo, tri_mid, tri_bounds, box_a)
+    triangle_bounds(tri_ids, tri_mid, tri_hi, tri_bounds, box_b)
+    return axis, tri_mid
