@@ -50,6 +50,20 @@ def _duplicates():
     return meshes, *scenes.mixed_rays(meshes, 43, n=2000), None, None
 
 
+def _stacked(n_copies=64, n_rays=3000):
+    """Two stacks of identical triangles, one above the other, and rays through both from above
+    and from below. Inside a stack every centroid is the same, so splits fall back to the median
+    index; every hit is an n-way tie."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1]], np.float32)
+    f = np.array([[0, 1, 2]] * n_copies + [[3, 4, 5]] * n_copies, np.int32)
+    rng = np.random.default_rng(46)
+    xy = rng.uniform(0.05, 0.45, (n_rays, 2)).astype(np.float32)
+    down = rng.random(n_rays) < 0.5
+    o = np.column_stack([xy, np.where(down, 2.0, -1.0)]).astype(np.float32)
+    d = np.column_stack([np.zeros((n_rays, 2)), np.where(down, -1.0, 1.0)]).astype(np.float32)
+    return [(v, f)], o, d, None, None
+
+
 def _many_rays():
     """40,000 rays from inside a sphere: enough for the engine to split the batch across threads."""
     (v, f), = scenes.sphere(44)
@@ -74,6 +88,7 @@ CASES = {
     "soup_with_ranges": _soup_with_ranges,
     "multi": _multi,
     "duplicates": _duplicates,
+    "stacked": _stacked,
     "many_rays": _many_rays,
     "pinwheel": _pinwheel,
     "teapot_camera": _teapot_camera,
@@ -162,3 +177,15 @@ def test_chunks_cover_every_ray_once_as_slabs_or_in_input_order():
     for lower, upper in zip(slabs, slabs[1:]):
         assert scattered[lower, 1].max() <= scattered[upper, 1].min()
     assert np.array_equal(np.concatenate(Scene._chunk_ids(scattered, 3, keep_order=True)), np.arange(n))
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
+def test_stacked_triangles_tie_to_the_lowest_index(strategy, threads):
+    """Rays from above hit the upper stack first (its lowest index is n_copies), rays from below
+    the lower one (index 0), whatever the splits did with the stacks."""
+    (meshes, o, d, _, _), n_copies = _stacked(), 64
+    hits = dacrt.Scene(meshes).closest(o, d, strategy=strategy, threads=threads)
+    from_above = d[:, 2] < 0
+    np.testing.assert_array_equal(hits.prim, np.where(from_above, n_copies, 0))
+    np.testing.assert_array_equal(hits.t, np.ones(len(o), np.float32))
