@@ -68,12 +68,7 @@ def triangle_bounds(tri_ids, lo, hi, tri_bounds, out):
     x1 = y1 = z1 = np.float32(-np.inf)
     for tri_id in tri_ids[lo:hi]:
         tri = np.uint32(tri_id)  # unsigned: no index wraparound
-        x0 = min(x0, tri_bounds[tri, 0])
-        y0 = min(y0, tri_bounds[tri, 1])
-        z0 = min(z0, tri_bounds[tri, 2])
-        x1 = max(x1, tri_bounds[tri, 3])
-        y1 = max(y1, tri_bounds[tri, 4])
-        z1 = max(z1, tri_bounds[tri, 5])
+        x0, y0, z0, x1, y1, z1 = grow_box(x0, y0, z0, x1, y1, z1, tri_bounds, tri)
     set_box(out, x0, y0, z0, x1, y1, z1)
 
 
@@ -124,12 +119,7 @@ def bin_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, bin_c
             x0 = y0 = z0 = np.float32(np.inf)
             x1 = y1 = z1 = np.float32(-np.inf)
         cnt += 1
-        x0 = min(x0, tri_bounds[tri, 0])
-        y0 = min(y0, tri_bounds[tri, 1])
-        z0 = min(z0, tri_bounds[tri, 2])
-        x1 = max(x1, tri_bounds[tri, 3])
-        y1 = max(y1, tri_bounds[tri, 4])
-        z1 = max(z1, tri_bounds[tri, 5])
+        x0, y0, z0, x1, y1, z1 = grow_box(x0, y0, z0, x1, y1, z1, tri_bounds, tri)
     if cur >= 0:
         flush_bin(bin_count, bin_box, cur, cnt, x0, y0, z0, x1, y1, z1)
 
@@ -189,20 +179,10 @@ def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins,
         tri_id = ids[i]
         tri = np.uint32(tri_id)  # unsigned: no index wraparound
         if bin_of(centroid(tri_bounds, tri, axis), c_min, scale, n_bins) <= split_bin:
-            lx0 = min(lx0, tri_bounds[tri, 0])
-            ly0 = min(ly0, tri_bounds[tri, 1])
-            lz0 = min(lz0, tri_bounds[tri, 2])
-            lx1 = max(lx1, tri_bounds[tri, 3])
-            ly1 = max(ly1, tri_bounds[tri, 4])
-            lz1 = max(lz1, tri_bounds[tri, 5])
+            lx0, ly0, lz0, lx1, ly1, lz1 = grow_box(lx0, ly0, lz0, lx1, ly1, lz1, tri_bounds, tri)
             i += one
         else:
-            rx0 = min(rx0, tri_bounds[tri, 0])
-            ry0 = min(ry0, tri_bounds[tri, 1])
-            rz0 = min(rz0, tri_bounds[tri, 2])
-            rx1 = max(rx1, tri_bounds[tri, 3])
-            ry1 = max(ry1, tri_bounds[tri, 4])
-            rz1 = max(rz1, tri_bounds[tri, 5])
+            rx0, ry0, rz0, rx1, ry1, rz1 = grow_box(rx0, ry0, rz0, rx1, ry1, rz1, tri_bounds, tri)
             j -= one
             ids[i] = ids[j]
             ids[j] = tri_id
@@ -212,7 +192,16 @@ def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins,
 
 
 @inline
+def grow_box(x0, y0, z0, x1, y1, z1, tri_bounds, tri):
+    """The box (x0, y0, z0)-(x1, y1, z1) grown to hold triangle ``tri``'s box."""
+    return (min(x0, tri_bounds[tri, 0]), min(y0, tri_bounds[tri, 1]),
+            min(z0, tri_bounds[tri, 2]), max(x1, tri_bounds[tri, 3]),
+            max(y1, tri_bounds[tri, 4]), max(z1, tri_bounds[tri, 5]))
+
+
+@inline
 def set_box(box, x0, y0, z0, x1, y1, z1):
+    """Write a box held in locals to ``box`` (6,)."""
     box[0] = x0
     box[1] = y0
     box[2] = z0
