@@ -157,7 +157,9 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
             axis, tri_mid = split_middle(tri_ids, tri_lo, tri_hi, tri_bounds, stack_box[sp],
                                          c_box, box_a, box_b)
 
-        # Traversal order and ray-filter skipping.
+        # Traversal order and ray-filter skipping. Afra's order: the first active ray's
+        # direction along the split axis.
+        first_ray_left = rays[DIRECTION + axis, ray_lo] >= 0
         if sampled:
             n_samples = min(N_SAMPLE_RAYS, n_rays)
             if mode == MODE_OCCLUDED:
@@ -167,12 +169,12 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
                 # Only rays reaching both sides care which is first: their majority direction
                 # along the axis (measured better than their entry distances on closest hits).
                 votes = forward_left[split]
-                left_first = votes > 0 or (votes == 0 and rays[DIRECTION + axis, ray_lo] >= 0)
+                left_first = votes > 0 or (votes == 0 and first_ray_left)
             # Eq. (5)-(6): skip filtering a child that most sample rays reach anyway.
             filter_left = hits_left[split] <= skip_threshold(tri_mid - tri_lo) * n_samples
             filter_right = hits_right[split] <= skip_threshold(tri_hi - tri_mid) * n_samples
         else:
-            left_first = rays[DIRECTION + axis, ray_lo] >= 0
+            left_first = first_ray_left
             filter_left = True
             filter_right = True
         # Push the later child first, so the nearer one is popped next.
