@@ -7,23 +7,23 @@ from .leaf import NO_HIT
 
 
 @jit
-def finish_closest(best_t, best_tri, hit_u, hit_v, tri_global, mesh_offsets, tri_verts,
-                   t, mesh, prim, u, v, normal):
-    """Fill the answer arrays (preallocated with their miss values) for the rays that hit.
+def finish_closest(best_t, best_tri, tri_global, mesh_offsets, tri_verts, mesh, prim, normal):
+    """Turn the kernels' per-ray results into the answers: ``best_t`` becomes t in place (inf
+    on a miss), and mesh, prim, normal (preallocated with their miss values) are filled for the
+    rays that hit. hit_u and hit_v are u and v as they are (0 where a ray never hit).
 
     best_tri holds kernel rows; tri_global maps them to global triangle indices, and
     mesh_offsets (n_meshes+1,) to (mesh, prim)."""
     for ray in range(best_t.shape[0]):
         row = best_tri[ray]
         if row == NO_HIT:
+            best_t[ray] = np.inf
             continue
         tri = tri_global[row]
         m = np.searchsorted(mesh_offsets, tri, side="right") - 1
-        t[ray] = best_t[ray] + np.float32(0.0)  # -0.0 (a hit at the origin) as +0.0
+        best_t[ray] = best_t[ray] + np.float32(0.0)  # -0.0 (a hit at the origin) as +0.0
         mesh[ray] = m
         prim[ray] = tri - mesh_offsets[m]
-        u[ray] = hit_u[ray]
-        v[ray] = hit_v[ray]
         # Geometric normal (p1 - p0) x (p2 - p0), normalised in float64.
         nx, ny, nz = triangle_normal(tri_verts, row)
         inv_length = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)

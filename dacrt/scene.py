@@ -140,18 +140,15 @@ class Scene:
         threads : None for every core, or a positive int
         Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
         """
-        best_t, best_tri, hit_u, hit_v, counters = self._trace(
+        t, best_tri, u, v, counters = self._trace(
             MODE_CLOSEST, origins, directions, tmin, tmax, strategy, threads)
-        n = len(best_t)
-        t = np.full(n, np.inf, FLOAT)
+        n = len(t)
         mesh = np.full(n, MISS, INDEX)
         prim = np.full(n, MISS, INDEX)
-        u = np.zeros(n, FLOAT)
-        v = np.zeros(n, FLOAT)
         normal = np.zeros((n, 3), FLOAT)
-        if len(self._tri_verts):
-            finish_closest(best_t, best_tri, hit_u, hit_v, self._tri_global, self.mesh_offsets,
-                           self._tri_verts, t, mesh, prim, u, v, normal)
+        # In place: t, u, v are the trace's own arrays (12 bytes a ray neither allocated nor copied).
+        finish_closest(t, best_tri, self._tri_global, self.mesh_offsets, self._tri_verts, mesh,
+                       prim, normal)
         return Hits(t, mesh, prim, u, v, normal, counters if stats else None)
 
     def occluded(self, origins, directions, tmin=None, tmax=None, *, strategy="sampling",
