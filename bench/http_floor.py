@@ -4,12 +4,13 @@
 
 Side by side in one run, medians of ``--repeat``, the bytes of a 1M-ray ``closest`` request with
 all fields (24 B per ray in as .npy (N, 6), 32 B per ray out):
-  plain TCP        two Python processes, ``sendall`` and ``recv_into`` a preallocated buffer
-  uvicorn + httpx  a minimal ASGI app (this module's ``app``) that copies the body into a
-                   ``wire.BodyBuffer`` and sends a preallocated answer in 4 MB parts; the client
-                   sends 1 MiB views and reads the answer into a ``BodyBuffer``, as
-                   ``service.client`` does
-The service cannot be cheaper than the second line; ``bench.http_overhead`` measures what it adds.
+  plain TCP         two Python processes, ``sendall`` and ``recv_into`` a preallocated buffer
+  uvicorn + httpx   a minimal ASGI app (this module's ``app``) that copies the body into a
+                    ``wire.BodyBuffer`` and sends a preallocated answer in 4 MB parts; the client
+                    sends 1 MiB views and reads the answer into a ``BodyBuffer``, as
+                    ``service.client`` does, over httpx's own transport (httpcore, h11)
+  ... on http.client  the same through ``service.transport.StdlibTransport``, the client's
+The service cannot be cheaper than the last line; ``bench.http_overhead`` measures what it adds.
 """
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from service.transport import StdlibTransport
 from service.wire import BodyBuffer
 
 RAY_BYTES, ANSWER_BYTES = 24, 32
@@ -95,7 +97,8 @@ def time_tcp(n_in: int, n_out: int, repeat: int) -> list[float]:
     return seconds
 
 
-def time_uvicorn(n_rays: int, repeat: int) -> list[float]:
+def time_uvicorn(n_rays: int, repeat: int) -> dict[str, list[float]]:
+    """Both client transports against one do-nothing server, requests alternating."""
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
@@ -107,27 +110,33 @@ def time_uvicorn(n_rays: int, repeat: int) -> list[float]:
     view = memoryview(rays).cast("B")
     parts = [view[i:i + (1 << 20)] for i in range(0, len(view), 1 << 20)]
     headers = {"content-length": str(len(view)), "content-type": "application/x-npy"}
-    seconds = []
+    seconds: dict[str, list[float]] = {"httpx": [], "http.client": []}
+    url = f"http://127.0.0.1:{port}"
+    clients = {"httpx": httpx.Client(base_url=url, timeout=60),
+               "http.client": httpx.Client(base_url=url, timeout=60, transport=StdlibTransport())}
     try:
-        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=60) as client:
-            for _ in range(200):
-                try:
-                    client.get("/")
-                    break
-                except httpx.TransportError:
-                    time.sleep(0.1)
-            for _ in range(repeat + 1):  # the first warms the connection up
+        for _ in range(200):
+            try:
+                clients["httpx"].get("/")
+                break
+            except httpx.TransportError:
+                time.sleep(0.1)
+        for rep in range(repeat + 1):  # the first warms the connections up
+            for name, client in clients.items():
                 start = time.perf_counter()
                 with client.stream("POST", "/", content=parts, headers=headers) as response:
                     answer = BodyBuffer(int(response.headers["content-length"]))
                     for chunk in response.iter_bytes():
                         answer.add(chunk)
                     answer.finish()
-                seconds.append(time.perf_counter() - start)
+                if rep:
+                    seconds[name].append(time.perf_counter() - start)
     finally:
+        for client in clients.values():
+            client.close()
         server.terminate()
         server.wait(timeout=30)
-    return seconds[1:]
+    return seconds
 
 
 def main() -> None:
@@ -136,14 +145,17 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=21)
     args = parser.parse_args()
     n_in, n_out = RAY_BYTES * args.rays, ANSWER_BYTES * args.rays
-    tcp, uvicorn = [], []
-    for _ in range(3):  # alternate the two, a third of the requests at a time
+    tcp, httpx_own, stdlib = [], [], []
+    for _ in range(3):  # alternate TCP and uvicorn, a third of the requests at a time
         tcp += time_tcp(n_in, n_out, -(-args.repeat // 3))
-        uvicorn += time_uvicorn(args.rays, -(-args.repeat // 3))
+        seconds = time_uvicorn(args.rays, -(-args.repeat // 3))
+        httpx_own += seconds["httpx"]
+        stdlib += seconds["http.client"]
     print(f"{args.rays} rays: {n_in / 1e6:.0f} MB in, {n_out / 1e6:.0f} MB out; "
           f"medians of {len(tcp)}; {os.cpu_count()} cores")
-    print(f"plain TCP         {1000 * statistics.median(tcp):7.1f} ms")
-    print(f"uvicorn + httpx   {1000 * statistics.median(uvicorn):7.1f} ms")
+    print(f"plain TCP                          {1000 * statistics.median(tcp):7.1f} ms")
+    print(f"uvicorn + httpx (httpx transport)  {1000 * statistics.median(httpx_own):7.1f} ms")
+    print(f"uvicorn + httpx on http.client     {1000 * statistics.median(stdlib):7.1f} ms")
 
 
 if __name__ == "__main__":
