@@ -117,7 +117,13 @@ class OneShotServer:
                 if self.close_after:
                     connection.close()
 
-    def stop(self) -> None:
+    def client(self, timeout: float) -> httpx.Client:
+        return httpx.Client(base_url=self.url, transport=StdlibTransport(), timeout=timeout)
+
+    def __enter__(self) -> "OneShotServer":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
         self.listener.close()
         for connection in self.open:
             connection.close()
@@ -128,25 +134,17 @@ KEEP_ALIVE_REPLY = b"HTTP/1.1 200 OK\r\nContent-Length: 2\r\nContent-Type: appli
 
 def test_a_connection_the_server_closed_while_idle_is_not_reused():
     # The server answers with keep-alive, then closes: the next request needs a new connection.
-    server = OneShotServer(KEEP_ALIVE_REPLY, close_after=True)
-    try:
-        with httpx.Client(base_url=server.url, transport=StdlibTransport(), timeout=10) as http:
-            for _ in range(3):
-                assert http.get("/").json() == {}
-                threading.Event().wait(0.05)  # let the close arrive
+    with OneShotServer(KEEP_ALIVE_REPLY, close_after=True) as server, server.client(10) as http:
+        for _ in range(3):
+            assert http.get("/").json() == {}
+            threading.Event().wait(0.05)  # let the close arrive
         assert server.connections == 3
-    finally:
-        server.stop()
 
 
 def test_a_server_that_never_answers_is_a_read_timeout():
-    server = OneShotServer(None, close_after=False)
-    try:
-        with (httpx.Client(base_url=server.url, transport=StdlibTransport(), timeout=0.3) as http,
-              pytest.raises(httpx.ReadTimeout)):
-            http.get("/")
-    finally:
-        server.stop()
+    with (OneShotServer(None, close_after=False) as server, server.client(0.3) as http,
+          pytest.raises(httpx.ReadTimeout)):
+        http.get("/")
 
 
 def test_a_closed_port_is_a_connect_error():
@@ -159,10 +157,7 @@ def test_a_closed_port_is_a_connect_error():
 
 
 def test_a_cut_answer_is_a_protocol_error():
-    server = OneShotServer(b"HTTP/1.1 200 OK\r\nContent-Length: 100\r\n\r\nonly this", close_after=True)
-    try:
-        with (httpx.Client(base_url=server.url, transport=StdlibTransport(), timeout=5) as http,
-              pytest.raises(httpx.RemoteProtocolError)):
-            http.get("/")
-    finally:
-        server.stop()
+    cut = b"HTTP/1.1 200 OK\r\nContent-Length: 100\r\n\r\nonly this"
+    with (OneShotServer(cut, close_after=True) as server, server.client(5) as http,
+          pytest.raises(httpx.RemoteProtocolError)):
+        http.get("/")
