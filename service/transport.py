@@ -41,7 +41,8 @@ class StdlibTransport(httpx.BaseTransport):
     def handle_request(self, request: httpx.Request) -> httpx.Response:
         timeout = request.extensions.get("timeout", {})
         url = request.url
-        origin = (url.scheme, url.host, url.port or (443 if url.scheme == "https" else 80))
+        origin = (url.scheme, url.raw_host.decode("ascii"),  # IDNA-encoded, as on the wire
+                  url.port or (443 if url.scheme == "https" else 80))
         connection = self._checkout(origin)
         try:
             response = _exchange(connection, request, timeout)
