@@ -166,17 +166,39 @@ def test_chunks_cover_every_ray_once_as_slabs_or_in_input_order():
     scattered = np.random.default_rng(46).uniform(-1, 1, (n, 3)).astype(np.float32)
     scattered[:, 1] *= 3  # y is the widest axis
     ordered = np.sort(scattered, axis=0)  # neighbours in input order start near each other
+    # One triangle away from every origin: all rays weigh the same (see the next test).
+    scene = Scene([(np.array([[9, 9, 9], [10, 9, 9], [9, 10, 9]], np.float32), [[0, 1, 2]])])
     for origins, expect_slabs in ((scattered, True), (ordered, False)):
-        chunks = Scene._chunk_ids(origins, 3, keep_order=False)
+        chunks = scene._chunk_ids(origins, 3, keep_order=False)
         assert np.array_equal(np.sort(np.concatenate(chunks)), np.arange(n))
         assert all((np.diff(chunk) > 0).all() for chunk in chunks)
         assert max(map(len, chunks)) < 1.1 * n / 3
         in_order = all(np.array_equal(c, np.arange(c[0], c[0] + len(c))) for c in chunks)
         assert in_order != expect_slabs
-    slabs = Scene._chunk_ids(scattered, 3, keep_order=False)
+    slabs = scene._chunk_ids(scattered, 3, keep_order=False)
     for lower, upper in zip(slabs, slabs[1:]):
         assert scattered[lower, 1].max() <= scattered[upper, 1].min()
-    assert np.array_equal(np.concatenate(Scene._chunk_ids(scattered, 3, keep_order=True)), np.arange(n))
+    assert np.array_equal(np.concatenate(scene._chunk_ids(scattered, 3, keep_order=True)), np.arange(n))
+
+
+def test_slabs_hold_fewer_rays_where_the_triangles_are_dense():
+    """Slab cuts weigh each ray by the triangles around its origin: with 20,000 small triangles
+    in x < 0 and 40 in x > 0, the slab of x < 0 holds fewer rays; every ray is still in exactly
+    one slab, and the slabs are ordered along x."""
+    from dacrt.scene import Scene
+
+    rng = np.random.default_rng(47)
+    n = 60_000
+    origins = rng.uniform(-1, 1, (n, 3)).astype(np.float32)
+    origins[:, 0] *= 3  # x is the widest axis
+    centres = np.concatenate([rng.uniform([-3, -1, -1], [0, 1, 1], (20_000, 3)),
+                              rng.uniform([0, -1, -1], [3, 1, 1], (40, 3))])
+    corners = np.repeat(centres, 3, axis=0) + rng.uniform(-0.01, 0.01, (3 * len(centres), 3))
+    scene = Scene([(corners.astype(np.float32), np.arange(3 * len(centres)).reshape(-1, 3))])
+    dense, sparse = scene._chunk_ids(origins, 2, keep_order=False)
+    assert np.array_equal(np.sort(np.concatenate([dense, sparse])), np.arange(n))
+    assert origins[dense, 0].max() <= origins[sparse, 0].min()
+    assert len(dense) < 0.35 * n and origins[dense, 0].max() < 0
 
 
 @pytest.mark.parametrize("threads", [1, 2])
