@@ -127,43 +127,27 @@ def _exchange(connection: http.client.HTTPConnection, request: httpx.Request,
         connection.timeout = timeout.get("connect")
         with _mapped_errors(request, httpx.ConnectTimeout, httpx.ConnectError):
             connection.connect()
-    write_error = None
-    try:
-        with _mapped_errors(request, httpx.WriteTimeout, httpx.WriteError):
-            _send(connection, request, timeout)
-    except httpx.WriteError as error:
-        # A server may answer (say 413) and close before the body is all sent: read that
-        # answer if it is there, as httpx's own transport does.
-        write_error = error
-    try:
-        with _mapped_errors(request, httpx.ReadTimeout, httpx.ReadError):
-            connection.sock.settimeout(timeout.get("read"))
-            return connection.getresponse()
-    except httpx.TransportError:
-        if write_error is not None:
-            raise write_error from None
-        raise
-
-
-def _send(connection: http.client.HTTPConnection, request: httpx.Request,
-          timeout: dict[str, float | None]) -> None:
-    connection.sock.settimeout(timeout.get("write"))
-    # httpx has set Host, Accept-Encoding, Content-Length or Transfer-Encoding.
-    connection.putrequest(request.method, request.url.raw_path.decode("ascii"),
-                          skip_host=True, skip_accept_encoding=True)
-    for name, value in request.headers.raw:
-        connection.putheader(name, value)
-    connection.endheaders()
-    chunked = request.headers.get("transfer-encoding", "").lower() == "chunked"
-    for chunk in request.stream:
-        if not chunked:
-            connection.send(chunk)
-        elif len(chunk):
-            connection.send(b"%x\r\n" % len(chunk))
-            connection.send(chunk)
-            connection.send(b"\r\n")
-    if chunked:
-        connection.send(b"0\r\n\r\n")
+    with _mapped_errors(request, httpx.WriteTimeout, httpx.WriteError):
+        connection.sock.settimeout(timeout.get("write"))
+        # httpx has set Host, Accept-Encoding, Content-Length or Transfer-Encoding.
+        connection.putrequest(request.method, request.url.raw_path.decode("ascii"),
+                              skip_host=True, skip_accept_encoding=True)
+        for name, value in request.headers.raw:
+            connection.putheader(name, value)
+        connection.endheaders()
+        chunked = request.headers.get("transfer-encoding", "").lower() == "chunked"
+        for chunk in request.stream:
+            if not chunked:
+                connection.send(chunk)
+            elif len(chunk):
+                connection.send(b"%x\r\n" % len(chunk))
+                connection.send(chunk)
+                connection.send(b"\r\n")
+        if chunked:
+            connection.send(b"0\r\n\r\n")
+    with _mapped_errors(request, httpx.ReadTimeout, httpx.ReadError):
+        connection.sock.settimeout(timeout.get("read"))
+        return connection.getresponse()
 
 
 def _closed_by_peer(connection: http.client.HTTPConnection) -> bool:
