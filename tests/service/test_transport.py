@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from service import wire
-from service.client import Client
+from service.client import APIError, Client
 from service.transport import StdlibTransport
-from service_helpers import down_rays, grid, quad
+from service_helpers import TOKEN, down_rays, grid, quad
 
 
 def joined(parts) -> bytes:
@@ -161,3 +161,13 @@ def test_a_cut_answer_is_a_protocol_error():
     with (OneShotServer(cut, close_after=True) as server, server.client(5) as http,
           pytest.raises(httpx.RemoteProtocolError)):
         http.get("/")
+
+
+def test_a_413_before_a_big_body_is_read_reaches_the_client(secure_server, scene_name):
+    # The server refuses by Content-Length before reading 9.6 MB of rays.
+    with Client(secure_server, token=TOKEN) as client:
+        client.put_mesh(scene_name, "quad", *quad(0, 1, 0, 1, 9))
+        with pytest.raises(APIError) as caught:
+            client.closest(scene_name, np.zeros((400_000, 6), np.float32))
+        assert caught.value.status == 413 and "DACRT_MAX_BODY_BYTES" in caught.value.detail
+        assert client.closest(scene_name, *down_rays([[0.25, 0.25]])).t[0] == pytest.approx(1.0)
