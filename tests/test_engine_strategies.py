@@ -211,3 +211,19 @@ def test_stacked_triangles_tie_to_the_lowest_index(strategy, threads):
     from_above = d[:, 2] < 0
     np.testing.assert_array_equal(hits.prim, np.where(from_above, n_copies, 0))
     np.testing.assert_array_equal(hits.t, np.ones(len(o), np.float32))
+
+
+def test_warmup_compiles_what_an_incoherent_two_thread_query_needs():
+    """After dacrt.warmup(), slab cutting compiles nothing more, for plain arrays and for the
+    read-only column views a server decodes from a body."""
+    from dacrt import scene as engine_scene
+
+    dacrt.warmup()
+    kernels = (engine_scene.centre_counts, engine_scene.origin_weights, engine_scene.ids_by_slab)
+    before = [len(kernel.signatures) for kernel in kernels]
+    rays = np.random.default_rng(48).uniform(-1, 1, (40_000, 6)).astype(np.float32)
+    rays.flags.writeable = False
+    scene = dacrt.Scene([(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32), [[0, 1, 2]])])
+    scene.closest(rays[:, :3], rays[:, 3:], threads=2)
+    scene.closest(np.ascontiguousarray(rays[:, :3]), np.ascontiguousarray(rays[:, 3:]), threads=2)
+    assert [len(kernel.signatures) for kernel in kernels] == before
