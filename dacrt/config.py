@@ -16,6 +16,9 @@ N_BINS = 32
 # Ray sampling: 100 sample rays, only when more than 1000 rays are active.
 N_SAMPLE_RAYS = 100
 MIN_RAYS_TO_SAMPLE = 1000
+# Fewer, evenly strided over the active rays, choose the split axis (it needs three means, not
+# 31 candidates' counts): Sibenik 1024² primary rays 139 against 141 ms with all 100 (two runs).
+AXIS_SAMPLE_RAYS = 32
 # Afra's rule: use the cost function only when rays / triangles exceeds this, else split in the middle.
 RAYS_PER_TRIANGLE_FOR_COST = 1.5
 # Leaves: brute force once either side is this small (4 triangles measured best on Sibenik
