@@ -79,12 +79,13 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     right_count = np.empty(N_BINS - 1, np.int64)
     left_box = np.empty((N_BINS - 1, 6), np.float32)
     right_box = np.empty((N_BINS - 1, 6), np.float32)
-    hits_left = np.empty(N_BINS - 1, np.int64)
-    hits_right = np.empty(N_BINS - 1, np.int64)
-    nearer_left = np.empty(N_BINS - 1, np.int64)
-    forward_left = np.empty(N_BINS - 1, np.int64)
     candidate_boxes = np.empty((12, PADDED_CANDIDATES), np.float32)
     sample_counts = np.empty((4, PADDED_CANDIDATES), np.int32)
+    # sample_rays' counts per candidate, as rows of sample_counts.
+    hits_left = sample_counts[0]
+    hits_right = sample_counts[1]
+    nearer_left = sample_counts[2]
+    forward_left = sample_counts[3]
     c_box = np.empty(6, np.float32)
     box_a = np.empty(6, np.float32)
     box_b = np.empty(6, np.float32)
@@ -133,10 +134,12 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         sampled = False
         split = -1
         if strategy != MIDDLE and n_rays > RAYS_PER_TRIANGLE_FOR_COST * n_tris:
+            sample_node = strategy == SAMPLING and n_rays > MIN_RAYS_TO_SAMPLE
             centroid_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, c_box)
-            axis, extent = longest_axis(c_box)
-            if strategy == SAMPLING and n_rays > MIN_RAYS_TO_SAMPLE and mode != MODE_OCCLUDED:
+            if sample_node and mode != MODE_OCCLUDED:
                 axis, extent = sampled_axis(rays, ray_lo, ray_hi, c_box)
+            else:
+                axis, extent = longest_axis(c_box)
             if extent > 0:
                 c_min = np.float64(c_box[axis])
                 scale = bin_scale(c_min, np.float64(c_box[axis + 3]), N_BINS)
@@ -144,13 +147,12 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
                               bin_count, bin_box)
                 sweep_bins(N_BINS, bin_count, bin_box, left_count, left_box, right_count,
                            right_box)
-                if strategy == SAMPLING and n_rays > MIN_RAYS_TO_SAMPLE:
+                if sample_node:
                     sampled = True
                     stats[STAT_SAMPLED] += 1
                     n_sample_tests = sample_rays(
                         rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box,
-                        axis, candidate_boxes, sample_counts, hits_left, hits_right,
-                        nearer_left, forward_left)
+                        axis, candidate_boxes, sample_counts)
                     stats[STAT_BOX_TESTS] += n_sample_tests
                     stats[STAT_SAMPLE_BOX_TESTS] += n_sample_tests
                     split = cheapest_sampled_split(left_count, right_count, hits_left,
@@ -205,7 +207,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
 
 @jit
 def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box, axis,
-                candidate_boxes, sample_counts, hits_left, hits_right, nearer_left, forward_left):
+                candidate_boxes, sample_counts):
     """Algorithm 2 of Nabata et al.: test sample rays against both sides of every candidate.
 
     Per candidate j: how many sample rays hit the left and right boxes, how many enter the
@@ -213,8 +215,9 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
     than down. Samples are evenly strided over the active rays. The inner loop runs over the
     candidates, whose boxes are copied to ``candidate_boxes`` (12, PADDED_CANDIDATES) by
     coordinate and padded with empty boxes (which every ray misses): it vectorises with no
-    remainder, 1.5x faster than looping over the samples. ``sample_counts`` (4,
-    PADDED_CANDIDATES) is scratch. Returns the box tests counted (those of real candidates)."""
+    remainder, 1.5x faster than looping over the samples. The four counts go to the rows of
+    ``sample_counts`` (4, PADDED_CANDIDATES), in that order; a candidate with an empty side
+    counts nothing. Returns the box tests counted (those of real candidates)."""
     n_rays = ray_hi - ray_lo
     n_samples = min(N_SAMPLE_RAYS, n_rays)
     n_tests = 0
@@ -258,11 +261,6 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
             entry_r = near_r if hit_r else _INF32
             n_nearer[j] += np.int32(1) if entry_l < entry_r else np.int32(0)
             n_forward[j] += step if hit_l and hit_r else np.int32(0)
-    for j in range(left_count.shape[0]):
-        hits_left[j] = n_left[j]
-        hits_right[j] = n_right[j]
-        nearer_left[j] = n_nearer[j]
-        forward_left[j] = n_forward[j]
     return n_tests
 
 

@@ -49,11 +49,11 @@ def test_sample_rays_counts_match_algorithm_2():
     right_count = rng.integers(1, 100, n_cand)
     left_count[[3, 17]] = 0  # no triangles on one side: not a candidate
     right_count[29] = 0
-    outputs = [np.empty(n_cand, np.int64) for _ in range(4)]
+    counts = np.full((4, PADDED_CANDIDATES), -7, np.int32)  # stale scratch
     n_tests = sample_rays(rays, 0, n_rays, left_count, left_box.astype(np.float32), right_count,
                           right_box.astype(np.float32), axis,
-                          np.empty((12, PADDED_CANDIDATES), np.float32),
-                          np.empty((4, PADDED_CANDIDATES), np.int32), *outputs)
+                          np.empty((12, PADDED_CANDIDATES), np.float32), counts)
+    outputs = counts[:, :n_cand]
 
     picked = (np.arange(N_SAMPLE_RAYS) * n_rays) // N_SAMPLE_RAYS
     o = rays[0:3, picked].T.astype(np.float64)
