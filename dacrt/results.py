@@ -14,15 +14,18 @@ def finish_closest(best_t, best_tri, tri_global, mesh_offsets, tri_verts, mesh, 
 
     best_tri holds kernel rows; tri_global maps them to global triangle indices, and
     mesh_offsets (n_meshes+1,) to (mesh, prim)."""
-    one_mesh = mesh_offsets.shape[0] == 2
+    m = 0
     for ray in range(best_t.shape[0]):
         row = best_tri[ray]
         if row == NO_HIT:
             best_t[ray] = np.inf
             continue
         tri = tri_global[row]
-        # One mesh needs no search (1.2 ms less per 1M hits).
-        m = 0 if one_mesh else np.searchsorted(mesh_offsets, tri, side="right") - 1
+        # Neighbouring rays mostly hit the same mesh: search only when the previous hit's mesh
+        # does not hold this triangle (one mesh never searches): 5.4 ms per 1M hits, 6.0 with a
+        # search for every hit.
+        if not mesh_offsets[m] <= tri < mesh_offsets[m + 1]:
+            m = np.searchsorted(mesh_offsets, tri, side="right") - 1
         best_t[ray] = best_t[ray] + np.float32(0.0)  # -0.0 (a hit at the origin) as +0.0
         mesh[ray] = m
         prim[ray] = tri - mesh_offsets[m]
