@@ -172,6 +172,12 @@ class Scene:
         return int(self._tri_verts.nbytes + self._tri_bounds.nbytes + self._tri_global.nbytes
                    + self.mesh_offsets.nbytes)
 
+    @functools.cached_property
+    def _centre_counts(self):
+        """Triangle centres per cell of the DENSITY_GRID grid, for slab cuts: derived once per
+        scene, on its first incoherent query on several threads (1 ms on Sponza)."""
+        return centre_counts(self._tri_bounds, self._box, DENSITY_GRID)
+
     def __repr__(self):
         return f"Scene({self.n_meshes} meshes, {self.n_triangles} triangles)"
 
@@ -241,8 +247,7 @@ class Scene:
         if np.mean(near) < ORDERED_NEIGHBOUR_DISTANCE * np.mean(far):
             return in_order()
         axis = int(np.argmax(sample.max(axis=0) - sample.min(axis=0)))
-        counts = centre_counts(self._tri_bounds, self._box, DENSITY_GRID)
-        weights = origin_weights(sample, counts, self._box, DENSITY_GRID)
+        weights = origin_weights(sample, self._centre_counts, self._box, DENSITY_GRID)
         order = np.argsort(sample[:, axis], kind="stable")
         cumulative = np.cumsum(weights[order])
         at = np.searchsorted(cumulative, np.arange(1, n_chunks) / n_chunks * cumulative[-1])
