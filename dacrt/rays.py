@@ -2,7 +2,8 @@
 
 Partitioning moves whole records rather than ids, so every pass over a node's rays streams
 through memory instead of gathering from arrays indexed by ray id. The records are stored as a
-structure of arrays, ``rays[field, i]`` with shape (8, n), so the ray-box loop vectorises.
+structure of arrays, ``rays[field, i]`` with shape (8, m), m >= n (see ``new_records``), so
+the ray-box loop vectorises.
 The fields are
 
     ox, oy, oz, dx, dy, dz, tmin, best_t
@@ -12,6 +13,8 @@ ray has hit (which culls it from every later box). The ray's id travels in a par
 array. 32 bytes per ray; 1/d is recomputed where needed, which costs less than moving it.
 """
 
+import numpy as np
+
 from .config import inline, jit
 
 ORIGIN = 0
@@ -19,11 +22,24 @@ DIRECTION = 3
 TMIN = 6
 BEST_T = 7
 RECORD_SIZE = 8
+# Rows are padded to a whole number of 4 KiB plus one cache line. Rows of exactly 1 MiB (a
+# 262,144-ray chunk) put a record's eight fields at the same low 12 address bits and in the same
+# cache set; a swap's loads then wait on the stores before them. Sibenik 1024² primary rays, one
+# thread: sah 188 -> 178 ms, sampling 148 -> 142.
+ROW_ALIGN = 1024
+ROW_SKEW = 16
+
+
+def new_records(n):
+    """Uninitialised records for n rays: float32 (RECORD_SIZE, m) with m >= n; the kernels use
+    columns [0, n) only."""
+    row = -(-n // ROW_ALIGN) * ROW_ALIGN + ROW_SKEW
+    return np.empty((RECORD_SIZE, row), np.float32)
 
 
 @jit
 def pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
-    """Fill ``rays`` (8, n) float32 with the records of rows ``ray_ids`` (n,) of the batch."""
+    """Fill ``rays`` (8, >= n) float32 with the records of rows ``ray_ids`` (n,) of the batch."""
     for r in range(ray_ids.shape[0]):
         ray = ray_ids[r]
         for a in range(3):

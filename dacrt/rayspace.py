@@ -227,7 +227,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
     A node the termination rule makes a leaf but that still holds many triangles (incoherent
     rays the frustum cannot cull for) goes to the object-split driver, with ray sampling,
     instead of a brute force over all of them."""
-    n_rays_all = rays.shape[1]
+    n_rays_all = ray_ids.shape[0]
     n_tris_all = tri_ids.shape[0]
     scene_size = 0.0
     for a in range(3):

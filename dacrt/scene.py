@@ -24,7 +24,7 @@ from .contracts import (
     Hits,
 )
 from .leaf import NO_HIT
-from .rays import RECORD_SIZE, pack_rays, unpack_best_t
+from .rays import new_records, pack_rays, unpack_best_t
 from .results import finish_closest
 from .triangles import gather_triangles, triangle_boxes
 from .rayspace import trace_ray_space
@@ -285,7 +285,7 @@ class Scene:
 
         def run(chunk):
             ray_ids = chunk_ids[chunk]
-            rays = np.empty((RECORD_SIZE, len(ray_ids)), FLOAT)
+            rays = new_records(len(ray_ids))
             pack_rays(origins, directions, tmin, tmax, ray_ids, rays)
             tri_ids = np.arange(n_live, dtype=INDEX)
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
