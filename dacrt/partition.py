@@ -242,11 +242,34 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask):
 
 @inline
 def filter_rays(rays, ray_ids, lo, hi, box, hit_mask, offsets):
-    """Move the rays that can hit ``box`` (within [tmin, best_t]) to the front of the range;
-    returns how many they are. ``hit_mask`` is scratch, one entry per ray; ``offsets`` is
-    ``partition_scratch()``."""
+    """Gather the rays that can hit ``box`` (within [tmin, best_t]) at one end of the range,
+    the end that needs fewer swaps; returns their range (lo, lo + k) or (hi - k, hi).
+    ``hit_mask`` is scratch, one entry per ray; ``offsets`` is ``partition_scratch()``.
+
+    Going to the front, the hits outside the first k records move; going to the back, those
+    in the first n - k. Counting both (two vectorised passes over the mask) and taking the
+    smaller: Sibenik 1024² primary rays, one thread, sah 173.6 -> 163.0 ms, sampling 136.8 ->
+    132.6. The count is a pass of its own: kept in the box-test loop, it stopped that loop
+    from vectorising (sah 182 ms)."""
     mark_rays_hitting_box(rays, lo, hi, box, hit_mask)
-    return partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets) - lo
+    n_hits = count_true(hit_mask, lo, hi)
+    swaps_to_front = n_hits - count_true(hit_mask, lo, lo + n_hits)
+    swaps_to_back = count_true(hit_mask, lo, hi - n_hits)
+    if swaps_to_back < swaps_to_front:
+        partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, True)
+        return hi - n_hits, hi
+    partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, False)
+    return lo, lo + n_hits
+
+
+@inline
+def count_true(mask, lo, hi):
+    """How many of mask[lo:hi] are true (a vectorised loop)."""
+    view = mask[lo:hi]
+    n = 0
+    for i in range(hi - lo):
+        n += np.int64(view[i])
+    return n
 
 
 @inline
@@ -256,9 +279,11 @@ def partition_scratch():
 
 
 @inline
-def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets):
-    """Move the ray records whose ``mask`` entry is true to the front of [lo, hi); returns the
-    index of the first other record. Only misplaced records are swapped, each once.
+def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False):
+    """Move the ray records whose ``mask`` entry is true to the front of [lo, hi) (to the back
+    with ``to_back``: the others to the front); returns the index of the first record of the
+    second group. Only misplaced records are swapped, each once. ``to_back`` is a constant at
+    every call, so inlining specialises the loops.
 
     BlockQuicksort (Edelkamp & Weiss 2016): a block of PARTITION_BLOCK records from each end
     records the offsets of its misplaced records without a branch, then the pairs are swapped
@@ -272,8 +297,8 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets):
     block = np.int64(PARTITION_BLOCK)
     off_l = offsets[:PARTITION_BLOCK]
     off_r = offsets[PARTITION_BLOCK:]
-    left = np.int64(0)      # every record before `left` is in place (a hit)
-    right = np.int64(hi - lo)  # every record from `right` on is in place (a miss)
+    left = np.int64(0)      # every record before `left` is in place (front group)
+    right = np.int64(hi - lo)  # every record from `right` on is in place (back group)
     num_l = np.int64(0)     # misplaced records of the current left block not yet swapped ...
     num_r = np.int64(0)
     start_l = np.int64(0)   # ... from this position of its offsets on
@@ -284,13 +309,13 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets):
             head = keep[left:left + block]
             for k in range(block):
                 off_l[num_l] = k
-                num_l += 0 if head[k] else 1
+                num_l += 0 if head[k] != to_back else 1
         if num_r == 0:
             start_r = 0
             tail = keep[right - block:right]
             for k in range(block):
                 off_r[num_r] = k
-                num_r += 1 if tail[block - 1 - k] else 0
+                num_r += 1 if tail[block - 1 - k] != to_back else 0
         num = min(num_l, num_r)
         for k in range(num):
             swap_rays(records, ids, np.uint64(left + off_l[start_l + k]),
@@ -307,15 +332,15 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets):
     # the plain loop.
     if num_l > 0:
         for k in range(start_l):
-            keep[left + off_l[k]] = True
+            keep[left + off_l[k]] = not to_back
     if num_r > 0:
         for k in range(start_r):
-            keep[right - 1 - off_r[k]] = False
-    return lo + partition_plain(records, ids, keep, left, right)
+            keep[right - 1 - off_r[k]] = to_back
+    return lo + partition_plain(records, ids, keep, left, right, to_back)
 
 
 @inline
-def partition_plain(records, ids, keep, left, right):
+def partition_plain(records, ids, keep, left, right, to_back):
     """partition_by_mask of records ``left:right`` of views, one branch per record.
 
     Unsigned indices: Numba does not wrap those, which saves two instructions on every access
@@ -324,11 +349,11 @@ def partition_plain(records, ids, keep, left, right):
     i = np.uint64(left)
     j = np.uint64(right)
     while i < j:
-        if keep[i]:
+        if keep[i] != to_back:
             i += one
         else:
             j -= one
-            if keep[j]:
+            if keep[j] != to_back:
                 swap_rays(records, ids, i, j)
                 i += one
     return np.int64(i)

@@ -113,8 +113,8 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         # Ray filtering: keep the rays that can reach this node's box.
         if stack_filter[sp]:
             stats[STAT_BOX_TESTS] += ray_hi - ray_lo
-            ray_hi = ray_lo + filter_rays(rays, ray_ids, ray_lo, ray_hi, stack_box[sp], hit_mask,
-                                             offsets)
+            ray_lo, ray_hi = filter_rays(rays, ray_ids, ray_lo, ray_hi, stack_box[sp], hit_mask,
+                                         offsets)
         else:
             stats[STAT_SKIPPED] += 1
         n_rays = ray_hi - ray_lo
