@@ -241,10 +241,11 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask):
 
 
 @inline
-def filter_rays(rays, ray_ids, lo, hi, box, hit_mask, offsets):
+def filter_rays(rays, ray_ids, lo, hi, box, hit_mask, offsets, same_origin):
     """Gather the rays that can hit ``box`` (within [tmin, best_t]) at one end of the range,
     the end that needs fewer swaps; returns their range (lo, lo + k) or (hi - k, hi).
-    ``hit_mask`` is scratch, one entry per ray; ``offsets`` is ``partition_scratch()``.
+    ``hit_mask`` is scratch, one entry per ray; ``offsets`` is ``partition_scratch()``;
+    ``same_origin``: every record has the same origin (see ``swap_rays``).
 
     Going to the front, the hits outside the first k records move; going to the back, those
     in the first n - k. Counting both (two vectorised passes over the mask) and taking the
@@ -256,9 +257,9 @@ def filter_rays(rays, ray_ids, lo, hi, box, hit_mask, offsets):
     swaps_to_front = n_hits - count_true(hit_mask, lo, lo + n_hits)
     swaps_to_back = count_true(hit_mask, lo, hi - n_hits)
     if swaps_to_back < swaps_to_front:
-        partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, True)
+        partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, True, same_origin)
         return hi - n_hits, hi
-    partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, False)
+    partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, False, same_origin)
     return lo, lo + n_hits
 
 
@@ -279,7 +280,7 @@ def partition_scratch():
 
 
 @inline
-def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False):
+def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, same_origin=False):
     """Move the ray records whose ``mask`` entry is true to the front of [lo, hi) (to the back
     with ``to_back``: the others to the front); returns the index of the first record of the
     second group. Only misplaced records are swapped, each once. ``to_back`` is a constant at
@@ -319,7 +320,7 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False):
         num = min(num_l, num_r)
         for k in range(num):
             swap_rays(records, ids, np.uint64(left + off_l[start_l + k]),
-                      np.uint64(right - 1 - off_r[start_r + k]))
+                      np.uint64(right - 1 - off_r[start_r + k]), same_origin)
         num_l -= num
         num_r -= num
         start_l += num
@@ -336,11 +337,11 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False):
     if num_r > 0:
         for k in range(start_r):
             keep[right - 1 - off_r[k]] = to_back
-    return lo + partition_plain(records, ids, keep, left, right, to_back)
+    return lo + partition_plain(records, ids, keep, left, right, to_back, same_origin)
 
 
 @inline
-def partition_plain(records, ids, keep, left, right, to_back):
+def partition_plain(records, ids, keep, left, right, to_back, same_origin):
     """partition_by_mask of records ``left:right`` of views, one branch per record.
 
     Unsigned indices: Numba does not wrap those, which saves two instructions on every access
@@ -354,6 +355,6 @@ def partition_plain(records, ids, keep, left, right, to_back):
         else:
             j -= one
             if keep[j] != to_back:
-                swap_rays(records, ids, i, j)
+                swap_rays(records, ids, i, j, same_origin)
                 i += one
     return np.int64(i)

@@ -39,14 +39,24 @@ def new_records(n):
 
 @jit
 def pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
-    """Fill ``rays`` (8, >= n) float32 with the records of rows ``ray_ids`` (n,) of the batch."""
+    """Fill ``rays`` (8, >= n) float32 with the records of rows ``ray_ids`` (n,) of the batch.
+
+    Returns whether every record has the same origin, bit for bit (a camera's rays): then the
+    partitions need not move the origin rows (``swap_rays``)."""
+    same_origin = True
+    first = ray_ids[0] if ray_ids.shape[0] > 0 else 0
     for r in range(ray_ids.shape[0]):
         ray = ray_ids[r]
         for a in range(3):
-            rays[ORIGIN + a, r] = origins[ray, a]
+            o = origins[ray, a]
+            o0 = origins[first, a]
+            # Equal values, and equal signs for zeros (0.0 == -0.0).
+            same_origin &= (o == o0) & (np.signbit(o) == np.signbit(o0))
+            rays[ORIGIN + a, r] = o
             rays[DIRECTION + a, r] = directions[ray, a]
         rays[TMIN, r] = tmin[ray]
         rays[BEST_T, r] = tmax[ray]
+    return same_origin
 
 
 @jit
@@ -57,9 +67,15 @@ def unpack_best_t(rays, ray_ids, best_t):
 
 
 @inline
-def swap_rays(rays, ray_ids, i, j):
-    """Exchange records i and j (and their ids)."""
-    for k in range(RECORD_SIZE):
+def swap_rays(rays, ray_ids, i, j, same_origin=False):
+    """Exchange records i and j (and their ids); not their origins when every record has the
+    same one (``pack_rays``): a swap costs about 0.6 ns a row."""
+    if not same_origin:
+        for k in range(ORIGIN, ORIGIN + 3):
+            tmp = rays[k, i]
+            rays[k, i] = rays[k, j]
+            rays[k, j] = tmp
+    for k in range(DIRECTION, RECORD_SIZE):
         tmp = rays[k, i]
         rays[k, i] = rays[k, j]
         rays[k, j] = tmp

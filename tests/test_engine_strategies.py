@@ -76,6 +76,14 @@ def _pinwheel():
     return meshes, *scenes.mixed_rays(meshes, 45, n=2000), None, None
 
 
+def _camera_in_soup():
+    """A pinhole camera's rays, all from one point (the partitions then leave the origin rows
+    in place), into a soup of triangles: enough rays to split the batch and sample nodes."""
+    meshes = scenes.soup(48)
+    o, d = pg.camera_rays(pg.bounds(*meshes[0]), 200, 150)
+    return meshes, o, d, None, None
+
+
 def _teapot_camera():
     v, f = scenes.load_shared("teapot")
     o, d = pg.camera_rays(pg.bounds(v, f), 64, 48)
@@ -91,6 +99,7 @@ CASES = {
     "stacked": _stacked,
     "many_rays": _many_rays,
     "pinwheel": _pinwheel,
+    "camera_in_soup": _camera_in_soup,
     "teapot_camera": _teapot_camera,
 }
 
@@ -146,6 +155,44 @@ def test_batch_split_does_not_change_answers(strategy, default_answers):
     rev = scene.closest(o[::-1], d[::-1], tmin[::-1], tmax[::-1], strategy=strategy)
     reversed_back = type(closest)(**{k: getattr(rev, k)[::-1] for k in ("t", "mesh", "prim", "u", "v", "normal")})
     check.assert_bitwise_equal(reversed_back, closest, f"{strategy}, reversed order")
+
+
+def test_pack_rays_tells_whether_every_origin_is_the_same():
+    from dacrt.rays import new_records, pack_rays
+
+    n = 100
+    origins = np.tile(np.float32([0.0, 1.5, -2.0]), (n, 1))
+    directions = np.tile(np.float32([0.0, 0.0, 1.0]), (n, 1))
+    tmin = np.zeros(n, np.float32)
+    tmax = np.full(n, np.inf, np.float32)
+    ids = np.arange(n, dtype=np.int32)
+
+    def same(o):
+        return pack_rays(o, directions, tmin, tmax, ids, new_records(n))
+
+    assert same(origins)
+    moved = origins.copy()
+    moved[n - 1, 2] = np.nextafter(np.float32(-2.0), np.float32(0.0))
+    assert not same(moved)
+    negative_zero = origins.copy()
+    negative_zero[n // 2, 0] = -0.0  # equal to 0.0, but not the same bits
+    assert not same(negative_zero)
+
+
+@pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
+def test_one_origin_answers_as_when_origins_differ(strategy, default_answers):
+    """Rays from one point skip moving their origins in partitions; a batch with one more ray
+    from elsewhere moves them. Every other ray's answers must be the same, bit for bit."""
+    scene, (o, d, tmin, tmax), closest, occluded = default_answers("camera_in_soup")
+    o_mixed = np.vstack([o, o[:1] + np.float32(0.25)])
+    d_mixed = np.vstack([d, d[:1]])
+    for threads in (1, 2):
+        mixed = scene.closest(o_mixed, d_mixed, strategy=strategy, threads=threads)
+        head = type(closest)(**{k: getattr(mixed, k)[:len(o)]
+                                for k in ("t", "mesh", "prim", "u", "v", "normal")})
+        check.assert_bitwise_equal(head, closest, f"{strategy}, threads={threads}")
+        occ = scene.occluded(o_mixed, d_mixed, strategy=strategy, threads=threads)
+        np.testing.assert_array_equal(occ[:len(o)], occluded)
 
 
 @pytest.mark.parametrize("threads", [1, 2])
