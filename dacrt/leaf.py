@@ -14,13 +14,16 @@ LEAF_BLOCK = 64
 # multiple of this, because the loop's scalar remainder costs about 8 ns a test against 1-2 ns.
 LANES = 8
 _NAN32 = np.float32(np.nan)
+_NEG_INF32 = np.float32(-np.inf)
 
 
 @inline
 def leaf_scratch():
-    """Scratch for intersect_leaf: a block's corners (9 rows of LEAF_BLOCK) and distances.
-    Zeros, so padding lanes that were never written compute on ordinary numbers."""
-    return np.zeros(9 * LEAF_BLOCK, np.float64), np.zeros(LEAF_BLOCK, np.float32)
+    """Scratch for intersect_leaf: a block's corners (9 rows of LEAF_BLOCK) and distances;
+    for a block of rays, their best triangles and (u, v) rows. Zeros, so padding lanes that
+    were never written compute on ordinary numbers."""
+    return (np.zeros(9 * LEAF_BLOCK, np.float64), np.zeros(LEAF_BLOCK, np.float32),
+            np.zeros(LEAF_BLOCK, np.int32), np.zeros((2, LEAF_BLOCK), np.float32))
 
 
 @inline
@@ -55,9 +58,12 @@ def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_block):
 
 
 @inline
-def ray_distances(rays, lo, n, tri_verts, tri, t_block):
-    """t_block[i] = woop_distance of ray record lo + i to one triangle: the leaf of many rays
-    and few triangles, one vectorised loop (``watertight_setup`` and ``pick`` are selects)."""
+def update_block(mode, rays, lo, n, tri_verts, tri, t_block, tri_block, uv_block):
+    """Test rays lo:lo + n against one triangle and keep, per ray, the better of its hit and
+    the block's best so far (``t_block``, ``tri_block``, ``uv_block``): the leaf of many rays
+    and few triangles, one vectorised loop (``watertight_setup`` and ``pick`` are selects).
+    u and v come from the same edge functions and 1/det as t, which is what the scalar
+    ``intersect_triangle`` computes: the same bits."""
     p0x = np.float64(tri_verts[tri, 0])
     p0y = np.float64(tri_verts[tri, 1])
     p0z = np.float64(tri_verts[tri, 2])
@@ -73,6 +79,10 @@ def ray_distances(rays, lo, n, tri_verts, tri, t_block):
     dx_row = rays[DIRECTION, lo:lo + n]
     dy_row = rays[DIRECTION + 1, lo:lo + n]
     dz_row = rays[DIRECTION + 2, lo:lo + n]
+    tmin_row = rays[TMIN, lo:lo + n]
+    tri32 = np.int32(tri)
+    u_row = uv_block[0]
+    v_row = uv_block[1]
     # Views from lo indexed from 0 (see mark_rays_hitting_box).
     for i in range(n):
         kx, ky, kz, sx, sy, sz = watertight_setup(dx_row[i], dy_row[i], dz_row[i])
@@ -82,18 +92,27 @@ def ray_distances(rays, lo, n, tri_verts, tri, t_block):
         okx = pick(kx, ox, oy, oz)
         oky = pick(ky, ox, oy, oz)
         okz = pick(kz, ox, oy, oz)
-        t_block[i] = woop_distance(
+        e0, e1, e2, det, noise, scaled_t = woop_edges(
             pick(kx, p0x, p0y, p0z) - okx, pick(ky, p0x, p0y, p0z) - oky,
             pick(kz, p0x, p0y, p0z) - okz,
             pick(kx, p1x, p1y, p1z) - okx, pick(ky, p1x, p1y, p1z) - oky,
             pick(kz, p1x, p1y, p1z) - okz,
             pick(kx, p2x, p2y, p2z) - okx, pick(ky, p2x, p2y, p2z) - oky,
             pick(kz, p2x, p2y, p2z) - okz, sx, sy, sz)
+        inv_det = 1.0 / det
+        t = _NAN32 if woop_miss(e0, e1, e2, det, noise) else np.float32(scaled_t * inv_det)
+        best = t_block[i]
+        # A miss is NaN and fails every comparison; ties go to the lower triangle.
+        take = (t >= tmin_row[i]) & ((t < best) | ((t == best) & (tri32 < tri_block[i])))
+        t_block[i] = (_NEG_INF32 if mode == MODE_OCCLUDED else t) if take else best
+        tri_block[i] = tri32 if take else tri_block[i]
+        u_row[i] = np.float32(e1 * inv_det) if take else u_row[i]
+        v_row[i] = np.float32(e2 * inv_det) if take else v_row[i]
 
 
 @inline
 def intersect_leaf(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                   best_tri, hit_u, hit_v, corners, t_block):
+                   best_tri, hit_u, hit_v, corners, t_block, tri_block, uv_block):
     """Test rays ``ray_lo:ray_hi`` against triangles ``tri_ids[tri_lo:tri_hi]``.
 
     Keeps, per ray, the hit with the smallest (t, triangle index) in [tmin, best_t]; best_t
@@ -104,42 +123,40 @@ def intersect_leaf(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_
     triangles, more rays than LEAF_BLOCK); the order of tests changes no answer."""
     if tri_hi - tri_lo < 8 and ray_hi - ray_lo >= LEAF_BLOCK:
         return intersect_leaf_by_rays(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids,
-                                      tri_lo, tri_hi, best_tri, hit_u, hit_v, t_block)
+                                      tri_lo, tri_hi, best_tri, hit_u, hit_v, t_block, tri_block,
+                                      uv_block)
     return intersect_leaf_by_triangles(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids,
                                        tri_lo, tri_hi, best_tri, hit_u, hit_v, corners, t_block)
 
 
 @inline
 def intersect_leaf_by_rays(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo,
-                           tri_hi, best_tri, hit_u, hit_v, t_block):
-    """intersect_leaf for few triangles: per triangle, blocks of LEAF_BLOCK rays in one
-    vectorised loop; the winner's u, v come from the scalar test, which is the same arithmetic."""
+                           tri_hi, best_tri, hit_u, hit_v, t_block, tri_block, uv_block):
+    """intersect_leaf for few triangles: blocks of LEAF_BLOCK rays, each against every
+    triangle in one vectorised loop that keeps the block's best (t, triangle, u, v); then
+    the rays whose best changed take it. Recomputing u, v with the scalar test after each
+    better hit instead (one per ray on primary rays) cost about 10 ns each: Sibenik 1024²
+    primary rays, one thread, 123.5 -> 119.0 ms (sah 151.7 -> 144.3)."""
     n_tests = 0
-    for k in range(tri_lo, tri_hi):
-        tri = tri_ids[k]
-        for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
-            n = min(LEAF_BLOCK, ray_hi - block_lo)
+    for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
+        n = min(LEAF_BLOCK, ray_hi - block_lo)
+        for i in range(n):
+            t_block[i] = rays[BEST_T, block_lo + i]
+            tri_block[i] = best_tri[ray_ids[block_lo + i]]
+        for k in range(tri_lo, tri_hi):
             n_tests += n
-            ray_distances(rays, block_lo, n, tri_verts, tri, t_block)
-            for i in range(n):
-                t = t_block[i]
-                r = block_lo + i
-                best = rays[BEST_T, r]
-                if not (t >= rays[TMIN, r] and t <= best):
-                    continue
-                ray = ray_ids[r]
-                if t == best and tri >= best_tri[ray]:
-                    continue
-                kx, ky, kz, sx, sy, sz = watertight_setup(
-                    rays[DIRECTION, r], rays[DIRECTION + 1, r], rays[DIRECTION + 2, r])
-                _, _, u, v = intersect_triangle(
-                    tri_verts, tri, np.float64(rays[ORIGIN + kx, r]),
-                    np.float64(rays[ORIGIN + ky, r]), np.float64(rays[ORIGIN + kz, r]), kx, ky,
-                    kz, sx, sy, sz)
-                rays[BEST_T, r] = -np.inf if mode == MODE_OCCLUDED else t
-                best_tri[ray] = tri
-                hit_u[ray] = u
-                hit_v[ray] = v
+            update_block(mode, rays, block_lo, n, tri_verts, tri_ids[k], t_block, tri_block,
+                         uv_block)
+        for i in range(n):
+            r = block_lo + i
+            ray = ray_ids[r]
+            tri = tri_block[i]
+            if tri == best_tri[ray]:
+                continue
+            rays[BEST_T, r] = t_block[i]
+            best_tri[ray] = tri
+            hit_u[ray] = uv_block[0, i]
+            hit_v[ray] = uv_block[1, i]
     return n_tests
 
 

@@ -257,7 +257,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
     frustum = np.empty(_FRUSTUM_SIZE)
     node_box = np.empty(6, np.float32)
     offsets = partition_scratch()
-    corners, t_block = leaf_scratch()
+    corners, t_block, tri_block, uv_block = leaf_scratch()
     keep = np.empty(n_tris_all, np.bool_)
     bounds = np.empty((6, n_tris_all), np.float32)  # exact copies of the boxes
     for g in range(6):
@@ -340,7 +340,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                     stats[STAT_LEAVES] += 1
                     stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
                         mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                        best_tri, hit_u, hit_v, corners, t_block)
+                        best_tri, hit_u, hit_v, corners, t_block, tri_block, uv_block)
                 continue
             for half in range(2):
                 stack[sp, 0] = ray_mid if half == 0 else ray_lo

@@ -91,7 +91,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     c_box = np.empty(6, np.float32)
     box_a = np.empty(6, np.float32)
     box_b = np.empty(6, np.float32)
-    corners, t_block = leaf_scratch()
+    corners, t_block, tri_block, uv_block = leaf_scratch()
     offsets = partition_scratch()
 
     stack_tri[0, 0] = tri_lo
@@ -127,7 +127,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
             stats[STAT_LEAVES] += 1
             stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
                 mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                best_tri, hit_u, hit_v, corners, t_block)
+                best_tri, hit_u, hit_v, corners, t_block, tri_block, uv_block)
             continue
 
         # Choose the split; it leaves left triangles in [tri_lo, tri_mid), boxes in box_a/box_b.
