@@ -136,13 +136,17 @@ def intersect_leaf_by_rays(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_i
     triangle in one vectorised loop that keeps the block's best (t, triangle, u, v); then
     the rays whose best changed take it. Recomputing u, v with the scalar test after each
     better hit instead (one per ray on primary rays) cost about 10 ns each: Sibenik 1024²
-    primary rays, one thread, 123.5 -> 119.0 ms (sah 151.7 -> 144.3)."""
+    primary rays, one thread, 123.5 -> 119.0 ms (sah 151.7 -> 144.3); not gathering each
+    ray's best triangle before the loop, 118.4 -> 114.5 (sah 145.1 -> 140.2)."""
     n_tests = 0
     for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, ray_hi - block_lo)
+        # The block starts from each ray's best t, with no triangle: a tie with that t is
+        # settled against the ray's triangle afterwards, only for the rays that have one.
+        best_row = rays[BEST_T, block_lo:block_lo + n]
         for i in range(n):
-            t_block[i] = rays[BEST_T, block_lo + i]
-            tri_block[i] = best_tri[ray_ids[block_lo + i]]
+            t_block[i] = best_row[i]
+            tri_block[i] = NO_HIT
         for k in range(tri_lo, tri_hi):
             n_tests += n
             update_block(mode, rays, block_lo, n, tri_verts, tri_ids[k], t_block, tri_block,
@@ -151,7 +155,9 @@ def intersect_leaf_by_rays(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_i
             r = block_lo + i
             ray = ray_ids[r]
             tri = tri_block[i]
-            if tri == best_tri[ray]:
+            if tri == NO_HIT:
+                continue
+            if not (t_block[i] < rays[BEST_T, r] or tri < best_tri[ray]):
                 continue
             rays[BEST_T, r] = t_block[i]
             best_tri[ray] = tri
