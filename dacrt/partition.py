@@ -9,6 +9,9 @@ from .config import inline
 from .geometry import cull_distance, intersect_box
 from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, swap_rays
 
+# The bits of the origin rows in a fixed_rows mask.
+ORIGIN_ROWS = 7 << ORIGIN
+
 _BIN_SHRINK = 1.0 - 1e-6
 # Records per block of partition_by_mask.
 PARTITION_BLOCK = 64
@@ -211,15 +214,15 @@ def set_box(box, x0, y0, z0, x1, y1, z1):
 
 
 @inline
-def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, same_origin=False):
+def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_rows=0):
     """hit_mask[i] = can ray i hit ``box`` within [tmin, best_t], for i in [lo, hi).
 
     A branch-free loop over the structure-of-arrays records: LLVM vectorises it. The loop runs
     over views that start at ``lo`` with an index from 0: Numba wraps negative indices, and an
     index LLVM cannot prove non-negative turns every load into a gather (3.4x slower).
-    With ``same_origin`` (every record starts at one point) the origin is read once: the slab
-    distances to the box planes are then the same for every ray (Sibenik 1024² primary rays,
-    one thread: 1.5 % faster)."""
+    When the origin rows are in ``fixed_rows`` (every record starts at one point) the origin is
+    read once: the slab distances to the box planes are then the same for every ray (Sibenik
+    1024² primary rays, one thread: 1.5 % faster)."""
     x0 = box[0]
     y0 = box[1]
     z0 = box[2]
@@ -235,7 +238,7 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, same_origin=False):
     tmin = rays[TMIN, lo:hi]
     best_t = rays[BEST_T, lo:hi]
     mask = hit_mask[lo:hi]
-    if same_origin and hi > lo:
+    if fixed_rows & ORIGIN_ROWS == ORIGIN_ROWS and hi > lo:
         ox0 = rays[ORIGIN, lo]
         oy0 = rays[ORIGIN + 1, lo]
         oz0 = rays[ORIGIN + 2, lo]
@@ -254,25 +257,25 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, same_origin=False):
 
 
 @inline
-def filter_rays(rays, ray_ids, lo, hi, box, hit_mask, offsets, same_origin):
+def filter_rays(rays, ray_ids, lo, hi, box, hit_mask, offsets, fixed_rows):
     """Gather the rays that can hit ``box`` (within [tmin, best_t]) at one end of the range,
     the end that needs fewer swaps; returns their range (lo, lo + k) or (hi - k, hi).
     ``hit_mask`` is scratch, one entry per ray; ``offsets`` is ``partition_scratch()``;
-    ``same_origin``: every record has the same origin (see ``swap_rays``).
+    ``fixed_rows``: rows that hold one value in every record (see ``swap_rays``).
 
     Going to the front, the hits outside the first k records move; going to the back, those
     in the first n - k. Counting both (two vectorised passes over the mask) and taking the
     smaller: Sibenik 1024² primary rays, one thread, sah 173.6 -> 163.0 ms, sampling 136.8 ->
     132.6. The count is a pass of its own: kept in the box-test loop, it stopped that loop
     from vectorising (sah 182 ms)."""
-    mark_rays_hitting_box(rays, lo, hi, box, hit_mask, same_origin)
+    mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_rows)
     n_hits = count_true(hit_mask, lo, hi)
     swaps_to_front = n_hits - count_true(hit_mask, lo, lo + n_hits)
     swaps_to_back = count_true(hit_mask, lo, hi - n_hits)
     if swaps_to_back < swaps_to_front:
-        partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, True, same_origin)
+        partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, True, fixed_rows)
         return hi - n_hits, hi
-    partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, False, same_origin)
+    partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, False, fixed_rows)
     return lo, lo + n_hits
 
 
@@ -293,7 +296,7 @@ def partition_scratch():
 
 
 @inline
-def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, same_origin=False):
+def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, fixed_rows=0):
     """Move the ray records whose ``mask`` entry is true to the front of [lo, hi) (to the back
     with ``to_back``: the others to the front); returns the index of the first record of the
     second group. Only misplaced records are swapped, each once. ``to_back`` is a constant at
@@ -333,7 +336,7 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, same_
         num = min(num_l, num_r)
         for k in range(num):
             swap_rays(records, ids, np.uint64(left + off_l[start_l + k]),
-                      np.uint64(right - 1 - off_r[start_r + k]), same_origin)
+                      np.uint64(right - 1 - off_r[start_r + k]), fixed_rows)
         num_l -= num
         num_r -= num
         start_l += num
@@ -350,11 +353,11 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, same_
     if num_r > 0:
         for k in range(start_r):
             keep[right - 1 - off_r[k]] = to_back
-    return lo + partition_plain(records, ids, keep, left, right, to_back, same_origin)
+    return lo + partition_plain(records, ids, keep, left, right, to_back, fixed_rows)
 
 
 @inline
-def partition_plain(records, ids, keep, left, right, to_back, same_origin):
+def partition_plain(records, ids, keep, left, right, to_back, fixed_rows):
     """partition_by_mask of records ``left:right`` of views, one branch per record.
 
     Unsigned indices: Numba does not wrap those, which saves two instructions on every access
@@ -368,6 +371,6 @@ def partition_plain(records, ids, keep, left, right, to_back, same_origin):
         else:
             j -= one
             if keep[j] != to_back:
-                swap_rays(records, ids, i, j, same_origin)
+                swap_rays(records, ids, i, j, fixed_rows)
                 i += one
     return np.int64(i)

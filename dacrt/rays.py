@@ -22,6 +22,8 @@ DIRECTION = 3
 TMIN = 6
 BEST_T = 7
 RECORD_SIZE = 8
+# Records per block of uniform_rows' check.
+UNIFORM_CHECK_BLOCK = 256
 # Rows are padded to a whole number of 4 KiB plus one cache line. Rows of exactly 1 MiB (a
 # 262,144-ray chunk) put a record's eight fields at the same low 12 address bits and in the same
 # cache set; a swap's loads then wait on the stores before them. Sibenik 1024² primary rays, one
@@ -39,24 +41,37 @@ def new_records(n):
 
 @jit
 def pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
-    """Fill ``rays`` (8, >= n) float32 with the records of rows ``ray_ids`` (n,) of the batch.
-
-    Returns whether every record has the same origin, bit for bit (a camera's rays): then the
-    partitions need not move the origin rows (``swap_rays``)."""
-    same_origin = True
-    first = ray_ids[0] if ray_ids.shape[0] > 0 else 0
+    """Fill ``rays`` (8, >= n) float32 with the records of rows ``ray_ids`` (n,) of the batch."""
     for r in range(ray_ids.shape[0]):
         ray = ray_ids[r]
         for a in range(3):
-            o = origins[ray, a]
-            o0 = origins[first, a]
-            # Equal values, and equal signs for zeros (0.0 == -0.0).
-            same_origin &= (o == o0) & (np.signbit(o) == np.signbit(o0))
-            rays[ORIGIN + a, r] = o
+            rays[ORIGIN + a, r] = origins[ray, a]
             rays[DIRECTION + a, r] = directions[ray, a]
         rays[TMIN, r] = tmin[ray]
         rays[BEST_T, r] = tmax[ray]
-    return same_origin
+
+
+@jit
+def uniform_rows(rays, n):
+    """Bitmask of the rows (bit k: row k) that hold one value in all n records, bit for bit:
+    the origin of a camera's rays, a tmin shared by the batch, the direction of parallel rays
+    (best_t changes during the trace, so never). The partitions need not move those rows
+    (``swap_rays``). A row stops being checked at the first block that differs."""
+    fixed = 0
+    for k in range(BEST_T):
+        row = rays[k, :n]
+        first = row[0] if n > 0 else np.float32(0.0)
+        negative = np.signbit(first)
+        uniform = True
+        for lo in range(0, n, UNIFORM_CHECK_BLOCK):
+            # Equal values and equal signs (0.0 == -0.0, but their bits differ).
+            for i in range(lo, min(lo + UNIFORM_CHECK_BLOCK, n)):
+                uniform &= (row[i] == first) & (np.signbit(row[i]) == negative)
+            if not uniform:
+                break
+        if uniform:
+            fixed |= 1 << k
+    return fixed
 
 
 @jit
@@ -67,18 +82,14 @@ def unpack_best_t(rays, ray_ids, best_t):
 
 
 @inline
-def swap_rays(rays, ray_ids, i, j, same_origin=False):
-    """Exchange records i and j (and their ids); not their origins when every record has the
-    same one (``pack_rays``): a swap costs about 0.6 ns a row."""
-    if not same_origin:
-        for k in range(ORIGIN, ORIGIN + 3):
+def swap_rays(rays, ray_ids, i, j, fixed_rows=0):
+    """Exchange records i and j (and their ids), except the rows in the bitmask ``fixed_rows``
+    (``uniform_rows``: the same value in every record): a swap costs about 0.6 ns a row."""
+    for k in range(RECORD_SIZE):
+        if (fixed_rows >> k) & 1 == 0:
             tmp = rays[k, i]
             rays[k, i] = rays[k, j]
             rays[k, j] = tmp
-    for k in range(DIRECTION, RECORD_SIZE):
-        tmp = rays[k, i]
-        rays[k, i] = rays[k, j]
-        rays[k, j] = tmp
     tmp_id = ray_ids[i]
     ray_ids[i] = ray_ids[j]
     ray_ids[j] = tmp_id

@@ -187,7 +187,7 @@ def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, toleran
 
 
 @jit
-def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, same_origin):
+def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, fixed_rows):
     """Move rays whose coordinate ``dim`` (0-2: origin x, y, z; 3, 4: slopes u, v of the
     direction against the dominant ``axis``) is below ``split`` to the front; returns the index
     of the first other ray. ``below`` is scratch, one entry per ray: the coordinates are
@@ -202,11 +202,11 @@ def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, same
         d_slope = rays[DIRECTION + (axis + 1 if dim == 3 else axis + 2) % 3, lo:hi]
         for i in range(hi - lo):
             mask[i] = np.float64(d_slope[i]) / abs(np.float64(d_axis[i])) < split
-    return partition_by_mask(rays, ray_ids, lo, hi, below, offsets, False, same_origin)
+    return partition_by_mask(rays, ray_ids, lo, hi, below, offsets, False, fixed_rows)
 
 
 @jit
-def drop_finished_rays(rays, ray_ids, lo, hi, same_origin):
+def drop_finished_rays(rays, ray_ids, lo, hi, fixed_rows):
     """Occlusion: move rays that already hit something out of the range; returns the new end."""
     i = lo
     j = hi
@@ -215,19 +215,19 @@ def drop_finished_rays(rays, ray_ids, lo, hi, same_origin):
             i += 1
         else:
             j -= 1
-            swap_rays(rays, ray_ids, i, j, same_origin)
+            swap_rays(rays, ray_ids, i, j, fixed_rows)
     return i
 
 
 @jit
 def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_ids, best_tri,
-                    hit_u, hit_v, hit_mask, stats, same_origin):
+                    hit_u, hit_v, hit_mask, stats, fixed_rows):
     """Trace the ray records ``rays`` against triangles ``tri_ids`` (both permuted in place).
 
     A node the termination rule makes a leaf but that still holds many triangles (incoherent
     rays the frustum cannot cull for) goes to the object-split driver, with ray sampling,
-    instead of a brute force over all of them. ``same_origin``: every record has the same
-    origin (``pack_rays``)."""
+    instead of a brute force over all of them. ``fixed_rows``: bitmask of the rows that hold
+    one value in every record (``uniform_rows``)."""
     n_rays_all = ray_ids.shape[0]
     n_tris_all = tri_ids.shape[0]
     scene_size = 0.0
@@ -248,7 +248,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                 i += 1
             else:
                 j -= 1
-                swap_rays(rays, ray_ids, i, j, same_origin)
+                swap_rays(rays, ray_ids, i, j, fixed_rows)
         lo = i
     group_start[6] = n_rays_all
 
@@ -282,7 +282,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
             if depth > stats[STAT_MAX_DEPTH]:
                 stats[STAT_MAX_DEPTH] = depth
             if mode == MODE_OCCLUDED:
-                ray_hi = drop_finished_rays(rays, ray_ids, ray_lo, ray_hi, same_origin)
+                ray_hi = drop_finished_rays(rays, ray_ids, ray_lo, ray_hi, fixed_rows)
             n_rays = ray_hi - ray_lo
             if n_rays == 0 or tri_hi == tri_lo:
                 continue
@@ -327,7 +327,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                         k = _U if dim == 3 else _V
                         split = 0.5 * (frustum[k] + frustum[k + 1])
                     ray_mid = partition_rays(rays, ray_ids, ray_lo, ray_hi, axis, dim, split,
-                                             hit_mask, offsets, same_origin)
+                                             hit_mask, offsets, fixed_rows)
                     stop = not ray_lo < ray_mid < ray_hi
             if stop:
                 # Finish the node here: brute force, or object splits for many triangles.
@@ -335,7 +335,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                     triangle_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, node_box)
                     trace_object_split(SAMPLING, mode, tri_verts, tri_bounds, node_box, rays,
                                        ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                                       best_tri, hit_u, hit_v, hit_mask, stats, same_origin)
+                                       best_tri, hit_u, hit_v, hit_mask, stats, fixed_rows)
                 else:
                     stats[STAT_LEAVES] += 1
                     stats[STAT_TRIANGLE_TESTS] += intersect_leaf(

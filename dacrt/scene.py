@@ -24,7 +24,7 @@ from .contracts import (
     Hits,
 )
 from .leaf import NO_HIT
-from .rays import new_records, pack_rays, unpack_best_t
+from .rays import new_records, pack_rays, uniform_rows, unpack_best_t
 from .results import finish_closest
 from .triangles import gather_triangles, triangle_boxes
 from .rayspace import trace_ray_space
@@ -286,18 +286,19 @@ class Scene:
         def run(chunk):
             ray_ids = chunk_ids[chunk]
             rays = new_records(len(ray_ids))
-            same_origin = pack_rays(origins, directions, tmin, tmax, ray_ids, rays)
+            pack_rays(origins, directions, tmin, tmax, ray_ids, rays)
+            fixed_rows = uniform_rows(rays, len(ray_ids))
             tri_ids = np.arange(n_live, dtype=INDEX)
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
             hit_mask = np.empty(len(ray_ids), np.bool_)
             if ray_space:
                 trace_ray_space(mode, self._tri_verts, self._tri_bounds, self._box, rays,
                                 ray_ids, tri_ids, best_tri, hit_u, hit_v, hit_mask, chunk_stats,
-                                same_origin)
+                                fixed_rows)
             else:
                 trace_object_split(code, mode, self._tri_verts, self._tri_bounds, self._box,
                                    rays, ray_ids, 0, len(ray_ids), tri_ids, 0, n_live,
-                                   best_tri, hit_u, hit_v, hit_mask, chunk_stats, same_origin)
+                                   best_tri, hit_u, hit_v, hit_mask, chunk_stats, fixed_rows)
             unpack_best_t(rays, ray_ids, best_t)
             return chunk_stats
 

@@ -61,13 +61,14 @@ PADDED_CANDIDATES = (N_BINS - 1 + 15) // 16 * 16
 @jit
 def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ray_ids, ray_lo,
                        ray_hi, tri_ids, tri_lo, tri_hi, best_tri, hit_u, hit_v, hit_mask, stats,
-                       same_origin):
+                       fixed_rows):
     """Trace ray records ``ray_lo:ray_hi`` against triangles ``tri_ids[tri_lo:tri_hi]``, whose
     box is ``root_box`` (both ranges are permuted in place).
 
     best_t stays in the records; best_tri, hit_u, hit_v are indexed by ray id (``ray_ids``);
     ``hit_mask`` is scratch with one entry per record; counters go to ``stats``;
-    ``same_origin``: every record has the same origin (``pack_rays``)."""
+    ``fixed_rows``: bitmask of the rows that hold one value in every record
+    (``uniform_rows``)."""
     n_stack = MAX_DEPTH + 2
     stack_tri = np.empty((n_stack, 2), np.int64)
     stack_ray = np.empty((n_stack, 2), np.int64)
@@ -116,7 +117,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         if stack_filter[sp]:
             stats[STAT_BOX_TESTS] += ray_hi - ray_lo
             ray_lo, ray_hi = filter_rays(rays, ray_ids, ray_lo, ray_hi, stack_box[sp], hit_mask,
-                                         offsets, same_origin)
+                                         offsets, fixed_rows)
         else:
             stats[STAT_SKIPPED] += 1
         n_rays = ray_hi - ray_lo

@@ -84,6 +84,15 @@ def _camera_in_soup():
     return meshes, o, d, None, None
 
 
+def _parallel_in_soup():
+    """Parallel rays (one direction, origins on a plane) into a soup of triangles."""
+    meshes = scenes.soup(49)
+    rng = np.random.default_rng(49)
+    o = np.column_stack([rng.uniform(-0.2, 1.2, (30_000, 2)), np.full(30_000, -1.0)])
+    d = np.tile([0.3, 0.2, 1.0], (30_000, 1))
+    return meshes, o.astype(np.float32), d.astype(np.float32), None, None
+
+
 def _teapot_camera():
     v, f = scenes.load_shared("teapot")
     o, d = pg.camera_rays(pg.bounds(v, f), 64, 48)
@@ -100,6 +109,7 @@ CASES = {
     "many_rays": _many_rays,
     "pinwheel": _pinwheel,
     "camera_in_soup": _camera_in_soup,
+    "parallel_in_soup": _parallel_in_soup,
     "teapot_camera": _teapot_camera,
 }
 
@@ -157,41 +167,53 @@ def test_batch_split_does_not_change_answers(strategy, default_answers):
     check.assert_bitwise_equal(reversed_back, closest, f"{strategy}, reversed order")
 
 
-def test_pack_rays_tells_whether_every_origin_is_the_same():
-    from dacrt.rays import new_records, pack_rays
+def test_uniform_rows_finds_the_rows_every_record_shares():
+    from dacrt.rays import BEST_T, DIRECTION, ORIGIN, TMIN, new_records, pack_rays, uniform_rows
 
-    n = 100
+    n = 1000  # several of the check's blocks
     origins = np.tile(np.float32([0.0, 1.5, -2.0]), (n, 1))
     directions = np.tile(np.float32([0.0, 0.0, 1.0]), (n, 1))
     tmin = np.zeros(n, np.float32)
     tmax = np.full(n, np.inf, np.float32)
     ids = np.arange(n, dtype=np.int32)
 
-    def same(o):
-        return pack_rays(o, directions, tmin, tmax, ids, new_records(n))
+    def fixed(o, d):
+        rays = new_records(n)
+        pack_rays(o, d, tmin, tmax, ids, rays)
+        return {k for k in range(8) if uniform_rows(rays, n) >> k & 1}
 
-    assert same(origins)
+    every_row_but_best_t = set(range(8)) - {BEST_T}
+    assert fixed(origins, directions) == every_row_but_best_t
     moved = origins.copy()
     moved[n - 1, 2] = np.nextafter(np.float32(-2.0), np.float32(0.0))
-    assert not same(moved)
+    assert fixed(moved, directions) == every_row_but_best_t - {ORIGIN + 2}
     negative_zero = origins.copy()
     negative_zero[n // 2, 0] = -0.0  # equal to 0.0, but not the same bits
-    assert not same(negative_zero)
+    assert fixed(negative_zero, directions) == every_row_but_best_t - {ORIGIN}
+    turned = directions.copy()
+    turned[n // 3] = [0.0, 0.6, 0.8]
+    assert fixed(origins, turned) == every_row_but_best_t - {DIRECTION + 1, DIRECTION + 2}
+    assert TMIN in fixed(origins, directions)
 
 
 @pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
-def test_one_origin_answers_as_when_origins_differ(strategy, default_answers):
-    """Rays from one point skip moving their origins in partitions; a batch with one more ray
-    from elsewhere moves them. Every other ray's answers must be the same, bit for bit."""
-    scene, (o, d, tmin, tmax), closest, occluded = default_answers("camera_in_soup")
+@pytest.mark.parametrize("case", ["camera_in_soup", "parallel_in_soup"])
+def test_shared_rows_answer_as_when_rows_differ(case, strategy, default_answers):
+    """Rows every ray shares (a camera's origin, parallel rays' direction, tmin) are not moved
+    by partitions; one more ray that differs in all of them makes them move. Every other ray's
+    answers must be the same, bit for bit."""
+    scene, (o, d, tmin, tmax), closest, occluded = default_answers(case)
+    assert tmin is None and tmax is None
     o_mixed = np.vstack([o, o[:1] + np.float32(0.25)])
-    d_mixed = np.vstack([d, d[:1]])
+    d_mixed = np.vstack([d, -d[:1]])
+    tmin_mixed = np.zeros(len(o_mixed), np.float32)
+    tmin_mixed[-1] = 0.125
     for threads in (1, 2):
-        mixed = scene.closest(o_mixed, d_mixed, strategy=strategy, threads=threads)
+        mixed = scene.closest(o_mixed, d_mixed, tmin_mixed, strategy=strategy, threads=threads)
         head = type(closest)(**{k: getattr(mixed, k)[:len(o)]
                                 for k in ("t", "mesh", "prim", "u", "v", "normal")})
         check.assert_bitwise_equal(head, closest, f"{strategy}, threads={threads}")
-        occ = scene.occluded(o_mixed, d_mixed, strategy=strategy, threads=threads)
+        occ = scene.occluded(o_mixed, d_mixed, tmin_mixed, strategy=strategy, threads=threads)
         np.testing.assert_array_equal(occ[:len(o)], occluded)
 
 
