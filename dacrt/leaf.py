@@ -27,17 +27,19 @@ def leaf_scratch():
 
 
 @inline
-def woop_distance(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz):
-    """The float32 hit distance of ``intersect_triangle`` from the corners relative to the ray
-    origin, in the ray's axis order, or NaN for a miss; selects only, so loops vectorise."""
+def woop_hit(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz):
+    """(t, u, v) of ``intersect_triangle`` from the corners relative to the ray origin, in the
+    ray's axis order: t in float32, NaN for a miss; u, v from the same 1/det, as it computes
+    them. Selects only, so loops vectorise; a caller that uses t alone pays for t alone."""
     e0, e1, e2, det, noise, scaled_t = woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
-    t = np.float32(scaled_t * (1.0 / det))
-    return _NAN32 if woop_miss(e0, e1, e2, det, noise) else t
+    inv_det = 1.0 / det
+    t = np.float32(scaled_t * inv_det)
+    return _NAN32 if woop_miss(e0, e1, e2, det, noise) else t, e1 * inv_det, e2 * inv_det
 
 
 @inline
 def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_block):
-    """t_block[k] = woop_distance of one ray to triangle k of a gathered block.
+    """t_block[k] = the hit distance (``woop_hit``) of one ray to triangle k of a gathered block.
 
     ``corners`` holds coordinate c of the block's triangle k at [c * LEAF_BLOCK + k]: the rows
     are views of one array, so LLVM needs a single alias check against ``t_block``, and are
@@ -52,9 +54,9 @@ def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_block):
     c_y = corners[(6 + ky) * LEAF_BLOCK:(6 + ky) * LEAF_BLOCK + n]
     c_z = corners[(6 + kz) * LEAF_BLOCK:(6 + kz) * LEAF_BLOCK + n]
     for k in range(n):
-        t_block[k] = woop_distance(a_x[k] - okx, a_y[k] - oky, a_z[k] - okz,
-                                   b_x[k] - okx, b_y[k] - oky, b_z[k] - okz,
-                                   c_x[k] - okx, c_y[k] - oky, c_z[k] - okz, sx, sy, sz)
+        t_block[k], _, _ = woop_hit(a_x[k] - okx, a_y[k] - oky, a_z[k] - okz,
+                                    b_x[k] - okx, b_y[k] - oky, b_z[k] - okz,
+                                    c_x[k] - okx, c_y[k] - oky, c_z[k] - okz, sx, sy, sz)
 
 
 @inline
@@ -62,8 +64,8 @@ def update_block(mode, rays, lo, n, tri_verts, tri, t_block, tri_block, uv_block
     """Test rays lo:lo + n against one triangle and keep, per ray, the better of its hit and
     the block's best so far (``t_block``, ``tri_block``, ``uv_block``): the leaf of many rays
     and few triangles, one vectorised loop (``watertight_setup`` and ``pick`` are selects).
-    u and v come from the same edge functions and 1/det as t, which is what the scalar
-    ``intersect_triangle`` computes: the same bits."""
+    u and v come from ``woop_hit``, the same arithmetic as the scalar ``intersect_triangle``:
+    the same bits."""
     p0x = np.float64(tri_verts[tri, 0])
     p0y = np.float64(tri_verts[tri, 1])
     p0z = np.float64(tri_verts[tri, 2])
@@ -92,22 +94,20 @@ def update_block(mode, rays, lo, n, tri_verts, tri, t_block, tri_block, uv_block
         okx = pick(kx, ox, oy, oz)
         oky = pick(ky, ox, oy, oz)
         okz = pick(kz, ox, oy, oz)
-        e0, e1, e2, det, noise, scaled_t = woop_edges(
+        t, u, v = woop_hit(
             pick(kx, p0x, p0y, p0z) - okx, pick(ky, p0x, p0y, p0z) - oky,
             pick(kz, p0x, p0y, p0z) - okz,
             pick(kx, p1x, p1y, p1z) - okx, pick(ky, p1x, p1y, p1z) - oky,
             pick(kz, p1x, p1y, p1z) - okz,
             pick(kx, p2x, p2y, p2z) - okx, pick(ky, p2x, p2y, p2z) - oky,
             pick(kz, p2x, p2y, p2z) - okz, sx, sy, sz)
-        inv_det = 1.0 / det
-        t = _NAN32 if woop_miss(e0, e1, e2, det, noise) else np.float32(scaled_t * inv_det)
         best = t_block[i]
         # A miss is NaN and fails every comparison; ties go to the lower triangle.
         take = (t >= tmin_row[i]) & ((t < best) | ((t == best) & (tri32 < tri_block[i])))
         t_block[i] = (_NEG_INF32 if mode == MODE_OCCLUDED else t) if take else best
         tri_block[i] = tri32 if take else tri_block[i]
-        u_row[i] = np.float32(e1 * inv_det) if take else u_row[i]
-        v_row[i] = np.float32(e2 * inv_det) if take else v_row[i]
+        u_row[i] = np.float32(u) if take else u_row[i]
+        v_row[i] = np.float32(v) if take else v_row[i]
 
 
 @inline
