@@ -129,6 +129,14 @@ def _pool(n_workers):
     return ThreadPoolExecutor(max_workers=n_workers, thread_name_prefix="dacrt")
 
 
+def _map_on_threads(fn, n_items, n_workers):
+    """[fn(0), ..., fn(n_items - 1)], on n_workers threads (a queue: each takes the next item
+    when done with one), or in this thread for one."""
+    if n_workers == 1:
+        return [fn(k) for k in range(n_items)]
+    return list(_pool(n_workers).map(fn, range(n_items)))
+
+
 class Scene:
     """Triangle meshes to cast rays into.
 
@@ -207,10 +215,7 @@ class Scene:
             finish_closest(t[part], best_tri[part], self._tri_global, self.mesh_offsets,
                            self._tri_verts, mesh[part], prim[part], normal[part])
 
-        if n_parts == 1:
-            finish(0)
-        else:
-            list(_pool(n_parts).map(finish, range(n_parts)))
+        _map_on_threads(finish, n_parts, n_parts)
         return Hits(t, mesh, prim, u, v, normal, counters if stats else None)
 
     def occluded(self, origins, directions, tmin=None, tmax=None, *, strategy="sampling",
@@ -313,12 +318,7 @@ class Scene:
             unpack_best_t(rays, ray_ids, best_t)
             return chunk_stats
 
-        n_workers = min(threads, n_chunks)
-        if n_workers == 1:
-            per_chunk = [run(chunk) for chunk in range(n_chunks)]
-        else:
-            # The pool's queue hands each thread the next chunk when it is done with one.
-            per_chunk = list(_pool(n_workers).map(run, range(n_chunks)))
+        per_chunk = _map_on_threads(run, n_chunks, min(threads, n_chunks))
         totals = np.sum(per_chunk, axis=0)
         for i, name in enumerate(STAT_NAMES):
             if i not in (STAT_RAYS, STAT_TRIANGLES):
