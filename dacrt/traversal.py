@@ -19,6 +19,7 @@ from .config import (
     RAYS_PER_TRIANGLE_FOR_COST,
     SAH_C_I,
     SAH_C_T,
+    inline,
     jit,
 )
 from .contracts import (
@@ -208,6 +209,12 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
             sp += 1
 
 
+@inline
+def strided_sample(ray_lo, n_rays, s, n_samples):
+    """The record of sample ray s of n_samples, evenly strided over n_rays from ray_lo."""
+    return ray_lo + (s * n_rays) // n_samples
+
+
 @jit
 def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box, axis,
                 candidate_boxes, sample_counts):
@@ -240,7 +247,7 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
     n_left, n_right, n_nearer, n_forward = (sample_counts[0], sample_counts[1],
                                             sample_counts[2], sample_counts[3])
     for s in range(n_samples):
-        r = ray_lo + (s * n_rays) // n_samples
+        r = strided_sample(ray_lo, n_rays, s, n_samples)
         ox = rays[ORIGIN, r]
         oy = rays[ORIGIN + 1, r]
         oz = rays[ORIGIN + 2, r]
@@ -286,7 +293,7 @@ def sampled_axis(rays, ray_lo, ray_hi, c_box):
     sin_y = 0.0
     sin_z = 0.0
     for s in range(n_samples):
-        r = ray_lo + (s * n_rays) // n_samples
+        r = strided_sample(ray_lo, n_rays, s, n_samples)
         dx = np.float64(rays[DIRECTION, r])
         dy = np.float64(rays[DIRECTION + 1, r])
         dz = np.float64(rays[DIRECTION + 2, r])
