@@ -41,14 +41,32 @@ def new_records(n):
 
 @jit
 def pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
-    """Fill ``rays`` (8, >= n) float32 with the records of rows ``ray_ids`` (n,) of the batch."""
+    """Fill ``rays`` (8, >= n) float32 with the records of rows ``ray_ids`` (n,) of the batch;
+    returns whether all those rays are valid: finite origin and direction, a non-zero
+    direction, finite tmin, tmin <= tmax (tmax may be +inf).
+
+    Checking here, in each chunk's thread, instead of in a pass of its own before the trace
+    reads the batch once, on every thread: 1M rays, two threads, 2.3 ms less on the calling
+    thread (docs/benchmarks.md). The checks accumulate without a branch; only a bad batch pays
+    for finding which ray is bad (``validation.explain_bad_rays``)."""
+    valid = True
     for r in range(ray_ids.shape[0]):
         ray = ray_ids[r]
+        finite = True
+        moves = False
         for a in range(3):
-            rays[ORIGIN + a, r] = origins[ray, a]
-            rays[DIRECTION + a, r] = directions[ray, a]
-        rays[TMIN, r] = tmin[ray]
-        rays[BEST_T, r] = tmax[ray]
+            o = origins[ray, a]
+            d = directions[ray, a]
+            rays[ORIGIN + a, r] = o
+            rays[DIRECTION + a, r] = d
+            finite &= np.isfinite(o) & np.isfinite(d)
+            moves |= d != 0
+        t0 = tmin[ray]
+        t1 = tmax[ray]
+        rays[TMIN, r] = t0
+        rays[BEST_T, r] = t1
+        valid &= finite & moves & np.isfinite(t0) & (t0 <= t1)
+    return valid
 
 
 @jit

@@ -29,7 +29,13 @@ from .results import finish_closest
 from .triangles import gather_triangles, triangle_boxes
 from .rayspace import trace_ray_space
 from .traversal import trace_object_split
-from .validation import check_mesh, check_rays, check_strategy, check_threads
+from .validation import (
+    check_mesh,
+    check_rays,
+    check_strategy,
+    check_threads,
+    explain_bad_rays,
+)
 
 N_CORES = os.cpu_count() or 1
 # Below this many rays a single thread is quicker than splitting the triangles' work twice.
@@ -90,7 +96,7 @@ def origin_weights(points, counts, box, n):
         for a in range(3):
             extent = box[a + 3] - box[a]
             offset = points[i, a] - box[a]
-            if extent <= 0 or offset < 0 or offset > extent:
+            if extent <= 0 or not 0 <= offset <= extent:  # NaN too: a bad ray, named later
                 inside = False
                 break
             cell = cell * n + grid_index(points[i, a], box[a], extent, n)
@@ -286,9 +292,13 @@ class Scene:
         counters["triangles"] = self.n_triangles
         n_live = len(self._tri_verts)
         if n_rays == 0 or n_live == 0:
+            explain_bad_rays(origins, directions, tmin, tmax)  # no kernel will check them
             return best_t, best_tri, hit_u, hit_v, counters
         n_chunks = max(1, min(threads, n_rays // MIN_RAYS_PER_THREAD))
-        coherent = self._from_one_point(origins)
+        # The values are not checked yet (each chunk checks its own): a bad ray may make
+        # the choice of chunks poor, never wrong.
+        with np.errstate(invalid="ignore", over="ignore"):
+            coherent = self._from_one_point(origins)
         if coherent:
             n_chunks = max(n_chunks, -(-n_rays // COHERENT_CHUNK_RAYS))
             if threads > 1:
@@ -297,12 +307,14 @@ class Scene:
         code = STRATEGY_CODES[strategy]
         ray_space = code == STRATEGY_CODES["rayspace"]
         # rayspace splits the rays by origin and direction itself: it keeps the input order.
-        chunk_ids = self._chunk_ids(origins, n_chunks, coherent or ray_space)
+        with np.errstate(invalid="ignore", over="ignore"):
+            chunk_ids = self._chunk_ids(origins, n_chunks, coherent or ray_space)
 
         def run(chunk):
             ray_ids = chunk_ids[chunk]
             rays = new_records(len(ray_ids))
-            pack_rays(origins, directions, tmin, tmax, ray_ids, rays)
+            if not pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
+                return None  # a bad ray: no kernel traces this chunk
             fixed_rows = uniform_rows(rays, len(ray_ids))
             tri_ids = np.arange(n_live, dtype=INDEX)
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
@@ -319,6 +331,9 @@ class Scene:
             return chunk_stats
 
         per_chunk = _map_on_threads(run, n_chunks, min(threads, n_chunks))
+        if any(chunk_stats is None for chunk_stats in per_chunk):
+            explain_bad_rays(origins, directions, tmin, tmax)
+            raise ValueError("the batch holds an invalid ray")  # explain_bad_rays names it
         totals = np.sum(per_chunk, axis=0)
         for i, name in enumerate(STAT_NAMES):
             if i not in (STAT_RAYS, STAT_TRIANGLES):

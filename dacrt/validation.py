@@ -2,7 +2,6 @@
 index and how many there are. Everything past here assumes clean float32/int32 arrays."""
 import numpy as np
 
-from .config import jit
 from .contracts import FLOAT, STRATEGIES
 from .triangles import all_finite, faces_in_range
 
@@ -68,9 +67,10 @@ def check_mesh(index, vertices, faces):
 
 
 def check_rays(origins, directions, tmin, tmax):
-    """Validate a ray batch; returns float32 origins, directions, tmin, tmax. Origins and
-    directions may be strided views (the columns of one (n, 6) array): the kernels read
-    them as they are, which saves a copy of the batch."""
+    """Check a ray batch's shapes and dtypes; returns float32 origins, directions, tmin, tmax.
+    Origins and directions may be strided views (the columns of one (n, 6) array): the kernels
+    read them as they are, which saves a copy of the batch. The values are checked as the
+    kernels pack them (``rays.pack_rays``); ``explain_bad_rays`` then names a bad one."""
     origins = as_float_rows(origins, "origins", check_finite=False, contiguous=False)
     directions = as_float_rows(directions, "directions", check_finite=False, contiguous=False)
     n = len(origins)
@@ -78,30 +78,18 @@ def check_rays(origins, directions, tmin, tmax):
         raise ValueError(f"origins has {n} rows but directions has {len(directions)}")
     tmin = _ray_range(tmin, 0.0, n, "tmin")
     tmax = _ray_range(tmax, np.inf, n, "tmax")
-    if not _rays_are_valid(origins, directions, tmin, tmax):
-        # Slow path, only for a bad batch: find and name the first problem.
-        as_float_rows(origins, "origins")
-        as_float_rows(directions, "directions")
-        _first_bad(~directions.any(axis=1), "directions", "is zero", "zero directions")
-        _first_bad(~np.isfinite(tmin), "tmin", "is not finite", "non-finite tmin")
-        _first_bad(np.isnan(tmax), "tmax", "is NaN", "NaN tmax")
-        _first_bad(tmin > tmax, "tmin", "is greater than tmax", "rays with tmin > tmax")
     return origins, directions, tmin, tmax
 
 
-@jit
-def _rays_are_valid(origins, directions, tmin, tmax):
-    """One pass over the batch: finite origins and directions, no zero direction, finite tmin,
-    tmin <= tmax (tmax may be +inf)."""
-    for r in range(origins.shape[0]):
-        for a in range(3):
-            if not np.isfinite(origins[r, a]) or not np.isfinite(directions[r, a]):
-                return False
-        if directions[r, 0] == 0 and directions[r, 1] == 0 and directions[r, 2] == 0:
-            return False
-        if not np.isfinite(tmin[r]) or not tmin[r] <= tmax[r]:
-            return False
-    return True
+def explain_bad_rays(origins, directions, tmin, tmax):
+    """Raise ValueError naming the first bad ray of a batch and how many there are (a slow
+    path, for a batch known to hold one); does nothing for a valid batch."""
+    as_float_rows(origins, "origins")
+    as_float_rows(directions, "directions")
+    _first_bad(~directions.any(axis=1), "directions", "is zero", "zero directions")
+    _first_bad(~np.isfinite(tmin), "tmin", "is not finite", "non-finite tmin")
+    _first_bad(np.isnan(tmax), "tmax", "is NaN", "NaN tmax")
+    _first_bad(tmin > tmax, "tmin", "is greater than tmax", "rays with tmin > tmax")
 
 
 def _ray_range(value, default, n, name):

@@ -77,6 +77,39 @@ def test_bad_rays_name_first_index_and_count(case, query):
     _mentions(str(info.value), FIRST_BAD, N_BAD)
 
 
+LAST_CHUNK_BAD = 39_871  # in the last of the chunks of a 40,000-ray batch on 2 threads
+
+
+@pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
+@pytest.mark.parametrize("rays", ["camera", "mixed"])
+@pytest.mark.parametrize("query", QUERIES)
+def test_a_bad_ray_in_one_chunk_of_many_is_named(query, rays, strategy):
+    """Each chunk checks its own rays as it packs them: one bad ray in the last chunk of a
+    batch cut in several (camera rays: bands in input order; mixed rays: slabs of origins)
+    still fails the whole query, naming it."""
+    box = [[0, 0, 0], [1, 1, 1]]
+    if rays == "camera":
+        origins, directions = pg.camera_rays(box, 200, 200)
+    else:
+        origins, directions = pg.mixed_rays(box, 40_000, np.random.default_rng(3))
+    origins, directions = origins[:40_000].copy(), directions[:40_000].copy()
+    directions[LAST_CHUNK_BAD] = 0.0
+    with pytest.raises(ValueError) as info:
+        _run(query, [_mesh()], origins, directions, threads=2, strategy=strategy)
+    _mentions(str(info.value), LAST_CHUNK_BAD, 1)
+    assert "zero" in str(info.value)
+
+
+@pytest.mark.parametrize("query", QUERIES)
+def test_bad_rays_are_named_on_a_scene_without_triangles(query):
+    origins, directions = _rays()
+    o, d, _, _ = RAY_CASES["origin_nan"](origins, directions)
+    empty = (np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32))
+    with pytest.raises(ValueError) as info:
+        _run(query, [empty], o, d)
+    _mentions(str(info.value), FIRST_BAD, N_BAD)
+
+
 @pytest.mark.parametrize("query", QUERIES)
 @pytest.mark.parametrize("tmin,tmax", [(2.0, 1.0), (np.nan, None), (None, np.nan), (0.0, -1.0)])
 def test_bad_scalar_ranges(tmin, tmax, query):
