@@ -49,7 +49,7 @@ MIN_RAYS_PER_THREAD = 16384
 # repeats the work on the triangles, and ray sampling gains with more rays per node),
 # 1.03-1.09x on two with 6 chunks (4 chunks lost 1-11 %). Other rays go as one chunk per
 # thread: contiguous ranges when neighbours in input order start near each other (rays from an
-# image's hit points), else slabs of origins (see _chunk_ids).
+# image's hit points), else slabs of origins (see _chunk_plan).
 COHERENT_ORIGIN_SPREAD = 0.1
 COHERENT_CHUNK_RAYS = 262144
 COHERENT_CHUNKS_PER_THREAD = 3
@@ -105,28 +105,31 @@ def origin_weights(points, counts, box, n):
     return weights
 
 
+@inline
+def slab_of(value, cuts):
+    """The slab holding ``value``: how many of the sorted ``cuts`` are at or below it (slab k:
+    cuts[k-1] <= value < cuts[k]; NaN falls in slab 0)."""
+    k = 0
+    for c in range(len(cuts)):
+        k += 1 if value >= cuts[c] else 0
+    return k
+
+
 @jit
-def ids_by_slab(values, cuts):
-    """Ray ids grouped by slab (slab k: cuts[k-1] <= value < cuts[k]), increasing within each,
-    and where each slab starts (len(cuts) + 2 entries); two passes, no sort, no branch on the
-    values (they fall on either side of a cut at random)."""
-    n_slabs = len(cuts) + 1
-    slab = np.empty(len(values), np.int32)
-    starts = np.zeros(n_slabs + 1, np.int64)
+def slab_ids(values, cuts, k):
+    """The ids (int32, increasing) of the values in slab k, gathered by the thread that traces
+    the slab, side by side with the other slabs' threads: a counting pass, then a compaction
+    with no branch on the values (they fall on either side of a cut at random). 1M rays, two
+    threads: 1.1 ms each, where grouping every slab's ids on the calling thread took 2.2 ms."""
+    n = 0
     for i in range(len(values)):
-        k = 0
-        for c in range(len(cuts)):  # cuts are sorted: count those at or below the value
-            k += 1 if values[i] >= cuts[c] else 0
-        slab[i] = k
-        starts[k + 1] += 1
-    for k in range(n_slabs):
-        starts[k + 1] += starts[k]
-    fill = starts[:-1].copy()
-    ids = np.empty(len(values), np.int32)
+        n += 1 if slab_of(values[i], cuts) == k else 0
+    ids = np.empty(n + 1, np.int32)  # the compaction writes once past the last id
+    j = 0
     for i in range(len(values)):
-        ids[fill[slab[i]]] = i
-        fill[slab[i]] += 1
-    return ids, starts
+        ids[j] = i
+        j += 1 if slab_of(values[i], cuts) == k else 0
+    return ids[:n]
 
 
 @functools.cache
@@ -141,6 +144,15 @@ def _map_on_threads(fn, n_items, n_workers):
     if n_workers == 1:
         return [fn(k) for k in range(n_items)]
     return list(_pool(n_workers).map(fn, range(n_items)))
+
+
+def chunk_ids(plan, n_rays, n_chunks, k):
+    """The ray ids (int32, increasing) of chunk k of n_chunks, as ``Scene._chunk_plan`` cut
+    the batch."""
+    if plan is None:
+        return np.arange(k * n_rays // n_chunks, (k + 1) * n_rays // n_chunks, dtype=INDEX)
+    values, cuts = plan
+    return slab_ids(values, cuts, k)
 
 
 class Scene:
@@ -243,39 +255,32 @@ class Scene:
         size = float(np.max(self._box[3:] - self._box[:3]))
         return spread <= COHERENT_ORIGIN_SPREAD * size
 
-    def _chunk_ids(self, origins, n_chunks, keep_order):
-        """The ray ids (int32, increasing) of each chunk.
+    def _chunk_plan(self, origins, n_chunks, keep_order):
+        """How the batch is cut into chunks (``chunk_ids``): None for contiguous runs in input
+        order, else (values, cuts): slab k holds the rays whose values fall in it.
 
-        Contiguous runs in input order when ``keep_order`` (rays from one point) or when that
-        order is already coherent (consecutive origins much closer than origins far apart in
-        the batch, as for rays from an image's hit points). Otherwise slabs of about equal
-        work along the axis where the origins spread most, cut at weighted quantiles of a
-        sample (DENSITY_GRID): a slab's rays start near each other, so the chunks repeat less
-        of each other's work (two threads, 1M rays: 1.08-1.16x on Sponza's rays from a sphere
-        around it and on uniform random rays, 1.01-1.08x on Sibenik's). Answers do not depend
-        on the chunks."""
-        n_rays = len(origins)
-
-        def in_order():
-            return [np.arange(k * n_rays // n_chunks, (k + 1) * n_rays // n_chunks, dtype=INDEX)
-                    for k in range(n_chunks)]
-
-        step = max(1, n_rays // CHUNK_SAMPLE_RAYS)
+        In input order when ``keep_order`` (rays from one point) or when that order is already
+        coherent (consecutive origins much closer than origins far apart in the batch, as for
+        rays from an image's hit points). Otherwise slabs of about equal work along the axis
+        where the origins spread most, cut at weighted quantiles of a sample (DENSITY_GRID): a
+        slab's rays start near each other, so the chunks repeat less of each other's work (two
+        threads, 1M rays: 1.08-1.16x on Sponza's rays from a sphere around it and on uniform
+        random rays, 1.01-1.08x on Sibenik's). Answers do not depend on the chunks."""
+        step = max(1, len(origins) // CHUNK_SAMPLE_RAYS)
         if keep_order or n_chunks == 1 or step == 1:
-            return in_order()
+            return None
         sample = origins[::step]
         near = np.linalg.norm(origins[1::step] - origins[:-1:step], axis=1)  # input neighbours
         far = np.linalg.norm(sample - sample[::-1], axis=1)
         if np.mean(near) < ORDERED_NEIGHBOUR_DISTANCE * np.mean(far):
-            return in_order()
+            return None
         axis = int(np.argmax(sample.max(axis=0) - sample.min(axis=0)))
         weights = origin_weights(sample, self._centre_counts, self._box, DENSITY_GRID)
         order = np.argsort(sample[:, axis], kind="stable")
         cumulative = np.cumsum(weights[order])
         at = np.searchsorted(cumulative, np.arange(1, n_chunks) / n_chunks * cumulative[-1])
         cuts = sample[order[np.minimum(at, len(order) - 1)], axis].astype(origins.dtype)
-        ids, starts = ids_by_slab(np.ascontiguousarray(origins[:, axis]), cuts)  # one signature
-        return [ids[starts[k]:starts[k + 1]] for k in range(n_chunks)]
+        return np.ascontiguousarray(origins[:, axis]), cuts  # one signature for slab_ids
 
     def _trace(self, mode, origins, directions, tmin, tmax, strategy, threads):
         """Run the kernels; returns best_t, best_tri (kernel rows), u, v and the counters."""
@@ -308,10 +313,10 @@ class Scene:
         ray_space = code == STRATEGY_CODES["rayspace"]
         # rayspace splits the rays by origin and direction itself: it keeps the input order.
         with np.errstate(invalid="ignore", over="ignore"):
-            chunk_ids = self._chunk_ids(origins, n_chunks, coherent or ray_space)
+            plan = self._chunk_plan(origins, n_chunks, coherent or ray_space)
 
         def run(chunk):
-            ray_ids = chunk_ids[chunk]
+            ray_ids = chunk_ids(plan, n_rays, n_chunks, chunk)
             rays = new_records(len(ray_ids))
             if not pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
                 return None  # a bad ray: no kernel traces this chunk

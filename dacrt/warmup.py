@@ -4,7 +4,7 @@ import time
 import numpy as np
 
 from .contracts import STRATEGIES
-from .scene import DENSITY_GRID, Scene, centre_counts, ids_by_slab, origin_weights
+from .scene import DENSITY_GRID, Scene, centre_counts, origin_weights, slab_ids
 
 
 def warmup():
@@ -25,7 +25,7 @@ def warmup():
     scene.closest(rays[:, :3], rays[:, 3:], threads=1)
     # Incoherent batches on several threads are cut into slabs of origins, at weighted
     # quantiles of a strided sample of them (writable, or read-only as from a server's body).
-    ids_by_slab(np.ascontiguousarray(origins[:, 0]), np.zeros(1, np.float32))
+    slab_ids(np.ascontiguousarray(origins[:, 0]), np.zeros(1, np.float32), 0)
     counts = centre_counts(scene._tri_bounds, scene._box, DENSITY_GRID)
     for sample in (origins[::2], rays[::2, :3]):
         origin_weights(sample, counts, scene._box, DENSITY_GRID)

@@ -229,7 +229,11 @@ def test_stats_count_every_ray_across_threads(threads, default_answers):
 def test_chunks_cover_every_ray_once_as_slabs_or_in_input_order():
     """Incoherent batches go to threads as slabs of origins unless their input order is already
     coherent; either way every ray is in exactly one chunk, and chunks are balanced."""
-    from dacrt.scene import Scene
+    from dacrt.scene import Scene, chunk_ids
+
+    def chunks_of(origins, keep_order):
+        plan = scene._chunk_plan(origins, 3, keep_order)
+        return [chunk_ids(plan, len(origins), 3, k) for k in range(3)]
 
     n = 50_000
     scattered = np.random.default_rng(46).uniform(-1, 1, (n, 3)).astype(np.float32)
@@ -238,23 +242,23 @@ def test_chunks_cover_every_ray_once_as_slabs_or_in_input_order():
     # One triangle away from every origin: all rays weigh the same (see the next test).
     scene = Scene([(np.array([[9, 9, 9], [10, 9, 9], [9, 10, 9]], np.float32), [[0, 1, 2]])])
     for origins, expect_slabs in ((scattered, True), (ordered, False)):
-        chunks = scene._chunk_ids(origins, 3, keep_order=False)
+        chunks = chunks_of(origins, keep_order=False)
         assert np.array_equal(np.sort(np.concatenate(chunks)), np.arange(n))
         assert all((np.diff(chunk) > 0).all() for chunk in chunks)
         assert max(map(len, chunks)) < 1.1 * n / 3
         in_order = all(np.array_equal(c, np.arange(c[0], c[0] + len(c))) for c in chunks)
         assert in_order != expect_slabs
-    slabs = scene._chunk_ids(scattered, 3, keep_order=False)
+    slabs = chunks_of(scattered, keep_order=False)
     for lower, upper in zip(slabs, slabs[1:]):
         assert scattered[lower, 1].max() <= scattered[upper, 1].min()
-    assert np.array_equal(np.concatenate(scene._chunk_ids(scattered, 3, keep_order=True)), np.arange(n))
+    assert np.array_equal(np.concatenate(chunks_of(scattered, keep_order=True)), np.arange(n))
 
 
 def test_slabs_hold_fewer_rays_where_the_triangles_are_dense():
     """Slab cuts weigh each ray by the triangles around its origin: with 20,000 small triangles
     in x < 0 and 40 in x > 0, the slab of x < 0 holds fewer rays; every ray is still in exactly
     one slab, and the slabs are ordered along x."""
-    from dacrt.scene import Scene
+    from dacrt.scene import Scene, chunk_ids
 
     rng = np.random.default_rng(47)
     n = 60_000
@@ -264,7 +268,8 @@ def test_slabs_hold_fewer_rays_where_the_triangles_are_dense():
                               rng.uniform([0, -1, -1], [3, 1, 1], (40, 3))])
     corners = np.repeat(centres, 3, axis=0) + rng.uniform(-0.01, 0.01, (3 * len(centres), 3))
     scene = Scene([(corners.astype(np.float32), np.arange(3 * len(centres)).reshape(-1, 3))])
-    dense, sparse = scene._chunk_ids(origins, 2, keep_order=False)
+    plan = scene._chunk_plan(origins, 2, keep_order=False)
+    dense, sparse = (chunk_ids(plan, n, 2, k) for k in range(2))
     assert np.array_equal(np.sort(np.concatenate([dense, sparse])), np.arange(n))
     assert origins[dense, 0].max() <= origins[sparse, 0].min()
     assert len(dense) < 0.35 * n and origins[dense, 0].max() < 0
@@ -288,7 +293,7 @@ def test_warmup_compiles_what_an_incoherent_two_thread_query_needs():
     from dacrt import scene as engine_scene
 
     dacrt.warmup()
-    kernels = (engine_scene.centre_counts, engine_scene.origin_weights, engine_scene.ids_by_slab)
+    kernels = (engine_scene.centre_counts, engine_scene.origin_weights, engine_scene.slab_ids)
     before = [len(kernel.signatures) for kernel in kernels]
     rays = np.random.default_rng(48).uniform(-1, 1, (40_000, 6)).astype(np.float32)
     rays.flags.writeable = False
