@@ -136,6 +136,11 @@ def main() -> None:
     print(f"HTTP overhead          {overhead_ms:9.1f} ms = {100 * overhead_ms / engine_ms:.1f}% of engine time")
     print(f"  (end to end - server trace = {e2e_ms - server_trace_ms:.1f} ms = "
           f"{100 * (e2e_ms - server_trace_ms) / server_trace_ms:.1f}% of the server's trace time)")
+    # Each request against the engine call just before it: steadier when the machine's load drifts.
+    paired = [e - g for e, g in zip(end_to_end, engine)]
+    paired_ms = median_ms(paired)
+    print(f"  (median of paired differences = {paired_ms:.1f} ms = {100 * paired_ms / engine_ms:.1f}% "
+          f"of engine time; they ranged {1000 * min(paired):.1f} to {1000 * max(paired):.1f} ms)")
     if frames:
         print(f"per frame (new mesh + {args.rays} rays), medians of {args.repeat}:")
         for name, seconds in frames.items():
