@@ -74,18 +74,24 @@ def uniform_rows(rays, n):
     """Bitmask of the rows (bit k: row k) that hold one value in all n records, bit for bit:
     the origin of a camera's rays, a tmin shared by the batch, the direction of parallel rays
     (best_t changes during the trace, so never). The partitions need not move those rows
-    (``swap_rays``). A row stops being checked at the first block that differs."""
+    (``swap_rays``). A row stops being checked at the first block that differs.
+
+    The rows are compared as integers (their bit patterns: 0.0 and -0.0 differ, as they must),
+    a count per block: the loop vectorises. Comparing floats and their signs did not: 0.34 ms
+    against 0.045 per 262,144 camera rays."""
+    bits = rays.view(np.uint32)
     fixed = 0
     for k in range(BEST_T):
-        row = rays[k, :n]
-        first = row[0] if n > 0 else np.float32(0.0)
-        negative = np.signbit(first)
+        row = bits[k, :n]
+        first = row[0] if n > 0 else np.uint32(0)
         uniform = True
         for lo in range(0, n, UNIFORM_CHECK_BLOCK):
-            # Equal values and equal signs (0.0 == -0.0, but their bits differ).
-            for i in range(lo, min(lo + UNIFORM_CHECK_BLOCK, n)):
-                uniform &= (row[i] == first) & (np.signbit(row[i]) == negative)
-            if not uniform:
+            block = row[lo:min(lo + UNIFORM_CHECK_BLOCK, n)]
+            same = 0
+            for i in range(block.shape[0]):
+                same += 1 if block[i] == first else 0
+            if same != block.shape[0]:
+                uniform = False
                 break
         if uniform:
             fixed |= 1 << k
