@@ -1,5 +1,7 @@
 """Input checks of the public API: shapes, dtypes and values, each error naming the first bad
-index and how many there are. Everything past here assumes clean float32/int32 arrays."""
+index and how many there are. Everything past here assumes clean float32/int32 arrays; a ray
+batch's values are checked as the kernels pack them (``rays.pack_rays``), and a bad batch is
+named here (``explain_bad_rays``) before any answer is returned."""
 import numpy as np
 
 from .contracts import FLOAT, STRATEGIES
