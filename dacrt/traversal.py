@@ -13,6 +13,7 @@ from .config import (
     LEAF_RAYS,
     LEAF_TRIANGLES,
     MAX_DEPTH,
+    MIN_OCCLUSION_RAYS_TO_SAMPLE,
     MIN_RAYS_TO_SAMPLE,
     N_BINS,
     N_SAMPLE_RAYS,
@@ -138,7 +139,8 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         sampled = False
         split = -1
         if strategy != MIDDLE and n_rays > RAYS_PER_TRIANGLE_FOR_COST * n_tris:
-            sample_node = strategy == SAMPLING and n_rays > MIN_RAYS_TO_SAMPLE
+            sample_node = strategy == SAMPLING and n_rays > (
+                MIN_RAYS_TO_SAMPLE if mode != MODE_OCCLUDED else MIN_OCCLUSION_RAYS_TO_SAMPLE)
             centroid_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, c_box)
             if sample_node and mode != MODE_OCCLUDED:
                 axis, extent = sampled_axis(rays, ray_lo, ray_hi, c_box)
