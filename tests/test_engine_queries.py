@@ -503,14 +503,15 @@ def _check_stats(stats, n_rays):
 
 @pytest.fixture(scope="module")
 def stats_scene():
-    """A perturbed icosphere of 5120 faces seen by a 80 x 60 camera (4800 rays, about half hit).
+    """A perturbed icosphere of 5120 faces seen by a 120 x 90 camera (10,800 rays, about half hit).
 
     Enough rays per node for the cost-driven strategies to use their cost function below the
-    top levels (rays per triangle > 1.5), and more than 1000 rays there for ray sampling.
+    top levels (rays per triangle > 1.5), and more than MIN_RAYS_TO_SAMPLE (5,000) rays there
+    for ray sampling.
     """
     v, f = pg.icosphere(4)
     v = pg.perturb_radially(v, np.random.default_rng(15), 0.1)
-    origins, directions = pg.camera_rays(pg.bounds(v), 80, 60, fov_degrees=30.0)
+    origins, directions = pg.camera_rays(pg.bounds(v), 120, 90, fov_degrees=30.0)
     return dacrt.Scene([(v, f)]), origins, directions
 
 
@@ -529,7 +530,7 @@ def test_stats_counters(stats_scene, strategy, threads):
     assert stats["skipped_filterings"] <= stats["nodes"]
     assert 0 < stats["max_depth"] <= stats["nodes"]
     if strategy == "sampling":
-        assert stats["sampled_nodes"] > 0, "ray sampling never sampled on 4800 rays x 5120 triangles"
+        assert stats["sampled_nodes"] > 0, "ray sampling never sampled on 10,800 rays x 5120 triangles"
     if strategy == "sah":
         assert stats["sampled_nodes"] == 0
     occ, occ_stats = scene.occluded(origins, directions, strategy=strategy, threads=threads, stats=True)
