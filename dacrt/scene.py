@@ -300,19 +300,18 @@ class Scene:
             explain_bad_rays(origins, directions, tmin, tmax)  # no kernel will check them
             return best_t, best_tri, hit_u, hit_v, counters
         n_chunks = max(1, min(threads, n_rays // MIN_RAYS_PER_THREAD))
+        code = STRATEGY_CODES[strategy]
+        ray_space = code == STRATEGY_CODES["rayspace"]
         # The values are not checked yet (each chunk checks its own): a bad ray may make
         # the choice of chunks poor, never wrong.
         with np.errstate(invalid="ignore", over="ignore"):
             coherent = self._from_one_point(origins)
-        if coherent:
-            n_chunks = max(n_chunks, -(-n_rays // COHERENT_CHUNK_RAYS))
-            if threads > 1:
-                n_chunks = max(n_chunks, min(threads * COHERENT_CHUNKS_PER_THREAD,
-                                             n_rays // MIN_RAYS_PER_THREAD))
-        code = STRATEGY_CODES[strategy]
-        ray_space = code == STRATEGY_CODES["rayspace"]
-        # rayspace splits the rays by origin and direction itself: it keeps the input order.
-        with np.errstate(invalid="ignore", over="ignore"):
+            if coherent:
+                n_chunks = max(n_chunks, -(-n_rays // COHERENT_CHUNK_RAYS))
+                if threads > 1:
+                    n_chunks = max(n_chunks, min(threads * COHERENT_CHUNKS_PER_THREAD,
+                                                 n_rays // MIN_RAYS_PER_THREAD))
+            # rayspace splits the rays by origin and direction itself: it keeps the input order.
             plan = self._chunk_plan(origins, n_chunks, coherent or ray_space)
 
         def run(chunk):

@@ -96,6 +96,8 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     box_b = np.empty(6, np.float32)
     corners, t_block, tri_block, uv_block = leaf_scratch()
     offsets = partition_scratch()
+    min_rays_to_sample = (MIN_OCCLUSION_RAYS_TO_SAMPLE if mode == MODE_OCCLUDED
+                          else MIN_RAYS_TO_SAMPLE)
 
     stack_tri[0, 0] = tri_lo
     stack_tri[0, 1] = tri_hi
@@ -139,8 +141,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         sampled = False
         split = -1
         if strategy != MIDDLE and n_rays > RAYS_PER_TRIANGLE_FOR_COST * n_tris:
-            sample_node = strategy == SAMPLING and n_rays > (
-                MIN_RAYS_TO_SAMPLE if mode != MODE_OCCLUDED else MIN_OCCLUSION_RAYS_TO_SAMPLE)
+            sample_node = strategy == SAMPLING and n_rays > min_rays_to_sample
             centroid_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, c_box)
             if sample_node and mode != MODE_OCCLUDED:
                 axis, extent = sampled_axis(rays, ray_lo, ray_hi, c_box)
