@@ -1,24 +1,47 @@
 """Turning the kernels' per-ray results into the public answers (mesh, prim, normal, misses)."""
 import numpy as np
 
-from .config import jit
+from .config import inline, jit
+from .contracts import MISS
 from .geometry import triangle_normal
 from .leaf import NO_HIT
 
 
 @jit
-def finish_closest(best_t, best_tri, tri_global, mesh_offsets, tri_verts, mesh, prim, normal):
+def unit_normals(tri_verts, normals):
+    """Fill ``normals`` (n_tri, 3) float32 with each kernel row's unit geometric normal."""
+    for row in range(tri_verts.shape[0]):
+        normals[row, 0], normals[row, 1], normals[row, 2] = unit_normal(tri_verts, row)
+
+
+@inline
+def unit_normal(tri_verts, row):
+    """Geometric normal (p1 - p0) x (p2 - p0) of a kernel row, normalised in float64."""
+    nx, ny, nz = triangle_normal(tri_verts, row)
+    inv_length = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
+    return nx * inv_length, ny * inv_length, nz * inv_length
+
+
+@jit
+def finish_closest(best_t, best_tri, tri_global, mesh_offsets, tri_verts, normals, mesh, prim,
+                   normal):
     """Turn the kernels' per-ray results into the answers: ``best_t`` becomes t in place (inf
-    on a miss), and mesh, prim, normal (preallocated with their miss values) are filled for the
-    rays that hit. hit_u and hit_v are u and v as they are (0 where a ray never hit).
+    on a miss), and mesh, prim, normal are written for every ray (MISS, MISS, 0 on a miss).
+    hit_u and hit_v are u and v as they are (0 where a ray never hit).
 
     best_tri holds kernel rows; tri_global maps them to global triangle indices, and
-    mesh_offsets (n_meshes+1,) to (mesh, prim)."""
+    mesh_offsets (n_meshes+1,) to (mesh, prim). ``normals`` holds every row's unit normal
+    (``unit_normals``), or no rows: then each hit computes its own, for batches with fewer rays
+    than the scene has triangles."""
+    have_normals = normals.shape[0] > 0
     m = 0
     for ray in range(best_t.shape[0]):
         row = best_tri[ray]
         if row == NO_HIT:
             best_t[ray] = np.inf
+            mesh[ray] = MISS
+            prim[ray] = MISS
+            normal[ray, 0] = normal[ray, 1] = normal[ray, 2] = 0.0
             continue
         tri = tri_global[row]
         # Neighbouring rays mostly hit the same mesh: search only when the previous hit's mesh
@@ -29,9 +52,9 @@ def finish_closest(best_t, best_tri, tri_global, mesh_offsets, tri_verts, mesh, 
         best_t[ray] = best_t[ray] + np.float32(0.0)  # -0.0 (a hit at the origin) as +0.0
         mesh[ray] = m
         prim[ray] = tri - mesh_offsets[m]
-        # Geometric normal (p1 - p0) x (p2 - p0), normalised in float64.
-        nx, ny, nz = triangle_normal(tri_verts, row)
-        inv_length = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
-        normal[ray, 0] = nx * inv_length
-        normal[ray, 1] = ny * inv_length
-        normal[ray, 2] = nz * inv_length
+        if have_normals:
+            normal[ray, 0] = normals[row, 0]
+            normal[ray, 1] = normals[row, 1]
+            normal[ray, 2] = normals[row, 2]
+        else:
+            normal[ray, 0], normal[ray, 1], normal[ray, 2] = unit_normal(tri_verts, row)

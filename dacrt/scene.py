@@ -14,7 +14,6 @@ from .config import inline, jit
 from .contracts import (
     FLOAT,
     INDEX,
-    MISS,
     MODE_CLOSEST,
     MODE_OCCLUDED,
     STAT_NAMES,
@@ -25,7 +24,7 @@ from .contracts import (
 )
 from .leaf import NO_HIT
 from .rays import new_records, pack_rays, uniform_rows, unpack_best_t
-from .results import finish_closest
+from .results import finish_closest, unit_normals
 from .triangles import gather_triangles, triangle_boxes
 from .rayspace import trace_ray_space
 from .traversal import trace_object_split
@@ -204,6 +203,16 @@ class Scene:
         scene, on its first incoherent query on several threads (1 ms on Sponza)."""
         return centre_counts(self._tri_bounds, self._box, DENSITY_GRID)
 
+    @functools.cached_property
+    def _unit_normals(self):
+        """Each kernel row's unit normal (12 bytes a triangle), for batches of many rays:
+        derived once per scene, on its first such ``closest`` (0.3 ms on Sibenik)."""
+        normals = np.empty((len(self._tri_verts), 3), FLOAT)
+        unit_normals(self._tri_verts, normals)
+        return normals
+
+    _no_normals = np.empty((0, 3), FLOAT)
+
     def __repr__(self):
         return f"Scene({self.n_meshes} meshes, {self.n_triangles} triangles)"
 
@@ -220,9 +229,12 @@ class Scene:
         t, best_tri, u, v, counters = self._trace(
             MODE_CLOSEST, origins, directions, tmin, tmax, strategy, threads)
         n = len(t)
-        mesh = np.full(n, MISS, INDEX)
-        prim = np.full(n, MISS, INDEX)
-        normal = np.zeros((n, 3), FLOAT)
+        mesh = np.empty(n, INDEX)  # every element is written by finish_closest
+        prim = np.empty(n, INDEX)
+        normal = np.empty((n, 3), FLOAT)
+        # A batch with at least as many rays as triangles looks up each triangle's normal,
+        # derived once per scene; a smaller one derives each hit's (1M hits: 2.7 against 6.2 ms).
+        normals = self._unit_normals if n >= self.n_triangles else self._no_normals
         # In place: t, u, v are the trace's own arrays (12 bytes a ray not allocated, not copied).
         # In as many parts as the trace had threads (5 ns a hit, on one thread).
         n_parts = max(1, min(check_threads(threads, N_CORES), n // MIN_RAYS_PER_THREAD))
@@ -231,7 +243,7 @@ class Scene:
         def finish(k):
             part = slice(bounds[k], bounds[k + 1])
             finish_closest(t[part], best_tri[part], self._tri_global, self.mesh_offsets,
-                           self._tri_verts, mesh[part], prim[part], normal[part])
+                           self._tri_verts, normals, mesh[part], prim[part], normal[part])
 
         _map_on_threads(finish, n_parts, n_parts)
         return Hits(t, mesh, prim, u, v, normal, counters if stats else None)

@@ -236,6 +236,26 @@ def test_non_contiguous_inputs_give_the_same_answers():
     check.assert_bitwise_equal(a, b, "strided / Fortran-ordered inputs")
 
 
+@pytest.mark.parametrize("scene_name", sorted(scenes.SCENES))
+def test_small_and_large_batches_give_the_same_answers(scene_name):
+    """A batch with at least as many rays as triangles looks normals up per triangle, a
+    smaller one computes each hit's: the same rays answer alike in either, bit for bit."""
+    meshes = scenes.SCENES[scene_name](3)
+    scene, vertices, faces, offsets = build(meshes)
+    origins, directions = scenes.mixed_rays(meshes, 3)
+    assert len(origins) >= scene.n_triangles > 10
+    whole = scene.closest(origins, directions)
+    small = scene.n_triangles - 1
+    parts = [scene.closest(origins[i:i + small], directions[i:i + small])
+             for i in range(0, len(origins), small)]
+    for name in ("t", "mesh", "prim", "u", "v", "normal"):
+        joined = np.concatenate([getattr(part, name) for part in parts])
+        np.testing.assert_array_equal(joined.view(np.uint8), getattr(whole, name).view(np.uint8),
+                                      err_msg=f"{scene_name}: {name} differs between batch sizes")
+    check.check_against_reference(whole, vertices, faces, origins, directions,
+                                  mesh_offsets=offsets, min_hits=200)
+
+
 def test_inputs_are_not_modified():
     meshes = scenes.multi(8)
     origins, directions = scenes.mixed_rays(meshes, 8)
