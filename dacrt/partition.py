@@ -96,8 +96,10 @@ def box_area(box):
 
 
 @inline
-def bin_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, bin_count, bin_box):
-    """Count triangles per bin and the box of each bin's triangles.
+def bin_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, bin_count, bin_box,
+                  tri_bins):
+    """Count triangles per bin and the box of each bin's triangles; each position's bin goes to
+    ``tri_bins[lo:hi]``, for ``partition_binned``.
 
     A run of triangles in one bin (the usual case: ranges keep much of the mesh's spatial order)
     is bounded in locals and added to its bin when the run ends; updating the bin's box for every
@@ -111,9 +113,10 @@ def bin_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, bin_c
     cnt = 0
     x0 = y0 = z0 = np.float32(np.inf)
     x1 = y1 = z1 = np.float32(-np.inf)
-    for tri_id in tri_ids[lo:hi]:
-        tri = np.uint32(tri_id)  # unsigned: no index wraparound
+    for i in range(lo, hi):
+        tri = np.uint32(tri_ids[i])  # unsigned: no index wraparound
         b = bin_of(centroid(tri_bounds, tri, axis), c_min, scale, n_bins)
+        tri_bins[i] = b
         if b != cur:
             if cur >= 0:
                 flush_bin(bin_count, bin_box, cur, cnt, x0, y0, z0, x1, y1, z1)
@@ -192,6 +195,26 @@ def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins,
     set_box(box_left, lx0, ly0, lz0, lx1, ly1, lz1)
     set_box(box_right, rx0, ry0, rz0, rx1, ry1, rz1)
     return lo + np.int64(i)
+
+
+@inline
+def partition_binned(tri_ids, tri_bins, lo, hi, split_bin):
+    """Move triangles whose bin (``tri_bins``, from ``bin_triangles``) is <= split_bin to the
+    front; returns the first right index. The same moves as ``partition_triangles``, so the same
+    order, but each triangle's bin is read, not derived again from its box; the sides' boxes
+    are the split's candidate boxes (``sweep_bins``)."""
+    i = lo
+    j = hi
+    while i < j:
+        if tri_bins[i] <= split_bin:
+            i += 1
+        else:
+            j -= 1
+            tri_id = tri_ids[i]
+            tri_ids[i] = tri_ids[j]
+            tri_ids[j] = tri_id
+            tri_bins[i] = tri_bins[j]
+    return i
 
 
 @inline

@@ -45,6 +45,7 @@ from .partition import (
     filter_rays,
     longest_axis,
     partition_scratch,
+    partition_binned,
     partition_triangles,
     sweep_bins,
     triangle_bounds,
@@ -91,6 +92,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     hits_right = sample_counts[1]
     nearer_left = sample_counts[2]
     forward_left = sample_counts[3]
+    tri_bins = np.empty(tri_ids.shape[0], np.uint8)  # each position's bin, binning to partition
     c_box = np.empty(6, np.float32)
     box_a = np.empty(6, np.float32)
     box_b = np.empty(6, np.float32)
@@ -151,7 +153,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
                 c_min = np.float64(c_box[axis])
                 scale = bin_scale(c_min, np.float64(c_box[axis + 3]), N_BINS)
                 bin_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, axis, c_min, scale, N_BINS,
-                              bin_count, bin_box)
+                              bin_count, bin_box, tri_bins)
                 sweep_bins(N_BINS, bin_count, bin_box, left_count, left_box, right_count,
                            right_box)
                 if sample_node:
@@ -167,8 +169,10 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
                 else:
                     split = cheapest_sah_split(left_count, left_box, right_count, right_box,
                                                stack_box[sp])
-                tri_mid = partition_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, axis, c_min,
-                                              scale, N_BINS, split, box_a, box_b)
+                if split >= 0:
+                    tri_mid = partition_binned(tri_ids, tri_bins, tri_lo, tri_hi, split)
+                    box_a[:] = left_box[split]
+                    box_b[:] = right_box[split]
         if split < 0:
             axis, tri_mid = split_middle(tri_ids, tri_lo, tri_hi, tri_bounds, stack_box[sp],
                                          c_box, box_a, box_b)
