@@ -193,9 +193,11 @@ class Scene:
 
     @property
     def nbytes(self):
-        """Bytes held by the scene's arrays."""
+        """Bytes held by the scene's arrays, with those derived on demand once they exist."""
+        derived = [self.__dict__[name] for name in ("_unit_normals", "_centre_counts")
+                   if name in self.__dict__]
         return int(self._tri_verts.nbytes + self._tri_bounds.nbytes + self._tri_global.nbytes
-                   + self.mesh_offsets.nbytes)
+                   + self.mesh_offsets.nbytes + sum(array.nbytes for array in derived))
 
     @functools.cached_property
     def _centre_counts(self):

@@ -288,6 +288,15 @@ def test_scene_attributes():
     assert scene.bounds.dtype == np.float32 and scene.bounds.shape == (2, 3)
     np.testing.assert_array_equal(scene.bounds, pg.bounds(vertices, faces).astype(np.float32))
     assert isinstance(scene.nbytes, (int, np.integer)) and scene.nbytes > 0
+    # A batch of at least as many rays as triangles derives a table of unit normals (12 bytes
+    # a triangle), which the scene then holds and counts.
+    before = scene.nbytes
+    origins = np.zeros((scene.n_triangles, 3), np.float32)
+    directions = np.tile(np.float32([0, 0, 1]), (scene.n_triangles, 1))
+    scene.closest(origins[:-1], directions[:-1])
+    assert scene.nbytes == before
+    scene.closest(origins, directions)
+    assert scene.nbytes == before + 12 * scene.n_triangles
 
 
 def test_empty_mesh_between_others_keeps_numbering():
