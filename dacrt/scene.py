@@ -46,16 +46,19 @@ MIN_RAYS_PER_THREAD = 16384
 # of an image differ in cost, and more chunks even the threads out. Measured on 1M camera rays
 # (Sibenik, Sponza) against 131,072-ray chunks: sampling 1.06-1.13x on one thread (each chunk
 # repeats the work on the triangles, and ray sampling gains with more rays per node),
-# 1.03-1.09x on two with 6 chunks (4 chunks lost 1-11 %). On one thread the chunk's records
-# have the cache to themselves, so chunks go up to COHERENT_CHUNK_RAYS_ONE_THREAD (16 MiB):
-# fewer chunks repeat the triangles' work. Against 262,144 on one thread, sampling, side by side:
-# Sponza 1000² 1.11x (two runs), 2048² 1.09x; Sibenik 2048² 1.03x; Sibenik 1024², conference, dragon
-# 1000² within 1 % (2 threads, 2048²: Sibenik 0.98x, Sponza 1.02x, so they keep 262,144).
+# 1.03-1.09x on two with 6 chunks (4 chunks lost 1-11 %). On one thread, a chunk's records
+# have the cache to themselves, and a scene with many triangles takes chunks of at least
+# COHERENT_RAYS_PER_TRIANGLE rays a triangle, up to COHERENT_CHUNK_RAYS_ONE_THREAD (16 MiB):
+# each chunk repeats the work on the triangles. 524,288 against 262,144 on one thread,
+# sampling, side by side: Sponza (262K triangles) 1000² 1.11x (two runs), 2048² 1.09x; but
+# Sibenik (74K) 1000² 0.96-0.97x (two runs; 1024² 0.99-1.01x), conference (69K) 0.98-1.00x,
+# dragon (100K) 1.00x; two threads, 2048²: Sibenik 0.98x, Sponza 1.02x.
 # Other rays go as one chunk per thread: contiguous ranges when neighbours in input order start
 # near each other (rays from an image's hit points), else slabs of origins (see _chunk_plan).
 COHERENT_ORIGIN_SPREAD = 0.1
 COHERENT_CHUNK_RAYS = 262144
 COHERENT_CHUNK_RAYS_ONE_THREAD = 524288
+COHERENT_RAYS_PER_TRIANGLE = 2
 COHERENT_CHUNKS_PER_THREAD = 3
 # Input order counts as coherent when consecutive origins are closer than this fraction of the
 # distance between origins far apart in the batch (sampled).
@@ -326,7 +329,10 @@ class Scene:
         with np.errstate(invalid="ignore", over="ignore"):
             coherent = self._from_one_point(origins)
             if coherent:
-                chunk_rays = COHERENT_CHUNK_RAYS_ONE_THREAD if threads == 1 else COHERENT_CHUNK_RAYS
+                chunk_rays = COHERENT_CHUNK_RAYS
+                if threads == 1:
+                    chunk_rays = min(COHERENT_CHUNK_RAYS_ONE_THREAD,
+                                     max(chunk_rays, COHERENT_RAYS_PER_TRIANGLE * n_live))
                 n_chunks = max(n_chunks, -(-n_rays // chunk_rays))
                 if threads > 1:
                     n_chunks = max(n_chunks, min(threads * COHERENT_CHUNKS_PER_THREAD,
