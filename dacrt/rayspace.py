@@ -259,6 +259,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
     offsets = partition_scratch()
     corners, t_block, tri_block, uv_block = leaf_scratch()
     keep = np.empty(n_tris_all, np.bool_)
+    tri_bins = np.empty(n_tris_all, np.uint8)  # trace_object_split's scratch, for every hand-off
     bounds = np.empty((6, n_tris_all), np.float32)  # exact copies of the boxes
     for g in range(6):
         if group_start[g + 1] == group_start[g]:
@@ -335,7 +336,8 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                     triangle_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, node_box)
                     trace_object_split(SAMPLING, mode, tri_verts, tri_bounds, node_box, rays,
                                        ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                                       best_tri, hit_u, hit_v, hit_mask, stats, fixed_rows)
+                                       best_tri, hit_u, hit_v, hit_mask, tri_bins, stats,
+                                       fixed_rows)
                 else:
                     stats[STAT_LEAVES] += 1
                     stats[STAT_TRIANGLE_TESTS] += intersect_leaf(

@@ -355,9 +355,11 @@ class Scene:
                                 ray_ids, tri_ids, best_tri, hit_u, hit_v, hit_mask, chunk_stats,
                                 fixed_rows)
             else:
+                tri_bins = np.empty(n_live, np.uint8)
                 trace_object_split(code, mode, self._tri_verts, self._tri_bounds, self._box,
                                    rays, ray_ids, 0, len(ray_ids), tri_ids, 0, n_live,
-                                   best_tri, hit_u, hit_v, hit_mask, chunk_stats, fixed_rows)
+                                   best_tri, hit_u, hit_v, hit_mask, tri_bins, chunk_stats,
+                                   fixed_rows)
             unpack_best_t(rays, ray_ids, best_t)
             return chunk_stats
 

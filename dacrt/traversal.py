@@ -63,13 +63,14 @@ PADDED_CANDIDATES = (N_BINS - 1 + 15) // 16 * 16
 
 @jit
 def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ray_ids, ray_lo,
-                       ray_hi, tri_ids, tri_lo, tri_hi, best_tri, hit_u, hit_v, hit_mask, stats,
-                       fixed_rows):
+                       ray_hi, tri_ids, tri_lo, tri_hi, best_tri, hit_u, hit_v, hit_mask, tri_bins,
+                       stats, fixed_rows):
     """Trace ray records ``ray_lo:ray_hi`` against triangles ``tri_ids[tri_lo:tri_hi]``, whose
     box is ``root_box`` (both ranges are permuted in place).
 
     best_t stays in the records; best_tri, hit_u, hit_v are indexed by ray id (``ray_ids``);
-    ``hit_mask`` is scratch with one entry per record; counters go to ``stats``;
+    ``hit_mask`` is scratch with one entry per record, ``tri_bins`` (uint8) one per position of
+    ``tri_ids`` (each triangle's bin, from binning to partition); counters go to ``stats``;
     ``fixed_rows``: bitmask of the rows that hold one value in every record
     (``uniform_rows``)."""
     n_stack = MAX_DEPTH + 2
@@ -92,7 +93,6 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     hits_right = sample_counts[1]
     nearer_left = sample_counts[2]
     forward_left = sample_counts[3]
-    tri_bins = np.empty(tri_ids.shape[0], np.uint8)  # each position's bin, binning to partition
     c_box = np.empty(6, np.float32)
     box_a = np.empty(6, np.float32)
     box_b = np.empty(6, np.float32)
