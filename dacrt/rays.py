@@ -47,8 +47,8 @@ def pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
 
     Checking here, in each chunk's thread, instead of in a pass of its own before the trace
     reads the batch once, on every thread: 1M rays, two threads, 2.3 ms less on the calling
-    thread (docs/benchmark-history.md). The checks accumulate without a branch; only a bad batch pays
-    for finding which ray is bad (``validation.explain_bad_rays``)."""
+    thread (docs/benchmark-history.md). The checks accumulate without a branch; only a bad
+    batch pays for finding which ray is bad (``validation.explain_bad_rays``)."""
     valid = True
     for r in range(ray_ids.shape[0]):
         ray = ray_ids[r]
