@@ -47,8 +47,8 @@ def test_sample_rays_counts_match_algorithm_2():
     right_box = np.concatenate([lows[:, 1], lows[:, 1] + rng.uniform(1, 3, (n_cand, 3))], 1)
     left_count = rng.integers(1, 100, n_cand)
     right_count = rng.integers(1, 100, n_cand)
-    left_count[[3, 17]] = 0  # no triangles on one side: not a candidate
-    right_count[29] = 0
+    left_count[[3, n_cand // 2 + 2]] = 0  # no triangles on one side: not a candidate
+    right_count[n_cand - 2] = 0
     counts = np.full((4, PADDED_CANDIDATES), -7, np.int32)  # stale scratch
     n_tests = sample_rays(rays, 0, n_rays, left_count, left_box.astype(np.float32), right_count,
                           right_box.astype(np.float32), axis,
@@ -69,7 +69,8 @@ def test_sample_rays_counts_match_algorithm_2():
         expected = [hit_l.sum(), hit_r.sum(), (entry_l < entry_r).sum(), votes]
         got = [out[j] for out in outputs]
         assert got == (expected if real[j] else [0, 0, 0, 0]), j
-    assert outputs[0].sum() > 100 and outputs[2].sum() > 0 and np.abs(outputs[3]).max() > 0
+    assert (counts[:, n_cand:] == 0).all()  # padding lanes: empty boxes that every ray misses
+    assert outputs[0].sum() > 2 * n_cand and outputs[2].sum() > 0 and np.abs(outputs[3]).max() > 0
 
 
 def test_sampled_axis_prefers_an_axis_across_the_rays():
