@@ -18,11 +18,12 @@ inline = numba.njit(cache=True, nogil=True, boundscheck=False, error_model="nump
 # 1.00-1.07x; 8, 12 or 24 bins, or 16 only in nodes of at most 64-2,048 triangles, no better.
 N_BINS = 16
 # Ray sampling: 100 sample rays (the paper's count), only when more than 5,000 rays are active
-# (the paper: 1,000). Below that, a node's 6,200 sample box tests cost more than the better split
-# saves: 1M rays, closest hits, from 5,000 against 1,000, side by side: Sibenik 1024² primary rays
-# 112.2 -> 109.1 ms at one thread (sah 140.9: 1.26x -> 1.29x), 60.9 -> 59.1 at two; primary,
-# diffuse and random rays 0.99-1.04x (Sibenik, Sponza, 1 and 2 threads); 7,000 and 10,000 about
-# the same, 3,000 less, 20,000 and 50,000 less again.
+# (the paper: 1,000). Below that, a node's sample box tests cost more than the better split
+# saves: with 32 bins (6,200 tests a node), 1M rays, closest hits, from 5,000 against 1,000, side
+# by side: Sibenik 1024² primary rays 112.2 -> 109.1 ms at one thread (sah 140.9: 1.26x ->
+# 1.29x), 60.9 -> 59.1 at two; primary, diffuse and random rays 0.99-1.04x (Sibenik, Sponza, 1
+# and 2 threads); 7,000 and 10,000 about the same, 3,000 less, 20,000 and 50,000 less again.
+# With 16 bins (3,000 tests a node), from 2,500, 3,500 or 7,000: 0.96-1.03x, within the noise.
 N_SAMPLE_RAYS = 100
 MIN_RAYS_TO_SAMPLE = 5000
 # ... and for occlusion rays only above 10,000: a ray that stops at its first hit does less work
