@@ -234,12 +234,14 @@ def resolution_table(res: dict) -> str:
         rows.append([f"{r['width']}²", f"{r['n_rays']:,}", r["threads"],
                      None if r.get("sampling_s") is None else 1e3 * r["sampling_s"],
                      None if r.get("sah_s") is None else 1e3 * r["sah_s"],
-                     _fmt_x(r.get("ratio")), _fmt_x(PAPER_RATIOS.get(r["width"])),
+                     _fmt_x(r.get("ratio")), _fmt_x(r.get("paired_ratio")), _fmt_x(PAPER_RATIOS.get(r["width"])),
                      r.get("sampling_box_per_ray"), r.get("sah_box_per_ray"),
                      None if r.get("embree_s") is None else 1e3 * r["embree_s"]])
     return ("## Ray-sampling ablation: primary rays, trace only (paper: Nabata et al. 2013 Fig. 4(a), Sibenik, "
-            "1 thread)\n\nratio = time sah / time sampling (the speed-up from sampling)\n\n"
-            + table(["resolution", "rays", "threads", "sampling ms", "sah ms", "sah/sampling", "paper",
+            "1 thread)\n\nratio = time sah / time sampling (the speed-up from sampling), of the medians; "
+            "paired: the median of each repetition's ratio (steadier when the machine's load drifts)\n\n"
+            + table(["resolution", "rays", "threads", "sampling ms", "sah ms", "sah/sampling",
+                     "sah/sampling, paired", "paper",
                      "sampling box/ray", "sah box/ray", "embree ms (1 thread)"], rows))
 
 

@@ -259,6 +259,11 @@ def run_resolutions(args, view, engines, vertices, faces, diag, errors) -> tuple
                 row[f"{s}_box_per_ray"] = st and st["box_per_ray"]
                 row[f"{s}_tri_per_ray"] = st and st["tri_per_ray"]
             row["ratio"] = (row["sah_s"] / row["sampling_s"]) if row["sah_s"] and row["sampling_s"] else None
+            # Each repetition times both strategies one after the other: the median of their
+            # ratios, run by run, is steadier than the ratio of medians when the machine's load drifts.
+            pair = [info["runs"].get(f"{s}@{t}") for s in ("sah", "sampling")]
+            row["paired_ratio"] = (median([a / b for a, b in zip(pair[0]["trace_s"], pair[1]["trace_s"])])
+                                   if all(pair) and pair[0]["trace_s"] and pair[1]["trace_s"] else None)
             out.append(row)
         runs[str(width)] = info
     return out, runs
