@@ -100,6 +100,19 @@ def test_a_bad_ray_in_one_chunk_of_many_is_named(query, rays, strategy):
     assert "zero" in str(info.value)
 
 
+@pytest.mark.parametrize("position", [0, 31, 32, 383, 384, N_RAYS - 1])
+@pytest.mark.parametrize("query", QUERIES)
+def test_a_single_bad_ray_is_found_anywhere_in_a_chunk(query, position):
+    """The rays are packed and checked in blocks (32 rays): a lone bad ray at a block's first
+    or last place, or in the short block at the end of the chunk, still fails the query."""
+    origins, directions = _rays()
+    origins = origins.copy()
+    origins[position, 0] = np.nan
+    with pytest.raises(ValueError) as info:
+        _run(query, [_mesh()], origins, directions, threads=1)
+    _mentions(str(info.value), position, 1)
+
+
 @pytest.mark.parametrize("query", QUERIES)
 def test_bad_rays_are_named_on_a_scene_without_triangles(query):
     origins, directions = _rays()
