@@ -221,13 +221,14 @@ def drop_finished_rays(rays, ray_ids, lo, hi, fixed_rows):
 
 @jit
 def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_ids, best_tri,
-                    hit_u, hit_v, hit_mask, stats, fixed_rows):
+                    hit_u, hit_v, hit_mask, tri_bins, stats, fixed_rows):
     """Trace the ray records ``rays`` against triangles ``tri_ids`` (both permuted in place).
 
     A node the termination rule makes a leaf but that still holds many triangles (incoherent
     rays the frustum cannot cull for) goes to the object-split driver, with ray sampling,
-    instead of a brute force over all of them. ``fixed_rows``: bitmask of the rows that hold
-    one value in every record (``uniform_rows``)."""
+    instead of a brute force over all of them; ``tri_bins`` (uint8, one per triangle) is that
+    driver's scratch. ``fixed_rows``: bitmask of the rows that hold one value in every record
+    (``uniform_rows``)."""
     n_rays_all = ray_ids.shape[0]
     n_tris_all = tri_ids.shape[0]
     scene_size = 0.0
@@ -259,7 +260,6 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
     offsets = partition_scratch()
     corners, t_block, tri_block, uv_block = leaf_scratch()
     keep = np.empty(n_tris_all, np.bool_)
-    tri_bins = np.empty(n_tris_all, np.uint8)  # trace_object_split's scratch, for every hand-off
     bounds = np.empty((6, n_tris_all), np.float32)  # exact copies of the boxes
     for g in range(6):
         if group_start[g + 1] == group_start[g]:

@@ -350,12 +350,12 @@ class Scene:
             tri_ids = np.arange(n_live, dtype=INDEX)
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
             hit_mask = np.empty(len(ray_ids), np.bool_)
+            tri_bins = np.empty(n_live, np.uint8)
             if ray_space:
                 trace_ray_space(mode, self._tri_verts, self._tri_bounds, self._box, rays,
-                                ray_ids, tri_ids, best_tri, hit_u, hit_v, hit_mask, chunk_stats,
-                                fixed_rows)
+                                ray_ids, tri_ids, best_tri, hit_u, hit_v, hit_mask, tri_bins,
+                                chunk_stats, fixed_rows)
             else:
-                tri_bins = np.empty(n_live, np.uint8)
                 trace_object_split(code, mode, self._tri_verts, self._tri_bounds, self._box,
                                    rays, ray_ids, 0, len(ray_ids), tri_ids, 0, n_live,
                                    best_tri, hit_u, hit_v, hit_mask, tri_bins, chunk_stats,
