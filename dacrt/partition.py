@@ -7,10 +7,7 @@ import numpy as np
 
 from .config import inline
 from .geometry import cull_distance, intersect_box
-from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, swap_rays
-
-# The bits of the origin rows in a fixed_rows mask.
-ORIGIN_ROWS = 7 << ORIGIN
+from .rays import DIRECTION_QUAD, ORIGIN_QUAD, quad_view, swap_rays
 
 _BIN_SHRINK = 1.0 - 1e-6
 # Records per block of partition_by_mask.
@@ -237,68 +234,63 @@ def set_box(box, x0, y0, z0, x1, y1, z1):
 
 
 @inline
-def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_rows=0):
+def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_origin=False):
     """hit_mask[i] = can ray i hit ``box`` within [tmin, best_t], for i in [lo, hi).
 
-    A branch-free loop over the structure-of-arrays records: LLVM vectorises it. The loop runs
-    over views that start at ``lo`` with an index from 0: Numba wraps negative indices, and an
-    index LLVM cannot prove non-negative turns every load into a gather (3.4x slower).
-    When the origin rows are in ``fixed_rows`` (every record starts at one point) the origin is
-    read once: the slab distances to the box planes are then the same for every ray (Sibenik
-    1024² primary rays, one thread: 1.5 % faster)."""
+    A branch-free loop over the records' quads: LLVM vectorises it. The loop runs over views
+    that start at ``lo`` with an index from 0: Numba wraps negative indices, and an index LLVM
+    cannot prove non-negative turns every load into a gather (3.4x slower).
+    With ``fixed_origin`` (every record starts at one point) the origin is read once: the slab
+    distances to the box planes are then the same for every ray (Sibenik 1024² primary rays,
+    one thread: 1.5 % faster)."""
     x0 = box[0]
     y0 = box[1]
     z0 = box[2]
     x1 = box[3]
     y1 = box[4]
     z1 = box[5]
-    ox = rays[ORIGIN, lo:hi]
-    oy = rays[ORIGIN + 1, lo:hi]
-    oz = rays[ORIGIN + 2, lo:hi]
-    dx = rays[DIRECTION, lo:hi]
-    dy = rays[DIRECTION + 1, lo:hi]
-    dz = rays[DIRECTION + 2, lo:hi]
-    tmin = rays[TMIN, lo:hi]
-    best_t = rays[BEST_T, lo:hi]
+    q0 = rays[ORIGIN_QUAD, 4 * lo:4 * hi]
+    q1 = rays[DIRECTION_QUAD, 4 * lo:4 * hi]
     mask = hit_mask[lo:hi]
-    if fixed_rows & ORIGIN_ROWS == ORIGIN_ROWS and hi > lo:
-        ox0 = rays[ORIGIN, lo]
-        oy0 = rays[ORIGIN + 1, lo]
-        oz0 = rays[ORIGIN + 2, lo]
+    if fixed_origin and hi > lo:
+        ox0 = q0[0]
+        oy0 = q0[1]
+        oz0 = q0[2]
+        t0 = q0[3]
         for i in range(hi - lo):
-            hit, _ = intersect_box(ox0, oy0, oz0, _ONE32 / dx[i], _ONE32 / dy[i],
-                                   _ONE32 / dz[i], tmin[i],
-                                   cull_distance(best_t[i]), x0, y0, z0, x1, y1, z1)
+            hit, _ = intersect_box(ox0, oy0, oz0, _ONE32 / q1[4 * i], _ONE32 / q1[4 * i + 1],
+                                   _ONE32 / q1[4 * i + 2], t0, cull_distance(q1[4 * i + 3]),
+                                   x0, y0, z0, x1, y1, z1)
             mask[i] = hit
         return
     for i in range(hi - lo):
         # 1/d is +-inf for a zero component, which the slab test expects.
-        hit, _ = intersect_box(ox[i], oy[i], oz[i], _ONE32 / dx[i], _ONE32 / dy[i],
-                               _ONE32 / dz[i], tmin[i],
-                               cull_distance(best_t[i]), x0, y0, z0, x1, y1, z1)
+        hit, _ = intersect_box(q0[4 * i], q0[4 * i + 1], q0[4 * i + 2], _ONE32 / q1[4 * i],
+                               _ONE32 / q1[4 * i + 1], _ONE32 / q1[4 * i + 2], q0[4 * i + 3],
+                               cull_distance(q1[4 * i + 3]), x0, y0, z0, x1, y1, z1)
         mask[i] = hit
 
 
 @inline
-def filter_rays(rays, ray_ids, lo, hi, box, hit_mask, offsets, fixed_rows):
+def filter_rays(rays, ray_ids, lo, hi, box, hit_mask, offsets, fixed_origin):
     """Gather the rays that can hit ``box`` (within [tmin, best_t]) at one end of the range,
     the end that needs fewer swaps; returns their range (lo, lo + k) or (hi - k, hi).
     ``hit_mask`` is scratch, one entry per ray; ``offsets`` is ``partition_scratch()``;
-    ``fixed_rows``: rows that hold one value in every record (see ``swap_rays``).
+    ``fixed_origin``: every record has the same origin quad (see ``swap_rays``).
 
     Going to the front, the hits outside the first k records move; going to the back, those
     in the first n - k. Counting both (two vectorised passes over the mask) and taking the
     smaller: Sibenik 1024² primary rays, one thread, sah 173.6 -> 163.0 ms, sampling 136.8 ->
     132.6. The count is a pass of its own: kept in the box-test loop, it stopped that loop
     from vectorising (sah 182 ms)."""
-    mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_rows)
+    mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_origin)
     n_hits = count_true(hit_mask, lo, hi)
     swaps_to_front = n_hits - count_true(hit_mask, lo, lo + n_hits)
     swaps_to_back = count_true(hit_mask, lo, hi - n_hits)
     if swaps_to_back < swaps_to_front:
-        partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, True, fixed_rows)
+        partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, True, fixed_origin)
         return hi - n_hits, hi
-    partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, False, fixed_rows)
+    partition_by_mask(rays, ray_ids, lo, hi, hit_mask, offsets, False, fixed_origin)
     return lo, lo + n_hits
 
 
@@ -319,7 +311,7 @@ def partition_scratch():
 
 
 @inline
-def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, fixed_rows=0):
+def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, fixed_origin=False):
     """Move the ray records whose ``mask`` entry is true to the front of [lo, hi) (to the back
     with ``to_back``: the others to the front); returns the index of the first record of the
     second group. Only misplaced records are swapped, each once. ``to_back`` is a constant at
@@ -331,7 +323,7 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, fixed
     other record when rays split unpredictably; this made the partition of random rays 1.7x
     faster. What is left in the middle (at most two blocks) goes the plain way. ``mask`` is
     left stale for the records swapped before that."""
-    records = rays[:, lo:hi]
+    records = quad_view(rays)[:, lo:hi]
     ids = ray_ids[lo:hi]
     keep = mask[lo:hi]
     block = np.int64(PARTITION_BLOCK)
@@ -359,7 +351,7 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, fixed
         num = min(num_l, num_r)
         for k in range(num):
             swap_rays(records, ids, np.uint64(left + off_l[start_l + k]),
-                      np.uint64(right - 1 - off_r[start_r + k]), fixed_rows)
+                      np.uint64(right - 1 - off_r[start_r + k]), fixed_origin)
         num_l -= num
         num_r -= num
         start_l += num
@@ -376,11 +368,11 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, fixed
     if num_r > 0:
         for k in range(start_r):
             keep[right - 1 - off_r[k]] = to_back
-    return lo + partition_plain(records, ids, keep, left, right, to_back, fixed_rows)
+    return lo + partition_plain(records, ids, keep, left, right, to_back, fixed_origin)
 
 
 @inline
-def partition_plain(records, ids, keep, left, right, to_back, fixed_rows):
+def partition_plain(records, ids, keep, left, right, to_back, fixed_origin):
     """partition_by_mask of records ``left:right`` of views, one branch per record.
 
     Unsigned indices: Numba does not wrap those, which saves two instructions on every access
@@ -394,6 +386,6 @@ def partition_plain(records, ids, keep, left, right, to_back, fixed_rows):
         else:
             j -= one
             if keep[j] != to_back:
-                swap_rays(records, ids, i, j, fixed_rows)
+                swap_rays(records, ids, i, j, fixed_origin)
                 i += one
     return np.int64(i)

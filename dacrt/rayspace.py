@@ -28,10 +28,10 @@ from .contracts import (
     STAT_NODES,
     STAT_TRIANGLE_TESTS,
 )
-from .geometry import cull_distance
+from .geometry import cull_distance, pick
 from .leaf import intersect_leaf, leaf_scratch
 from .partition import partition_by_mask, partition_scratch, triangle_bounds
-from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, swap_rays
+from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN_QUAD, field, quad_view, swap_rays
 from .traversal import SAMPLING, trace_object_split
 
 # Frustum rows: origin min (3), origin max (3), u min/max, v min/max, distance min/max.
@@ -59,26 +59,25 @@ def dominant_class(dx, dy, dz):
 @jit
 def bound_rays(rays, lo, hi, axis, frustum):
     """Frustum of the ray records ``lo:hi`` of one group into ``frustum`` (12,)."""
-    ox = rays[ORIGIN, lo:hi]
-    oy = rays[ORIGIN + 1, lo:hi]
-    oz = rays[ORIGIN + 2, lo:hi]
-    d_axis = rays[DIRECTION + axis, lo:hi]
-    d_u = rays[DIRECTION + (axis + 1) % 3, lo:hi]
-    d_v = rays[DIRECTION + (axis + 2) % 3, lo:hi]
-    tmin = rays[TMIN, lo:hi]
-    best_t = rays[BEST_T, lo:hi]
+    q0 = rays[ORIGIN_QUAD, 4 * lo:4 * hi]
+    q1 = rays[DIRECTION_QUAD, 4 * lo:4 * hi]
+    u_axis = (axis + 1) % 3
+    v_axis = (axis + 2) % 3
     x_lo = y_lo = z_lo = u_lo = v_lo = s_lo = np.inf
     x_hi = y_hi = z_hi = u_hi = v_hi = s_hi = -np.inf
     for r in range(hi - lo):
-        x = np.float64(ox[r])
-        y = np.float64(oy[r])
-        z = np.float64(oz[r])
-        da = abs(np.float64(d_axis[r]))
-        u = np.float64(d_u[r]) / da
-        v = np.float64(d_v[r]) / da
+        x = np.float64(q0[4 * r])
+        y = np.float64(q0[4 * r + 1])
+        z = np.float64(q0[4 * r + 2])
+        dx = np.float64(q1[4 * r])
+        dy = np.float64(q1[4 * r + 1])
+        dz = np.float64(q1[4 * r + 2])
+        da = abs(pick(axis, dx, dy, dz))
+        u = pick(u_axis, dx, dy, dz) / da
+        v = pick(v_axis, dx, dy, dz) / da
         # Distance along the dominant axis: t * |d_axis|.
-        near = np.float64(tmin[r]) * da
-        far = np.float64(cull_distance(best_t[r])) * da
+        near = np.float64(q0[4 * r + 3]) * da
+        far = np.float64(cull_distance(q1[4 * r + 3])) * da
         x_lo = x if x < x_lo else x_lo
         x_hi = x if x > x_hi else x_hi
         y_lo = y if y < y_lo else y_lo
@@ -187,48 +186,82 @@ def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, toleran
 
 
 @jit
-def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, fixed_rows):
+def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, fixed_origin):
     """Move rays whose coordinate ``dim`` (0-2: origin x, y, z; 3, 4: slopes u, v of the
     direction against the dominant ``axis``) is below ``split`` to the front; returns the index
     of the first other ray. ``below`` is scratch, one entry per ray: the coordinates are
-    compared first, in one vectorised loop (over views from ``lo``, see mark_rays_hitting_box)."""
+    compared first, in one vectorised loop (over views from ``lo``, see mark_rays_hitting_box)
+    for each lane of a quad, so that the lanes are constants (a lane chosen inside the loop
+    made it 2-4x slower)."""
     mask = below[lo:hi]
-    if dim < 3:
-        o = rays[ORIGIN + dim, lo:hi]
-        for i in range(hi - lo):
-            mask[i] = np.float64(o[i]) < split
+    n = hi - lo
+    q0 = rays[ORIGIN_QUAD, 4 * lo:4 * hi]
+    q1 = rays[DIRECTION_QUAD, 4 * lo:4 * hi]
+    if dim == 0:
+        lane_below(q0, n, 0, split, mask)
+    elif dim == 1:
+        lane_below(q0, n, 1, split, mask)
+    elif dim == 2:
+        lane_below(q0, n, 2, split, mask)
     else:
-        d_axis = rays[DIRECTION + axis, lo:hi]
-        d_slope = rays[DIRECTION + (axis + 1 if dim == 3 else axis + 2) % 3, lo:hi]
-        for i in range(hi - lo):
-            mask[i] = np.float64(d_slope[i]) / abs(np.float64(d_axis[i])) < split
-    return partition_by_mask(rays, ray_ids, lo, hi, below, offsets, False, fixed_rows)
+        slope = (axis + 1 if dim == 3 else axis + 2) % 3
+        if axis == 0:
+            if slope == 1:
+                slope_below(q1, n, 1, 0, split, mask)
+            else:
+                slope_below(q1, n, 2, 0, split, mask)
+        elif axis == 1:
+            if slope == 0:
+                slope_below(q1, n, 0, 1, split, mask)
+            else:
+                slope_below(q1, n, 2, 1, split, mask)
+        elif slope == 0:
+            slope_below(q1, n, 0, 2, split, mask)
+        else:
+            slope_below(q1, n, 1, 2, split, mask)
+    return partition_by_mask(rays, ray_ids, lo, hi, below, offsets, False, fixed_origin)
+
+
+@inline
+def lane_below(quad, n, lane, split, mask):
+    """mask[i] = lane ``lane`` of the quad of record i is below ``split``."""
+    for i in range(n):
+        mask[i] = np.float64(quad[4 * i + lane]) < split
+
+
+@inline
+def slope_below(quad, n, lane, over, split, mask):
+    """mask[i] = the slope of lane ``lane`` over lane ``over`` (its absolute value) of the quad
+    of record i is below ``split``."""
+    for i in range(n):
+        mask[i] = np.float64(quad[4 * i + lane]) / abs(np.float64(quad[4 * i + over])) < split
 
 
 @jit
-def drop_finished_rays(rays, ray_ids, lo, hi, fixed_rows):
+def drop_finished_rays(rays, ray_ids, lo, hi, fixed_origin):
     """Occlusion: move rays that already hit something out of the range; returns the new end."""
+    records = quad_view(rays)
     i = lo
     j = hi
     while i < j:
-        if rays[BEST_T, i] != -np.inf:
+        if field(rays, BEST_T, i) != -np.inf:
             i += 1
         else:
             j -= 1
-            swap_rays(rays, ray_ids, i, j, fixed_rows)
+            swap_rays(records, ray_ids, i, j, fixed_origin)
     return i
 
 
 @jit
 def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_ids, best_tri,
-                    hit_u, hit_v, hit_mask, tri_bins, stats, fixed_rows):
+                    hit_u, hit_v, hit_mask, tri_bins, stats, fixed_origin):
     """Trace the ray records ``rays`` against triangles ``tri_ids`` (both permuted in place).
 
     A node the termination rule makes a leaf but that still holds many triangles (incoherent
     rays the frustum cannot cull for) goes to the object-split driver, with ray sampling,
     instead of a brute force over all of them; ``tri_bins`` (uint8, one per triangle) is that
-    driver's scratch. ``fixed_rows``: bitmask of the rows that hold one value in every record
-    (``uniform_rows``)."""
+    driver's scratch. ``fixed_origin``: every record has the same origin quad
+    (``uniform_origin``)."""
     n_rays_all = ray_ids.shape[0]
     n_tris_all = tri_ids.shape[0]
     scene_size = 0.0
@@ -237,6 +270,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                          abs(np.float64(scene_box[a])), abs(np.float64(scene_box[a + 3])))
     tolerance = 1e-5 * scene_size
     # Group rays by dominant axis and sign (a counting pass per group, in place).
+    records = quad_view(rays)
     group_start = np.zeros(7, np.int64)
     lo = 0
     for g in range(6):
@@ -244,12 +278,12 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
         j = n_rays_all
         i = lo
         while i < j:
-            if dominant_class(rays[DIRECTION, i], rays[DIRECTION + 1, i],
-                              rays[DIRECTION + 2, i]) == g:
+            if dominant_class(field(rays, DIRECTION, i), field(rays, DIRECTION + 1, i),
+                              field(rays, DIRECTION + 2, i)) == g:
                 i += 1
             else:
                 j -= 1
-                swap_rays(rays, ray_ids, i, j, fixed_rows)
+                swap_rays(records, ray_ids, i, j, fixed_origin)
         lo = i
     group_start[6] = n_rays_all
 
@@ -258,7 +292,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
     frustum = np.empty(_FRUSTUM_SIZE)
     node_box = np.empty(6, np.float32)
     offsets = partition_scratch()
-    corners, t_block, tri_block, uv_block = leaf_scratch()
+    corners, t_block, tri_block, block_rows = leaf_scratch()
     keep = np.empty(n_tris_all, np.bool_)
     bounds = np.empty((6, n_tris_all), np.float32)  # exact copies of the boxes
     for g in range(6):
@@ -283,7 +317,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
             if depth > stats[STAT_MAX_DEPTH]:
                 stats[STAT_MAX_DEPTH] = depth
             if mode == MODE_OCCLUDED:
-                ray_hi = drop_finished_rays(rays, ray_ids, ray_lo, ray_hi, fixed_rows)
+                ray_hi = drop_finished_rays(rays, ray_ids, ray_lo, ray_hi, fixed_origin)
             n_rays = ray_hi - ray_lo
             if n_rays == 0 or tri_hi == tri_lo:
                 continue
@@ -328,7 +362,7 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                         k = _U if dim == 3 else _V
                         split = 0.5 * (frustum[k] + frustum[k + 1])
                     ray_mid = partition_rays(rays, ray_ids, ray_lo, ray_hi, axis, dim, split,
-                                             hit_mask, offsets, fixed_rows)
+                                             hit_mask, offsets, fixed_origin)
                     stop = not ray_lo < ray_mid < ray_hi
             if stop:
                 # Finish the node here: brute force, or object splits for many triangles.
@@ -337,12 +371,12 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                     trace_object_split(SAMPLING, mode, tri_verts, tri_bounds, node_box, rays,
                                        ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
                                        best_tri, hit_u, hit_v, hit_mask, tri_bins, stats,
-                                       fixed_rows)
+                                       fixed_origin)
                 else:
                     stats[STAT_LEAVES] += 1
                     stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
                         mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                        best_tri, hit_u, hit_v, corners, t_block, tri_block, uv_block)
+                        best_tri, hit_u, hit_v, corners, t_block, tri_block, block_rows)
                 continue
             for half in range(2):
                 stack[sp, 0] = ray_mid if half == 0 else ray_lo

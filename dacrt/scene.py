@@ -23,7 +23,7 @@ from .contracts import (
     Hits,
 )
 from .leaf import NO_HIT
-from .rays import new_records, pack_rays, uniform_rows, unpack_best_t
+from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
 from .results import finish_closest, unit_normals
 from .triangles import gather_triangles, triangle_boxes
 from .rayspace import trace_ray_space
@@ -346,7 +346,7 @@ class Scene:
             rays = new_records(len(ray_ids))
             if not pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
                 return None  # a bad ray: no kernel traces this chunk
-            fixed_rows = uniform_rows(rays, len(ray_ids))
+            fixed_origin = uniform_origin(rays, len(ray_ids))
             tri_ids = np.arange(n_live, dtype=INDEX)
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
             hit_mask = np.empty(len(ray_ids), np.bool_)
@@ -354,12 +354,12 @@ class Scene:
             if ray_space:
                 trace_ray_space(mode, self._tri_verts, self._tri_bounds, self._box, rays,
                                 ray_ids, tri_ids, best_tri, hit_u, hit_v, hit_mask, tri_bins,
-                                chunk_stats, fixed_rows)
+                                chunk_stats, fixed_origin)
             else:
                 trace_object_split(code, mode, self._tri_verts, self._tri_bounds, self._box,
                                    rays, ray_ids, 0, len(ray_ids), tri_ids, 0, n_live,
                                    best_tri, hit_u, hit_v, hit_mask, tri_bins, chunk_stats,
-                                   fixed_rows)
+                                   fixed_origin)
             unpack_best_t(rays, ray_ids, best_t)
             return chunk_stats
 

@@ -36,7 +36,7 @@ from .contracts import (
 )
 from .geometry import cull_distance, intersect_box
 from .leaf import intersect_leaf, leaf_scratch
-from .rays import BEST_T, DIRECTION, ORIGIN, TMIN
+from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, field
 from .partition import (
     bin_scale,
     bin_triangles,
@@ -64,15 +64,14 @@ PADDED_CANDIDATES = (N_BINS - 1 + 15) // 16 * 16
 @jit
 def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ray_ids, ray_lo,
                        ray_hi, tri_ids, tri_lo, tri_hi, best_tri, hit_u, hit_v, hit_mask, tri_bins,
-                       stats, fixed_rows):
+                       stats, fixed_origin):
     """Trace ray records ``ray_lo:ray_hi`` against triangles ``tri_ids[tri_lo:tri_hi]``, whose
     box is ``root_box`` (both ranges are permuted in place).
 
     best_t stays in the records; best_tri, hit_u, hit_v are indexed by ray id (``ray_ids``);
     ``hit_mask`` is scratch with one entry per record, ``tri_bins`` (uint8) one per position of
     ``tri_ids`` (each triangle's bin, from binning to partition); counters go to ``stats``;
-    ``fixed_rows``: bitmask of the rows that hold one value in every record
-    (``uniform_rows``)."""
+    ``fixed_origin``: every record has the same origin quad (``uniform_origin``)."""
     n_stack = MAX_DEPTH + 2
     stack_tri = np.empty((n_stack, 2), np.int64)
     stack_ray = np.empty((n_stack, 2), np.int64)
@@ -96,7 +95,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     c_box = np.empty(6, np.float32)
     box_a = np.empty(6, np.float32)
     box_b = np.empty(6, np.float32)
-    corners, t_block, tri_block, uv_block = leaf_scratch()
+    corners, t_block, tri_block, block_rows = leaf_scratch()
     offsets = partition_scratch()
     min_rays_to_sample = (MIN_OCCLUSION_RAYS_TO_SAMPLE if mode == MODE_OCCLUDED
                           else MIN_RAYS_TO_SAMPLE)
@@ -123,7 +122,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         if stack_filter[sp]:
             stats[STAT_BOX_TESTS] += ray_hi - ray_lo
             ray_lo, ray_hi = filter_rays(rays, ray_ids, ray_lo, ray_hi, stack_box[sp], hit_mask,
-                                         offsets, fixed_rows)
+                                         offsets, fixed_origin)
         else:
             stats[STAT_SKIPPED] += 1
         n_rays = ray_hi - ray_lo
@@ -134,7 +133,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
             stats[STAT_LEAVES] += 1
             stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
                 mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                best_tri, hit_u, hit_v, corners, t_block, tri_block, uv_block)
+                best_tri, hit_u, hit_v, corners, t_block, tri_block, block_rows)
             continue
 
         # Choose the split; it leaves left triangles in [tri_lo, tri_mid), boxes in box_a/box_b.
@@ -179,7 +178,7 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
 
         # Traversal order and ray-filter skipping. Afra's order: the first active ray's
         # direction along the split axis.
-        first_ray_left = rays[DIRECTION + axis, ray_lo] >= 0
+        first_ray_left = field(rays, DIRECTION + axis, ray_lo) >= 0
         if sampled:
             n_samples = min(N_SAMPLE_RAYS, n_rays)
             if mode == MODE_OCCLUDED:
@@ -255,14 +254,14 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
                                             sample_counts[2], sample_counts[3])
     for s in range(n_samples):
         r = strided_sample(ray_lo, n_rays, s, n_samples)
-        ox = rays[ORIGIN, r]
-        oy = rays[ORIGIN + 1, r]
-        oz = rays[ORIGIN + 2, r]
-        ix = _ONE32 / rays[DIRECTION, r]
-        iy = _ONE32 / rays[DIRECTION + 1, r]
-        iz = _ONE32 / rays[DIRECTION + 2, r]
-        t_lo = rays[TMIN, r]
-        t_hi = cull_distance(rays[BEST_T, r])
+        ox = field(rays, ORIGIN, r)
+        oy = field(rays, ORIGIN + 1, r)
+        oz = field(rays, ORIGIN + 2, r)
+        ix = _ONE32 / field(rays, DIRECTION, r)
+        iy = _ONE32 / field(rays, DIRECTION + 1, r)
+        iz = _ONE32 / field(rays, DIRECTION + 2, r)
+        t_lo = field(rays, TMIN, r)
+        t_hi = cull_distance(field(rays, BEST_T, r))
         # 1/d has the sign of d, also for a zero component (+-inf).
         going_up = (ix if axis == 0 else (iy if axis == 1 else iz)) >= 0
         step = np.int32(1) if going_up else np.int32(-1)
@@ -301,9 +300,9 @@ def sampled_axis(rays, ray_lo, ray_hi, c_box):
     sin_z = 0.0
     for s in range(n_samples):
         r = strided_sample(ray_lo, n_rays, s, n_samples)
-        dx = np.float64(rays[DIRECTION, r])
-        dy = np.float64(rays[DIRECTION + 1, r])
-        dz = np.float64(rays[DIRECTION + 2, r])
+        dx = np.float64(field(rays, DIRECTION, r))
+        dy = np.float64(field(rays, DIRECTION + 1, r))
+        dz = np.float64(field(rays, DIRECTION + 2, r))
         length2 = dx * dx + dy * dy + dz * dz
         sin_x += np.sqrt(max(0.0, 1.0 - dx * dx / length2))
         sin_y += np.sqrt(max(0.0, 1.0 - dy * dy / length2))

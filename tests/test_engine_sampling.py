@@ -8,17 +8,20 @@ from __future__ import annotations
 import numpy as np
 
 from dacrt.config import N_BINS, N_SAMPLE_RAYS
-from dacrt.rays import RECORD_SIZE
+from dacrt.rays import new_records, pack_rays
 from dacrt.traversal import PADDED_CANDIDATES, sample_rays, sampled_axis
 
 
 def _records(origins, directions):
-    """Ray records as the kernels hold them: (8, n) float32, tmin 0, best_t +inf."""
-    rays = np.zeros((RECORD_SIZE, len(origins)), np.float32)
-    rays[0:3] = origins.T
-    rays[3:6] = directions.T
-    rays[7] = np.inf
-    return rays
+    """Ray records as the kernels hold them (``dacrt.rays``), tmin 0, best_t +inf; and the
+    float32 origins and directions they hold."""
+    n = len(origins)
+    origins = np.asarray(origins, np.float32)
+    directions = np.asarray(directions, np.float32)
+    rays = new_records(n)
+    assert pack_rays(origins, directions, np.zeros(n, np.float32), np.full(n, np.inf, np.float32),
+                     np.arange(n, dtype=np.int32), rays)
+    return rays, origins, directions
 
 
 def _slab_hits(origins, directions, lo, hi):
@@ -40,7 +43,7 @@ def test_sample_rays_counts_match_algorithm_2():
     n_rays, axis = 5_000, 1
     origins = rng.uniform(-4, 4, (n_rays, 3))
     directions = rng.normal(size=(n_rays, 3))
-    rays = _records(origins, directions)
+    rays, origins32, directions32 = _records(origins, directions)
     n_cand = N_BINS - 1
     lows = rng.uniform(-2, 0, (n_cand, 2, 3))
     left_box = np.concatenate([lows[:, 0], lows[:, 0] + rng.uniform(1, 3, (n_cand, 3))], 1)
@@ -56,8 +59,8 @@ def test_sample_rays_counts_match_algorithm_2():
     outputs = counts[:, :n_cand]
 
     picked = (np.arange(N_SAMPLE_RAYS) * n_rays) // N_SAMPLE_RAYS
-    o = rays[0:3, picked].T.astype(np.float64)
-    d = rays[3:6, picked].T.astype(np.float64)
+    o = origins32[picked].astype(np.float64)
+    d = directions32[picked].astype(np.float64)
     real = (left_count > 0) & (right_count > 0)
     assert n_tests == 2 * N_SAMPLE_RAYS * real.sum()
     for j in range(n_cand):
@@ -85,7 +88,7 @@ def test_sampled_axis_prefers_an_axis_across_the_rays():
     everywhere = rng.normal(size=(n, 3))
     origins = np.zeros((n, 3))
     for directions, expected in ((along_x, 1), (along_z, 0), (everywhere, 0)):
-        axis, extent = sampled_axis(_records(origins, directions), 0, n, c_box)
+        axis, extent = sampled_axis(_records(origins, directions)[0], 0, n, c_box)
         assert (axis, extent) == (expected, c_box[expected + 3] - c_box[expected])
     point = np.array([1, 2, 3, 1, 2, 3], np.float32)  # all centroids in one place
-    assert sampled_axis(_records(origins, along_x), 0, n, point)[1] == 0
+    assert sampled_axis(_records(origins, along_x)[0], 0, n, point)[1] == 0

@@ -167,8 +167,8 @@ def test_batch_split_does_not_change_answers(strategy, default_answers):
     check.assert_bitwise_equal(reversed_back, closest, f"{strategy}, reversed order")
 
 
-def test_uniform_rows_finds_the_rows_every_record_shares():
-    from dacrt.rays import BEST_T, DIRECTION, ORIGIN, TMIN, new_records, pack_rays, uniform_rows
+def test_uniform_origin_is_true_only_when_every_record_shares_origin_and_tmin():
+    from dacrt.rays import new_records, pack_rays, uniform_origin
 
     n = 1000  # several of the check's blocks
     origins = np.tile(np.float32([0.0, 1.5, -2.0]), (n, 1))
@@ -177,30 +177,31 @@ def test_uniform_rows_finds_the_rows_every_record_shares():
     tmax = np.full(n, np.inf, np.float32)
     ids = np.arange(n, dtype=np.int32)
 
-    def fixed(o, d):
+    def fixed(o, d, t0=tmin):
         rays = new_records(n)
-        pack_rays(o, d, tmin, tmax, ids, rays)
-        return {k for k in range(8) if uniform_rows(rays, n) >> k & 1}
+        assert pack_rays(o, d, t0, tmax, ids, rays)
+        return uniform_origin(rays, n)
 
-    every_row_but_best_t = set(range(8)) - {BEST_T}
-    assert fixed(origins, directions) == every_row_but_best_t
-    moved = origins.copy()
-    moved[n - 1, 2] = np.nextafter(np.float32(-2.0), np.float32(0.0))
-    assert fixed(moved, directions) == every_row_but_best_t - {ORIGIN + 2}
-    negative_zero = origins.copy()
-    negative_zero[n // 2, 0] = -0.0  # equal to 0.0, but not the same bits
-    assert fixed(negative_zero, directions) == every_row_but_best_t - {ORIGIN}
+    assert fixed(origins, directions)
     turned = directions.copy()
     turned[n // 3] = [0.0, 0.6, 0.8]
-    assert fixed(origins, turned) == every_row_but_best_t - {DIRECTION + 1, DIRECTION + 2}
-    assert TMIN in fixed(origins, directions)
+    assert fixed(origins, turned)  # directions may differ
+    moved = origins.copy()
+    moved[n - 1, 2] = np.nextafter(np.float32(-2.0), np.float32(0.0))
+    assert not fixed(moved, directions)
+    negative_zero = origins.copy()
+    negative_zero[n // 2, 0] = -0.0  # equal to 0.0, but not the same bits
+    assert not fixed(negative_zero, directions)
+    later_start = tmin.copy()
+    later_start[7] = 1e-3
+    assert not fixed(origins, directions, later_start)
 
 
 @pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
 @pytest.mark.parametrize("case", ["camera_in_soup", "parallel_in_soup"])
 def test_shared_rows_answer_as_when_rows_differ(case, strategy, default_answers):
-    """Rows every ray shares (a camera's origin, parallel rays' direction, tmin) are not moved
-    by partitions; one more ray that differs in all of them makes them move. Every other ray's
+    """A camera's origin and tmin, which every record shares, are not moved by partitions; one
+    more ray that differs in origin, direction and tmin makes them move. Every other ray's
     answers must be the same, bit for bit."""
     scene, (o, d, tmin, tmax), closest, occluded = default_answers(case)
     assert tmin is None and tmax is None
