@@ -18,6 +18,11 @@ LANES = 8
 # Reading the records' quads in that loop instead (shuffles for every triangle) made the leaves
 # 1.25-1.41x slower (Sibenik, 1M primary, ao and shadow rays).
 RAY_ROWS = 7
+# A leaf of fewer than 8 triangles goes by rays from this many rays (LEAF_BLOCK before the
+# block copied its rays' fields to rows): 1M rays, one thread, side by side, answers identical:
+# closest hits 1.02-1.05x (Sibenik, Sponza: primary, diffuse, random), occlusion 0.99-1.00x;
+# from 8, 24 or 32 rays about the same.
+BY_RAYS_MIN_RAYS = 16
 _NAN32 = np.float32(np.nan)
 _NEG_INF32 = np.float32(-np.inf)
 
@@ -127,8 +132,8 @@ def intersect_leaf(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_
     stops at its first hit and its best_t becomes -inf. Returns the ray-triangle tests made.
 
     The tests run as vectorised loops, over triangles (a few rays) or over rays (a few
-    triangles, more rays than LEAF_BLOCK); the order of tests changes no answer."""
-    if tri_hi - tri_lo < 8 and ray_hi - ray_lo >= LEAF_BLOCK:
+    triangles, at least BY_RAYS_MIN_RAYS rays); the order of tests changes no answer."""
+    if tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS:
         return intersect_leaf_by_rays(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids,
                                       tri_lo, tri_hi, best_tri, hit_u, hit_v, t_block, tri_block,
                                       block_rows)
