@@ -41,6 +41,8 @@ _U = 6
 _V = 8
 _S = 10
 _FRUSTUM_SIZE = 12
+# Rays per block of slope_below.
+SLOPE_BLOCK = 256
 
 
 @inline
@@ -232,9 +234,20 @@ def lane_below(quad, n, lane, split, mask):
 @inline
 def slope_below(quad, n, lane, over, split, mask):
     """mask[i] = the slope of lane ``lane`` over lane ``over`` (its absolute value) of the quad
-    of record i is below ``split``."""
-    for i in range(n):
-        mask[i] = np.float64(quad[4 * i + lane]) / abs(np.float64(quad[4 * i + over])) < split
+    of record i is below ``split``, compared as lane < split * |over| in float32 (which side a
+    ray near the split goes to does not matter: each side bounds its own rays). In blocks, each
+    loop reading one lane of the quads: a loop reading two lanes did not vectorise (1.09
+    against 0.56 ns a ray; rayspace's primary rays 1.02-1.05x, answers identical)."""
+    split32 = np.float32(split)
+    scaled = np.empty(SLOPE_BLOCK, np.float32)
+    for b in range(0, n, SLOPE_BLOCK):
+        m = min(SLOPE_BLOCK, n - b)
+        block = quad[4 * b:4 * (b + m)]
+        out = mask[b:b + m]
+        for i in range(m):
+            scaled[i] = split32 * abs(block[4 * i + over])
+        for i in range(m):
+            out[i] = block[4 * i + lane] < scaled[i]
 
 
 @jit
