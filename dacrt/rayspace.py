@@ -41,8 +41,8 @@ _U = 6
 _V = 8
 _S = 10
 _FRUSTUM_SIZE = 12
-# Rays per block of slope_below.
-SLOPE_BLOCK = 256
+# Rays per block of partition_rays' comparisons.
+COMPARE_BLOCK = 256
 
 
 @inline
@@ -191,63 +191,49 @@ def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, toleran
 def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, fixed_origin):
     """Move rays whose coordinate ``dim`` (0-2: origin x, y, z; 3, 4: slopes u, v of the
     direction against the dominant ``axis``) is below ``split`` to the front; returns the index
-    of the first other ray. ``below`` is scratch, one entry per ray: the coordinates are
-    compared first, in one vectorised loop (over views from ``lo``, see mark_rays_hitting_box)
-    for each lane of a quad, so that the lanes are constants (a lane chosen inside the loop
-    made it 2-4x slower)."""
+    of the first other ray. ``below`` is scratch, one entry per ray.
+
+    The coordinates are compared first, COMPARE_BLOCK rays at a time: their lanes are copied out
+    of the quads (``lane_into``), then compared in a vectorised loop. A slope is compared as
+    lane < split * |axis lane| in float32: which side a ray near the split goes to does not
+    matter, since each side's frustum is bounded from its own rays."""
+    quad = rays[ORIGIN_QUAD if dim < 3 else DIRECTION_QUAD, 4 * lo:4 * hi]
     mask = below[lo:hi]
     n = hi - lo
-    q0 = rays[ORIGIN_QUAD, 4 * lo:4 * hi]
-    q1 = rays[DIRECTION_QUAD, 4 * lo:4 * hi]
-    if dim == 0:
-        lane_below(q0, n, 0, split, mask)
-    elif dim == 1:
-        lane_below(q0, n, 1, split, mask)
-    elif dim == 2:
-        lane_below(q0, n, 2, split, mask)
-    else:
-        slope = (axis + 1 if dim == 3 else axis + 2) % 3
-        if axis == 0:
-            if slope == 1:
-                slope_below(q1, n, 1, 0, split, mask)
-            else:
-                slope_below(q1, n, 2, 0, split, mask)
-        elif axis == 1:
-            if slope == 0:
-                slope_below(q1, n, 0, 1, split, mask)
-            else:
-                slope_below(q1, n, 2, 1, split, mask)
-        elif slope == 0:
-            slope_below(q1, n, 0, 2, split, mask)
+    values = np.empty(COMPARE_BLOCK, np.float32)
+    scale = np.empty(COMPARE_BLOCK, np.float32)
+    split32 = np.float32(split)
+    slope = (axis + 1 if dim == 3 else axis + 2) % 3
+    for b in range(0, n, COMPARE_BLOCK):
+        m = min(COMPARE_BLOCK, n - b)
+        block = quad[4 * b:4 * (b + m)]
+        out = mask[b:b + m]
+        if dim < 3:
+            lane_into(block, m, dim, values)
+            for i in range(m):
+                out[i] = np.float64(values[i]) < split
         else:
-            slope_below(q1, n, 1, 2, split, mask)
+            lane_into(block, m, slope, values)
+            lane_into(block, m, axis, scale)
+            for i in range(m):
+                out[i] = values[i] < split32 * abs(scale[i])
     return partition_by_mask(rays, ray_ids, lo, hi, below, offsets, False, fixed_origin)
 
 
 @inline
-def lane_below(quad, n, lane, split, mask):
-    """mask[i] = lane ``lane`` of the quad of record i is below ``split``."""
-    for i in range(n):
-        mask[i] = np.float64(quad[4 * i + lane]) < split
-
-
-@inline
-def slope_below(quad, n, lane, over, split, mask):
-    """mask[i] = the slope of lane ``lane`` over lane ``over`` (its absolute value) of the quad
-    of record i is below ``split``, compared as lane < split * |over| in float32 (which side a
-    ray near the split goes to does not matter: each side bounds its own rays). In blocks, each
-    loop reading one lane of the quads: a loop reading two lanes did not vectorise (1.09
-    against 0.56 ns a ray; rayspace's primary rays 1.02-1.05x, answers identical)."""
-    split32 = np.float32(split)
-    scaled = np.empty(SLOPE_BLOCK, np.float32)
-    for b in range(0, n, SLOPE_BLOCK):
-        m = min(SLOPE_BLOCK, n - b)
-        block = quad[4 * b:4 * (b + m)]
-        out = mask[b:b + m]
+def lane_into(block, m, lane, out):
+    """out[:m] = lane ``lane`` (0-2) of the first m quads of ``block``. One loop per lane, so
+    that the lane is a constant: a lane chosen inside the loop, or two lanes read in one loop,
+    made LLVM gather or give up (2-4x slower)."""
+    if lane == 0:
         for i in range(m):
-            scaled[i] = split32 * abs(block[4 * i + over])
+            out[i] = block[4 * i]
+    elif lane == 1:
         for i in range(m):
-            out[i] = block[4 * i + lane] < scaled[i]
+            out[i] = block[4 * i + 1]
+    else:
+        for i in range(m):
+            out[i] = block[4 * i + 2]
 
 
 @jit
