@@ -2,7 +2,7 @@
 
     python -m bench.http_overhead [SCENE.npz] [--rays 1000000] [--repeat 5] [--fields ...]
 
-Side by side in one run, alternating, medians of ``--repeat``:
+Side by side in one run, alternating, medians of ``--repeat``, after one untimed round of each:
   engine      ``dacrt.Scene(...).closest`` in this process (the scene built once, as the server caches it)
   end to end  the same rays through a real uvicorn server on loopback with httpx: .npy (N, 6) in,
               .npz out (all fields), including the client's encoding and its reading of the answer
@@ -105,7 +105,11 @@ def main() -> None:
     try:
         with Client(url) as client:
             client.put_mesh("bench", "mesh", vertices, faces)
-            client.closest("bench", rays[:1000], fields=args.fields)  # the server builds and caches its scene
+            # One untimed round of each at full size: the first 1M-ray request of a fresh server
+            # touches its body and answer memory for the first time (page faults; receive took
+            # 60 ms instead of 4-5 in the first two requests), and so does the first engine call.
+            client.closest("bench", rays, fields=args.fields)  # the server builds and caches its scene
+            scene.closest(origins, directions)
             for _ in range(args.repeat):
                 start = time.perf_counter()
                 reference = scene.closest(origins, directions)
