@@ -53,8 +53,11 @@ def intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, x0, y0, z0, x1, y1, z1):
 def cull_distance(best_t):
     """The distance beyond which a box cannot hold a hit that beats ``best_t``: slightly larger
     than ``best_t`` so that rounding in a triangle's ``t`` never culls a hit. -inf (a finished
-    occlusion ray) gives NaN, which fails every comparison, so such a ray is always culled."""
-    return best_t + abs(best_t) * _MARGIN32
+    occlusion ray) stays -inf, so ``intersect_box`` culls such a ray from every box. (The sum
+    alone would give NaN there, and the box test's selects pass over a NaN bound: finished
+    rays went on into every node they crossed, 1.4-2.1x the time of occlusion queries.)"""
+    grown = best_t + abs(best_t) * _MARGIN32
+    return grown if grown >= best_t else best_t
 
 
 @inline
