@@ -86,12 +86,11 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     left_box = np.empty((N_BINS - 1, 6), np.float32)
     right_box = np.empty((N_BINS - 1, 6), np.float32)
     candidate_boxes = np.empty((12, PADDED_CANDIDATES), np.float32)
-    sample_counts = np.empty((4, PADDED_CANDIDATES), np.int32)
+    sample_counts = np.empty((3, PADDED_CANDIDATES), np.int32)
     # sample_rays' counts per candidate, as rows of sample_counts.
     hits_left = sample_counts[0]
     hits_right = sample_counts[1]
-    nearer_left = sample_counts[2]
-    forward_left = sample_counts[3]
+    forward_left = sample_counts[2]
     c_box = np.empty(6, np.float32)
     box_a = np.empty(6, np.float32)
     box_b = np.empty(6, np.float32)
@@ -182,8 +181,11 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         if sampled:
             n_samples = min(N_SAMPLE_RAYS, n_rays)
             if mode == MODE_OCCLUDED:
-                # Any hit ends a ray: first the side most sample rays enter first.
-                left_first = nearer_left[split] >= n_samples - nearer_left[split]
+                # Any hit ends a ray, and a ray that is done is culled from the other side:
+                # first the side more sample rays reach. Against the side most of them enter
+                # first (the paper's order), 1M rays: Sibenik shadow rays 1.56x on one thread,
+                # 1.22x on two; Sibenik ao and Sponza shadow and ao 1.00-1.02x.
+                left_first = hits_left[split] >= hits_right[split]
             else:
                 # Only rays reaching both sides care which is first: their majority direction
                 # along the axis (measured better than their entry distances on closest hits).
@@ -226,13 +228,13 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
                 candidate_boxes, sample_counts):
     """Algorithm 2 of Nabata et al.: test sample rays against both sides of every candidate.
 
-    Per candidate j: how many sample rays hit the left and right boxes, how many enter the
-    left box first, and of those that hit both, how many more go up ``axis`` (left to right)
-    than down. Samples are evenly strided over the active rays. The inner loop runs over the
+    Per candidate j: how many sample rays hit the left and right boxes, and of those that hit
+    both, how many more go up ``axis`` (left to right) than down (the paper also counts which
+    side each ray enters first; neither traversal order uses that any more). Samples are evenly strided over the active rays. The inner loop runs over the
     candidates, whose boxes are copied to ``candidate_boxes`` (12, PADDED_CANDIDATES) by
     coordinate and padded with empty boxes (which every ray misses): it vectorises with no
     remainder, 1.5x faster than looping over the samples. The four counts go to the rows of
-    ``sample_counts`` (4, PADDED_CANDIDATES), in that order; a candidate with an empty side
+    ``sample_counts`` (3, PADDED_CANDIDATES), in that order; a candidate with an empty side
     counts nothing. Returns the box tests counted (those of real candidates)."""
     n_rays = ray_hi - ray_lo
     n_samples = min(N_SAMPLE_RAYS, n_rays)
@@ -250,8 +252,7 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
                                     candidate_boxes[3], candidate_boxes[4], candidate_boxes[5])
     rx0, ry0, rz0, rx1, ry1, rz1 = (candidate_boxes[6], candidate_boxes[7], candidate_boxes[8],
                                     candidate_boxes[9], candidate_boxes[10], candidate_boxes[11])
-    n_left, n_right, n_nearer, n_forward = (sample_counts[0], sample_counts[1],
-                                            sample_counts[2], sample_counts[3])
+    n_left, n_right, n_forward = sample_counts[0], sample_counts[1], sample_counts[2]
     for s in range(n_samples):
         r = strided_sample(ray_lo, n_rays, s, n_samples)
         ox = field(rays, ORIGIN, r)
@@ -266,16 +267,12 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
         going_up = (ix if axis == 0 else (iy if axis == 1 else iz)) >= 0
         step = np.int32(1) if going_up else np.int32(-1)
         for j in range(PADDED_CANDIDATES):
-            hit_l, near_l = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, lx0[j], ly0[j],
-                                          lz0[j], lx1[j], ly1[j], lz1[j])
-            hit_r, near_r = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, rx0[j], ry0[j],
-                                          rz0[j], rx1[j], ry1[j], rz1[j])
+            hit_l, _ = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, lx0[j], ly0[j],
+                                     lz0[j], lx1[j], ly1[j], lz1[j])
+            hit_r, _ = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, rx0[j], ry0[j],
+                                     rz0[j], rx1[j], ry1[j], rz1[j])
             n_left[j] += np.int32(1) if hit_l else np.int32(0)
             n_right[j] += np.int32(1) if hit_r else np.int32(0)
-            # Entry distances decide the nearer side (a missed box is at infinity).
-            entry_l = near_l if hit_l else _INF32
-            entry_r = near_r if hit_r else _INF32
-            n_nearer[j] += np.int32(1) if entry_l < entry_r else np.int32(0)
             n_forward[j] += step if hit_l and hit_r else np.int32(0)
     return n_tests
 
