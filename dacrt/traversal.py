@@ -229,12 +229,13 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
     """Algorithm 2 of Nabata et al.: test sample rays against both sides of every candidate.
 
     Per candidate j: how many sample rays hit the left and right boxes, and of those that hit
-    both, how many more go up ``axis`` (left to right) than down (the paper also counts which
-    side each ray enters first; neither traversal order uses that any more). Samples are evenly strided over the active rays. The inner loop runs over the
-    candidates, whose boxes are copied to ``candidate_boxes`` (12, PADDED_CANDIDATES) by
-    coordinate and padded with empty boxes (which every ray misses): it vectorises with no
-    remainder, 1.5x faster than looping over the samples. The four counts go to the rows of
-    ``sample_counts`` (3, PADDED_CANDIDATES), in that order; a candidate with an empty side
+    both, how many more go up ``axis`` (left to right) than down. (The paper also counts which
+    side each ray enters first; neither traversal order uses that any more.) Samples are evenly
+    strided over the active rays. The inner loop runs over the candidates, whose boxes are
+    copied to ``candidate_boxes`` (12, PADDED_CANDIDATES) by coordinate and padded with empty
+    boxes (which every ray misses): it vectorises with no remainder, 1.5x faster than looping
+    over the samples. The three counts go to the rows of ``sample_counts`` (3,
+    PADDED_CANDIDATES), in that order; a candidate with an empty side
     counts nothing. Returns the box tests counted (those of real candidates)."""
     n_rays = ray_hi - ray_lo
     n_samples = min(N_SAMPLE_RAYS, n_rays)
