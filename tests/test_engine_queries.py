@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import dacrt
+from dacrt.geometry import cull_distance, intersect_box
 
 import assertions as check
 import procedural as pg
@@ -571,7 +572,6 @@ def test_stats_counters(stats_scene, strategy, threads):
 def test_finished_occlusion_ray_misses_every_box():
     """A ray that is done (best_t = -inf) must fail the box test, even against a box it
     starts in: else it goes on into every node it crosses."""
-    from dacrt.geometry import cull_distance, intersect_box
     inf, one = np.float32(np.inf), np.float32(1.0)
     t_hi = cull_distance(np.float32(-np.inf))
     hit, _ = intersect_box(0.5, 0.5, 0.5, inf, inf, one, np.float32(0.0), t_hi, 0, 0, 0, 1, 1, 1)

@@ -25,20 +25,20 @@ def _records(origins, directions):
 
 
 def _slab_hits(origins, directions, lo, hi):
-    """Plain slab test (float64) of each ray against one box: (hit, entry distance)."""
+    """Plain slab test (float64) of each ray against one box: whether it hits."""
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / directions
         a = (lo - origins) * inv
         b = (hi - origins) * inv
     near = np.maximum(np.minimum(a, b).max(axis=1), 0.0)
     far = np.maximum(a, b).min(axis=1)
-    return near <= far, near
+    return near <= far
 
 
 def test_sample_rays_counts_match_algorithm_2():
     """For every candidate: sample rays hitting each side, and the vote of those hitting both,
-    going up the axis or down; equal to a numpy count over the same
-    strided samples. Empty candidates (a side without triangles) count nothing."""
+    going up the axis or down; equal to a numpy count over the same strided samples. Empty
+    candidates (a side without triangles) count nothing."""
     rng = np.random.default_rng(60)
     n_rays, axis = 5_000, 1
     origins = rng.uniform(-4, 4, (n_rays, 3))
@@ -64,8 +64,8 @@ def test_sample_rays_counts_match_algorithm_2():
     real = (left_count > 0) & (right_count > 0)
     assert n_tests == 2 * N_SAMPLE_RAYS * real.sum()
     for j in range(n_cand):
-        hit_l, _ = _slab_hits(o, d, left_box[j, :3], left_box[j, 3:])
-        hit_r, _ = _slab_hits(o, d, right_box[j, :3], right_box[j, 3:])
+        hit_l = _slab_hits(o, d, left_box[j, :3], left_box[j, 3:])
+        hit_r = _slab_hits(o, d, right_box[j, :3], right_box[j, 3:])
         votes = np.where(d[:, axis] >= 0, 1, -1)[hit_l & hit_r].sum()
         expected = [hit_l.sum(), hit_r.sum(), votes]
         got = [out[j] for out in outputs]
