@@ -18,7 +18,7 @@ _EDGE_ON_TOLERANCE = 1e-12
 def intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, x0, y0, z0, x1, y1, z1):
     """Slab test of the ray segment [t_lo, t_hi] against the box [x0,x1]x[y0,y1]x[z0,z1].
 
-    ``ix, iy, iz`` are 1/direction (+-inf for a zero component). Returns (hit, entry distance).
+    ``ix, iy, iz`` are 1/direction (+-inf for a zero component). Returns whether it hits.
     Conservative: the exit distance is grown by 1 + 2*gamma(3) (pbrt); a 0*inf NaN, from a ray
     lying in a slab's plane, never tightens the interval because comparisons with NaN are false.
     Written with selects only, no branches, so loops over rays vectorise; float32 throughout.
@@ -46,7 +46,7 @@ def intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, x0, y0, z0, x1, y1, z1):
     far = far_z if far_z < far else far
     far = far + abs(far) * _GROWTH32
     far = t_hi if t_hi < far else far
-    return near <= far, near
+    return near <= far
 
 
 @inline

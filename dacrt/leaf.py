@@ -97,7 +97,6 @@ def update_block(mode, n, tri_verts, tri, t_block, tri_block, block_rows):
     tri32 = np.int32(tri)
     u_row = block_rows[0]
     v_row = block_rows[1]
-    # Views from lo indexed from 0 (see mark_rays_hitting_box).
     for i in range(n):
         kx, ky, kz, sx, sy, sz = watertight_setup(dx_row[i], dy_row[i], dz_row[i])
         ox = np.float64(ox_row[i])

@@ -268,10 +268,10 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
         going_up = (ix if axis == 0 else (iy if axis == 1 else iz)) >= 0
         step = np.int32(1) if going_up else np.int32(-1)
         for j in range(PADDED_CANDIDATES):
-            hit_l, _ = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, lx0[j], ly0[j],
-                                     lz0[j], lx1[j], ly1[j], lz1[j])
-            hit_r, _ = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, rx0[j], ry0[j],
-                                     rz0[j], rx1[j], ry1[j], rz1[j])
+            hit_l = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, lx0[j], ly0[j], lz0[j],
+                                  lx1[j], ly1[j], lz1[j])
+            hit_r = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, rx0[j], ry0[j], rz0[j],
+                                  rx1[j], ry1[j], rz1[j])
             n_left[j] += np.int32(1) if hit_l else np.int32(0)
             n_right[j] += np.int32(1) if hit_r else np.int32(0)
             n_forward[j] += step if hit_l and hit_r else np.int32(0)

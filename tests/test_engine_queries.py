@@ -574,10 +574,9 @@ def test_finished_occlusion_ray_misses_every_box():
     starts in: else it goes on into every node it crosses."""
     inf, one = np.float32(np.inf), np.float32(1.0)
     t_hi = cull_distance(np.float32(-np.inf))
-    hit, _ = intersect_box(0.5, 0.5, 0.5, inf, inf, one, np.float32(0.0), t_hi, 0, 0, 0, 1, 1, 1)
-    assert not hit
-    hit, _ = intersect_box(0.5, 0.5, 0.5, inf, inf, one, np.float32(0.0), cull_distance(inf), 0, 0, 0, 1, 1, 1)
-    assert hit
+    zero = np.float32(0.0)
+    assert not intersect_box(0.5, 0.5, 0.5, inf, inf, one, zero, t_hi, 0, 0, 0, 1, 1, 1)
+    assert intersect_box(0.5, 0.5, 0.5, inf, inf, one, zero, cull_distance(inf), 0, 0, 0, 1, 1, 1)
 
 
 @pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
