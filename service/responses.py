@@ -1,11 +1,11 @@
-"""A response whose body is a list of buffers (zip headers and answer arrays), sent in order.
+"""A response whose body is buffers (zip headers and answer arrays), sent in order.
 
 Joining them would copy every answer array once more; ASGI lets us send them one by one under a
-Content-Length that covers them all.
+Content-Length that covers them all. The buffers may be made as they are sent (``wire.NpzBody``).
 """
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from typing import Iterable, Mapping
 
 from starlette.responses import Response
 
@@ -13,19 +13,18 @@ from .wire import Buffer
 
 
 class BuffersResponse(Response):
-    """``Response`` with ``parts`` as its body, never joined into one buffer."""
+    """``Response`` with ``parts`` (``length`` bytes in all) as its body, never joined into one
+    buffer; each part is taken from ``parts`` only once the one before has been handed over."""
 
-    def __init__(self, parts: Sequence[Buffer], media_type: str, headers: Mapping[str, str],
-                 status_code: int = 200) -> None:
-        self.parts = [part for part in parts if len(part)]
-        length = sum(len(part) for part in self.parts)
+    def __init__(self, parts: Iterable[Buffer], length: int, media_type: str,
+                 headers: Mapping[str, str], status_code: int = 200) -> None:
+        self.parts = parts
         super().__init__(b"", status_code, {**headers, "Content-Length": str(length)}, media_type)
 
     async def __call__(self, scope, receive, send) -> None:
         await send({"type": "http.response.start", "status": self.status_code,
                     "headers": self.raw_headers})
-        for position, part in enumerate(self.parts):
-            await send({"type": "http.response.body", "body": part,
-                        "more_body": position < len(self.parts) - 1})
-        if not self.parts:
-            await send({"type": "http.response.body", "body": b""})
+        for part in self.parts:
+            if len(part):
+                await send({"type": "http.response.body", "body": part, "more_body": True})
+        await send({"type": "http.response.body", "body": b""})

@@ -79,7 +79,7 @@ import struct
 import zipfile
 import zlib
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping, Union
+from typing import Any, Iterable, Iterator, Mapping, Union
 
 import numpy as np
 
@@ -589,18 +589,22 @@ def negotiate(accept: str | None, request_format: str) -> str:
                         f"use {NPZ}, {NPY} or {JSON}")
 
 
-def encode_answer(arrays: Mapping[str, np.ndarray], fmt: str) -> tuple[list[Buffer], str]:
-    """(body as a list of buffers to send in order, Content-Type) of an answer: npz, npy or json.
+def encode_answer(arrays: Mapping[str, np.ndarray], fmt: str) -> tuple[Iterable[Buffer], int, str]:
+    """(body as buffers to send in order, its length, Content-Type) of an answer: npz, npy or json.
 
     The buffers of npy and npz bodies are mostly the answer arrays' own memory: nothing is copied.
+    An npz body takes each member's CRC as it is sent (``NpzBody``).
     """
     if fmt == "npz":
-        return npz_parts(arrays), NPZ
+        body = NpzBody(arrays)
+        return body, body.length, NPZ
     if fmt == "npy":
-        return npy_parts(arrays), NPY
-    if fmt == "json":
-        return [encode_json(arrays)], JSON
-    raise ValueError(f"unknown answer format {fmt!r}")
+        parts = npy_parts(arrays)
+    elif fmt == "json":
+        parts = [encode_json(arrays)]
+    else:
+        raise ValueError(f"unknown answer format {fmt!r}")
+    return parts, sum(len(part) for part in parts), NPY if fmt == "npy" else JSON
 
 
 def npy_header(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
@@ -629,25 +633,47 @@ def npy_parts(arrays: Mapping[str, np.ndarray]) -> list[Buffer]:
     return [npy_header(records.dtype, records.shape), array_bytes(records)]
 
 
+class NpzBody:
+    """An uncompressed .npz of ``arrays``: zip headers around each array's own memory, as the
+    parts to send in order (iterate) and their total ``length``, known before any is made.
+
+    The zip writes each member's CRC-32 in the header before its data, and the CRCs are most of
+    the cost of an answer's encoding (1M-ray closest answer: 1.0 ms for 32 MB). So a member's CRC
+    is taken only when its header is reached: a server sending the parts takes the next CRC while
+    the member before is still on its way to the client.
+    """
+
+    def __init__(self, arrays: Mapping[str, np.ndarray]) -> None:
+        self._members = [(f"{key}.npy".encode(), npy_header(array.dtype, array.shape), array_bytes(array))
+                         for key, array in arrays.items()]
+        members = sum(_LOCAL.size + len(name) + len(header) + len(data) for name, header, data in self._members)
+        directory = sum(_CENTRAL.size + len(name) for name, _, _ in self._members)
+        self._saved = None
+        if members + directory >= 2**32 - 1:  # needs zip64: let zipfile write it
+            out = io.BytesIO()
+            np.savez(out, **arrays)
+            self._saved = out.getbuffer()
+        self.length = len(self._saved) if self._saved is not None else members + directory + _END.size
+
+    def __iter__(self) -> Iterator[Buffer]:
+        if self._saved is not None:
+            yield self._saved
+            return
+        central, offset = [], 0
+        for name, header, data in self._members:
+            crc, length = crc32(data, crc32(header)), len(header) + len(data)
+            yield _LOCAL.pack(b"PK\x03\x04", 20, 0, 0, 0, 0, _DOS_DATE, crc, length, length, len(name), 0) + name + header
+            yield data
+            central.append(_CENTRAL.pack(b"PK\x01\x02", 20, 0, 20, 0, 0, 0, 0, _DOS_DATE, crc, length, length,
+                                         len(name), 0, 0, 0, 0, 0, offset) + name)
+            offset += _LOCAL.size + len(name) + length
+        directory = b"".join(central)
+        yield directory + _END.pack(b"PK\x05\x06", 0, 0, len(central), len(central), len(directory), offset, 0)
+
+
 def npz_parts(arrays: Mapping[str, np.ndarray]) -> list[Buffer]:
-    """An uncompressed .npz of ``arrays``: zip headers around each array's own memory."""
-    parts: list[Buffer] = []
-    central, offset = [], 0
-    for key, array in arrays.items():
-        name, header, data = f"{key}.npy".encode(), npy_header(array.dtype, array.shape), array_bytes(array)
-        crc, length = crc32(data, crc32(header)), len(header) + len(data)
-        parts += [_LOCAL.pack(b"PK\x03\x04", 20, 0, 0, 0, 0, _DOS_DATE, crc, length, length, len(name), 0)
-                  + name + header, data]
-        central.append(_CENTRAL.pack(b"PK\x01\x02", 20, 0, 20, 0, 0, 0, 0, _DOS_DATE, crc, length, length,
-                                     len(name), 0, 0, 0, 0, 0, offset) + name)
-        offset += _LOCAL.size + len(name) + length
-    directory = b"".join(central)
-    if offset + len(directory) + _END.size >= 2**32 - 1:  # needs zip64: let zipfile write it
-        out = io.BytesIO()
-        np.savez(out, **arrays)
-        return [out.getbuffer()]
-    return parts + [directory + _END.pack(b"PK\x05\x06", 0, 0, len(central), len(central),
-                                          len(directory), offset, 0)]
+    """An uncompressed .npz of ``arrays`` as a list of buffers: zip headers and the arrays' memory."""
+    return list(NpzBody(arrays))
 
 
 def encode_npz(arrays: Mapping[str, np.ndarray]) -> bytes:

@@ -67,12 +67,12 @@ async def answer(request: Request, options: tracing.Options, scene: str | None,
             result = (tracing.trace(store.snapshot(scene), rays, options) if scene is not None
                       else tracing.trace_once(mesh, rays, options))
         with timing("encode"):
-            content, media = wire.encode_answer(result.arrays, answer_format)
-        return result, len(rays), content, media
+            content, length, media = wire.encode_answer(result.arrays, answer_format)
+        return result, len(rays), content, length, media
 
-    result, n_rays, content, media = await run_sync(work)
+    result, n_rays, content, length, media = await run_sync(work)
     metrics_of(request).traced(options.query.value, n_rays, result.seconds)
     headers = {"X-Scene-Version": str(result.version), "Server-Timing": timing.header()}
     if result.stats is not None:
         headers["X-Trace-Stats"] = json.dumps(result.stats, separators=(",", ":"))
-    return BuffersResponse(content, media, headers)
+    return BuffersResponse(content, length, media, headers)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import zipfile
+import zlib
 
 import numpy as np
 import pytest
@@ -378,9 +379,10 @@ def _answer(n: int = 6) -> dict[str, np.ndarray]:
 @pytest.mark.parametrize("n", [0, 1, 6])
 def test_npz_answer_is_a_valid_zip_that_numpy_reads(n):
     arrays = _answer(n)
-    parts, media = wire.encode_answer(arrays, "npz")
+    parts, length, media = wire.encode_answer(arrays, "npz")
+    parts = list(parts)
     body = b"".join(parts)
-    assert media == wire.NPZ and body == wire.encode_npz(arrays)
+    assert media == wire.NPZ and body == wire.encode_npz(arrays) and len(body) == length
     assert any(isinstance(p, memoryview) and np.shares_memory(np.frombuffer(p, np.uint8), arrays["t"])
                for p in parts) or n == 0  # the answer arrays are sent from their own memory
     assert zipfile.ZipFile(io.BytesIO(body)).testzip() is None  # every CRC is right
@@ -409,6 +411,21 @@ def test_json_answer_round_trips_float32_with_null_for_inf():
     assert b"0.30000001" not in wire.encode_json({"t": np.float32([0.3])})  # shortest form
 
 
-def test_encode_answer_names_the_content_type():
-    assert wire.encode_answer({"occluded": np.array([True])}, "json") == ([b'{"occluded":[true]}'], wire.JSON)
-    assert wire.encode_answer({"occluded": np.array([True])}, "npy")[1] == wire.NPY
+def test_npz_body_takes_each_crc_when_its_member_is_reached(monkeypatch):
+    taken = []
+    monkeypatch.setattr(wire, "crc32", lambda data, value=0: taken.append(len(data)) or zlib.crc32(data, value))
+    arrays = _answer(1000)
+    body = wire.NpzBody(arrays)
+    assert taken == []  # the length is known without any CRC
+    parts = iter(body)
+    first = next(parts)  # the first member's local header: its CRC, over its .npy header and data
+    assert taken == [len(wire.npy_header(np.dtype(np.float32), (1000,))), 4000]
+    whole = b"".join([first, *parts])
+    assert len(taken) == 2 * len(arrays)
+    assert whole == wire.encode_npz(arrays) and body.length == len(whole)
+
+
+def test_encode_answer_names_the_content_type_and_length():
+    assert wire.encode_answer({"occluded": np.array([True])}, "json") == ([b'{"occluded":[true]}'], 19, wire.JSON)
+    parts, length, media = wire.encode_answer({"occluded": np.array([True])}, "npy")
+    assert media == wire.NPY and length == sum(map(len, parts)) == 129
