@@ -73,6 +73,7 @@ Answers (``negotiate`` and ``encode_answer``)
 """
 from __future__ import annotations
 
+import functools
 import io
 import json
 import struct
@@ -218,24 +219,30 @@ class BodyBuffer:
         return memoryview(buffer)
 
 
+#: The longest .npy header read (numpy itself refuses headers over 10,000 bytes).
+MAX_NPY_HEADER_BYTES = 65536 + 16
+
+
 def read_npy(buf: bytes | memoryview, name: str = "body") -> np.ndarray:
     """View a whole .npy held in ``buf`` as an array without copying its data (read-only)."""
     view = memoryview(buf)
-    header = io.BytesIO(bytes(view[:65536 + 16]))
+    prefix = bytes(view[:12])
     try:
-        version = np.lib.format.read_magic(header)
-        if version == (1, 0):
-            shape, fortran, dtype = np.lib.format.read_array_header_1_0(header)
-        elif version in ((2, 0), (3, 0)):
-            shape, fortran, dtype = np.lib.format.read_array_header_2_0(header)
-        else:
+        # Magic string, version, then the header's length: 2 bytes in version 1.0, 4 after.
+        version = np.lib.format.read_magic(io.BytesIO(prefix))
+        if version not in ((1, 0), (2, 0), (3, 0)):
             raise ValueError(f"unsupported .npy version {version}")
+        size = (10 + int.from_bytes(prefix[8:10], "little") if version == (1, 0)
+                else 12 + int.from_bytes(prefix[8:12], "little"))
+        if size > MAX_NPY_HEADER_BYTES:
+            raise ValueError(f"its header claims {size} bytes, over the {MAX_NPY_HEADER_BYTES} read")
+        shape, fortran, dtype = _npy_header(bytes(view[:size]))
     except ValueError as exc:
         raise BadBody(f"{name} is not a readable .npy: {exc}") from None
     if dtype.hasobject:
         raise Invalid(f"{name} holds Python objects ({dtype}); only numeric arrays are accepted "
                       "(they are never unpickled)")
-    offset = header.tell()
+    offset = size
     count = int(np.prod(shape, dtype=np.int64))
     expected = count * dtype.itemsize
     if len(view) - offset != expected:
@@ -244,6 +251,18 @@ def read_npy(buf: bytes | memoryview, name: str = "body") -> np.ndarray:
                       f"but {len(view) - offset} follow")
     array = np.frombuffer(view, dtype=dtype, count=count, offset=offset)
     return array.reshape(shape, order="F" if fortran else "C")
+
+
+@functools.lru_cache(maxsize=256)
+def _npy_header(header: bytes) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """(shape, Fortran order, dtype) of a whole .npy header, magic string included.
+
+    numpy evaluates the header as a Python literal (30 us); batches of one size repeat the same
+    header, so each is parsed once."""
+    stream = io.BytesIO(header)
+    if np.lib.format.read_magic(stream) == (1, 0):
+        return np.lib.format.read_array_header_1_0(stream)
+    return np.lib.format.read_array_header_2_0(stream)
 
 
 def read_npz(buf: Buffer, max_bytes: int | None = None) -> dict[str, np.ndarray]:
