@@ -69,6 +69,13 @@ def test_npy_is_viewed_in_place():
     assert np.shares_memory(array, np.frombuffer(body, np.uint8))
 
 
+def test_npy_header_is_parsed_once_per_distinct_header():
+    wire._npy_header.cache_clear()
+    for n in (3, 3, 4, 3):
+        assert wire.read_npy(npy_bytes(rays6(n))).shape == (n, 6)
+    assert wire._npy_header.cache_info().misses == 2 and wire._npy_header.cache_info().hits == 2
+
+
 def test_fortran_order_npy_keeps_its_values():
     rays = np.asfortranarray(rays6(4))
     assert np.array_equal(wire.read_npy(npy_bytes(rays)), rays)
@@ -79,6 +86,9 @@ def test_fortran_order_npy_keeps_its_values():
     (b"\x93NUMPY\x01\x00garbage", "not a readable .npy"),
     (npy_bytes(rays6(3))[:-5], "truncated"),
     (npy_bytes(rays6(3)) + b"xx", "longer than its header says"),
+    (b"not an npy at all", "magic string is not correct"),
+    (b"\x93NUMPY\x09\x00" + npy_bytes(rays6(3))[8:], r"unsupported .npy version \(9, 0\)"),
+    (b"\x93NUMPY\x02\x00\xff\xff\xff\x7f" + npy_bytes(rays6(3))[10:], "header claims 2147483659 bytes"),
 ])
 def test_unreadable_npy_is_400(body, message):
     with pytest.raises(BadBody, match=message):
