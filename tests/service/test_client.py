@@ -3,6 +3,7 @@ where the wire itself is under test). Answers are compared with a plain-NumPy br
 from __future__ import annotations
 
 import io
+import zipfile
 
 import numpy as np
 import pytest
@@ -245,6 +246,21 @@ def test_json_request_gets_json_with_null_for_misses(http, client, teapot_scene,
     assert None in document["t"] and np.array_equal(t, binary.t)
     assert document["mesh"] == binary.mesh.tolist()
     assert np.array_equal(np.array(document["normal"], np.float32), binary.normal)
+
+
+def test_npz_answer_is_a_zip_whose_every_crc_is_right(http, client, teapot_scene, teapot):
+    """The server takes each member's CRC-32 as it sends the answer (wire.NpzBody)."""
+    origins, directions = rays_at(*teapot, 300, seed=11)
+    body = npy_bytes(np.hstack([origins, directions]).astype(np.float32))
+    response = http.post(f"/v1/scenes/{teapot_scene}/closest", content=body, headers=NPY)
+    assert int(response.headers["content-length"]) == len(response.content)
+    archive = zipfile.ZipFile(io.BytesIO(response.content))
+    assert archive.testzip() is None and archive.namelist() == [f"{key}.npy" for key in CLOSEST_FIELDS]
+    expected = client.closest(teapot_scene, origins, directions)
+    assert np.isfinite(expected.t).all()  # every ray hits the teapot
+    with np.load(io.BytesIO(response.content)) as got:
+        for key in CLOSEST_FIELDS:
+            assert np.array_equal(got[key], expected[key]), key
 
 
 def test_npz_ray_body_equals_npy_ray_body(http, client, teapot_scene, teapot):
