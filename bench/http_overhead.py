@@ -2,7 +2,8 @@
 
     python -m bench.http_overhead [SCENE.npz] [--rays 1000000] [--repeat 5] [--fields ...]
 
-Side by side in one run, alternating, medians of ``--repeat``, after one untimed round of each:
+Side by side in one run, alternating (the order swapped every round), medians of ``--repeat``,
+after one untimed round of each:
   engine      ``dacrt.Scene(...).closest`` in this process (the scene built once, as the server caches it)
   end to end  the same rays through a real uvicorn server on loopback with httpx: .npy (N, 6) in,
               .npz out (all fields), including the client's encoding and its reading of the answer
@@ -110,14 +111,18 @@ def main() -> None:
             # 60 ms instead of 4-5 in the first two requests), and so does the first engine call.
             client.closest("bench", rays, fields=args.fields)  # the server builds and caches its scene
             scene.closest(origins, directions)
-            for _ in range(args.repeat):
-                start = time.perf_counter()
-                reference = scene.closest(origins, directions)
-                engine.append(time.perf_counter() - start)
-                start = time.perf_counter()
-                answer = client.closest("bench", rays, fields=args.fields)
-                end_to_end.append(time.perf_counter() - start)
-                server.append(answer.timing)
+            for repeat in range(args.repeat):
+                # The order swaps every round: whichever of two runs second can be slowed by what
+                # the first leaves to do (a fixed order once made the second 1.5 ms slower).
+                for kind in ("engine", "http") if repeat % 2 == 0 else ("http", "engine"):
+                    start = time.perf_counter()
+                    if kind == "engine":
+                        reference = scene.closest(origins, directions)
+                        engine.append(time.perf_counter() - start)
+                    else:
+                        answer = client.closest("bench", rays, fields=args.fields)
+                        end_to_end.append(time.perf_counter() - start)
+                        server.append(answer.timing)
             assert np.array_equal(answer.t, reference.t), "the server's answer differs from the engine's"
             frames = time_frames(client, vertices, faces, origins, directions, rays, args) if args.frame else None
     finally:
@@ -140,7 +145,7 @@ def main() -> None:
     print(f"HTTP overhead          {overhead_ms:9.1f} ms = {100 * overhead_ms / engine_ms:.1f}% of engine time")
     print(f"  (end to end - server trace = {e2e_ms - server_trace_ms:.1f} ms = "
           f"{100 * (e2e_ms - server_trace_ms) / server_trace_ms:.1f}% of the server's trace time)")
-    # Each request against the engine call just before it: steadier when the machine's load drifts.
+    # Each request against the engine call of its round: steadier when the machine's load drifts.
     paired = [e - g for e, g in zip(end_to_end, engine)]
     paired_ms = median_ms(paired)
     print(f"  (median of paired differences = {paired_ms:.1f} ms = {100 * paired_ms / engine_ms:.1f}% "
