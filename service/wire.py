@@ -618,12 +618,12 @@ def encode_answer(arrays: Mapping[str, np.ndarray], fmt: str) -> tuple[Iterable[
         body = NpzBody(arrays)
         return body, body.length, NPZ
     if fmt == "npy":
-        parts = npy_parts(arrays)
+        parts, media = npy_parts(arrays), NPY
     elif fmt == "json":
-        parts = [encode_json(arrays)]
+        parts, media = [encode_json(arrays)], JSON
     else:
         raise ValueError(f"unknown answer format {fmt!r}")
-    return parts, sum(len(part) for part in parts), NPY if fmt == "npy" else JSON
+    return parts, sum(len(part) for part in parts), media
 
 
 def npy_header(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
