@@ -261,15 +261,15 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_origin=False):
         t0 = q0[3]
         for i in range(hi - lo):
             hit = intersect_box(ox0, oy0, oz0, _ONE32 / q1[4 * i], _ONE32 / q1[4 * i + 1],
-                                   _ONE32 / q1[4 * i + 2], t0, cull_distance(q1[4 * i + 3]),
-                                   x0, y0, z0, x1, y1, z1)
+                                _ONE32 / q1[4 * i + 2], t0, cull_distance(q1[4 * i + 3]),
+                                x0, y0, z0, x1, y1, z1)
             mask[i] = hit
         return
     for i in range(hi - lo):
         # 1/d is +-inf for a zero component, which the slab test expects.
         hit = intersect_box(q0[4 * i], q0[4 * i + 1], q0[4 * i + 2], _ONE32 / q1[4 * i],
-                               _ONE32 / q1[4 * i + 1], _ONE32 / q1[4 * i + 2], q0[4 * i + 3],
-                               cull_distance(q1[4 * i + 3]), x0, y0, z0, x1, y1, z1)
+                            _ONE32 / q1[4 * i + 1], _ONE32 / q1[4 * i + 2], q0[4 * i + 3],
+                            cull_distance(q1[4 * i + 3]), x0, y0, z0, x1, y1, z1)
         mask[i] = hit
 
 
