@@ -1,6 +1,6 @@
 """HTTP overhead of the service: what a 1M-ray binary query costs beyond the engine's own time.
 
-    python -m bench.http_overhead [SCENE.npz] [--rays 1000000] [--repeat 5] [--fields ...]
+    python -m bench.http_overhead [SCENE.npz] [--rays 1000000] [--repeat 5] [--fields ...] [--bound]
 
 Side by side in one run, alternating (the order swapped every round), medians of ``--repeat``,
 after one untimed round of each:
@@ -10,6 +10,9 @@ after one untimed round of each:
 The overhead is ``end to end - engine``: receive + decode + encode + transport, on both sides.
 The server's own Server-Timing (receive, decode, trace, encode) is shown too. BENCHMARKS.md asks
 for at most 10% of the trace time; the service issue for at most ~15%.
+
+With ``--bound``, also ``bench.http_bound``'s bare ASGI app on a second uvicorn server, in the same
+rounds: the least any uvicorn service could add (no framework, no checks), the service's floor.
 
 With ``--frame``, also the per-frame loop of a dynamic scene, side by side in the same run:
   http frame    upload the mesh (moved a little every frame, .npz) then POST the rays
@@ -49,12 +52,13 @@ def make_rays(vertices: np.ndarray, n: int, seed: int = 0) -> tuple[np.ndarray, 
     return origins.astype(np.float32), (targets - origins).astype(np.float32)
 
 
-def start_server(env: dict[str, str]) -> tuple[subprocess.Popen, str]:
+def start_server(env: dict[str, str], app: tuple[str, ...] = ("service.app:create_app", "--factory")
+                 ) -> tuple[subprocess.Popen, str]:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     process = subprocess.Popen(
-        [sys.executable, "-m", "uvicorn", "service.app:create_app", "--factory",
+        [sys.executable, "-m", "uvicorn", *app,
          "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"],
         cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO), **env})
     url = f"http://127.0.0.1:{port}"
@@ -88,6 +92,8 @@ def main() -> None:
     parser.add_argument("--rays", type=int, default=1_000_000)
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--fields", default=None, help="e.g. t,mesh,prim (default: all)")
+    parser.add_argument("--bound", action="store_true",
+                        help="also time bench.http_bound's bare ASGI app (the service's floor)")
     parser.add_argument("--frame", action="store_true",
                         help="also time the per-frame loop (new mesh + rays) against Embree")
     args = parser.parse_args()
@@ -100,56 +106,73 @@ def main() -> None:
 
     dacrt.warmup()
     scene = dacrt.Scene([(vertices, faces)])
-    process, url = start_server({"DACRT_MAX_RAYS_PER_REQUEST": str(max(args.rays, 1))})
-    engine, end_to_end, server = [], [], []
+    env = {"DACRT_MAX_RAYS_PER_REQUEST": str(max(args.rays, 1))}
+    servers = {"http": start_server(env)}
+    if args.bound:
+        servers["bound"] = start_server(env, ("bench.http_bound:app",))
+    clients = {kind: Client(url) for kind, (_, url) in servers.items()}
+    seconds = {"engine": [], **{kind: [] for kind in servers}}
+    server = {kind: [] for kind in servers}
     frames = None
     try:
-        with Client(url) as client:
+        for client in clients.values():
             client.put_mesh("bench", "mesh", vertices, faces)
             # One untimed round of each at full size: the first 1M-ray request of a fresh server
             # touches its body and answer memory for the first time (page faults; receive took
             # 60 ms instead of 4-5 in the first two requests), and so does the first engine call.
             client.closest("bench", rays, fields=args.fields)  # the server builds and caches its scene
-            scene.closest(origins, directions)
-            for repeat in range(args.repeat):
-                # The order swaps every round: whichever of two runs second can be slowed by what
-                # the first leaves to do (a fixed order once made the second 1.5 ms slower).
-                for kind in ("engine", "http") if repeat % 2 == 0 else ("http", "engine"):
-                    start = time.perf_counter()
-                    if kind == "engine":
-                        reference = scene.closest(origins, directions)
-                        engine.append(time.perf_counter() - start)
-                    else:
-                        answer = client.closest("bench", rays, fields=args.fields)
-                        end_to_end.append(time.perf_counter() - start)
-                        server.append(answer.timing)
-            assert np.array_equal(answer.t, reference.t), "the server's answer differs from the engine's"
-            frames = time_frames(client, vertices, faces, origins, directions, rays, args) if args.frame else None
+        reference = scene.closest(origins, directions)
+        kinds = list(seconds)
+        for repeat in range(args.repeat):
+            # The order turns every round: whichever runs after another can be slowed by what
+            # the one before leaves to do (a fixed order once made the second 1.5 ms slower).
+            turn = repeat % len(kinds)
+            order = kinds[turn:] + kinds[:turn]
+            for kind in order[::-1] if (repeat // len(kinds)) % 2 else order:
+                start = time.perf_counter()
+                if kind == "engine":
+                    scene.closest(origins, directions)
+                    seconds[kind].append(time.perf_counter() - start)
+                else:
+                    answer = clients[kind].closest("bench", rays, fields=args.fields)
+                    seconds[kind].append(time.perf_counter() - start)
+                    server[kind].append(answer.timing)
+                    assert np.array_equal(answer.t, reference.t), f"{kind}: the answer differs from the engine's"
+        if args.frame:
+            frames = time_frames(clients["http"], vertices, faces, origins, directions, rays, args)
     finally:
-        process.terminate()
-        process.wait(timeout=30)
+        for client in clients.values():
+            client.close()
+        for process, _ in servers.values():
+            process.terminate()
+            process.wait(timeout=30)
 
     def median_ms(values):
         return 1000 * statistics.median(values)
 
-    engine_ms, e2e_ms = median_ms(engine), median_ms(end_to_end)
-    overhead_ms = e2e_ms - engine_ms
+    engine = seconds["engine"]
+    engine_ms = median_ms(engine)
     print(f"machine: {os.cpu_count()} cores, {cpu_model()}; numpy {np.__version__}")
     print(f"scene: {Path(args.scene).name} ({len(faces)} triangles); {args.rays} rays; "
           f"fields: {args.fields or 'all'}; medians of {args.repeat}")
     print(f"engine in-process      {engine_ms:9.1f} ms   ({args.rays / engine_ms / 1000:.2f} Mrays/s)")
-    print(f"end to end over HTTP   {e2e_ms:9.1f} ms")
-    for key in ("receive", "decode", "trace", "encode"):
-        print(f"  server {key:<8}      {statistics.median(t.get(key, 0.0) for t in server):9.1f} ms")
-    server_trace_ms = statistics.median(t.get("trace", 0.0) for t in server)
-    print(f"HTTP overhead          {overhead_ms:9.1f} ms = {100 * overhead_ms / engine_ms:.1f}% of engine time")
-    print(f"  (end to end - server trace = {e2e_ms - server_trace_ms:.1f} ms = "
-          f"{100 * (e2e_ms - server_trace_ms) / server_trace_ms:.1f}% of the server's trace time)")
-    # Each request against the engine call of its round: steadier when the machine's load drifts.
-    paired = [e - g for e, g in zip(end_to_end, engine)]
-    paired_ms = median_ms(paired)
-    print(f"  (median of paired differences = {paired_ms:.1f} ms = {100 * paired_ms / engine_ms:.1f}% "
-          f"of engine time; they ranged {1000 * min(paired):.1f} to {1000 * max(paired):.1f} ms)")
+    for kind, title in (("http", "the service"), ("bound", "bench.http_bound (the floor)")):
+        if kind not in servers:
+            continue
+        e2e_ms = median_ms(seconds[kind])
+        overhead_ms = e2e_ms - engine_ms
+        print(f"end to end over HTTP, {title}: {e2e_ms:.1f} ms")
+        for key in ("receive", "decode", "trace", "encode"):
+            print(f"  server {key:<8}      {statistics.median(t.get(key, 0.0) for t in server[kind]):9.1f} ms")
+        server_trace_ms = statistics.median(t.get("trace", 0.0) for t in server[kind])
+        print(f"HTTP overhead          {overhead_ms:9.1f} ms = {100 * overhead_ms / engine_ms:.1f}% of engine time")
+        print(f"  (end to end - server trace = {e2e_ms - server_trace_ms:.1f} ms = "
+              f"{100 * (e2e_ms - server_trace_ms) / server_trace_ms:.1f}% of the server's trace time)")
+        # Each request against the engine call of its round: steadier when the machine's load drifts.
+        paired = [e - g for e, g in zip(seconds[kind], engine)]
+        paired_ms = median_ms(paired)
+        print(f"  (median of paired differences = {paired_ms:.1f} ms = {100 * paired_ms / engine_ms:.1f}% "
+              f"of engine time; they ranged {1000 * min(paired):.1f} to {1000 * max(paired):.1f} ms)")
     if frames:
         print(f"per frame (new mesh + {args.rays} rays), medians of {args.repeat}:")
         for name, seconds in frames.items():
