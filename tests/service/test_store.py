@@ -141,6 +141,17 @@ def test_bounds_cover_referenced_vertices_only():
     assert referenced_bounds(v, np.zeros((0, 3), np.int32)).tolist() == [[0, 0, 0], [0, 0, 0]]
 
 
+@pytest.mark.parametrize("unreferenced", [0, 1, 500])
+def test_bounds_match_a_plain_reduction(unreferenced):
+    rng = np.random.default_rng(unreferenced)
+    v = (rng.normal(size=(2000, 3)) * [1, 10, 100]).astype(np.float32)
+    faces = rng.permutation(2000)[:2000 - unreferenced]  # each referenced vertex once at least
+    faces = np.concatenate([faces, rng.choice(faces, 3 - len(faces) % 3)]).reshape(-1, 3).astype(np.int32)
+    used = v[np.unique(faces)]
+    expected = [[min(used[:, a]) for a in range(3)], [max(used[:, a]) for a in range(3)]]
+    assert referenced_bounds(v, faces).tolist() == expected
+
+
 def test_cached_builds_once_per_snapshot_under_concurrency(store):
     store.put_mesh("s", "a", mesh())
     snapshot, calls = store.snapshot("s"), []
