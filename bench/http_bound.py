@@ -16,6 +16,7 @@ import time
 from anyio.to_thread import run_sync
 
 import dacrt
+from bench.http_floor import read_body
 from service import wire
 
 FIELDS = ("t", "mesh", "prim", "u", "v", "normal")
@@ -34,7 +35,7 @@ async def app(scope, receive, send):
         await _send_json(send, 200, {"status": "ok"})
         return
     start = time.perf_counter()
-    body = await _read_body(scope, receive)
+    body = await read_body(scope, receive)
     received = time.perf_counter() - start
     if scope["method"] == "PUT":
         mesh = wire.decode_mesh(body, "npz")
@@ -62,16 +63,6 @@ async def app(scope, receive, send):
         if len(part):
             await send({"type": "http.response.body", "body": part, "more_body": True})
     await send({"type": "http.response.body", "body": b""})
-
-
-async def _read_body(scope, receive) -> memoryview:
-    body = wire.BodyBuffer(int(dict(scope["headers"]).get(b"content-length", b"0")))
-    more = True
-    while more:
-        message = await receive()
-        body.add(message.get("body", b""))
-        more = message.get("more_body", False)
-    return body.finish()
 
 
 async def _send_json(send, status: int, payload: dict) -> None:

@@ -42,20 +42,24 @@ async def app(scope, receive, send):
     """Read the body into one buffer, answer with ANSWER_BYTES per ray: the least a service does."""
     if scope["type"] != "http":
         return
-    length = dict(scope["headers"]).get(b"content-length", b"0")
-    body = BodyBuffer(int(length))
-    more = True
-    while more:
-        message = await receive()
-        body.add(message.get("body", b""))
-        more = message.get("more_body", False)
-    body.finish()
+    await read_body(scope, receive)
     view = memoryview(_ANSWER)
     parts = [view[i:i + ANSWER_PART] for i in range(0, len(view), ANSWER_PART)]
     await send({"type": "http.response.start", "status": 200,
                 "headers": [(b"content-length", str(len(view)).encode())]})
     for i, part in enumerate(parts):
         await send({"type": "http.response.body", "body": part, "more_body": i < len(parts) - 1})
+
+
+async def read_body(scope, receive) -> memoryview:
+    """The whole request body, received into one ``BodyBuffer`` of its Content-Length."""
+    body = BodyBuffer(int(dict(scope["headers"]).get(b"content-length", b"0")))
+    more = True
+    while more:
+        message = await receive()
+        body.add(message.get("body", b""))
+        more = message.get("more_body", False)
+    return body.finish()
 
 
 def _tcp_server(port_queue, n_in: int, n_out: int) -> None:
