@@ -40,6 +40,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     errors.install(app)
     for module in (scenes, queries, ops):  # each router carries its full prefix (route templates
         app.include_router(module.router)  # in metrics) and the token check of its /v1 routes
+    app.add_middleware(errors.CatchAll)  # inside the metrics, so that they count its 500s
     app.add_middleware(MetricsMiddleware, metrics=metrics)
     return app
 

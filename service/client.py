@@ -280,7 +280,7 @@ def read_answer(response: httpx.Response, body: wire.Buffer | None = None) -> di
     if media == wire.NPZ:
         return wire.read_npz(body)
     if media == wire.NPY:
-        array = wire.read_npy(body)
+        array = wire.read_npy(body, structured=True)
         if array.dtype.names:
             return {name: array[name] for name in array.dtype.names}
         # one array: the single ?fields= name, or occluded (closest with all fields is structured)

@@ -1,13 +1,15 @@
 """Request plumbing shared by the routes: app state, the bearer token, bounded body reading."""
 from __future__ import annotations
 
+import difflib
 import secrets
 from dataclasses import dataclass, field
 from typing import Any
 
 from fastapi import Request
+from fastapi.routing import APIRoute
 
-from .errors import TooLarge, Unauthorized
+from .errors import Invalid, TooLarge, Unauthorized
 from .metrics import Metrics
 from .settings import Settings
 from .store import Store
@@ -47,6 +49,31 @@ def require_token(request: Request) -> None:
                            "/v1 request (the token is the server's DACRT_TOKEN)")
     if not secrets.compare_digest(presented.strip().encode(), token.get_secret_value().encode()):
         raise Unauthorized("the bearer token is wrong; use the server's DACRT_TOKEN")
+
+
+async def reject_unknown_query(request: Request) -> None:
+    """Dependency of every route: 422 for a query parameter the route does not take, which would
+    otherwise be ignored silently (``?feilds=t`` answering every field)."""
+    route = request.scope.get("route")
+    known = query_parameters(route)
+    unknown = [name for name in request.query_params if name not in known]
+    if not unknown:
+        return
+    name = unknown[0]
+    close = difflib.get_close_matches(name, known, n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    takes = f"takes {', '.join(known)}" if known else "takes no query parameters"
+    raise Invalid(f"unknown query parameter {name!r}{hint}; {request.method} {route.path} {takes}")
+
+
+def query_parameters(route: APIRoute) -> tuple[str, ...]:
+    """The query parameter names a route and its dependencies declare."""
+    names, pending = [], [route.dependant]
+    while pending:
+        dependant = pending.pop()
+        names += [param.alias for param in dependant.query_params if param.alias not in names]
+        pending += dependant.dependencies
+    return tuple(names)
 
 
 async def read_body(request: Request) -> memoryview:

@@ -6,6 +6,11 @@ imports nothing from FastAPI at import time, so ``wire`` and ``client`` stay lig
 """
 from __future__ import annotations
 
+import json
+import logging
+
+log = logging.getLogger("service")
+
 
 class ServiceError(Exception):
     """A request the service refuses; ``detail`` is the message the client reads."""
@@ -64,6 +69,11 @@ STATUS: dict[type[ServiceError], int] = {
 }
 
 
+#: The status counted (never sent: nobody is listening) for a client that left mid-request,
+#: as nginx logs it, so that /metrics keeps it apart from the server's own failures.
+CLIENT_GONE = 499
+
+
 def status_of(error: ServiceError) -> int:
     """HTTP status for a domain error (500 for a ServiceError subclass missing from STATUS)."""
     for cls in type(error).__mro__:
@@ -75,8 +85,9 @@ def status_of(error: ServiceError) -> int:
 def install(app) -> None:
     """Register the exception handlers that give every error the ``{"detail": str}`` shape."""
     from fastapi.exceptions import RequestValidationError
-    from fastapi.responses import JSONResponse
+    from fastapi.responses import JSONResponse, Response
     from starlette.exceptions import HTTPException
+    from starlette.requests import ClientDisconnect
 
     async def on_service_error(request, exc: ServiceError):
         headers = {"WWW-Authenticate": "Bearer"} if isinstance(exc, Unauthorized) else None
@@ -89,7 +100,13 @@ def install(app) -> None:
     async def on_validation_error(request, exc: RequestValidationError):
         return JSONResponse({"detail": describe_validation(exc.errors())}, status_code=422)
 
+    async def on_client_gone(request, exc: ClientDisconnect):
+        log.info("%s %s: the client went away before sending the whole body",
+                 request.method, request.url.path)
+        return Response(status_code=CLIENT_GONE)
+
     app.add_exception_handler(ServiceError, on_service_error)
+    app.add_exception_handler(ClientDisconnect, on_client_gone)
     app.add_exception_handler(HTTPException, on_http_error)
     app.add_exception_handler(RequestValidationError, on_validation_error)
 
@@ -104,3 +121,36 @@ def describe_validation(errors) -> str:
         name = ".".join(loc[1:])
         parts.append(f"{where} {name!r}: {err.get('msg', 'invalid')}" if name else f"{where}: {err.get('msg')}")
     return "; ".join(parts) or "invalid request"
+
+
+class CatchAll:
+    """ASGI middleware: an exception nothing else handled becomes a logged JSON 500.
+
+    Without it the server answers a bare text 500 and drops the connection.
+    """
+
+    BODY = json.dumps({"detail": "the server failed on this request; the error is in its log"}).encode()
+
+    def __init__(self, app) -> None:
+        self.app = app
+
+    async def __call__(self, scope, receive, send) -> None:
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        started = False
+
+        async def send_and_note(message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_and_note)
+        except Exception:
+            log.exception("unhandled error in %s %s", scope["method"], scope["path"])
+            if started:  # half an answer is out: only closing the connection is honest now
+                raise
+            await send({"type": "http.response.start", "status": 500,
+                        "headers": [(b"content-type", b"application/json"),
+                                    (b"content-length", str(len(self.BODY)).encode())]})
+            await send({"type": "http.response.body", "body": self.BODY})

@@ -75,7 +75,9 @@ from __future__ import annotations
 
 import functools
 import io
+import itertools
 import json
+import math
 import struct
 import zipfile
 import zlib
@@ -223,8 +225,11 @@ class BodyBuffer:
 MAX_NPY_HEADER_BYTES = 65536 + 16
 
 
-def read_npy(buf: bytes | memoryview, name: str = "body") -> np.ndarray:
-    """View a whole .npy held in ``buf`` as an array without copying its data (read-only)."""
+def read_npy(buf: bytes | memoryview, name: str = "body", structured: bool = False) -> np.ndarray:
+    """View a whole .npy held in ``buf`` as an array without copying its data (read-only).
+
+    Requests hold plain numeric arrays; answers (``structured``) may hold a record per ray.
+    """
     view = memoryview(buf)
     prefix = bytes(view[:12])
     try:
@@ -237,18 +242,24 @@ def read_npy(buf: bytes | memoryview, name: str = "body") -> np.ndarray:
         if size > MAX_NPY_HEADER_BYTES:
             raise ValueError(f"its header claims {size} bytes, over the {MAX_NPY_HEADER_BYTES} read")
         shape, fortran, dtype = _npy_header(bytes(view[:size]))
-    except ValueError as exc:
+        if any(length < 0 for length in shape):
+            raise ValueError(f"its shape {shape} has a negative length")
+    except (ValueError, SyntaxError, TypeError, OverflowError, RecursionError) as exc:
         raise BadBody(f"{name} is not a readable .npy: {exc}") from None
     if dtype.hasobject:
         raise Invalid(f"{name} holds Python objects ({dtype}); only numeric arrays are accepted "
                       "(they are never unpickled)")
+    plain = dtype.fields is None and dtype.subdtype is None and dtype.kind in "biufc"
+    if not (plain or structured and dtype.fields and dtype.itemsize):
+        raise Invalid(f"{name} has dtype {dtype!s}; only plain "
+                      "numeric arrays (no structured, subarray or void dtypes) are accepted")
     offset = size
-    count = int(np.prod(shape, dtype=np.int64))
+    count = math.prod(shape)  # Python integers: a hostile shape cannot overflow
     expected = count * dtype.itemsize
     if len(view) - offset != expected:
-        raise BadBody(f"{name} is {'truncated' if len(view) - offset < expected else 'longer than its header says'}: "
-                      f"its header promises {dtype} {shape} = {expected} bytes of data, "
-                      f"but {len(view) - offset} follow")
+        problem = "truncated" if len(view) - offset < expected else "longer than its header says"
+        raise BadBody(f"{name} is {problem}: its header promises {dtype} {shape} = {expected} "
+                      f"bytes of data, but {len(view) - offset} follow")
     array = np.frombuffer(view, dtype=dtype, count=count, offset=offset)
     return array.reshape(shape, order="F" if fortran else "C")
 
@@ -265,33 +276,110 @@ def _npy_header(header: bytes) -> tuple[tuple[int, ...], bool, np.dtype]:
     return np.lib.format.read_array_header_2_0(stream)
 
 
+#: Most members an .npz may hold: zipfile makes a Python object per member before any is read.
+MAX_NPZ_MEMBERS = 4096
+
+
 def read_npz(buf: Buffer, max_bytes: int | None = None) -> dict[str, np.ndarray]:
-    """All members of an .npz; stored members are views of ``buf``, deflated ones are read once."""
+    """All members of an .npz; stored members are views of ``buf``, deflated ones are inflated once.
+
+    Inflating stops as soon as a member passes its declared size or the bytes left of
+    ``max_bytes`` for the whole body, so no body costs more memory than the limit.
+    """
+    view = memoryview(buf).cast("B")
     try:
-        archive = zipfile.ZipFile(BufferFile(buf))
+        file = BufferFile(view)
+        _check_member_count(file)
+        archive = zipfile.ZipFile(file)
         infos = archive.infolist()
-    except (zipfile.BadZipFile, ValueError, EOFError) as exc:
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, EOFError,
+            struct.error) as exc:
         raise BadBody(f"body is not a readable .npz (zip): {exc}") from None
     total = sum(info.file_size for info in infos)
     if max_bytes is not None and total > max_bytes:
         raise TooLarge(f".npz members add up to {total} bytes, over the limit of {max_bytes} bytes "
                        "(DACRT_MAX_BODY_BYTES)")
-    view = memoryview(buf)
+    spans = _member_spans(view, infos)
     arrays: dict[str, np.ndarray] = {}
-    for info in infos:
+    for info, (start, end) in zip(infos, spans):
         key = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
-        try:
-            if info.compress_type == zipfile.ZIP_STORED and not info.flag_bits & 0x1:
-                start = _member_data_offset(view, info)
-                member = view[start:start + info.file_size]
-                if len(member) != info.file_size:
-                    raise BadBody(f".npz member {key!r} is truncated")
-            else:
-                member = archive.read(info)
-        except (zipfile.BadZipFile, zlib.error, EOFError, struct.error, NotImplementedError) as exc:
-            raise BadBody(f".npz member {key!r} cannot be read: {exc}") from None
+        if key in arrays:
+            raise BadBody(f".npz holds member {key!r} twice")
+        if info.flag_bits & 0x1:
+            raise BadBody(f".npz member {key!r} is encrypted; send it unencrypted")
+        if info.compress_type == zipfile.ZIP_STORED:
+            if info.compress_size != info.file_size:
+                raise BadBody(f".npz member {key!r} is stored but its two sizes differ "
+                              f"({info.compress_size} and {info.file_size})")
+            member = view[start:end]
+        elif info.compress_type == zipfile.ZIP_DEFLATED:
+            member = _inflate(view[start:end], info, key)
+        else:
+            raise BadBody(f".npz member {key!r} uses zip compression method {info.compress_type}; "
+                          "only stored and deflated members are read (np.savez, "
+                          "np.savez_compressed)")
         arrays[key] = read_npy(member, name=f".npz member {key!r}")
     return arrays
+
+
+def _check_member_count(file: BufferFile) -> None:
+    """400 for an .npz whose central directory lists more than MAX_NPZ_MEMBERS members."""
+    end_record = zipfile._EndRecData(file)  # the end record, zip64 included, as zipfile reads it
+    if end_record is None:
+        raise zipfile.BadZipFile("File is not a zip file")
+    count = end_record[zipfile._ECD_ENTRIES_TOTAL]
+    if count > MAX_NPZ_MEMBERS:
+        raise BadBody(f".npz lists {count} members, over the {MAX_NPZ_MEMBERS} read")
+
+
+def _member_spans(view: memoryview, infos: list[zipfile.ZipInfo]) -> list[tuple[int, int]]:
+    """[start, end) of each member's data in the body; 400 where members overlap or overrun it."""
+    spans, last_end = [], 0
+    for info in infos:
+        start = _member_data_offset(view, info)
+        spans.append((start, start + info.compress_size))
+    for index in sorted(range(len(infos)), key=lambda i: infos[i].header_offset):
+        start, end = spans[index]
+        name = infos[index].filename
+        if infos[index].header_offset < last_end:
+            raise BadBody(f".npz member {name!r} overlaps the member before it")
+        if end > len(view):
+            raise BadBody(f".npz member {name!r} is truncated: its {infos[index].compress_size} "
+                          f"bytes run past the end of the body")
+        last_end = end
+    return spans
+
+
+#: Bytes inflated, and compressed bytes fed, at a time: a member costs its own size and a piece.
+_INFLATE_PIECE, _FEED_PIECE = 1 << 18, 1 << 16
+
+
+def _inflate(data: memoryview, info: zipfile.ZipInfo, key: str) -> memoryview:
+    """A deflated member's bytes, refused as soon as they pass the member's declared size."""
+    out = np.empty(info.file_size, np.uint8)
+    inflater, filled, fed, pending = zlib.decompressobj(-zlib.MAX_WBITS), 0, 0, b""
+    try:
+        while not inflater.eof:
+            if not pending:  # small feeds keep the copies of unconsumed_tail small
+                pending, fed = data[fed:fed + _FEED_PIECE], fed + _FEED_PIECE
+                if not pending:
+                    break
+            piece = inflater.decompress(pending, _INFLATE_PIECE)
+            pending = inflater.unconsumed_tail
+            if filled + len(piece) > info.file_size:
+                raise BadBody(f".npz member {key!r} inflates to more than the {info.file_size} "
+                              "bytes its zip entry declares")
+            out[filled:filled + len(piece)] = np.frombuffer(piece, np.uint8)
+            filled += len(piece)
+    except zlib.error as exc:
+        raise BadBody(f".npz member {key!r} cannot be inflated: {exc}") from None
+    if filled < info.file_size or not inflater.eof:
+        raise BadBody(f".npz member {key!r} is truncated: it inflates to {filled} of the "
+                      f"{info.file_size} bytes its zip entry declares")
+    if zlib.crc32(out) != info.CRC:
+        raise BadBody(f".npz member {key!r} fails its CRC-32 check")
+    out.flags.writeable = False
+    return memoryview(out)
 
 
 class BufferFile(io.RawIOBase):
@@ -324,11 +412,11 @@ class BufferFile(io.RawIOBase):
 
 
 def _member_data_offset(view: memoryview, info: zipfile.ZipInfo) -> int:
-    """Where a stored member's bytes start: after its local header, name and extra field."""
-    fields = _LOCAL.unpack(bytes(view[info.header_offset:info.header_offset + _LOCAL.size]))
-    if fields[0] != b"PK\x03\x04":
+    """Where a member's bytes start: after its local header, name and extra field."""
+    header = bytes(view[max(0, info.header_offset):info.header_offset + _LOCAL.size])
+    if info.header_offset < 0 or len(header) < _LOCAL.size or _LOCAL.unpack(header)[0] != b"PK\x03\x04":
         raise BadBody(f".npz member {info.filename!r} has a bad local header")
-    name_length, extra_length = fields[10], fields[11]
+    name_length, extra_length = _LOCAL.unpack(header)[10:12]
     return info.header_offset + _LOCAL.size + name_length + extra_length
 
 
@@ -336,7 +424,9 @@ def read_json(buf: Buffer, expected: str) -> dict[str, Any]:
     """A JSON object; anything else is 400 naming the ``expected`` keys."""
     try:
         doc = json.loads(buf if isinstance(buf, (bytes, bytearray)) else bytes(buf))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except RecursionError:
+        raise BadBody("body is not valid JSON: it is nested too deeply") from None
+    except ValueError as exc:  # JSONDecodeError, bad UTF-8, integers of over 4300 digits
         raise BadBody(f"body is not valid JSON: {exc}") from None
     if not isinstance(doc, dict):
         raise BadBody(f"JSON body must be an object with {expected}, got {type(doc).__name__}")
@@ -376,9 +466,10 @@ def float_array(value: Any, name: str, columns: int | None) -> np.ndarray:
                           f"({value.dtype}); convert with .astype('<f4')")
         array = value
     else:
+        check_json_numbers(value, name, (int, float, type(None)) if columns is None else (int, float))
         try:
             array = np.asarray(nulls_to_inf(value), dtype=np.float32)
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             raise Invalid(f"{name} must be numbers in nested lists: {exc}") from None
     if columns is not None:
         if array.size == 0 and array.ndim == 1:
@@ -388,6 +479,32 @@ def float_array(value: Any, name: str, columns: int | None) -> np.ndarray:
     elif array.ndim > 1:
         raise Invalid(f"{name} must be one value or shape (N,), got {array.shape}")
     return array
+
+
+def check_json_numbers(value: Any, name: str, kinds: tuple[type, ...]) -> None:
+    """422 unless ``value`` is one of ``kinds``, or a list of them, or a list of such lists.
+
+    JSON strings and booleans are not numbers, whatever NumPy would make of them.
+    """
+    items = value if isinstance(value, list) else [value]
+    if items and all(type(item) is list for item in items):
+        items = list(itertools.chain.from_iterable(items))
+    if set(map(type, items)) <= set(kinds):  # exact types: bool is an int subclass
+        return
+    bad = next(item for item in items if type(item) not in kinds)
+    wanted = "integers" if kinds == (int,) else "numbers"
+    raise Invalid(f"{name} must hold {wanted} in nested lists, found {_json_kind(bad)}")
+
+
+def _json_kind(value: Any) -> str:
+    """How a JSON value is named in a message (never its whole text: it may be huge or deep)."""
+    if isinstance(value, bool):
+        return json.dumps(value)
+    if isinstance(value, str):
+        return f"the string {value[:32]!r}"
+    if isinstance(value, (list, dict)):
+        return "a list nested too deeply" if isinstance(value, list) else "an object"
+    return "null" if value is None else f"the number {value!r:.32}"
 
 
 def nulls_to_inf(value: Any) -> Any:
@@ -405,6 +522,7 @@ def index_array(value: Any, name: str) -> np.ndarray:
                           f"({value.dtype}); convert with .astype('<i4')")
         array = value
     else:
+        check_json_numbers(value, name, (int,))
         try:
             array = np.asarray(value)
         except (TypeError, ValueError) as exc:

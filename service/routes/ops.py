@@ -6,12 +6,13 @@ from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from .. import __version__, tracing, wire
-from ..deps import metrics_of, require_token, settings_of, store_of
+from ..deps import metrics_of, reject_unknown_query, require_token, settings_of, store_of
 
 router = APIRouter(tags=["operations"])
+unauthenticated = [Depends(reject_unknown_query)]
 
 
-@router.get("/health")
+@router.get("/health", dependencies=unauthenticated)
 async def health(request: Request) -> JSONResponse:
     """200 ``{"status": "ok", ...}`` once the engine is compiled; 503 ``starting``/``error`` before."""
     ready = request.app.state.readiness
@@ -23,12 +24,12 @@ async def health(request: Request) -> JSONResponse:
     return JSONResponse(body, status_code=200 if ready.status == "ok" else 503)
 
 
-@router.get("/metrics")
+@router.get("/metrics", dependencies=unauthenticated)
 async def metrics(request: Request) -> Response:
     return Response(generate_latest(metrics_of(request).registry), media_type=CONTENT_TYPE_LATEST)
 
 
-@router.get("/v1/capabilities", dependencies=[Depends(require_token)])
+@router.get("/v1/capabilities", dependencies=[Depends(require_token), Depends(reject_unknown_query)])
 async def capabilities(request: Request) -> dict:
     """Formats, fields, strategies and the limits in force."""
     def media(formats):

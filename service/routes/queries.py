@@ -7,13 +7,15 @@ from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request
 
 from .. import tracing, wire
-from ..deps import metrics_of, read_body, require_token, settings_of, store_of
+from ..deps import (metrics_of, read_body, reject_unknown_query, require_token, settings_of,
+                    store_of)
 from ..responses import BuffersResponse
 from ..store import check_name
 from ..timing import ServerTiming
 from ..tracing import Query
 
-router = APIRouter(prefix="/v1", tags=["queries"], dependencies=[Depends(require_token)])
+router = APIRouter(prefix="/v1", tags=["queries"], dependencies=[Depends(require_token),
+                   Depends(reject_unknown_query)])
 
 
 @router.post("/scenes/{scene}/closest")

@@ -7,11 +7,12 @@ from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request, Response
 
 from .. import wire
-from ..deps import read_body, require_token, settings_of, store_of
+from ..deps import read_body, reject_unknown_query, require_token, settings_of, store_of
 from ..errors import Invalid
 from ..store import check_name
 
-router = APIRouter(prefix="/v1/scenes", tags=["scenes"], dependencies=[Depends(require_token)])
+router = APIRouter(prefix="/v1/scenes", tags=["scenes"], dependencies=[Depends(require_token),
+                   Depends(reject_unknown_query)])
 
 
 @router.put("/{scene}/meshes/{mesh}")

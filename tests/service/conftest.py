@@ -1,8 +1,9 @@
 """Fixtures of the service tests: real uvicorn servers, clients, and small meshes.
 
-Two servers start together once per session (Numba's first compile in a server takes about a
-minute; later starts load the cache): ``server`` with default settings, and ``secure_server``
-with a bearer token and tiny limits, both configured through DACRT_* environment variables.
+Three servers start together once per session (Numba's first compile in a server takes about a
+minute; later starts load the cache): ``server`` with default settings, ``secure_server`` with a
+bearer token and tiny limits, and ``hostile_server`` for the hostile corpus, all configured
+through DACRT_* environment variables.
 """
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ import numpy as np
 import pytest
 
 from service.client import Client
-from service_helpers import REPO, SECURE_LIMITS, TOKEN
+from service_helpers import HOSTILE_BODY_LIMIT, REPO, SECURE_LIMITS, TOKEN
 
 STARTUP_SECONDS = 180
 
@@ -91,7 +92,8 @@ class ServerProcess:
 def _servers():
     """Start both servers at once so their warm-ups overlap; stop them at the end."""
     processes = {"plain": ServerProcess({}),
-                 "secure": ServerProcess({"DACRT_TOKEN": TOKEN, **SECURE_LIMITS})}
+                 "secure": ServerProcess({"DACRT_TOKEN": TOKEN, **SECURE_LIMITS}),
+                 "hostile": ServerProcess({"DACRT_MAX_BODY_BYTES": HOSTILE_BODY_LIMIT})}
     yield processes
     for process in processes.values():
         process.stop()
@@ -107,6 +109,13 @@ def server(_servers) -> str:
 def secure_server(_servers) -> str:
     """Base URL of a server with DACRT_TOKEN and tiny limits (SECURE_LIMITS)."""
     return _servers["secure"].wait_ready()
+
+
+@pytest.fixture(scope="session")
+def hostile_server(_servers) -> ServerProcess:
+    """A server of its own for the hostile corpus, whose memory is measured (4 MiB bodies)."""
+    _servers["hostile"].wait_ready()
+    return _servers["hostile"]
 
 
 @pytest.fixture

@@ -11,6 +11,8 @@ SHARED_SCENES = REPO.parent / "shared" / "scenes"
 TOKEN = "test-token-3f9a"
 SECURE_LIMITS = {"DACRT_MAX_BODY_BYTES": "64KiB", "DACRT_MAX_RAYS_PER_REQUEST": "1000",
                  "DACRT_MAX_TRIANGLES_PER_SCENE": "1000", "DACRT_MAX_SCENE_BYTES": "40000"}
+#: The hostile corpus server's body limit: a zip bomb under it could inflate to gigabytes.
+HOSTILE_BODY_LIMIT = "4MiB"
 
 
 def quad(x0: float, x1: float, y0: float, y1: float, z: float) -> tuple[np.ndarray, np.ndarray]:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import io
 import json
+import re
+import tracemalloc
 import zipfile
 import zlib
 
@@ -13,6 +15,7 @@ import pytest
 from service import wire
 from service.errors import BadBody, Invalid, NotAcceptable, TooLarge, UnsupportedMediaType
 
+import hostile_bodies
 from service_helpers import grid, npy_bytes, npz_bytes, quad
 
 
@@ -439,3 +442,117 @@ def test_encode_answer_names_the_content_type_and_length():
     assert wire.encode_answer({"occluded": np.array([True])}, "json") == ([b'{"occluded":[true]}'], 19, wire.JSON)
     parts, length, media = wire.encode_answer({"occluded": np.array([True])}, "npy")
     assert media == wire.NPY and length == sum(map(len, parts)) == 129
+
+
+# ---- hostile .npy and .npz: a clear 4xx, at a cost bounded by the body limit
+
+
+@pytest.mark.parametrize("descr, shape, error, message", [
+    ("<f4", (-2, -3), BadBody, "negative length"),
+    ("<f4", (-1, -6), BadBody, "negative length"),
+    ("<f4", (2**32, 2**32), BadBody, "truncated"),
+    ("<f4", (2**62, 8), BadBody, "truncated"),
+    ("<f4", (2**64, 6), BadBody, "truncated"),
+    ("|V0", (3,), Invalid, "only plain numeric arrays"),
+    (("<f4", (6,)), (2,), Invalid, "only plain numeric arrays"),
+    ([("a", "<f4"), ("b", "<f4")], (2,), Invalid, "only plain numeric arrays"),
+])
+def test_forged_npy_headers_are_4xx(descr, shape, error, message):
+    with pytest.raises(error, match=message):
+        wire.read_npy(hostile_bodies.npy_with_header(descr, shape, bytes(48)))
+
+
+def test_a_member_inflating_past_its_declared_size_is_400_at_bounded_cost():
+    body = hostile_bodies.zip_bomb(inflated=256 << 20, declared=1024)
+    tracemalloc.start()
+    with pytest.raises(BadBody, match="inflates to more than the 1024 bytes"):
+        wire.read_npz(body, max_bytes=64 << 20)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 1 << 20
+
+
+def test_an_honest_member_over_the_limit_is_413_before_inflating():
+    body = hostile_bodies.honest_big_zip(64 << 20)
+    tracemalloc.start()
+    with pytest.raises(TooLarge, match="DACRT_MAX_BODY_BYTES"):
+        wire.read_npz(body, max_bytes=16 << 20)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 1 << 20
+
+
+def test_an_honest_deflated_member_is_read_once_within_its_size():
+    body = hostile_bodies.honest_big_zip(8 << 20)
+    tracemalloc.start()
+    got = wire.read_npz(body, max_bytes=16 << 20)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert got["origins"].shape == (2 << 20,) and not got["origins"].any()
+    assert peak < (8 << 20) + (1 << 20)
+
+
+@pytest.mark.parametrize("build, error, message", [
+    (hostile_bodies.overlapping_zip, BadBody, "overlaps the member before it"),
+    (hostile_bodies.duplicate_zip, BadBody, "holds member 'origins' twice"),
+    (hostile_bodies.encrypted_zip, BadBody, "is encrypted"),
+    (hostile_bodies.bzip2_zip, BadBody, "compression method 12"),
+])
+def test_malformed_zips_are_400(build, error, message):
+    with pytest.raises(error, match=message):
+        wire.read_npz(build(), max_bytes=1 << 20)
+
+
+def test_a_truncated_or_corrupted_deflated_member_is_400():
+    data = npy_bytes(np.zeros((4, 3), np.float32))
+    member = {"name": "origins.npy", "payload": hostile_bodies.deflate(data), "method": 8,
+              "size": len(data), "crc": zlib.crc32(data)}
+    with pytest.raises(BadBody, match="CRC-32"):
+        wire.read_npz(hostile_bodies.raw_zip([{**member, "crc": 1}]))
+    with pytest.raises(BadBody, match="truncated"):
+        wire.read_npz(hostile_bodies.raw_zip([{**member, "payload": member["payload"][:-4]}]))
+    with pytest.raises(BadBody, match="truncated"):
+        wire.read_npz(hostile_bodies.raw_zip([{**member, "size": len(data) + 8}]))
+
+
+def test_too_many_members_is_400_before_zipfile_lists_them():
+    data = npy_bytes(np.zeros(1, np.float32))
+    body = hostile_bodies.raw_zip([{"name": "a.npy", "payload": data}],
+                                  [{"member": 0, "name": f"a{i}"} for i in range(5000)])
+    with pytest.raises(BadBody, match="5000 members"):
+        wire.read_npz(body)
+
+
+# ---- hostile JSON: a clear 4xx, never a RecursionError or a silent conversion
+
+
+@pytest.mark.parametrize("body, error, message", [
+    (hostile_bodies.deep_json("origins", 100_000), BadBody, "nested too deeply"),
+    (hostile_bodies.deep_json("origins", 900), Invalid, "found a list nested too deeply"),
+    (b'{"origins": [[1' + b"0" * 400 + b', 0, 0]], "directions": [[0, 0, 1]]}', Invalid,
+     "int too large"),
+    (b'{"origins": [[1' + b"0" * 5000 + b', 0, 0]], "directions": [[0, 0, 1]]}', BadBody,
+     "4300 digits"),
+    (b'{"origins": [[0, 0, 0]], "directions": [[0, 0, 1]], "tmax": 1' + b"0" * 400 + b"}",
+     Invalid, "int too large"),
+    (b'{"origins": [["0.5", 0, 0]], "directions": [[0, 0, 1]]}', Invalid, "the string '0.5'"),
+    (b'{"origins": [[true, 0, 0]], "directions": [[0, 0, 1]]}', Invalid, "found true"),
+    (b'{"origins": [[0, 0, 0]], "directions": [[0, 0, 1]], "tmin": [false]}', Invalid,
+     "found false"),
+    (b'{"origins": [{"x": 0}], "directions": [[0, 0, 1]]}', Invalid, "found an object"),
+])
+def test_hostile_json_rays_are_4xx(body, error, message):
+    with pytest.raises(error, match=message):
+        wire.decode_rays(body, "json")
+
+
+@pytest.mark.parametrize("faces, message", [
+    ("[[true, 1, 2]]", "faces must hold integers in nested lists, found true"),
+    ("[[0.0, 1, 2]]", "found the number 0.0"),
+    ('[["0", 1, 2]]', "the string '0'"),
+    ("[[1" + "0" * 400 + ", 1, 2]]", "faces must be integers"),
+])
+def test_json_faces_must_be_integers(faces, message):
+    body = b'{"vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "faces": ' + faces.encode() + b"}"
+    with pytest.raises(Invalid, match=re.escape(message)):
+        wire.decode_mesh(body, "json")
