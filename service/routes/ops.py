@@ -2,17 +2,18 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Request, Response
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, PlainTextResponse
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
-from .. import __version__, tracing, wire
+from .. import __version__, openapi, tracing, wire
 from ..deps import metrics_of, reject_unknown_query, require_token, settings_of, store_of
 
 router = APIRouter(tags=["operations"])
 unauthenticated = [Depends(reject_unknown_query)]
 
 
-@router.get("/health", dependencies=unauthenticated)
+@router.get("/health", dependencies=unauthenticated, responses={
+    503: {"description": "the engine is compiling (starting) or failed to (error)"}})
 async def health(request: Request) -> JSONResponse:
     """200 ``{"status": "ok", ...}`` once the engine is compiled; 503 ``starting``/``error`` before."""
     ready = request.app.state.readiness
@@ -24,12 +25,14 @@ async def health(request: Request) -> JSONResponse:
     return JSONResponse(body, status_code=200 if ready.status == "ok" else 503)
 
 
-@router.get("/metrics", dependencies=unauthenticated)
+@router.get("/metrics", dependencies=unauthenticated, response_class=PlainTextResponse,
+            responses={200: {"description": "Prometheus text format"}})
 async def metrics(request: Request) -> Response:
     return Response(generate_latest(metrics_of(request).registry), media_type=CONTENT_TYPE_LATEST)
 
 
-@router.get("/v1/capabilities", dependencies=[Depends(require_token), Depends(reject_unknown_query)])
+@router.get("/v1/capabilities", dependencies=[Depends(require_token), Depends(reject_unknown_query)],
+            responses=openapi.errors(401, 422))
 async def capabilities(request: Request) -> dict:
     """Formats, fields, strategies and the limits in force."""
     def media(formats):

@@ -6,9 +6,11 @@ import json
 from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request
 
-from .. import tracing, wire
+from .. import openapi, tracing, wire
 from ..deps import (metrics_of, read_body, reject_unknown_query, require_token, settings_of,
                     store_of)
+from ..params import (Cull, Fields, QueryKind, RayFormat, SceneName, Stats, Strategy,
+                      TraceFormat)
 from ..responses import BuffersResponse
 from ..store import check_name
 from ..timing import ServerTiming
@@ -18,28 +20,38 @@ router = APIRouter(prefix="/v1", tags=["queries"], dependencies=[Depends(require
                    Depends(reject_unknown_query)])
 
 
-@router.post("/scenes/{scene}/closest")
-async def closest(scene: str, request: Request, fields: str | None = None,
-                  strategy: str | None = None, stats: bool = False, cull: str = "none",
-                  format: str | None = None):
+RAYS_BODY = openapi.request_body(wire.RAY_FORMATS, openapi.RAYS_JSON,
+                                 "rays: .npy (N, 6) or (N, 8) float32, .npz or JSON")
+TRACE_BODY = openapi.request_body(wire.TRACE_FORMATS, openapi.TRACE_JSON,
+                                  "a mesh and rays: .npz or JSON")
+QUERY_ERRORS = openapi.errors(400, 401, 404, 406, 408, 413, 415, 422)
+
+
+@router.post("/scenes/{scene}/closest", openapi_extra=RAYS_BODY, response_class=BuffersResponse,
+             responses={**openapi.answers("t, mesh, prim, u, v, normal per ray"), **QUERY_ERRORS})
+async def closest(scene: SceneName, request: Request, fields: Fields = None,
+                  strategy: Strategy = None, stats: Stats = False, cull: Cull = "none",
+                  format: RayFormat = None):
     """The nearest hit of each ray."""
     options = tracing.make_options(Query.CLOSEST, fields, strategy, stats, settings_of(request).threads, cull)
     return await answer(request, options, scene, format)
 
 
-@router.post("/scenes/{scene}/occluded")
-async def occluded(scene: str, request: Request, fields: str | None = None,
-                   strategy: str | None = None, stats: bool = False, cull: str = "none",
-                   format: str | None = None):
+@router.post("/scenes/{scene}/occluded", openapi_extra=RAYS_BODY, response_class=BuffersResponse,
+             responses={**openapi.answers("occluded per ray"), **QUERY_ERRORS})
+async def occluded(scene: SceneName, request: Request, fields: Fields = None,
+                   strategy: Strategy = None, stats: Stats = False, cull: Cull = "none",
+                   format: RayFormat = None):
     """Whether each ray hits anything in [tmin, tmax]."""
     options = tracing.make_options(Query.OCCLUDED, fields, strategy, stats, settings_of(request).threads, cull)
     return await answer(request, options, scene, format)
 
 
-@router.post("/trace")
-async def trace(request: Request, query: str = "closest", fields: str | None = None,
-                strategy: str | None = None, stats: bool = False, cull: str = "none",
-                format: str | None = None):
+@router.post("/trace", openapi_extra=TRACE_BODY, response_class=BuffersResponse,
+             responses={**openapi.answers("the answer of the query"), **QUERY_ERRORS})
+async def trace(request: Request, query: QueryKind = "closest", fields: Fields = None,
+                strategy: Strategy = None, stats: Stats = False, cull: Cull = "none",
+                format: TraceFormat = None):
     """A stateless one-shot: the mesh comes with the rays (answers carry X-Scene-Version: 0)."""
     options = tracing.make_options(query, fields, strategy, stats, settings_of(request).threads, cull)
     return await answer(request, options, None, format)

@@ -6,18 +6,30 @@ from functools import partial
 from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request, Response
 
-from .. import wire
+from .. import openapi, wire
 from ..deps import read_body, reject_unknown_query, require_token, settings_of, store_of
 from ..errors import Invalid
+from ..params import FrameFormat, Mask, MeshFormat, MeshName, SceneName, VertexFormat
 from ..store import check_name
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"], dependencies=[Depends(require_token),
                    Depends(reject_unknown_query)])
 
 
-@router.put("/{scene}/meshes/{mesh}")
-async def put_mesh(scene: str, mesh: str, request: Request, response: Response,
-                   format: str | None = None, mask: str | None = None) -> dict:
+MESH_BODY = openapi.request_body(wire.MESH_FORMATS, openapi.MESH_JSON,
+                                 "a mesh: .npz, JSON or a mesh file (OBJ, PLY, STL, GLB, OFF)")
+VERTICES_BODY = openapi.request_body(wire.VERTEX_FORMATS, openapi.VERTICES_JSON,
+                                     "vertex positions, as many as the mesh has")
+FRAME_BODY = openapi.request_body(wire.FRAME_FORMATS, openapi.FRAME_JSON,
+                                  "MESH.vertices (and MESH.faces) for several meshes")
+CHANGE_ERRORS = openapi.errors(400, 401, 404, 408, 409, 413, 415, 422)
+READ_ERRORS = openapi.errors(401, 404, 422)
+
+
+@router.put("/{scene}/meshes/{mesh}", openapi_extra=MESH_BODY, status_code=200,
+            responses={201: {"description": "a new mesh: its info"}, **CHANGE_ERRORS})
+async def put_mesh(scene: SceneName, mesh: MeshName, request: Request, response: Response,
+                   format: MeshFormat = None, mask: Mask = None) -> dict:
     """Add or replace a mesh (201 new / 200 replaced); creates the scene if needed."""
     check_name("scene", scene), check_name("mesh", mesh)
     if mask is not None:
@@ -31,8 +43,10 @@ async def put_mesh(scene: str, mesh: str, request: Request, response: Response,
     return stored.info(scene)
 
 
-@router.put("/{scene}/meshes/{mesh}/vertices")
-async def put_vertices(scene: str, mesh: str, request: Request, format: str | None = None) -> dict:
+@router.put("/{scene}/meshes/{mesh}/vertices", openapi_extra=VERTICES_BODY,
+            responses=CHANGE_ERRORS)
+async def put_vertices(scene: SceneName, mesh: MeshName, request: Request,
+                       format: VertexFormat = None) -> dict:
     """New vertex positions for a mesh, same count (409 otherwise); faces are kept."""
     check_name("scene", scene), check_name("mesh", mesh)
     store_of(request).snapshot(scene).mesh(mesh)  # 404 before reading the body
@@ -44,8 +58,8 @@ async def put_vertices(scene: str, mesh: str, request: Request, format: str | No
     return stored.info(scene)
 
 
-@router.post("/{scene}/frame")
-async def post_frame(scene: str, request: Request, format: str | None = None) -> dict:
+@router.post("/{scene}/frame", openapi_extra=FRAME_BODY, responses=CHANGE_ERRORS)
+async def post_frame(scene: SceneName, request: Request, format: FrameFormat = None) -> dict:
     """Change several meshes in one version, atomically."""
     check_name("scene", scene)
     body = await read_body(request)
@@ -56,30 +70,30 @@ async def post_frame(scene: str, request: Request, format: str | None = None) ->
     return snapshot.info()
 
 
-@router.get("")
+@router.get("", responses=openapi.errors(401, 422))
 async def list_scenes(request: Request) -> dict:
     return {"scenes": [s.info() for s in store_of(request).snapshots()]}
 
 
-@router.get("/{scene}")
-async def get_scene(scene: str, request: Request) -> dict:
+@router.get("/{scene}", responses=READ_ERRORS)
+async def get_scene(scene: SceneName, request: Request) -> dict:
     return store_of(request).snapshot(check_name("scene", scene)).info()
 
 
-@router.get("/{scene}/meshes/{mesh}")
-async def get_mesh(scene: str, mesh: str, request: Request) -> dict:
+@router.get("/{scene}/meshes/{mesh}", responses=READ_ERRORS)
+async def get_mesh(scene: SceneName, mesh: MeshName, request: Request) -> dict:
     check_name("scene", scene), check_name("mesh", mesh)
     return store_of(request).snapshot(scene).mesh(mesh).info(scene)
 
 
-@router.delete("/{scene}", status_code=204)
-async def delete_scene(scene: str, request: Request) -> Response:
+@router.delete("/{scene}", status_code=204, responses=READ_ERRORS)
+async def delete_scene(scene: SceneName, request: Request) -> Response:
     store_of(request).delete_scene(check_name("scene", scene))
     return Response(status_code=204)
 
 
-@router.delete("/{scene}/meshes/{mesh}", status_code=204)
-async def delete_mesh(scene: str, mesh: str, request: Request) -> Response:
+@router.delete("/{scene}/meshes/{mesh}", status_code=204, responses=READ_ERRORS)
+async def delete_mesh(scene: SceneName, mesh: MeshName, request: Request) -> Response:
     check_name("scene", scene), check_name("mesh", mesh)
     store_of(request).delete_mesh(scene, mesh)
     return Response(status_code=204)
