@@ -7,13 +7,13 @@ import os
 import uvicorn
 
 from .app import create_app
-from .settings import Settings
+from .settings import load_settings_or_exit
 
 
 def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s:     %(name)s: %(message)s")
     overrides = {} if "DACRT_LOAD_DEMO" in os.environ else {"load_demo": True}
-    settings = Settings(**overrides)
+    settings = load_settings_or_exit(**overrides)
     uvicorn.run(create_app(settings), host=settings.host, port=settings.port)
 
 

@@ -14,15 +14,16 @@ from . import __version__, errors, tracing, wire
 from .deps import Readiness
 from .metrics import Metrics, MetricsMiddleware
 from .routes import ops, queries, scenes
-from .settings import Settings
+from .settings import Settings, load_settings_or_exit
 from .store import Store
 
 log = logging.getLogger("service")
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
-    """A new app with its own store, metrics and settings (from the environment if not given)."""
-    settings = settings or Settings()
+    """A new app with its own store, metrics and settings (from the environment if not given:
+    then a bad or unknown DACRT_* variable ends the process with one line)."""
+    settings = settings or load_settings_or_exit()
     store = Store(settings.max_triangles_per_scene, settings.max_scene_bytes)
     metrics = Metrics(lambda: store.nbytes, lambda: len(store.snapshots()))
 
