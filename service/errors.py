@@ -27,6 +27,10 @@ class NotFound(ServiceError):
     """Unknown scene or mesh."""
 
 
+class TimedOut(ServiceError):
+    """The client did not send its request's headers or body within the configured time."""
+
+
 class NotAcceptable(ServiceError):
     """``Accept`` names no answer format the service can write."""
 
@@ -51,16 +55,22 @@ class NotReady(ServiceError):
     """The engine is not compiled yet."""
 
 
+class TooManyConnections(ServiceError):
+    """The server holds as many connections as DACRT_MAX_CONNECTIONS allows."""
+
+
 STATUS: dict[type[ServiceError], int] = {
     BadBody: 400,
     Unauthorized: 401,
     NotFound: 404,
     NotAcceptable: 406,
+    TimedOut: 408,
     Conflict: 409,
     TooLarge: 413,
     UnsupportedMediaType: 415,
     Invalid: 422,
     NotReady: 503,
+    TooManyConnections: 503,
 }
 
 
@@ -75,8 +85,9 @@ def status_of(error: ServiceError) -> int:
 def install(app) -> None:
     """Register the exception handlers that give every error the ``{"detail": str}`` shape."""
     from fastapi.exceptions import RequestValidationError
-    from fastapi.responses import JSONResponse
+    from fastapi.responses import JSONResponse, Response
     from starlette.exceptions import HTTPException
+    from starlette.requests import ClientDisconnect
 
     async def on_service_error(request, exc: ServiceError):
         headers = {"WWW-Authenticate": "Bearer"} if isinstance(exc, Unauthorized) else None
@@ -89,7 +100,13 @@ def install(app) -> None:
     async def on_validation_error(request, exc: RequestValidationError):
         return JSONResponse({"detail": describe_validation(exc.errors())}, status_code=422)
 
+    async def on_client_disconnect(request, exc: ClientDisconnect):
+        # the client left (or a deadline cut it off) mid-body: no one to answer, nothing to log;
+        # 499 is the customary status of a request the client closed, seen only in the metrics
+        return Response(status_code=499)
+
     app.add_exception_handler(ServiceError, on_service_error)
+    app.add_exception_handler(ClientDisconnect, on_client_disconnect)
     app.add_exception_handler(HTTPException, on_http_error)
     app.add_exception_handler(RequestValidationError, on_validation_error)
 
