@@ -7,6 +7,7 @@ import os
 import uvicorn
 
 from .app import create_app
+from .protocol import guarded_protocol
 from .settings import load_settings_or_exit
 
 
@@ -14,7 +15,8 @@ def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s:     %(name)s: %(message)s")
     overrides = {} if "DACRT_LOAD_DEMO" in os.environ else {"load_demo": True}
     settings = load_settings_or_exit(**overrides)
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port)
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port,
+                http=guarded_protocol(settings))
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""The app factory: ``uvicorn service.app:create_app --factory``."""
+"""The app factory: ``uvicorn service.app:create_app --factory`` (with
+``--http service.protocol:GuardedHttpProtocol`` for the deadlines and the connection bound)."""
 from __future__ import annotations
 
 import logging

@@ -33,6 +33,7 @@ def parse_size(value: object) -> object:
 
 ByteSize = Annotated[int, BeforeValidator(parse_size), Field(gt=0)]
 Count = Annotated[int, BeforeValidator(parse_size), Field(gt=0)]
+Seconds = Annotated[float, Field(gt=0)]
 
 PREFIX = "DACRT_"
 
@@ -58,6 +59,9 @@ class Settings(BaseSettings):
     demo_scene: Path | None = None                #: .npz (vertices, faces) for the demo scene; None: scenes/teapot.npz
     demo_name: str = "demo"                       #: name of the demo scene
     load_demo: bool = False                       #: load the demo scene at start (``python -m service`` turns it on)
+    header_timeout: Seconds = 10                  #: seconds a connection has to send a request's headers
+    body_timeout: Seconds = 600                   #: seconds a request has to send its whole body
+    max_connections: Count = 100                  #: open connections; more are answered 503
 
     @field_validator("token", mode="before")
     @classmethod

@@ -72,7 +72,7 @@ def environ(monkeypatch):
 
 @pytest.mark.parametrize("name, closest", [("DACRT_MAX_BODY_BYTE", "DACRT_MAX_BODY_BYTES"),
                                            ("DACRT_TOKN", "DACRT_TOKEN"),
-                                           ("dacrt_max_scene_byte", "DACRT_MAX_SCENE_BYTES")])
+                                           ("dacrt_header_timout", "DACRT_HEADER_TIMEOUT")])
 def test_unknown_variables_are_refused_with_the_closest_name(name, closest):
     with pytest.raises(SettingsError) as refused:
         check_names({"PATH": "/bin", "DACRT_PORT": "80", name: "1MiB"})
@@ -91,20 +91,20 @@ def test_load_settings_refuses_an_unknown_variable_in_the_environment(environ):
 
 
 def test_a_bad_value_names_the_variable_in_one_line(environ):
-    environ(DACRT_MAX_BODY_BYTES="lots", DACRT_PORT="0x")
+    environ(DACRT_MAX_BODY_BYTES="lots", DACRT_HEADER_TIMEOUT="0")
     with pytest.raises(SettingsError) as refused:
         load_settings()
     message = str(refused.value)
     assert message.startswith("bad setting ") and "\n" not in message
-    assert "DACRT_MAX_BODY_BYTES='lots'" in message and "DACRT_PORT='0x'" in message
+    assert "DACRT_MAX_BODY_BYTES='lots'" in message and "DACRT_HEADER_TIMEOUT='0'" in message
     assert "max_body_bytes" not in message and "validation error" not in message
 
 
 def test_load_settings_reads_the_environment_and_overrides(environ):
-    environ(DACRT_MAX_BODY_BYTES="1MiB", DACRT_LOAD_DEMO="false")
+    environ(DACRT_MAX_CONNECTIONS="7", DACRT_BODY_TIMEOUT="2.5", DACRT_LOAD_DEMO="false")
     settings = load_settings(load_demo=True)
-    assert (settings.max_body_bytes, settings.load_demo) == (MiB, True)
-    assert settings.port == 8000  # the default
+    assert (settings.max_connections, settings.body_timeout, settings.load_demo) == (7, 2.5, True)
+    assert settings.header_timeout == 10  # the default
 
 
 def test_launchers_exit_with_the_message(environ):
