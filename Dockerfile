@@ -22,4 +22,5 @@ RUN python -c "import dacrt; print('warm-up', round(dacrt.warmup(), 1), 's')"
 EXPOSE 8000
 HEALTHCHECK --interval=15s --timeout=5s --start-period=180s --retries=3 \
     CMD ["python", "-c", "import sys, urllib.request; sys.exit(urllib.request.urlopen('http://127.0.0.1:8000/health', timeout=4).status != 200)"]
-CMD ["uvicorn", "service.app:create_app", "--factory", "--host", "0.0.0.0", "--port", "8000"]
+CMD ["uvicorn", "service.app:create_app", "--factory", "--http", "service.protocol:GuardedHttpProtocol", \
+     "--host", "0.0.0.0", "--port", "8000"]

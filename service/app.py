@@ -1,4 +1,5 @@
-"""The app factory: ``uvicorn service.app:create_app --factory``."""
+"""The app factory: ``uvicorn service.app:create_app --factory`` (with
+``--http service.protocol:GuardedHttpProtocol`` for the deadlines and the connection bound)."""
 from __future__ import annotations
 
 import logging
@@ -14,15 +15,16 @@ from . import __version__, errors, tracing, wire
 from .deps import Readiness
 from .metrics import Metrics, MetricsMiddleware
 from .routes import ops, queries, scenes
-from .settings import Settings
+from .settings import Settings, load_settings_or_exit
 from .store import Store
 
 log = logging.getLogger("service")
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
-    """A new app with its own store, metrics and settings (from the environment if not given)."""
-    settings = settings or Settings()
+    """A new app with its own store, metrics and settings (from the environment if not given:
+    then a bad or unknown DACRT_* variable ends the process with one line)."""
+    settings = settings or load_settings_or_exit()
     store = Store(settings.max_triangles_per_scene, settings.max_scene_bytes)
     metrics = Metrics(lambda: store.nbytes, lambda: len(store.snapshots()))
 

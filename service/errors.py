@@ -32,6 +32,10 @@ class NotFound(ServiceError):
     """Unknown scene or mesh."""
 
 
+class TimedOut(ServiceError):
+    """The client did not send its request's headers or body within the configured time."""
+
+
 class NotAcceptable(ServiceError):
     """``Accept`` names no answer format the service can write."""
 
@@ -56,16 +60,22 @@ class NotReady(ServiceError):
     """The engine is not compiled yet."""
 
 
+class TooManyConnections(ServiceError):
+    """The server holds as many connections as DACRT_MAX_CONNECTIONS allows."""
+
+
 STATUS: dict[type[ServiceError], int] = {
     BadBody: 400,
     Unauthorized: 401,
     NotFound: 404,
     NotAcceptable: 406,
+    TimedOut: 408,
     Conflict: 409,
     TooLarge: 413,
     UnsupportedMediaType: 415,
     Invalid: 422,
     NotReady: 503,
+    TooManyConnections: 503,
 }
 
 

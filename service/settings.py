@@ -1,14 +1,20 @@
 """Settings, read from the environment with the prefix ``DACRT_`` (e.g. ``DACRT_TOKEN``).
 
+``load_settings`` refuses a DACRT_* variable that names no setting (a typo would silently keep
+the default) and names the variable of a bad value, in one line.
+
 Byte sizes accept plain integers or a unit: ``64MiB``, ``4GiB``, ``500MB``, ``10k``.
 """
 from __future__ import annotations
 
+import difflib
+import os
 import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import BeforeValidator, Field, SecretStr, field_validator
+from pydantic import BeforeValidator, Field, SecretStr, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 KiB, MiB, GiB = 2**10, 2**20, 2**30
@@ -27,6 +33,9 @@ def parse_size(value: object) -> object:
 
 ByteSize = Annotated[int, BeforeValidator(parse_size), Field(gt=0)]
 Count = Annotated[int, BeforeValidator(parse_size), Field(gt=0)]
+Seconds = Annotated[float, Field(gt=0)]
+
+PREFIX = "DACRT_"
 
 #: Where the demo scene is looked for when ``demo_scene`` is not set: the working directory,
 #: then the source checkout this package was imported from.
@@ -37,7 +46,7 @@ DEMO_CANDIDATES = (Path("scenes") / "teapot.npz",
 class Settings(BaseSettings):
     """Everything an operator can set. Defaults suit one machine serving a few large scenes."""
 
-    model_config = SettingsConfigDict(env_prefix="DACRT_", frozen=True, extra="ignore")
+    model_config = SettingsConfigDict(env_prefix=PREFIX, frozen=True, extra="ignore")
 
     host: str = "127.0.0.1"                       #: bind address of ``python -m service``
     port: int = Field(8000, ge=0, le=65535)       #: port of ``python -m service``
@@ -50,6 +59,9 @@ class Settings(BaseSettings):
     demo_scene: Path | None = None                #: .npz (vertices, faces) for the demo scene; None: scenes/teapot.npz
     demo_name: str = "demo"                       #: name of the demo scene
     load_demo: bool = False                       #: load the demo scene at start (``python -m service`` turns it on)
+    header_timeout: Seconds = 10                  #: seconds a connection has to send a request's headers
+    body_timeout: Seconds = 600                   #: seconds a request has to send its whole body
+    max_connections: Count = 100                  #: open connections; more are answered 503
 
     @field_validator("token", mode="before")
     @classmethod
@@ -68,3 +80,52 @@ class Settings(BaseSettings):
                 "max_rays_per_request": self.max_rays_per_request,
                 "max_triangles_per_scene": self.max_triangles_per_scene,
                 "max_scene_bytes": self.max_scene_bytes}
+
+
+class SettingsError(ValueError):
+    """A DACRT_* environment variable that names no setting or has a bad value (one line)."""
+
+
+def variable(field: str) -> str:
+    """The environment variable of a setting: ``max_body_bytes`` -> ``DACRT_MAX_BODY_BYTES``."""
+    return PREFIX + field.upper()
+
+
+def check_names(environ: Mapping[str, str]) -> None:
+    """Refuse DACRT_* variables that name no setting: a typo would silently keep the default."""
+    fields = list(Settings.model_fields)
+    for name in sorted(environ):
+        field = name.lower().removeprefix(PREFIX.lower())
+        if name.upper().startswith(PREFIX) and field not in fields:
+            close = difflib.get_close_matches(field, fields, n=1)  # not on the shared prefix
+            hint = (f"did you mean {variable(close[0])}?" if close
+                    else "known: " + ", ".join(variable(f) for f in fields))
+            raise SettingsError(f"unknown setting {name}; {hint}")
+
+
+def describe(error: ValidationError) -> str:
+    """One line naming each bad variable, e.g. ``DACRT_PORT='x': Input should be ...``."""
+    parts = []
+    for item in error.errors():
+        field = str(item["loc"][0]) if item["loc"] else ""
+        shown = "" if field == "token" else f"={item.get('input')!r}"  # never echo the secret
+        parts.append(f"{variable(field)}{shown}: {item['msg']}")
+    return "bad setting " + "; ".join(parts)
+
+
+def load_settings(**overrides: object) -> Settings:
+    """Settings from the environment (and ``overrides``), or SettingsError naming the variable."""
+    check_names(os.environ)
+    try:
+        return Settings(**overrides)
+    except ValidationError as error:
+        raise SettingsError(describe(error)) from None
+
+
+def load_settings_or_exit(**overrides: object) -> Settings:
+    """``load_settings`` for launchers: a bad environment ends the process with one line, no
+    traceback (SystemExit prints its message to stderr and exits with status 1)."""
+    try:
+        return load_settings(**overrides)
+    except SettingsError as error:
+        raise SystemExit(f"dacrt-service: {error}") from None

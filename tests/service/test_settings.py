@@ -1,10 +1,17 @@
-"""Settings from DACRT_* environment variables, with sizes in units."""
+"""Settings from DACRT_* environment variables, with sizes in units; unknown names and bad
+values refused in one line."""
 from __future__ import annotations
+
+import os
+import subprocess
+import sys
 
 import pytest
 from pydantic import ValidationError
 
-from service.settings import MiB, Settings, parse_size
+from service.settings import (MiB, Settings, SettingsError, check_names, load_settings,
+                              load_settings_or_exit, parse_size)
+from service_helpers import REPO
 
 
 def test_defaults_are_sane(monkeypatch):
@@ -52,3 +59,78 @@ def test_demo_scene_is_found_in_the_checkout(monkeypatch, tmp_path):
     monkeypatch.delenv("DACRT_DEMO_SCENE", raising=False)
     monkeypatch.chdir(tmp_path)  # not in the working directory: found next to the package
     assert Settings().demo_path().name == "teapot.npz"
+
+
+@pytest.fixture
+def environ(monkeypatch):
+    """Set DACRT_* variables on an environment cleared of the test run's own."""
+    for name in list(os.environ):
+        if name.upper().startswith("DACRT_"):
+            monkeypatch.delenv(name)
+    return lambda **variables: [monkeypatch.setenv(k, v) for k, v in variables.items()]
+
+
+@pytest.mark.parametrize("name, closest", [("DACRT_MAX_BODY_BYTE", "DACRT_MAX_BODY_BYTES"),
+                                           ("DACRT_TOKN", "DACRT_TOKEN"),
+                                           ("dacrt_header_timout", "DACRT_HEADER_TIMEOUT")])
+def test_unknown_variables_are_refused_with_the_closest_name(name, closest):
+    with pytest.raises(SettingsError) as refused:
+        check_names({"PATH": "/bin", "DACRT_PORT": "80", name: "1MiB"})
+    assert str(refused.value) == f"unknown setting {name}; did you mean {closest}?"
+
+
+def test_an_unknown_variable_without_a_close_name_lists_the_known_ones():
+    with pytest.raises(SettingsError, match=r"^unknown setting DACRT_ZZZ; known: DACRT_HOST, "):
+        check_names({"DACRT_ZZZ": "1"})
+
+
+def test_load_settings_refuses_an_unknown_variable_in_the_environment(environ):
+    environ(DACRT_MAX_BODY_BYTE="1MiB")
+    with pytest.raises(SettingsError, match="BODY_BYTE; did you mean DACRT_MAX_BODY_BYTES"):
+        load_settings()
+
+
+def test_a_bad_value_names_the_variable_in_one_line(environ):
+    environ(DACRT_MAX_BODY_BYTES="lots", DACRT_HEADER_TIMEOUT="0")
+    with pytest.raises(SettingsError) as refused:
+        load_settings()
+    message = str(refused.value)
+    assert message.startswith("bad setting ") and "\n" not in message
+    assert "DACRT_MAX_BODY_BYTES='lots'" in message and "DACRT_HEADER_TIMEOUT='0'" in message
+    assert "max_body_bytes" not in message and "validation error" not in message
+
+
+def test_load_settings_reads_the_environment_and_overrides(environ):
+    environ(DACRT_MAX_CONNECTIONS="7", DACRT_BODY_TIMEOUT="2.5", DACRT_LOAD_DEMO="false")
+    settings = load_settings(load_demo=True)
+    assert (settings.max_connections, settings.body_timeout, settings.load_demo) == (7, 2.5, True)
+    assert settings.header_timeout == 10  # the default
+
+
+def test_launchers_exit_with_the_message(environ):
+    environ(DACRT_PORT="x")
+    with pytest.raises(SystemExit) as exited:
+        load_settings_or_exit()
+    assert str(exited.value).startswith("dacrt-service: bad setting DACRT_PORT='x': ")
+
+
+LAUNCHERS = {"python -m service": ["-m", "service"],
+             "uvicorn factory": ["-m", "uvicorn", "service.app:create_app", "--factory",
+                                 "--port", "0"]}
+
+
+@pytest.mark.parametrize("launcher", LAUNCHERS)
+@pytest.mark.parametrize("variable, value, message", [
+    ("DACRT_MAX_BODY_BYTE", "1MiB", "unknown setting DACRT_MAX_BODY_BYTE; did you mean "
+                                    "DACRT_MAX_BODY_BYTES?"),
+    ("DACRT_MAX_BODY_BYTES", "lots", "bad setting DACRT_MAX_BODY_BYTES='lots': "),
+])
+def test_the_server_refuses_to_start(launcher, variable, value, message):
+    inherited = {k: v for k, v in os.environ.items() if not k.upper().startswith("DACRT_")}
+    done = subprocess.run([sys.executable, *LAUNCHERS[launcher]], cwd=REPO, timeout=120,
+                          env={**inherited, "PYTHONPATH": str(REPO), variable: value},
+                          capture_output=True, text=True)
+    output = (done.stdout + done.stderr).strip()
+    assert done.returncode != 0
+    assert output.splitlines() == [output] and "Traceback" not in output
+    assert output.startswith("dacrt-service: " + message), output
