@@ -29,8 +29,16 @@ With no ``Content-Type`` or ``application/octet-stream`` the format is sniffed f
 Binary arrays must be little-endian with exactly the dtype below; a wrong dtype or shape is 422
 with the fix in the message (the binary path never converts behind the caller's back: that would
 be a hidden copy). ``allow_pickle`` is never on: an object array is 422 and is never unpickled.
-A ``.npy`` body whose data is shorter or longer than its header says is 400. An ``.npz`` whose
-members add up to more than ``max_bytes`` once decompressed is 413.
+A ``.npy`` body whose data is shorter or longer than its header says, or whose shape has a
+negative length, is 400; a structured, subarray or void dtype is 422. An ``.npz`` whose members
+add up to more than ``max_bytes`` once decompressed is 413; its members must be stored or
+deflated, unencrypted, each named once, and must not overlap (400 otherwise), at most
+``MAX_NPZ_MEMBERS`` of them. A deflated member is inflated piece by piece and refused as soon as
+it passes its declared size, so no body costs more than the limit in memory.
+
+JSON values are read as JSON types: numbers where numbers are expected (a string such as
+``"0.5"`` or a boolean is 422), JSON nested too deeply for the parser or an integer of over 4300
+digits is 400.
 
 Rays (``decode_rays``; formats npy, npz, json)
     npy  float32 (N, 6) ``[ox, oy, oz, dx, dy, dz]`` or (N, 8) ``[..., tmin, tmax]``.
