@@ -58,7 +58,10 @@ def read_mesh_file(body: Buffer, fmt: str) -> tuple[np.ndarray, np.ndarray]:
     elif fmt == "off":
         vertices, faces = read_off(data)
     else:
-        {"ply": check_ply, "stl": check_stl, "glb": check_glb}[fmt](data)
+        try:
+            {"ply": check_ply, "stl": check_stl, "glb": check_glb}[fmt](data)
+        except BadBody as exc:
+            raise BadBody(f"body cannot be read as {fmt.upper()}: {exc.detail}") from None
         vertices, faces = _read_with_trimesh(data, fmt)
     if len(faces) == 0:
         raise BadBody(f"no triangles found in the {fmt.upper()} body; is it really {fmt.upper()}?")
