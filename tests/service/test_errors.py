@@ -9,6 +9,8 @@ import httpx
 import numpy as np
 import pytest
 
+from mesh_files import (OBJ_TRIANGLE, OFF_TRIANGLE, PLY_TRIANGLE_HEADER, TRIANGLE, ply, png, stl,
+                        triangle_glb)
 from service.client import APIError, Client
 from service_helpers import NPY, NPZ, TOKEN, down_rays, grid, npy_bytes, npz_bytes, quad
 
@@ -249,6 +251,52 @@ def test_invalid_values_are_422_and_change_nothing(http, client, quad_scene, pat
     assert message in detail(http.request(method, f"/v1/scenes/{quad_scene}/{path}", content=body,
                                           headers=headers), 422)
     assert state(client, quad_scene) == before
+
+
+# ---- mesh files: malformed or hostile files are 400, 413 or 422 and change nothing
+
+OBJ, OFF, PLY, STL, GLB = ({"Content-Type": t} for t in (
+    "model/obj", "model/off", "application/ply", "model/stl", "model/gltf-binary"))
+BILLION_VERTICES = ["element vertex 1000000000", *PLY_TRIANGLE_HEADER[1:]]
+
+
+@pytest.mark.parametrize("body, headers, status, message", [
+    (OBJ_TRIANGLE + b"f 0 1 2\n", OBJ, 422,
+     "OBJ line 4 (`f 0 1 2`) refers to vertex 0, but OBJ indices start at 1"),
+    (OBJ_TRIANGLE + b"f 1 2 9\n", OBJ, 422, "refers to vertex 9, but there are 3 vertices"),
+    (OBJ_TRIANGLE + b"f 1 2\n", OBJ, 422, "a face needs at least 3 vertices"),
+    (OFF_TRIANGLE + b"1000000 0 1 2\n", OFF, 400,
+     "declares a face of 1000000 vertices but lists 3 indices"),
+    (OFF_TRIANGLE + b"3 0 1 7\n", OFF, 422,
+     "OFF line 6 (`3 0 1 7`) refers to vertex 7, but there are 3 vertices"),
+    (ply(BILLION_VERTICES, encoding="binary_little_endian"), PLY, 400,
+     "declares 1000000000 vertex"),
+    (b"ply\nformat ascii 1.0\nelement vertex 3\n", PLY, 400, "no `end_header` line"),
+    (stl(TRIANGLE[None], count=10**8), STL, 400, "binary STL header declares 100000000 triangles"),
+    (triangle_glb(edit=lambda doc: doc["buffers"][0].update(uri="model.bin")), GLB, 400,
+     "only a self-contained GLB is accepted"),
+    (triangle_glb()[:20] + b"{{{{", GLB, 400, "GLB header declares"),
+    (triangle_glb(edit=lambda doc: doc["accessors"].append(
+        {"componentType": 5126, "count": 10**9, "type": "VEC3"})), GLB, 413,
+     "GLB accessors declare"),
+    (triangle_glb(indices=(0, 1, 7)), GLB, 422,
+     "faces[0] refers to vertex 7, but there are 3 vertices"),
+    (b"", OBJ, 400, "the OBJ body is empty"),
+])
+def test_bad_mesh_files_are_4xx_and_change_nothing(http, client, quad_scene, body, headers, status,
+                                                    message):
+    before = state(client, quad_scene)
+    response = http.put(f"/v1/scenes/{quad_scene}/meshes/m", content=body, headers=headers)
+    assert message in detail(response, status)
+    assert state(client, quad_scene) == before
+
+
+def test_glb_textures_are_not_decoded_and_the_mesh_is_stored(http, scene_name):
+    image = png(8000, 8000)  # 192 MB decoded
+    body = triangle_glb(images=[image, image])
+    response = http.put(f"/v1/scenes/{scene_name}/meshes/m", content=body, headers=GLB)
+    assert response.status_code == 201 and response.json()["triangles"] == 1
+    http.delete(f"/v1/scenes/{scene_name}")
 
 
 @pytest.mark.parametrize("method, url", [
