@@ -1,7 +1,7 @@
 """The wire format: how request bodies become arrays, and answers become bodies.
 
 This docstring is the spec of every body the service reads and writes; API.md is the contract it
-implements. Everything here is plain NumPy (trimesh is imported only to read mesh files), so the
+implements. Everything here is plain NumPy (mesh files are read by ``meshfile``), so the
 client uses the same code to write requests and read answers.
 
 Body formats
@@ -15,11 +15,11 @@ format     Content-Type                                    read with
 ``npz``    ``application/x-npz`` (``application/npz``,     ``zipfile``; stored members are viewed in
            ``application/zip``)                            place, deflated ones decompressed once
 ``json``   ``application/json``                            ``json.loads``
-``obj``    ``model/obj``                                   trimesh
-``ply``    ``application/ply`` (``model/ply``)             trimesh (binary or ASCII)
-``stl``    ``model/stl`` (``application/sla``)             trimesh (binary or ASCII)
-``glb``    ``model/gltf-binary``                           trimesh
-``off``    ``model/off`` (``application/off``)             trimesh
+``obj``    ``model/obj``                                   ``meshfile`` (NumPy)
+``ply``    ``application/ply`` (``model/ply``)             ``meshfile``: trimesh (binary or ASCII)
+``stl``    ``model/stl`` (``application/sla``)             ``meshfile``: trimesh (binary or ASCII)
+``glb``    ``model/gltf-binary``                           ``meshfile``: trimesh
+``off``    ``model/off`` (``application/off``)             ``meshfile`` (NumPy)
 =========  ==============================================  ==========================================
 
 With no ``Content-Type`` or ``application/octet-stream`` the format is sniffed from the first bytes
@@ -52,10 +52,11 @@ Rays (``decode_rays``; formats npy, npz, json)
 Meshes (``decode_mesh``; formats npz, json, obj, ply, stl, glb, off)
     npz  ``vertices`` float32 (V, 3) and ``faces`` int32 or uint32 (F, 3). No other keys.
     json ``{"vertices": [[x, y, z], ...], "faces": [[i, j, k], ...]}`` (faces must be integers).
-    A mesh file is read with ``process=False`` (vertices and winding as in the file); all its
-    objects are merged into one mesh with their scene transforms applied; a file with no
-    triangles is 400. Every vertex must be finite and every face index in ``[0, V)``: otherwise
-    422 naming the first bad row and how many there are.
+    A mesh file gives its geometry only, never decoding textures or materials; vertices and
+    winding are as in the file; all its objects are merged into one mesh with their scene
+    transforms applied; a file with no triangles is 400 (``meshfile`` states the rules). Every
+    vertex must be finite and every face index in ``[0, V)``: otherwise 422 naming the first bad
+    row (for OBJ and OFF, the line) and how many there are.
 
 Vertices (``decode_vertices``; formats npy, npz, json)
     npy float32 (V, 3); npz key ``vertices``; json ``{"vertices": [[x, y, z], ...]}``.
@@ -629,27 +630,14 @@ def _check_ray_count(n: int, max_rays: int | None) -> None:
 def decode_mesh(body: Buffer, fmt: str, max_bytes: int | None = None) -> MeshArrays:
     """A checked mesh from an npz, JSON or mesh-file body."""
     if fmt in MESH_FILE_FORMATS:
+        from .meshfile import read_mesh_file  # imports trimesh, which is slow to import
+
         vertices, faces = read_mesh_file(body, fmt)
-        return mesh_arrays(vertices, faces)
+        vertices = check_vertices(vertices)
+        return MeshArrays(vertices, check_faces(faces, len(vertices)))
     mapping = read_mapping(body, fmt, "vertices, faces", max_bytes)
     check_keys(mapping, ("vertices", "faces"))
     return mesh_arrays(mapping["vertices"], mapping["faces"])
-
-
-def read_mesh_file(body: Buffer, fmt: str) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices float32 (V,3), faces int32 (F,3)) of all triangles in a mesh file, merged."""
-    import trimesh  # only mesh files need it, and it is slow to import
-
-    try:
-        scene = trimesh.load_scene(io.BytesIO(bytes(body)), file_type=fmt, process=False)
-        mesh = scene.to_mesh()
-    except Exception as exc:  # trimesh raises anything from its parsers: all mean "unreadable"
-        raise BadBody(f"body cannot be read as {fmt.upper()}: {type(exc).__name__}: {exc}") from None
-    if len(mesh.faces) == 0:
-        raise BadBody(f"no triangles found in the {fmt.upper()} body; is it really {fmt.upper()}?")
-    vertices = np.asarray(mesh.vertices, dtype=np.float32)
-    faces = np.asarray(mesh.faces)
-    return vertices, check_faces(faces, len(vertices)).astype(np.int32, copy=False)
 
 
 def decode_vertices(body: Buffer, fmt: str, max_bytes: int | None = None) -> np.ndarray:

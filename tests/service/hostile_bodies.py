@@ -5,12 +5,10 @@ Shared by the in-process wire tests and the corpus run against a real server.
 from __future__ import annotations
 
 import functools
-import io
 import struct
 import zlib
 
 import numpy as np
-from PIL import Image
 
 from service_helpers import npy_bytes
 
@@ -131,9 +129,3 @@ def deep_json(key: str, depth: int) -> bytes:
     other = "directions" if key == "origins" else "origins"
     return (f'{{"{key}": ' + "[" * depth + "]" * depth + f', "{other}": [[0, 0, 1]]}}').encode()
 
-
-def png_bomb(width: int = 8000, height: int = 8000) -> bytes:
-    """A PNG of ``width`` x ``height`` one-bit pixels: a few KB that decode to width x height bytes."""
-    out = io.BytesIO()
-    Image.new("1", (width, height)).save(out, format="PNG", optimize=True)
-    return out.getvalue()

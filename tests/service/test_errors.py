@@ -9,6 +9,7 @@ import httpx
 import numpy as np
 import pytest
 
+from mesh_files import BAD_MESH_FILES, GLB, png, triangle_glb
 from service.client import APIError, Client
 from service_helpers import NPY, NPZ, TOKEN, down_rays, grid, npy_bytes, npz_bytes, quad
 
@@ -249,6 +250,25 @@ def test_invalid_values_are_422_and_change_nothing(http, client, quad_scene, pat
     assert message in detail(http.request(method, f"/v1/scenes/{quad_scene}/{path}", content=body,
                                           headers=headers), 422)
     assert state(client, quad_scene) == before
+
+
+# ---- mesh files: malformed or hostile files are 400, 413 or 422 and change nothing
+
+@pytest.mark.parametrize("body, headers, status, message", BAD_MESH_FILES)
+def test_bad_mesh_files_are_4xx_and_change_nothing(http, client, quad_scene, body, headers, status,
+                                                    message):
+    before = state(client, quad_scene)
+    response = http.put(f"/v1/scenes/{quad_scene}/meshes/m", content=body, headers=headers)
+    assert message in detail(response, status)
+    assert state(client, quad_scene) == before
+
+
+def test_glb_textures_are_not_decoded_and_the_mesh_is_stored(http, scene_name):
+    image = png(8000, 8000)  # 192 MB decoded
+    body = triangle_glb(images=[image, image])
+    response = http.put(f"/v1/scenes/{scene_name}/meshes/m", content=body, headers=GLB)
+    assert response.status_code == 201 and response.json()["triangles"] == 1
+    http.delete(f"/v1/scenes/{scene_name}")
 
 
 @pytest.mark.parametrize("method, url", [

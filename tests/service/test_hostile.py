@@ -13,6 +13,7 @@ import httpx
 import numpy as np
 
 import hostile_bodies as hostile
+from mesh_files import BAD_MESH_FILES, GLB, png, triangle_glb
 from service_helpers import NPY, NPZ, down_rays, npy_bytes, npz_bytes, quad
 
 JSON = {"Content-Type": "application/json"}
@@ -100,6 +101,9 @@ CORPUS = [
      lambda: hostile.npy_with_header("<f4", (2**28, 2)), 400, "truncated"),
     ("unknown query parameter", "POST", "closest?feilds=t", NPY, lambda: npy_bytes(RAYS), 422,
      "unknown query parameter 'feilds' (did you mean 'fields'?)"),
+    # malformed or hostile mesh files
+    *[(f"mesh file: {phrase}", "PUT", "meshes/m", headers, lambda body=body: body, status, phrase)
+      for body, headers, status, phrase in BAD_MESH_FILES],
 ]
 
 
@@ -174,3 +178,15 @@ def test_a_client_leaving_mid_body_is_counted_apart_from_server_errors(hostile_s
     assert re.search(r'route="/v1/scenes/\{scene\}/closest",status="499"\} [1-9]', metrics)
     assert not re.search(r'status="500"', metrics)
     assert "Traceback" not in hostile_server.output()
+
+
+def test_textures_in_a_mesh_file_are_never_decoded(hostile_server):
+    image = png(8000, 8000)  # 192 MB decoded, 190 KB compressed
+    body = triangle_glb(images=[image, image])
+    with httpx.Client(base_url=hostile_server.url, timeout=60) as http:
+        _, rss_before = peak_and_reset(hostile_server.process.pid)
+        response = http.put("/v1/scenes/textured/meshes/m", content=body, headers=GLB)
+        peak, _ = peak_and_reset(hostile_server.process.pid)
+        http.delete("/v1/scenes/textured")
+    assert response.status_code == 201 and response.json()["triangles"] == 1
+    assert peak - rss_before < 64 << 20, f"peak RSS rose by {(peak - rss_before) >> 20} MiB"

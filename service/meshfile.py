@@ -1,0 +1,464 @@
+"""Mesh files (OBJ, PLY, STL, GLB, OFF) as triangles: geometry only, read strictly.
+
+Rules
+-----
+* Only vertex positions and faces are read. Textures, images, materials, colours, normals and
+  texture coordinates are ignored and never decoded: GLB images, OBJ ``mtllib``/``usemtl``, PLY
+  ``TextureFile`` comments and colour properties, OFF colours.
+* Vertices and winding are as in the file (trimesh's ``process=False``). A polygon of n vertices
+  becomes n - 2 triangles, a fan from its first vertex. All objects of a file are merged into one
+  mesh with their scene transforms applied (GLB nodes).
+* Refused with 400 (``BadBody``), naming the problem: an empty or unparseable file; a header that
+  disagrees with the body (PLY element counts, binary STL triangle count, GLB chunk lengths, OFF
+  counts); a PLY header without ``end_header``; a GLB whose buffers are outside the file (a
+  ``uri``) or that needs a compression extension; an OFF face that lists fewer indices than it
+  declares; a file with no triangles.
+* Refused with 422 (``Invalid``): a face index out of range (OBJ and OFF name the line; OBJ
+  indices start at 1, negative ones count back from the last vertex defined before the face), a
+  face of fewer than 3 vertices; non-finite vertices (``wire.check_vertices``).
+* The work is bounded by the body: nothing is allocated from a count a header declares before the
+  body is checked to hold that much, and a GLB may decode (its buffer views, its accessors, its
+  instanced triangles) to at most ``EXPANSION`` times its size, else 413 (``TooLarge``).
+
+OBJ and OFF are read here with NumPy, because trimesh (5.2) reads the OBJ index 0 as the first
+vertex, resolves negative OBJ indices from the end of the file instead of from the face's line,
+and reads the OFF face ``1000000 0 1 2`` as a triangle. PLY, STL and GLB are read by trimesh after
+their headers are checked here.
+"""
+from __future__ import annotations
+
+import io
+import json
+import re
+import struct
+from typing import Any, Union
+
+import numpy as np
+
+from .errors import BadBody, Invalid, TooLarge
+
+Buffer = Union[bytes, memoryview]
+
+#: A GLB may decode to at most this many times its size (buffer views, accessors, and the
+#: instanced mesh as float32 vertices and int32 faces).
+EXPANSION = 8
+
+
+def read_mesh_file(body: Buffer, fmt: str) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices float32 (V, 3), faces int64 (F, 3)) of all triangles of a mesh file, merged.
+
+    Face indices of OBJ and OFF are checked here (naming the line); the caller checks the others
+    against V (``wire.check_faces``) and that the vertices are finite.
+    """
+    data = bytes(body)
+    if not data.strip():
+        raise BadBody(f"the {fmt.upper()} body is empty")
+    if fmt == "obj":
+        vertices, faces = read_obj(data)
+    elif fmt == "off":
+        vertices, faces = read_off(data)
+    else:
+        try:
+            {"ply": check_ply, "stl": check_stl, "glb": check_glb}[fmt](data)
+        except BadBody as exc:
+            raise BadBody(f"body cannot be read as {fmt.upper()}: {exc.detail}") from None
+        vertices, faces = _read_with_trimesh(data, fmt)
+    if len(faces) == 0:
+        raise BadBody(f"no triangles found in the {fmt.upper()} body; is it really {fmt.upper()}?")
+    return vertices, faces
+
+
+def _read_with_trimesh(data: bytes, fmt: str) -> tuple[np.ndarray, np.ndarray]:
+    import trimesh  # only these formats need it, and it is slow to import
+
+    try:
+        scene = trimesh.load_scene(io.BytesIO(data), file_type=fmt, process=False,
+                                   skip_materials=True)
+        _check_instances(scene, len(data), fmt)
+        mesh = scene.to_mesh()
+    except TooLarge:
+        raise
+    except Exception as exc:  # trimesh raises anything from its parsers: all mean "unreadable"
+        raise BadBody(f"body cannot be read as {fmt.upper()}: {type(exc).__name__}: "
+                      f"{exc}") from None
+    return np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.int64)
+
+
+def _check_instances(scene, size: int, fmt: str) -> None:
+    """413 if the scene's nodes instance its meshes into more than EXPANSION x the file."""
+    vertices = triangles = 0
+    for node in scene.graph.nodes_geometry:
+        geometry = scene.geometry.get(scene.graph[node][1])
+        if geometry is not None and hasattr(geometry, "faces"):
+            vertices += len(geometry.vertices)
+            triangles += len(geometry.faces)
+    decoded = 12 * (vertices + triangles)  # float32 (V, 3) and int32 (F, 3)
+    if decoded > EXPANSION * size:
+        raise TooLarge(f"the {fmt.upper()} body instances its meshes into {triangles} triangles "
+                       f"and {vertices} vertices ({decoded} bytes), over {EXPANSION} times its "
+                       f"{size} bytes; send the instances flattened, or as .npz")
+
+
+# --------------------------------------------------------------------------------------------
+# OBJ: ``v x y z [w | r g b]`` and ``f i[/t][/n] ...`` lines; every other line is ignored
+
+
+_SPACE = np.zeros(256, bool)
+_SPACE[list(b" \t\n\r\v\f")] = True
+
+
+def read_obj(data: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices float32 (V, 3), faces int64 (F, 3)) of an OBJ, indices checked."""
+    data = data.replace(b"\\\r\n", b" ").replace(b"\\\n", b" ")  # a continued line is one line
+    lines = data.splitlines()
+    if re.search(rb"(?m)^[ \t]", data):
+        lines = [line.lstrip() for line in lines]
+    v_at = [i for i, line in enumerate(lines) if line[:2] in (b"v ", b"v\t")]
+    f_at = [i for i, line in enumerate(lines) if line[:2] in (b"f ", b"f\t")]
+    vertices = _vertex_rows(lines, v_at, "OBJ", skip=2)
+    if not f_at:
+        return vertices, np.zeros((0, 3), np.int64)
+    rests = [_uncomment(lines[i][2:]) for i in f_at]
+    counts, indices = _obj_face_indices(rests)
+    if counts is None:  # something is not an integer: find the line to name it
+        for i, rest in zip(f_at, rests):
+            for token in rest.split():
+                if not re.fullmatch(rb"[+-]?\d+", token.split(b"/", 1)[0]):
+                    raise BadBody(f"OBJ line {i + 1} ({_show(lines[i])}): {_show(token)} is "
+                                  "not a vertex index (an integer, optionally /texture/normal)")
+        raise BadBody("OBJ face lines cannot be read")  # pragma: no cover - the loop names one
+    short = np.flatnonzero(counts < 3)
+    if short.size:
+        i = f_at[short[0]]
+        raise Invalid(f"OBJ line {i + 1} ({_show(lines[i])}): a face needs at least 3 vertices, "
+                      f"this one has {counts[short[0]]}; {short.size} of {len(counts)} faces "
+                      "have fewer than 3")
+    # A negative index counts back from the last vertex defined before the face's line.
+    before = np.repeat(np.searchsorted(v_at, f_at), counts)
+    resolved = np.where(indices > 0, indices - 1, before + indices)
+    bad = (indices == 0) | (resolved < 0) | (resolved >= len(vertices))
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        face = int(np.searchsorted(np.cumsum(counts), first, side="right"))
+        n_bad = np.unique(np.repeat(np.arange(len(counts)), counts)[bad]).size
+        i, index = f_at[face], int(indices[first])
+        if index == 0:
+            why = "but OBJ indices start at 1 (negative ones count back from the last vertex)"
+        elif index < 0:
+            why = f"but only {int(before[first])} vertices are defined before it"
+        else:
+            why = f"but there are {len(vertices)} vertices (OBJ indices start at 1)"
+        raise Invalid(f"OBJ line {i + 1} ({_show(lines[i])}) refers to vertex {index}, {why}; "
+                      f"{n_bad} of {len(counts)} faces are out of range")
+    return vertices, fan(counts, resolved)
+
+
+def _vertex_rows(lines: list[bytes], at: list[int], fmt: str, skip: int = 0) -> np.ndarray:
+    """float32 (V, 3): the first three numbers of each line ``lines[i]`` for i in ``at``, after
+    ``skip`` bytes (an OBJ line's ``v``)."""
+    rows = [_uncomment(lines[i][skip:]) for i in at]
+    if not rows:
+        return np.zeros((0, 3), np.float32)
+    if all(row and not row.isspace() for row in rows):  # loadtxt would skip a blank row
+        try:
+            return np.loadtxt(rows, dtype=np.float32, usecols=(0, 1, 2), ndmin=2, comments=None)
+        except ValueError:
+            pass
+    for i, row in zip(at, rows):  # name the first line loadtxt could not read
+        words = row.split()
+        try:
+            [float(x) for x in words[:3]]
+        except ValueError:
+            raise BadBody(f"{fmt} line {i + 1} ({_show(lines[i])}): a vertex must be numbers "
+                          "x y z") from None
+        if len(words) < 3:
+            raise BadBody(f"{fmt} line {i + 1} ({_show(lines[i])}): a vertex needs 3 "
+                          "coordinates x y z")
+    raise BadBody(f"{fmt} vertex lines cannot be read")  # pragma: no cover - the loop names one
+
+
+def _obj_face_indices(rests: list[bytes]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(vertex references per face line int64 (L,), the references as written int64 (R,)), or
+    (None, None) if a reference is not an integer. Texture and normal indices are dropped."""
+    text = b"\n".join(rests)
+    if b"/" in text:
+        if re.search(rb"(^|\s)/", text):  # a reference without its vertex index
+            return None, None
+        text = _without_slash_parts(text)
+    return integer_rows(text, len(rests))
+
+
+def _without_slash_parts(text: bytes) -> bytes:
+    """``text`` without the ``/...`` part of each whitespace-separated token."""
+    buf = np.frombuffer(text, np.uint8)
+    slashes = np.flatnonzero(buf == ord("/"))
+    spaces = np.append(np.flatnonzero(_SPACE[buf]), len(buf))
+    ends, first = np.unique(spaces[np.searchsorted(spaces, slashes)], return_index=True)
+    inside = np.zeros(len(buf) + 1, np.int8)  # +1 where a token's /... part starts, -1 after it
+    inside[slashes[first]] = 1
+    inside[ends] -= 1
+    return buf[np.cumsum(inside[:-1], dtype=np.int8) == 0].tobytes()
+
+
+_INTEGER_START = np.zeros(256, bool)
+_INTEGER_START[list(b"+-0123456789")] = True
+
+
+def integer_rows(text: bytes, n_rows: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(how many numbers each of the ``n_rows`` lines of ``text`` holds int64 (n_rows,), all the
+    numbers int64 (N,)), or (None, None) if one is not an integer."""
+    buf = np.frombuffer(text, np.uint8)
+    space = _SPACE[buf]
+    starts = np.flatnonzero(~space & np.concatenate(([True], space[:-1])))
+    rows = np.searchsorted(np.flatnonzero(buf == ord("\n")), starts)
+    counts = np.bincount(rows, minlength=n_rows)
+    if not len(starts):
+        return counts, np.zeros(0, np.int64)
+    if not _INTEGER_START[buf[starts]].all():
+        return None, None
+    try:  # fromstring stops at a token it cannot read, which the count check below catches
+        values = np.fromstring(text, dtype=np.int64, sep=" ")
+    except ValueError:
+        return None, None
+    return (counts, values) if len(values) == len(starts) else (None, None)
+
+
+def _uncomment(text: bytes) -> bytes:
+    return text.split(b"#", 1)[0] if b"#" in text else text
+
+
+def _show(line: bytes, limit: int = 60) -> str:
+    """A line or token for a message: `f 0 1 2`, cut to ``limit`` characters."""
+    text = line.decode("utf-8", "replace").strip()
+    return f"`{text if len(text) <= limit else text[:limit] + '...'}`"
+
+
+def fan(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """int64 (sum(counts - 2), 3): polygons of ``counts[i]`` vertices each (concatenated in
+    ``indices``) as triangle fans from their first vertex, in order."""
+    n_triangles = counts - 2
+    first = np.repeat(np.cumsum(counts) - counts, n_triangles)
+    k = np.arange(n_triangles.sum()) - np.repeat(np.cumsum(n_triangles) - n_triangles, n_triangles)
+    return np.stack([indices[first], indices[first + k + 1], indices[first + k + 2]], axis=1)
+
+
+# --------------------------------------------------------------------------------------------
+# OFF: ``[C][N]OFF``, ``V F E``, V lines ``x y z ...``, F lines ``n i1 .. in [colour]``
+
+
+_OFF_KEYWORD = re.compile(rb"(ST)?C?N?OFF")
+
+
+def read_off(data: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices float32 (V, 3), faces int64 (F, 3)) of an OFF, indices checked."""
+    lines = data.splitlines()
+    if b"#" in data:
+        lines = [_uncomment(line) for line in lines]
+    at = [i for i, line in enumerate(lines) if line and not line.isspace()]  # non-blank lines
+    if not at:
+        raise BadBody("the OFF body holds only comments")
+    header = lines[at[0]].split()
+    if not _OFF_KEYWORD.fullmatch(header[0]):
+        raise BadBody(f"OFF line {at[0] + 1}: the file must start with OFF (or COFF, NOFF, "
+                      f"CNOFF, STOFF), not {_show(header[0])}; 4OFF and nOFF are not read")
+    if len(header) == 1:  # the counts are on the next line
+        at = at[1:]
+        if not at:
+            raise BadBody("OFF has no counts line `vertices faces edges`")
+        header = [b"OFF", *lines[at[0]].split()]
+    counts_line = at[0] + 1
+    try:
+        n_vertices, n_faces = (int(t) for t in header[1:3])
+    except ValueError:
+        raise BadBody(f"OFF line {counts_line}: the counts must be integers "
+                      f"`vertices faces edges`, got {_show(lines[at[0]])}") from None
+    if n_vertices < 0 or n_faces < 0:
+        raise BadBody(f"OFF line {counts_line}: the counts must not be negative")
+    v_at, f_at = at[1:1 + n_vertices], at[1 + n_vertices:]
+    if len(v_at) != n_vertices or len(f_at) != n_faces:
+        raise BadBody(f"OFF line {counts_line} declares {n_vertices} vertices and {n_faces} "
+                      f"faces ({n_vertices + n_faces} lines), but {len(at) - 1} lines follow")
+    vertices = _vertex_rows(lines, v_at, "OFF")
+    counts, values = integer_rows(b"\n".join(lines[i] for i in f_at), len(f_at))
+    if counts is None:
+        for i in f_at:
+            if not all(re.fullmatch(rb"[+-]?\d+", t) for t in lines[i].split()):
+                raise BadBody(f"OFF line {i + 1} ({_show(lines[i])}): a face must be integers "
+                              "`n i1 .. in` (an integer colour may follow)")
+        raise BadBody("OFF face lines cannot be read")  # pragma: no cover - the loop names one
+    firsts = np.cumsum(counts) - counts
+    sizes = values[firsts]
+    listed = counts - 1
+    for rows, problem, error in (
+            (sizes < 3, "a face needs at least 3 vertices, this one declares {size}", Invalid),
+            (listed < sizes, "declares a face of {size} vertices but lists {listed} indices",
+             BadBody),
+            (listed > sizes + 4, "declares a face of {size} vertices but lists {listed} values "
+                                 "(its indices and a colour of at most 4)", BadBody)):
+        if rows.any():
+            face = int(np.flatnonzero(rows)[0])
+            i = f_at[face]
+            raise error(f"OFF line {i + 1} ({_show(lines[i])}): "
+                        + problem.format(size=sizes[face], listed=listed[face]))
+    offset = np.arange(len(values)) - np.repeat(firsts, counts)  # within its line
+    keep = (offset >= 1) & (offset <= np.repeat(sizes, counts))
+    indices = values[keep]
+    bad = (indices < 0) | (indices >= n_vertices)
+    if bad.any():
+        face = int(np.searchsorted(np.cumsum(sizes), np.flatnonzero(bad)[0], side="right"))
+        i = f_at[face]
+        n_bad = np.unique(np.repeat(np.arange(len(sizes)), sizes)[bad]).size
+        raise Invalid(f"OFF line {i + 1} ({_show(lines[i])}) refers to vertex "
+                      f"{indices[bad][0]}, but there are {n_vertices} vertices (OFF indices "
+                      f"start at 0); {n_bad} of {n_faces} faces are out of range")
+    return vertices, fan(sizes, indices)
+
+
+# --------------------------------------------------------------------------------------------
+# PLY, STL, GLB: headers checked before trimesh reads them
+
+
+_PLY_TYPES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2,
+              "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4,
+              "float32": 4, "double": 8, "float64": 8}
+_PLY_FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
+
+
+def check_ply(data: bytes) -> None:
+    """400 unless the header is complete and the body holds at least what it declares."""
+    end = re.search(rb"(?m)^end_header[ \t]*\r?$\n?", data)
+    if end is None:
+        raise BadBody("PLY header has no `end_header` line; the header must end with one")
+    header = data[:end.start()].decode("ascii", "replace").splitlines()
+    if not header or header[0].strip() != "ply":
+        raise BadBody("a PLY file must start with the line `ply`")
+    encoding, elements = None, []  # elements: [name, count, fixed bytes, list count bytes]
+    for number, line in enumerate(header[1:], 2):
+        words = line.split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        if words[0] == "format" and len(words) == 3 and words[1] in _PLY_FORMATS:
+            encoding = words[1]
+        elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
+            elements.append([words[1], int(words[2]), 0, 0])
+        elif words[0] == "property" and elements and len(words) == 3 and words[1] in _PLY_TYPES:
+            elements[-1][2] += _PLY_TYPES[words[1]]
+        elif (words[0] == "property" and elements and len(words) == 5 and words[1] == "list"
+              and words[2] in _PLY_TYPES and words[3] in _PLY_TYPES):
+            elements[-1][3] += _PLY_TYPES[words[2]]
+        else:
+            raise BadBody(f"PLY header line {number} ({_show(line.encode())}) is not a format, "
+                          "element, property or comment line")
+    if encoding is None:
+        raise BadBody("PLY header has no `format ascii|binary_little_endian|binary_big_endian "
+                      "1.0` line")
+    rest = len(data) - end.end()
+    declared = ", ".join(f"{count} {name}" for name, count, _, _ in elements)
+    if encoding == "ascii":
+        lines = data.count(b"\n", end.end()) + (not data.endswith(b"\n"))
+        needed = sum(count for _, count, _, _ in elements)
+        if lines < needed:
+            raise BadBody(f"PLY header declares {declared} ({needed} lines), but the body holds "
+                          f"only {lines} lines after end_header")
+    else:
+        needed = sum(count * (fixed + lists) for _, count, fixed, lists in elements)
+        if rest < needed:
+            raise BadBody(f"PLY header declares {declared} (at least {needed} bytes), but the "
+                          f"body holds only {rest} bytes after end_header")
+
+
+_STL_HEADER, _STL_TRIANGLE = 84, 50
+
+
+def check_stl(data: bytes) -> None:
+    """400 unless the body is a binary STL of exactly the length its count gives, or ASCII."""
+    if data[:1024].lstrip()[:5].lower() == b"solid" and b"endsolid" in data[-1024:].lower():
+        if len(data) < _STL_HEADER or _stl_length(data) != len(data):
+            return  # ASCII (a binary STL may also start with "solid": its length tells)
+    if len(data) < _STL_HEADER:
+        raise BadBody(f"STL body is {len(data)} bytes: shorter than the 84-byte header of a "
+                      "binary STL, and not an ASCII STL (`solid` ... `endsolid`)")
+    if _stl_length(data) != len(data):
+        count = struct.unpack_from("<I", data, 80)[0]
+        raise BadBody(f"binary STL header declares {count} triangles ({_stl_length(data)} bytes), "
+                      f"but the body is {len(data)} bytes")
+
+
+def _stl_length(data: bytes) -> int:
+    return _STL_HEADER + _STL_TRIANGLE * struct.unpack_from("<I", data, 80)[0]
+
+
+_GLB_JSON, _GLB_BIN = 0x4E4F534A, 0x004E4942
+_GLTF_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_GLTF_ITEM_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_GLTF_UNREAD = ("KHR_draco_mesh_compression", "EXT_meshopt_compression")
+
+
+def check_glb(data: bytes) -> None:
+    """400 unless the GLB is self-contained and its chunks and JSON are consistent; 413 if its
+    buffer views or accessors add up to more than EXPANSION x the file."""
+    if len(data) < 20:
+        raise BadBody(f"GLB body is {len(data)} bytes: shorter than a GLB header and JSON chunk")
+    magic, version, length = struct.unpack_from("<4sII", data)
+    if magic != b"glTF" or version != 2:
+        raise BadBody(f"GLB must start with `glTF` and version 2, not {magic!r} version {version}")
+    if length != len(data):
+        raise BadBody(f"GLB header declares {length} bytes, but the body is {len(data)} bytes")
+    chunks, offset = [], 12
+    while offset < len(data):
+        if len(data) - offset < 8:
+            raise BadBody(f"GLB has {len(data) - offset} stray bytes after its last chunk")
+        size, kind = struct.unpack_from("<II", data, offset)
+        if size > len(data) - offset - 8:
+            raise BadBody(f"GLB chunk {len(chunks)} declares {size} bytes, but only "
+                          f"{len(data) - offset - 8} follow")
+        chunks.append((kind, data[offset + 8:offset + 8 + size]))
+        offset += 8 + size
+    if chunks[0][0] != _GLB_JSON:
+        raise BadBody("GLB's first chunk must be its JSON")
+    try:
+        doc = json.loads(chunks[0][1])
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise BadBody(f"GLB JSON chunk is not valid JSON: {exc}") from None
+    if not isinstance(doc, dict):
+        raise BadBody("GLB JSON chunk must be an object")
+    buffers = _list(doc, "buffers")
+    for i, buffer in enumerate(buffers):
+        if not isinstance(buffer, dict) or "uri" in buffer:
+            uri = buffer.get("uri") if isinstance(buffer, dict) else buffer
+            raise BadBody(f"GLB buffer {i} refers to {str(uri)[:60]!r}: only a self-contained "
+                          "GLB is accepted (every buffer inside the file, in its BIN chunk)")
+    if len(buffers) > sum(kind == _GLB_BIN for kind, _ in chunks):
+        raise BadBody(f"GLB declares {len(buffers)} buffers but holds "
+                      f"{sum(kind == _GLB_BIN for kind, _ in chunks)} BIN chunks")
+    used = set(_list(doc, "extensionsUsed")) | set(_list(doc, "extensionsRequired"))
+    for name in _GLTF_UNREAD:
+        if name in used:
+            raise BadBody(f"GLB uses {name}, which is not read; send it uncompressed")
+    views = sum(_natural(v.get("byteLength") if isinstance(v, dict) else None, f"bufferViews[{i}]"
+                         ".byteLength") for i, v in enumerate(_list(doc, "bufferViews")))
+    accessors = 0
+    for i, accessor in enumerate(_list(doc, "accessors")):
+        if not isinstance(accessor, dict) or accessor.get("type") not in _GLTF_COMPONENTS or (
+                accessor.get("componentType") not in _GLTF_ITEM_BYTES):
+            raise BadBody(f"GLB accessors[{i}] needs a known type and componentType")
+        accessors += (_natural(accessor.get("count"), f"accessors[{i}].count")
+                      * _GLTF_COMPONENTS[accessor["type"]]
+                      * _GLTF_ITEM_BYTES[accessor["componentType"]])
+    for what, size in (("buffer views", views), ("accessors", accessors)):
+        if size > EXPANSION * len(data):
+            raise TooLarge(f"GLB {what} declare {size} bytes, over {EXPANSION} times the "
+                           f"file's {len(data)} bytes")
+
+
+def _list(doc: dict, key: str) -> list:
+    value = doc.get(key, [])
+    if not isinstance(value, list):
+        raise BadBody(f"GLB JSON {key} must be a list")
+    return value
+
+
+def _natural(value: Any, name: str) -> int:
+    if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+        raise BadBody(f"GLB {name} must be an integer >= 0, got {str(value)[:40]}")
+    return value
