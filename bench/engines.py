@@ -1,13 +1,14 @@
 """One adapter per engine, all with the same four steps, so the runner can time them alike.
 
-    engine.build(vertices, faces) -> handle      per-frame work: a new scene from (V,3) f32, (F,3) i32
-    engine.commit(handle)                        finish lazy construction (Embree, Open3D build their
-                                                 BVH on first use); part of the build time
-    engine.convert(rays) -> payload              the engine's input format (untimed)
+    engine.build(vertices, faces) -> handle   per-frame work: a new scene from (V,3) f32, (F,3) i32
+    engine.commit(handle)                     finish lazy construction (Embree, Open3D build their
+                                              BVH on first use); part of the build time
+    engine.convert(rays) -> payload           the engine's input format (untimed)
     engine.trace(handle, payload, rays) -> TraceResult
 
 An engine that is not importable is reported by ``available_engines`` with the reason, and left out.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -65,11 +66,25 @@ class DacrtEngine:
         origins, directions = payload
         tmax = None if np.isinf(rays.tmax) else rays.tmax
         if rays.query == CLOSEST:
-            hits = handle.closest(origins, directions, tmin=None, tmax=tmax, strategy=self.strategy,
-                                  threads=self.threads, stats=stats)
+            hits = handle.closest(
+                origins,
+                directions,
+                tmin=None,
+                tmax=tmax,
+                strategy=self.strategy,
+                threads=self.threads,
+                stats=stats,
+            )
             return TraceResult(CLOSEST, t=hits.t, prim=hits.prim, stats=hits.stats)
-        out = handle.occluded(origins, directions, tmin=None, tmax=tmax, strategy=self.strategy,
-                              threads=self.threads, stats=stats)
+        out = handle.occluded(
+            origins,
+            directions,
+            tmin=None,
+            tmax=tmax,
+            strategy=self.strategy,
+            threads=self.threads,
+            stats=stats,
+        )
         occ, st = out if stats else (out, None)
         return TraceResult(rays.query, occluded=np.asarray(occ), stats=st)
 
@@ -89,6 +104,7 @@ class EmbreeEngine:
     def __init__(self):
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
+
         self._scene_cls = rtcore_scene.EmbreeScene
         self._mesh_cls = TriangleMesh
 
@@ -99,7 +115,7 @@ class EmbreeEngine:
         return scene
 
     def commit(self, handle):
-        handle.run(EMPTY3, EMPTY3)          # embreex commits the scene on its first run
+        handle.run(EMPTY3, EMPTY3)  # embreex commits the scene on its first run
 
     def convert(self, rays: RaySet):
         # run() writes the hit distances into dists, so each trace gets its own copy
@@ -118,12 +134,14 @@ class EmbreeEngine:
 
 
 class Open3DEngine:
-    """Open3D's RaycastingScene (Embree inside), with ``nthreads`` for both the build and the trace."""
+    """Open3D's RaycastingScene (Embree inside), with ``nthreads`` for both the build and the
+    trace."""
 
     family = "open3d"
 
     def __init__(self, threads: int):
         import open3d
+
         self.o3d = open3d
         self.threads = threads
         self.name = "open3d"
@@ -131,27 +149,33 @@ class Open3DEngine:
     def build(self, vertices, faces):
         core = self.o3d.core
         scene = self.o3d.t.geometry.RaycastingScene(nthreads=self.threads)
-        scene.add_triangles(core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
-                            core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)))
+        scene.add_triangles(
+            core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
+            core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
+        )
         return scene
 
     def commit(self, handle):
         one_ray = self.o3d.core.Tensor(np.array([[0, 0, 0, 1, 0, 0]], dtype=np.float32))
-        handle.cast_rays(one_ray, nthreads=self.threads)     # builds the BVH on first use
+        handle.cast_rays(one_ray, nthreads=self.threads)  # builds the BVH on first use
 
     def convert(self, rays: RaySet):
-        return self.o3d.core.Tensor(np.ascontiguousarray(np.hstack([rays.origins, rays.directions])))
+        return self.o3d.core.Tensor(
+            np.ascontiguousarray(np.hstack([rays.origins, rays.directions]))
+        )
 
     def trace(self, handle, payload, rays: RaySet, stats: bool = False) -> TraceResult:
         if rays.query == CLOSEST:
             out = handle.cast_rays(payload, nthreads=self.threads)
             t = out["t_hit"].numpy().astype(np.float32, copy=False)
-            prim = out["primitive_ids"].numpy().view(np.int32)       # INVALID_ID = 2**32-1 -> -1
-            if np.isfinite(rays.tmax):                               # cast_rays has no tfar
+            prim = out["primitive_ids"].numpy().view(np.int32)  # INVALID_ID = 2**32-1 -> -1
+            if np.isfinite(rays.tmax):  # cast_rays has no tfar
                 far = t > rays.tmax
                 t, prim = np.where(far, np.float32(np.inf), t), np.where(far, -1, prim)
             return TraceResult(CLOSEST, t=t, prim=prim)
-        occ = handle.test_occlusions(payload, tnear=0.0, tfar=float(rays.tmax), nthreads=self.threads)
+        occ = handle.test_occlusions(
+            payload, tnear=0.0, tfar=float(rays.tmax), nthreads=self.threads
+        )
         return TraceResult(rays.query, occluded=occ.numpy().astype(bool, copy=False))
 
 
@@ -159,9 +183,10 @@ def import_dacrt():
     """The dacrt module, or the reason it cannot be used."""
     try:
         import dacrt
+
         _ = dacrt.Scene, dacrt.STRATEGIES, dacrt.warmup
         return dacrt, None
-    except Exception as exc:                     # still being written, or broken: leave it out
+    except Exception as exc:  # still being written, or broken: leave it out
         return None, f"{type(exc).__name__}: {exc}"
 
 
@@ -171,15 +196,24 @@ def comma_list(text: str) -> tuple[str, ...]:
 
 def add_engine_arguments(parser) -> None:
     """--engines, --strategies and --seed, as bench.run and bench.plots both take them."""
-    parser.add_argument("--engines", type=comma_list, default="dacrt,embree,open3d",
-                        help="comma list of dacrt,embree,open3d")
-    parser.add_argument("--strategies", type=comma_list, default=None,
-                        help="dacrt strategies (default: all of dacrt.STRATEGIES)")
+    parser.add_argument(
+        "--engines",
+        type=comma_list,
+        default="dacrt,embree,open3d",
+        help="comma list of dacrt,embree,open3d",
+    )
+    parser.add_argument(
+        "--strategies",
+        type=comma_list,
+        default=None,
+        help="dacrt strategies (default: all of dacrt.STRATEGIES)",
+    )
     parser.add_argument("--seed", type=int, default=1)
 
 
-def available_engines(threads: list[int], strategies: list[str] | None = None,
-                      want=("dacrt", "embree", "open3d")):
+def available_engines(
+    threads: list[int], strategies: list[str] | None = None, want=("dacrt", "embree", "open3d")
+):
     """(engines, dacrt module or None, {family: reason unavailable}) for the requested families.
 
     Engines are ordered dacrt strategies (each thread count), Embree, Open3D (each thread count).
@@ -193,7 +227,9 @@ def available_engines(threads: list[int], strategies: list[str] | None = None,
             names = strategies or list(dacrt.STRATEGIES)
             unknown = [s for s in names if s not in dacrt.STRATEGIES]
             if unknown:
-                raise SystemExit(f"unknown dacrt strategies {unknown}; dacrt.STRATEGIES = {dacrt.STRATEGIES}")
+                raise SystemExit(
+                    f"unknown dacrt strategies {unknown}; dacrt.STRATEGIES = {dacrt.STRATEGIES}"
+                )
             engines += [DacrtEngine(dacrt, s, t) for t in threads for s in names]
     if "embree" in want:
         try:

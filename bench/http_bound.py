@@ -8,6 +8,7 @@ one scene, any ``POST`` is a closest query on it, ``GET`` is health. No routing,
 no checks beyond decoding, no metrics, no errors worth the name: not a service, a lower bound.
 The service's overhead can come down to this app's, not below it.
 """
+
 from __future__ import annotations
 
 import json
@@ -56,9 +57,18 @@ async def app(scope, receive, send):
 
     (parts, length, media), timing = await run_sync(work)
     server_timing = ", ".join(f"{name};dur={1000 * s:.3f}" for name, s in timing.items())
-    await send({"type": "http.response.start", "status": 200, "headers": [
-        (b"content-type", media.encode()), (b"content-length", str(length).encode()),
-        (b"x-scene-version", b"1"), (b"server-timing", server_timing.encode())]})
+    await send(
+        {
+            "type": "http.response.start",
+            "status": 200,
+            "headers": [
+                (b"content-type", media.encode()),
+                (b"content-length", str(length).encode()),
+                (b"x-scene-version", b"1"),
+                (b"server-timing", server_timing.encode()),
+            ],
+        }
+    )
     for part in parts:
         if len(part):
             await send({"type": "http.response.body", "body": part, "more_body": True})
@@ -67,6 +77,14 @@ async def app(scope, receive, send):
 
 async def _send_json(send, status: int, payload: dict) -> None:
     body = json.dumps(payload).encode()
-    await send({"type": "http.response.start", "status": status, "headers": [
-        (b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]})
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [
+                (b"content-type", b"application/json"),
+                (b"content-length", str(len(body)).encode()),
+            ],
+        }
+    )
     await send({"type": "http.response.body", "body": body})

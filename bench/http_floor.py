@@ -1,4 +1,5 @@
-"""The floor under the HTTP overhead: what moving a 1M-ray request and its answer costs with no work.
+"""The floor under the HTTP overhead: what moving a 1M-ray request and its answer costs with no
+work.
 
     python -m bench.http_floor [--rays 1000000] [--repeat 21]
 
@@ -12,6 +13,7 @@ all fields (24 B per ray in as .npy (N, 6), 32 B per ray out):
   ... on http.client  the same through ``service.transport.StdlibTransport``, the client's
 The service cannot be cheaper than the last line; ``bench.http_overhead`` measures what it adds.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,8 +32,9 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from service.transport import StdlibTransport
-from service.wire import BodyBuffer
+# E402: the repo root must be on sys.path (above) before the service package is imported
+from service.transport import StdlibTransport  # noqa: E402
+from service.wire import BodyBuffer  # noqa: E402
 
 RAY_BYTES, ANSWER_BYTES = 24, 32
 ANSWER_PART = 4 << 20
@@ -44,9 +47,14 @@ async def app(scope, receive, send):
         return
     await read_body(scope, receive)
     view = memoryview(_ANSWER)
-    parts = [view[i:i + ANSWER_PART] for i in range(0, len(view), ANSWER_PART)]
-    await send({"type": "http.response.start", "status": 200,
-                "headers": [(b"content-length", str(len(view)).encode())]})
+    parts = [view[i : i + ANSWER_PART] for i in range(0, len(view), ANSWER_PART)]
+    await send(
+        {
+            "type": "http.response.start",
+            "status": 200,
+            "headers": [(b"content-length", str(len(view)).encode())],
+        }
+    )
     for i, part in enumerate(parts):
         await send({"type": "http.response.body", "body": part, "more_body": i < len(parts) - 1})
 
@@ -82,7 +90,9 @@ def _tcp_server(port_queue, n_in: int, n_out: int) -> None:
 
 def time_tcp(n_in: int, n_out: int, repeat: int) -> list[float]:
     port_queue = multiprocessing.Queue()
-    server = multiprocessing.Process(target=_tcp_server, args=(port_queue, n_in, n_out), daemon=True)
+    server = multiprocessing.Process(
+        target=_tcp_server, args=(port_queue, n_in, n_out), daemon=True
+    )
     server.start()
     seconds = []
     try:
@@ -107,17 +117,31 @@ def time_uvicorn(n_rays: int, repeat: int) -> dict[str, list[float]]:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     server = subprocess.Popen(
-        [sys.executable, "-m", "uvicorn", "bench.http_floor:app", "--host", "127.0.0.1",
-         "--port", str(port), "--log-level", "warning"],
-        cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO), "FLOOR_RAYS": str(n_rays)})
+        [
+            sys.executable,
+            "-m",
+            "uvicorn",
+            "bench.http_floor:app",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--log-level",
+            "warning",
+        ],
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO), "FLOOR_RAYS": str(n_rays)},
+    )
     rays = np.random.default_rng(0).standard_normal((n_rays, 6)).astype(np.float32)
     view = memoryview(rays).cast("B")
-    parts = [view[i:i + (1 << 20)] for i in range(0, len(view), 1 << 20)]
+    parts = [view[i : i + (1 << 20)] for i in range(0, len(view), 1 << 20)]
     headers = {"content-length": str(len(view)), "content-type": "application/x-npy"}
     seconds: dict[str, list[float]] = {"httpx": [], "http.client": []}
     url = f"http://127.0.0.1:{port}"
-    clients = {"httpx": httpx.Client(base_url=url, timeout=60),
-               "http.client": httpx.Client(base_url=url, timeout=60, transport=StdlibTransport())}
+    clients = {
+        "httpx": httpx.Client(base_url=url, timeout=60),
+        "http.client": httpx.Client(base_url=url, timeout=60, transport=StdlibTransport()),
+    }
     try:
         for _ in range(200):
             try:
@@ -144,7 +168,7 @@ def time_uvicorn(n_rays: int, repeat: int) -> dict[str, list[float]]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--rays", type=int, default=1_000_000)
     parser.add_argument("--repeat", type=int, default=21)
     args = parser.parse_args()
@@ -155,8 +179,10 @@ def main() -> None:
         seconds = time_uvicorn(args.rays, -(-args.repeat // 3))
         httpx_own += seconds["httpx"]
         stdlib += seconds["http.client"]
-    print(f"{args.rays} rays: {n_in / 1e6:.0f} MB in, {n_out / 1e6:.0f} MB out; "
-          f"medians of {len(tcp)}; {os.cpu_count()} cores")
+    print(
+        f"{args.rays} rays: {n_in / 1e6:.0f} MB in, {n_out / 1e6:.0f} MB out; "
+        f"medians of {len(tcp)}; {os.cpu_count()} cores"
+    )
     print(f"plain TCP                          {1000 * statistics.median(tcp):7.1f} ms")
     print(f"uvicorn + httpx (httpx transport)  {1000 * statistics.median(httpx_own):7.1f} ms")
     print(f"uvicorn + httpx on http.client     {1000 * statistics.median(stdlib):7.1f} ms")

@@ -4,7 +4,8 @@
 
 Side by side in one run, alternating (the order swapped every round), medians of ``--repeat``,
 after one untimed round of each:
-  engine      ``dacrt.Scene(...).closest`` in this process (the scene built once, as the server caches it)
+  engine      ``dacrt.Scene(...).closest`` in this process (the scene built once, as the server
+              caches it)
   end to end  the same rays through a real uvicorn server on loopback with httpx: .npy (N, 6) in,
               .npz out (all fields), including the client's encoding and its reading of the answer
 The overhead is ``end to end - engine``: receive + decode + encode + transport, on both sides.
@@ -19,6 +20,7 @@ With ``--frame``, also the per-frame loop of a dynamic scene, side by side in th
   dacrt frame   a new ``dacrt.Scene`` plus ``closest``, in process
   embree frame  a new Embree scene (embreex) plus ``run``, in process (needs embreex)
 """
+
 from __future__ import annotations
 
 import argparse
@@ -52,15 +54,28 @@ def make_rays(vertices: np.ndarray, n: int, seed: int = 0) -> tuple[np.ndarray, 
     return origins.astype(np.float32), (targets - origins).astype(np.float32)
 
 
-def start_server(env: dict[str, str], app: tuple[str, ...] = ("service.app:create_app", "--factory")
-                 ) -> tuple[subprocess.Popen, str]:
+def start_server(
+    env: dict[str, str], app: tuple[str, ...] = ("service.app:create_app", "--factory")
+) -> tuple[subprocess.Popen, str]:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     process = subprocess.Popen(
-        [sys.executable, "-m", "uvicorn", *app,
-         "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"],
-        cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO), **env})
+        [
+            sys.executable,
+            "-m",
+            "uvicorn",
+            *app,
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--log-level",
+            "warning",
+        ],
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO), **env},
+    )
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline:
@@ -92,17 +107,25 @@ def main() -> None:
     parser.add_argument("--rays", type=int, default=1_000_000)
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--fields", default=None, help="e.g. t,mesh,prim (default: all)")
-    parser.add_argument("--bound", action="store_true",
-                        help="also time bench.http_bound's bare ASGI app (the service's floor)")
-    parser.add_argument("--frame", action="store_true",
-                        help="also time the per-frame loop (new mesh + rays) against Embree")
+    parser.add_argument(
+        "--bound",
+        action="store_true",
+        help="also time bench.http_bound's bare ASGI app (the service's floor)",
+    )
+    parser.add_argument(
+        "--frame",
+        action="store_true",
+        help="also time the per-frame loop (new mesh + rays) against Embree",
+    )
     args = parser.parse_args()
 
     with np.load(args.scene) as archive:
         vertices = np.ascontiguousarray(archive["vertices"], np.float32)
         faces = np.ascontiguousarray(archive["faces"], np.int32)
     origins, directions = make_rays(vertices, args.rays)
-    rays = np.hstack([origins, directions])  # the (N, 6) body, built once, as a caller would hold it
+    rays = np.hstack(
+        [origins, directions]
+    )  # the (N, 6) body, built once, as a caller would hold it
 
     dacrt.warmup()
     scene = dacrt.Scene([(vertices, faces)])
@@ -120,7 +143,9 @@ def main() -> None:
             # One untimed round of each at full size: the first 1M-ray request of a fresh server
             # touches its body and answer memory for the first time (page faults; receive took
             # 60 ms instead of 4-5 in the first two requests), and so does the first engine call.
-            client.closest("bench", rays, fields=args.fields)  # the server builds and caches its scene
+            client.closest(
+                "bench", rays, fields=args.fields
+            )  # the server builds and caches its scene
         reference = scene.closest(origins, directions)
         kinds = list(seconds)
         for repeat in range(args.repeat):
@@ -137,7 +162,9 @@ def main() -> None:
                     answer = clients[kind].closest("bench", rays, fields=args.fields)
                     seconds[kind].append(time.perf_counter() - start)
                     server[kind].append(answer.timing)
-                    assert np.array_equal(answer.t, reference.t), f"{kind}: the answer differs from the engine's"
+                    assert np.array_equal(answer.t, reference.t), (
+                        f"{kind}: the answer differs from the engine's"
+                    )
         if args.frame:
             frames = time_frames(clients["http"], vertices, faces, origins, directions, rays, args)
     finally:
@@ -153,9 +180,13 @@ def main() -> None:
     engine = seconds["engine"]
     engine_ms = median_ms(engine)
     print(f"machine: {os.cpu_count()} cores, {cpu_model()}; numpy {np.__version__}")
-    print(f"scene: {Path(args.scene).name} ({len(faces)} triangles); {args.rays} rays; "
-          f"fields: {args.fields or 'all'}; medians of {args.repeat}")
-    print(f"engine in-process      {engine_ms:9.1f} ms   ({args.rays / engine_ms / 1000:.2f} Mrays/s)")
+    print(
+        f"scene: {Path(args.scene).name} ({len(faces)} triangles); {args.rays} rays; "
+        f"fields: {args.fields or 'all'}; medians of {args.repeat}"
+    )
+    print(
+        f"engine in-process      {engine_ms:9.1f} ms   ({args.rays / engine_ms / 1000:.2f} Mrays/s)"
+    )
     for kind, title in (("http", "the service"), ("bound", "bench.http_bound (the floor)")):
         if kind not in servers:
             continue
@@ -163,16 +194,28 @@ def main() -> None:
         overhead_ms = e2e_ms - engine_ms
         print(f"end to end over HTTP, {title}: {e2e_ms:.1f} ms")
         for key in ("receive", "decode", "trace", "encode"):
-            print(f"  server {key:<8}      {statistics.median(t.get(key, 0.0) for t in server[kind]):9.1f} ms")
+            print(
+                f"  server {key:<8}      "
+                f"{statistics.median(t.get(key, 0.0) for t in server[kind]):9.1f} ms"
+            )
         server_trace_ms = statistics.median(t.get("trace", 0.0) for t in server[kind])
-        print(f"HTTP overhead          {overhead_ms:9.1f} ms = {100 * overhead_ms / engine_ms:.1f}% of engine time")
-        print(f"  (end to end - server trace = {e2e_ms - server_trace_ms:.1f} ms = "
-              f"{100 * (e2e_ms - server_trace_ms) / server_trace_ms:.1f}% of the server's trace time)")
-        # Each request against the engine call of its round: steadier when the machine's load drifts.
+        print(
+            f"HTTP overhead          {overhead_ms:9.1f} ms = "
+            f"{100 * overhead_ms / engine_ms:.1f}% of engine time"
+        )
+        print(
+            f"  (end to end - server trace = {e2e_ms - server_trace_ms:.1f} ms = "
+            f"{100 * (e2e_ms - server_trace_ms) / server_trace_ms:.1f}% of the server's trace time)"
+        )
+        # Each request against the engine call of its round: steadier when the machine's load
+        # drifts.
         paired = [e - g for e, g in zip(seconds[kind], engine)]
         paired_ms = median_ms(paired)
-        print(f"  (median of paired differences = {paired_ms:.1f} ms = {100 * paired_ms / engine_ms:.1f}% "
-              f"of engine time; they ranged {1000 * min(paired):.1f} to {1000 * max(paired):.1f} ms)")
+        print(
+            f"  (median of paired differences = {paired_ms:.1f} ms = "
+            f"{100 * paired_ms / engine_ms:.1f}% "
+            f"of engine time; they ranged {1000 * min(paired):.1f} to {1000 * max(paired):.1f} ms)"
+        )
     if frames:
         print(f"per frame (new mesh + {args.rays} rays), medians of {args.repeat}:")
         for name, seconds in frames.items():

@@ -1,4 +1,5 @@
 """Timing, agreement, memory and machine description: the measuring half of the runner."""
+
 from __future__ import annotations
 
 import gc
@@ -14,8 +15,8 @@ import numpy as np
 from bench.engines import TraceResult
 from bench.rays import CLOSEST, RaySet
 
-
 # --- time -----------------------------------------------------------------------------------------
+
 
 def timed(fn, *args):
     """(seconds, result) of one call, with a collected heap and the collector off meanwhile."""
@@ -57,6 +58,7 @@ def mrays(n_rays: int, seconds: float | None) -> float | None:
 
 # --- agreement ----------------------------------------------------------------------------------
 
+
 def agreement(result: TraceResult, reference: TraceResult, t_tol: float) -> dict:
     """Fractions of rays on which ``result`` agrees with ``reference`` (Embree).
 
@@ -65,8 +67,10 @@ def agreement(result: TraceResult, reference: TraceResult, t_tol: float) -> dict
     prim: of the rays both hit, same triangle          (closest only)
     """
     hit, ref_hit = result.hit, reference.hit
-    out = {"hit": float(np.mean(hit == ref_hit)) if len(hit) else 1.0,
-           "n_hit_mismatch": int(np.count_nonzero(hit != ref_hit))}
+    out = {
+        "hit": float(np.mean(hit == ref_hit)) if len(hit) else 1.0,
+        "n_hit_mismatch": int(np.count_nonzero(hit != ref_hit)),
+    }
     if result.query == CLOSEST:
         both = hit & ref_hit
         n_both = int(np.count_nonzero(both))
@@ -83,6 +87,7 @@ def agreement(result: TraceResult, reference: TraceResult, t_tol: float) -> dict
 
 
 # --- memory ---------------------------------------------------------------------------------------
+
 
 def peak_rss_bytes() -> int:
     """Peak resident set size of this process so far.
@@ -117,7 +122,8 @@ def reset_peak_rss() -> bool:
 
 
 def _memory_child(spec: dict, mesh_path: str, rays_path: str) -> dict:
-    """In a fresh process: peak RSS of one build + trace above the process with its inputs loaded."""
+    """In a fresh process: peak RSS of one build + trace above the process with its inputs
+    loaded."""
     from bench.engines import DacrtEngine, EmbreeEngine, Open3DEngine, import_dacrt
 
     if spec["family"] == "dacrt":
@@ -135,9 +141,11 @@ def _memory_child(spec: dict, mesh_path: str, rays_path: str) -> dict:
     with np.load(rays_path) as z:
         rays = RaySet(spec["kind"], spec["query"], z["origins"], z["directions"], spec["tmax"])
     payload = engine.convert(rays)
-    warm = engine.build(vertices, faces)          # one small warm-up trace, as in the timed runs
+    warm = engine.build(vertices, faces)  # one small warm-up trace, as in the timed runs
     engine.commit(warm)
-    small = RaySet(rays.kind, rays.query, rays.origins[:256].copy(), rays.directions[:256].copy(), rays.tmax)
+    small = RaySet(
+        rays.kind, rays.query, rays.origins[:256].copy(), rays.directions[:256].copy(), rays.tmax
+    )
     engine.trace(warm, engine.convert(small), small)
     del warm, small
     gc.collect()
@@ -148,11 +156,16 @@ def _memory_child(spec: dict, mesh_path: str, rays_path: str) -> dict:
     peak_built = peak_rss_bytes()
     engine.trace(handle, payload, rays)
     peak_after = peak_rss_bytes()
-    return {"idle_rss": idle, "peak_before": peak_before, "peak_after": peak_after,
-            "above_idle": peak_after - idle, "build_above_idle": peak_built - idle,
-            "peak_was_reset": was_reset,
-            # without a reset, a peak the trace did not raise makes above_idle only an upper bound
-            "upper_bound_only": (not was_reset) and peak_after <= peak_before}
+    return {
+        "idle_rss": idle,
+        "peak_before": peak_before,
+        "peak_after": peak_after,
+        "above_idle": peak_after - idle,
+        "build_above_idle": peak_built - idle,
+        "peak_was_reset": was_reset,
+        # without a reset, a peak the trace did not raise makes above_idle only an upper bound
+        "upper_bound_only": (not was_reset) and peak_after <= peak_before,
+    }
 
 
 def measure_memory(specs: list[dict], mesh_path: str, rays_paths: dict[str, str]) -> list[dict]:
@@ -169,6 +182,7 @@ def measure_memory(specs: list[dict], mesh_path: str, rays_paths: dict[str, str]
 
 
 # --- machine --------------------------------------------------------------------------------------
+
 
 def machine_info() -> dict:
     """CPU model, logical and physical cores, usable cores, memory, library versions."""
@@ -191,7 +205,8 @@ def machine_info() -> dict:
     mem_total = None
     try:
         with open("/proc/meminfo") as f:
-            mem_total = int(next(l for l in f if l.startswith("MemTotal")).split()[1]) * 1024
+            total = next(row for row in f if row.startswith("MemTotal"))
+            mem_total = int(total.split()[1]) * 1024
     except (OSError, StopIteration):
         pass
     versions = {}

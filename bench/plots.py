@@ -1,18 +1,21 @@
 """Benchmark figures: speed against ray count, per-frame time against ray and triangle count.
 
-    python -m bench.plots --out docs/img [--scene PATH ...] [--repeat 3] [--max-rays N] [--threads 2] [--big]
+    python -m bench.plots --out docs/img [--scene PATH ...] [--repeat 3] [--max-rays N]
+        [--threads 2] [--big]
     python -m bench.plots --out docs/img --replot docs/img/plots.json      # redraw, no measuring
 
 Writes into --out:
   mrays-vs-rays-<scene>.png   trace-only Mrays/s against the number of primary rays (128² ... 2048²)
   frame-vs-rays-<scene>.png   per-frame time (new scene + trace) against the number of primary rays
-  frame-vs-triangles.png      per-frame time at a fixed ray count against triangles (grids of dragons)
+  frame-vs-triangles.png      per-frame time at a fixed ray count against triangles (grids of
+                              dragons)
   plots.json                  every plotted median, every single timing, and the machine
 
 The timing is bench.run's: the same engine adapters (bench/engines.py), rays (bench/rays.py),
 timers (bench/measure.py), engines alternating within each repetition, medians of --repeat.
 Progress goes to stderr. See bench/README.md, "Figures".
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,9 +36,9 @@ from bench.scene_io import load_mesh, load_view, mesh_bounds
 SHARED_SCENES = Path(__file__).resolve().parent.parent.parent / "shared" / "scenes"
 DEFAULT_SCENES = ("sibenik", "sponza", "conference")
 WIDTHS = (128, 256, 512, 1024, 2048)
-GRID_SIDES = (1, 2, 4)            # k x k copies of the grid mesh: 100K, 400K, 1.6M dragon triangles
-BIG_GRID_SIDE = 8                 # --big: 6.4M
-GRID_GAP = 0.05                   # space between copies, relative to the copy's extent
+GRID_SIDES = (1, 2, 4)  # k x k copies of the grid mesh: 100K, 400K, 1.6M dragon triangles
+BIG_GRID_SIDE = 8  # --big: 6.4M
+GRID_GAP = 0.05  # space between copies, relative to the copy's extent
 GRID_FOV_DEG = 20.0
 JSON_NAME = "plots.json"
 
@@ -44,28 +47,68 @@ def parse_args(argv=None):
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     p = argparse.ArgumentParser(prog="python -m bench.plots", description=__doc__.split("\n")[0])
     p.add_argument("--out", required=True, help="directory for the PNGs and plots.json")
-    p.add_argument("--scene", nargs="+", default=None, metavar="PATH",
-                   help="scene files for the ray-count figures (default: "
-                        + ", ".join(f"{s}.npz" for s in DEFAULT_SCENES) + f" from {SHARED_SCENES})")
-    p.add_argument("--repeat", type=int, default=3, help="timed runs per engine and point; medians are plotted")
-    p.add_argument("--max-rays", type=int, default=WIDTHS[-1] ** 2,
-                   help=f"largest ray count: image widths {','.join(map(str, WIDTHS))} are kept while "
-                        f"width² <= N; also caps --frame-rays (default {WIDTHS[-1] ** 2})")
-    p.add_argument("--threads", type=int, default=usable,
-                   help=f"threads for dacrt and Open3D (default {usable}); Embree's run is always 1 thread")
-    p.add_argument("--frame-rays", type=int, default=1_000_000,
-                   help="primary rays per frame in frame-vs-triangles (default 1000000)")
-    p.add_argument("--big", action="store_true", help=f"also {BIG_GRID_SIDE}x{BIG_GRID_SIDE} copies in "
-                                                      "frame-vs-triangles (6.4M dragon triangles)")
-    p.add_argument("--grid-mesh", default=str(SHARED_SCENES / "dragon.npz"),
-                   help="the mesh copied into grids for frame-vs-triangles (default the dragon)")
-    p.add_argument("--figures", default="rays,triangles",
-                   help="which measurements: 'rays' (the two per-scene figures), 'triangles', or both")
+    p.add_argument(
+        "--scene",
+        nargs="+",
+        default=None,
+        metavar="PATH",
+        help="scene files for the ray-count figures (default: "
+        + ", ".join(f"{s}.npz" for s in DEFAULT_SCENES)
+        + f" from {SHARED_SCENES})",
+    )
+    p.add_argument(
+        "--repeat", type=int, default=3, help="timed runs per engine and point; medians are plotted"
+    )
+    p.add_argument(
+        "--max-rays",
+        type=int,
+        default=WIDTHS[-1] ** 2,
+        help=f"largest ray count: image widths {','.join(map(str, WIDTHS))} are kept while "
+        f"width² <= N; also caps --frame-rays (default {WIDTHS[-1] ** 2})",
+    )
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=usable,
+        help=f"threads for dacrt and Open3D (default {usable}); Embree's run is always 1 thread",
+    )
+    p.add_argument(
+        "--frame-rays",
+        type=int,
+        default=1_000_000,
+        help="primary rays per frame in frame-vs-triangles (default 1000000)",
+    )
+    p.add_argument(
+        "--big",
+        action="store_true",
+        help=f"also {BIG_GRID_SIDE}x{BIG_GRID_SIDE} copies in "
+        "frame-vs-triangles (6.4M dragon triangles)",
+    )
+    p.add_argument(
+        "--grid-mesh",
+        default=str(SHARED_SCENES / "dragon.npz"),
+        help="the mesh copied into grids for frame-vs-triangles (default the dragon)",
+    )
+    p.add_argument(
+        "--figures",
+        default="rays,triangles",
+        help="which measurements: 'rays' (the two per-scene figures), 'triangles', or both",
+    )
     add_engine_arguments(p)
-    p.add_argument("--slow", type=float, default=60.0,
-                   help="an engine whose run takes longer than this many seconds is not repeated at that point")
-    p.add_argument("--replot", default=None, metavar="JSON",
-                   help="redraw the PNGs from a plots.json of an earlier run, without measuring")
+    p.add_argument(
+        "--slow",
+        type=float,
+        default=60.0,
+        help=(
+            "an engine whose run takes longer than this many seconds is not repeated at that point"
+        ),
+    )
+    p.add_argument(
+        "--replot",
+        default=None,
+        metavar="JSON",
+        help="redraw the PNGs from a plots.json of an earlier run, without measuring",
+    )
     args = p.parse_args(argv)
     args.figures = {f for f in args.figures.split(",") if f}
     if args.figures - {"rays", "triangles"}:
@@ -74,7 +117,7 @@ def parse_args(argv=None):
     args.widths = [w for w in WIDTHS if w * w <= args.max_rays]
     args.frame_rays = min(args.frame_rays, args.max_rays)
     args.grid_sides = list(GRID_SIDES) + ([BIG_GRID_SIDE] if args.big else [])
-    args.no_stats = True                          # run_kind: no untimed stats=True traces
+    args.no_stats = True  # run_kind: no untimed stats=True traces
     if args.repeat < 1 or args.threads < 1 or args.frame_rays < 1:
         p.error("--repeat, --threads and --frame-rays must be positive")
     if "rays" in args.figures and not args.widths and not args.replot:
@@ -82,10 +125,12 @@ def parse_args(argv=None):
     return args
 
 
-# --- measuring: ray counts ---------------------------------------------------------------------------
+# --- measuring: ray counts ------------------------------------------------------------------------
+
 
 def measure_scene(path: Path, args, engines, errors) -> dict:
-    """Trace-only and build + trace timings of every engine on primary rays at each width of ``args``.
+    """Trace-only and build + trace timings of every engine on primary rays at each width of
+    ``args``.
 
     The rays of each width are the ones bench.run's ablation (--resolutions) uses for the same seed.
     """
@@ -102,15 +147,26 @@ def measure_scene(path: Path, args, engines, errors) -> dict:
         log(f"{path.stem} {width}²: {rays.n_rays:,} primary rays")
         info = run_kind(rays, engines, vertices, faces, args, diag, errors)
         points.append({"width": width, **info})
-    return {"path": str(path), "name": path.stem, "triangles": int(len(faces)), "vertices": int(len(vertices)),
-            "bounds": bounds.tolist(), "diagonal": diag, "view_key": view_key, "view": view,
-            "seconds": time.perf_counter() - start, "points": points}
+    return {
+        "path": str(path),
+        "name": path.stem,
+        "triangles": int(len(faces)),
+        "vertices": int(len(vertices)),
+        "bounds": bounds.tolist(),
+        "diagonal": diag,
+        "view_key": view_key,
+        "view": view,
+        "seconds": time.perf_counter() - start,
+        "points": points,
+    }
 
 
-# --- measuring: triangle counts ----------------------------------------------------------------------
+# --- measuring: triangle counts -------------------------------------------------------------------
 
-def tile_mesh(vertices: np.ndarray, faces: np.ndarray, side: int, axes: tuple[int, int],
-              gap: float = GRID_GAP) -> tuple[np.ndarray, np.ndarray]:
+
+def tile_mesh(
+    vertices: np.ndarray, faces: np.ndarray, side: int, axes: tuple[int, int], gap: float = GRID_GAP
+) -> tuple[np.ndarray, np.ndarray]:
     """(vertices float32, faces int32) of side x side translated copies of a mesh on a grid.
 
     The copies step along world ``axes`` by the mesh's extent on that axis times (1 + gap).
@@ -122,9 +178,13 @@ def tile_mesh(vertices: np.ndarray, faces: np.ndarray, side: int, axes: tuple[in
     offsets[:, axes[0]] = ii * step[axes[0]]
     offsets[:, axes[1]] = jj * step[axes[1]]
     grid_v = (vertices[None, :, :].astype(np.float64) + offsets[:, None, :]).reshape(-1, 3)
-    grid_f = (faces[None, :, :].astype(np.int64) + (np.arange(side * side) * len(vertices))[:, None, None])
-    return (np.ascontiguousarray(grid_v, dtype=np.float32),
-            np.ascontiguousarray(grid_f.reshape(-1, 3), dtype=np.int32))
+    grid_f = (
+        faces[None, :, :].astype(np.int64) + (np.arange(side * side) * len(vertices))[:, None, None]
+    )
+    return (
+        np.ascontiguousarray(grid_v, dtype=np.float32),
+        np.ascontiguousarray(grid_f.reshape(-1, 3), dtype=np.int32),
+    )
 
 
 def grid_axes(view: dict) -> tuple[int, int]:
@@ -135,37 +195,64 @@ def grid_axes(view: dict) -> tuple[int, int]:
 
 
 def framing_view(bounds: np.ndarray, like: dict, fov_deg: float = GRID_FOV_DEG) -> dict:
-    """A view from ``like``'s direction, as close as it can be while all of ``bounds`` is in a square image."""
+    """A view from ``like``'s direction, as close as it can be while all of ``bounds`` is in a
+    square image."""
     bounds = np.asarray(bounds, dtype=np.float64)
     target = bounds.mean(axis=0)
     back = np.asarray(like["eye"], float) - np.asarray(like["target"], float)
     back /= np.linalg.norm(back)
     forward, right, up = R.camera_frame(target + back, target, like["up"])
     tan_half = np.tan(np.radians(fov_deg) / 2.0)
-    corners = np.array([[bounds[i, 0], bounds[j, 1], bounds[k, 2]]
-                        for i in (0, 1) for j in (0, 1) for k in (0, 1)]) - target
+    corners = (
+        np.array(
+            [
+                [bounds[i, 0], bounds[j, 1], bounds[k, 2]]
+                for i in (0, 1)
+                for j in (0, 1)
+                for k in (0, 1)
+            ]
+        )
+        - target
+    )
     # a corner c is in the image when |c.right|, |c.up| <= tan_half * (distance + c.forward)
     across = np.maximum(np.abs(corners @ right), np.abs(corners @ up))
     distance = 1.02 * float(np.max(across / tan_half - corners @ forward))
     eye = target + back * distance
-    return {"eye": eye.tolist(), "target": target.tolist(), "up": list(map(float, like["up"])),
-            "fov_deg": fov_deg, "note": "frames the whole grid, from the direction of the mesh's own view"}
+    return {
+        "eye": eye.tolist(),
+        "target": target.tolist(),
+        "up": list(map(float, like["up"])),
+        "fov_deg": fov_deg,
+        "note": "frames the whole grid, from the direction of the mesh's own view",
+    }
 
 
 def frame_runs(engines, vertices, faces, rays: R.RaySet, args, errors, label: str) -> dict:
-    """Build + trace timings (bench.measure.build_and_trace) of every engine, alternating engines."""
+    """Build + trace timings (bench.measure.build_and_trace) of every engine, alternating
+    engines."""
     payloads = {key_of(e): e.convert(rays) for e in engines}
-    runs = {key_of(e): {"family": e.family, "name": e.name, "threads": e.threads, "build_s": [],
-                        "trace_in_frame_s": [], "build_trace_s": []} for e in engines}
+    runs = {
+        key_of(e): {
+            "family": e.family,
+            "name": e.name,
+            "threads": e.threads,
+            "build_s": [],
+            "trace_in_frame_s": [],
+            "build_trace_s": [],
+        }
+        for e in engines
+    }
     failed, slow = set(), set()
     for r in range(args.repeat):
-        order = engines[r % len(engines):] + engines[:r % len(engines)] if engines else []
+        order = engines[r % len(engines) :] + engines[: r % len(engines)] if engines else []
         for engine in order:
             key = key_of(engine)
             if key in failed or key in slow:
                 continue
             try:
-                build_s, trace_s, result = build_and_trace(engine, vertices, faces, payloads[key], rays)
+                build_s, trace_s, result = build_and_trace(
+                    engine, vertices, faces, payloads[key], rays
+                )
             except Exception as exc:
                 errors.append(_error(label, key, f"run {r}", exc))
                 failed.add(key)
@@ -179,16 +266,26 @@ def frame_runs(engines, vertices, faces, rays: R.RaySet, args, errors, label: st
             if build_s + trace_s > args.slow and r + 1 < args.repeat:
                 slow.add(key)
                 run["cut_short"] = True
-                log(f"  {key}: {build_s + trace_s:.1f} s > --slow {args.slow:g} s, not repeated for {label}")
-        log(f"  {label} run {r + 1}/{args.repeat}, frame s: "
-            + ", ".join(f"{k} {v['build_trace_s'][-1]:.3g}" for k, v in runs.items() if len(v["build_trace_s"]) > r))
+                log(
+                    f"  {key}: {build_s + trace_s:.1f} s > --slow {args.slow:g} s, "
+                    f"not repeated for {label}"
+                )
+        log(
+            f"  {label} run {r + 1}/{args.repeat}, frame s: "
+            + ", ".join(
+                f"{k} {v['build_trace_s'][-1]:.3g}"
+                for k, v in runs.items()
+                if len(v["build_trace_s"]) > r
+            )
+        )
     for run in runs.values():
         run["build_trace_mrays"] = mrays(rays.n_rays, median(run["build_trace_s"]))
     return runs
 
 
 def measure_triangles(args, engines, errors) -> dict:
-    """Per-frame time at args.frame_rays primary rays, on k x k grids of copies of args.grid_mesh."""
+    """Per-frame time at args.frame_rays primary rays, on k x k grids of copies of
+    args.grid_mesh."""
     path = Path(args.grid_mesh)
     vertices, faces = load_mesh(path)
     _, like = load_view(path, mesh_bounds(vertices, faces))
@@ -204,21 +301,41 @@ def measure_triangles(args, engines, errors) -> dict:
         label = f"{side}x{side} {path.stem}"
         log(f"{label}: {len(grid_f):,} triangles, {rays.n_rays:,} primary rays")
         live = engines
-        if side == args.grid_sides[0]:                    # one untimed small frame per engine, as in run_kind
+        if side == args.grid_sides[0]:  # one untimed small frame per engine, as in run_kind
             live = warm_up(engines, grid_v, grid_f, rays, errors, label)
-        points.append({"side": side, "copies": side * side, "triangles": int(len(grid_f)),
-                       "vertices": int(len(grid_v)), "n_rays": rays.n_rays, "view": view,
-                       "runs": frame_runs(live, grid_v, grid_f, rays, args, errors, label)})
+        points.append(
+            {
+                "side": side,
+                "copies": side * side,
+                "triangles": int(len(grid_f)),
+                "vertices": int(len(grid_v)),
+                "n_rays": rays.n_rays,
+                "view": view,
+                "runs": frame_runs(live, grid_v, grid_f, rays, args, errors, label),
+            }
+        )
         engines = live
-    return {"mesh": str(path), "name": path.stem, "mesh_triangles": int(len(faces)), "axes": list(axes),
-            "gap": GRID_GAP, "image": [width, height], "seconds": time.perf_counter() - start,
-            "points": points}
+    return {
+        "mesh": str(path),
+        "name": path.stem,
+        "mesh_triangles": int(len(faces)),
+        "axes": list(axes),
+        "gap": GRID_GAP,
+        "image": [width, height],
+        "seconds": time.perf_counter() - start,
+        "points": points,
+    }
 
 
 def warm_up(engines, vertices, faces, rays: R.RaySet, errors, label) -> list:
     """The engines that build and trace a few rays without an error (untimed)."""
-    small = R.RaySet(rays.kind, rays.query, rays.origins[:WARMUP_RAYS].copy(),
-                     rays.directions[:WARMUP_RAYS].copy(), rays.tmax)
+    small = R.RaySet(
+        rays.kind,
+        rays.query,
+        rays.origins[:WARMUP_RAYS].copy(),
+        rays.directions[:WARMUP_RAYS].copy(),
+        rays.tmax,
+    )
     live = []
     for engine in engines:
         try:
@@ -231,11 +348,16 @@ def warm_up(engines, vertices, faces, rays: R.RaySet, errors, label) -> list:
     return live
 
 
-# --- figures: the plotted data (what plots.json keeps under "figures") -------------------------------
+# --- figures: the plotted data (what plots.json keeps under "figures") ----------------------------
+
 
 def _label(run: dict, frame: bool) -> str:
     if run["family"] == "embree":
-        return "Embree (embreex; build on all cores, run on 1)" if frame else "Embree (embreex run, 1 thread)"
+        return (
+            "Embree (embreex; build on all cores, run on 1)"
+            if frame
+            else "Embree (embreex run, 1 thread)"
+        )
     if run["family"] == "open3d":
         return f"Open3D ({run['threads']} threads)"
     return f"dacrt {run['name']} ({run['threads']} threads)"
@@ -254,12 +376,23 @@ def _series(points: list[dict], value, frame: bool) -> list[dict]:
     out = []
     for key, run in first.items():
         ys = [value(p, p["runs"][key]) if key in p["runs"] else (None, None, None) for p in points]
-        series = {"key": key, "family": run["family"], "name": run["name"], "threads": run["threads"],
-                  "label": _label(run, frame), "y": [y[0] for y in ys], "low": [y[1] for y in ys],
-                  "high": [y[2] for y in ys]}
+        series = {
+            "key": key,
+            "family": run["family"],
+            "name": run["name"],
+            "threads": run["threads"],
+            "label": _label(run, frame),
+            "y": [y[0] for y in ys],
+            "low": [y[1] for y in ys],
+            "high": [y[2] for y in ys],
+        }
         if frame:
-            series["build_ms"] = [None if key not in p["runs"] or not p["runs"][key]["build_s"]
-                                  else 1e3 * median(p["runs"][key]["build_s"]) for p in points]
+            series["build_ms"] = [
+                None
+                if key not in p["runs"] or not p["runs"][key]["build_s"]
+                else 1e3 * median(p["runs"][key]["build_s"])
+                for p in points
+            ]
         out.append(series)
     return out
 
@@ -290,74 +423,121 @@ def _count(n: int) -> str:
 
 def _subtitle(machine: dict, args) -> str:
     runs = "1 run" if args.repeat == 1 else f"{args.repeat} runs, band = fastest to slowest"
-    return (f"{machine['cpu_model']}, {machine['logical_cores']} logical cores; dacrt and Open3D at "
-            f"{args.threads} thread{'s' * (args.threads > 1)}; median of {runs}")
+    return (
+        f"{machine['cpu_model']}, {machine['logical_cores']} logical cores; dacrt and Open3D at "
+        f"{args.threads} thread{'s' * (args.threads > 1)}; median of {runs}"
+    )
 
 
 def scene_figures(scene: dict, machine: dict, args) -> dict:
     """{file stem: figure} for mrays-vs-rays-<scene> and frame-vs-rays-<scene>."""
     pts = scene["points"]
     title = f"{scene['name']} ({scene['triangles']:,} triangles), primary rays"
-    common = {"x": [p["n_rays"] for p in pts], "x_ticks": [f"{p['width']}²\n{_count(p['n_rays'])}" for p in pts],
-              "x_label": "primary rays per trace (image size, rays)", "x_log": True,
-              "subtitle": _subtitle(machine, args)}
+    common = {
+        "x": [p["n_rays"] for p in pts],
+        "x_ticks": [f"{p['width']}²\n{_count(p['n_rays'])}" for p in pts],
+        "x_label": "primary rays per trace (image size, rays)",
+        "x_log": True,
+        "subtitle": _subtitle(machine, args),
+    }
     return {
         f"mrays-vs-rays-{scene['name']}": {
-            **common, "title": f"{title}: trace only (scene built beforehand)",
-            "y_label": "Mrays/s", "y_log": False, "series": _series(pts, _trace_mrays, frame=False)},
+            **common,
+            "title": f"{title}: trace only (scene built beforehand)",
+            "y_label": "Mrays/s",
+            "y_log": False,
+            "series": _series(pts, _trace_mrays, frame=False),
+        },
         f"frame-vs-rays-{scene['name']}": {
-            **common, "title": f"{title}: per frame (new scene + trace)",
-            "y_label": "time per frame (ms)", "y_log": True, "series": _series(pts, _frame_ms, frame=True)},
+            **common,
+            "title": f"{title}: per frame (new scene + trace)",
+            "y_label": "time per frame (ms)",
+            "y_log": True,
+            "series": _series(pts, _frame_ms, frame=True),
+        },
     }
 
 
 def triangle_figure(tri: dict, machine: dict, args) -> dict:
     pts = tri["points"]
     n_rays = pts[0]["n_rays"] if pts else args.frame_rays
-    return {"frame-vs-triangles": {
-        "x": [p["triangles"] for p in pts], "x_ticks": [f"{_count(p['triangles'])}\n{p['side']}×{p['side']}" for p in pts],
-        "x_label": f"triangles (grid of copies of {tri['name']})", "x_log": True,
-        "title": f"Per frame (new scene + trace), {n_rays:,} primary rays, grids of {tri['name']}s",
-        "subtitle": _subtitle(machine, args), "y_label": "time per frame (ms)", "y_log": True,
-        "series": _series(pts, _frame_ms, frame=True)}}
+    return {
+        "frame-vs-triangles": {
+            "x": [p["triangles"] for p in pts],
+            "x_ticks": [f"{_count(p['triangles'])}\n{p['side']}×{p['side']}" for p in pts],
+            "x_label": f"triangles (grid of copies of {tri['name']})",
+            "x_log": True,
+            "title": (
+                f"Per frame (new scene + trace), {n_rays:,} primary rays, grids of {tri['name']}s"
+            ),
+            "subtitle": _subtitle(machine, args),
+            "y_label": "time per frame (ms)",
+            "y_log": True,
+            "series": _series(pts, _frame_ms, frame=True),
+        }
+    }
 
 
-# --- figures: drawing ---------------------------------------------------------------------------------
+# --- figures: drawing -----------------------------------------------------------------------------
 
 DACRT_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#17becf")
 DACRT_MARKERS = ("o", "D", "v", "P", "*", "h")
-OTHER_STYLE = {"embree": {"color": "black", "linestyle": (0, (5, 2)), "marker": "s"},
-               "open3d": {"color": "#8c564b", "linestyle": "-.", "marker": "^"}}
+OTHER_STYLE = {
+    "embree": {"color": "black", "linestyle": (0, (5, 2)), "marker": "s"},
+    "open3d": {"color": "#8c564b", "linestyle": "-.", "marker": "^"},
+}
 
 
 def _styles(series: list[dict]) -> list[dict]:
-    """Matplotlib line styles: one colour per dacrt strategy (the first drawn thicker), fixed for the others."""
+    """Matplotlib line styles: one colour per dacrt strategy (the first drawn thicker), fixed for
+    the others."""
     styles, n_dacrt = [], 0
     for s in series:
         if s["family"] == "dacrt":
             i = n_dacrt % len(DACRT_COLORS)
-            styles.append({"color": DACRT_COLORS[i], "linestyle": "-", "marker": DACRT_MARKERS[i],
-                           "linewidth": 2.6 if n_dacrt == 0 else 1.6})
+            styles.append(
+                {
+                    "color": DACRT_COLORS[i],
+                    "linestyle": "-",
+                    "marker": DACRT_MARKERS[i],
+                    "linewidth": 2.6 if n_dacrt == 0 else 1.6,
+                }
+            )
             n_dacrt += 1
         else:
-            styles.append({**OTHER_STYLE.get(s["family"], {"color": "gray", "linestyle": ":", "marker": "x"}),
-                           "linewidth": 1.6})
+            styles.append(
+                {
+                    **OTHER_STYLE.get(
+                        s["family"], {"color": "gray", "linestyle": ":", "marker": "x"}
+                    ),
+                    "linewidth": 1.6,
+                }
+            )
     return styles
 
 
 def draw(figure: dict, path: Path) -> None:
     """One PNG from a figure dict of scene_figures / triangle_figure."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullFormatter, NullLocator
+    from matplotlib.ticker import (
+        FixedLocator,
+        FuncFormatter,
+        LogLocator,
+        NullFormatter,
+        NullLocator,
+    )
 
     x = np.asarray(figure["x"], dtype=float)
     nan = lambda values: np.array([np.nan if v is None else v for v in values], dtype=float)  # noqa: E731
     fig, ax = plt.subplots(figsize=(10, 5.8), dpi=130)
     for s, style in zip(figure["series"], _styles(figure["series"])):
         ax.plot(x, nan(s["y"]), label=s["label"], markersize=6, **style)
-        ax.fill_between(x, nan(s["low"]), nan(s["high"]), color=style["color"], alpha=0.12, linewidth=0)
+        ax.fill_between(
+            x, nan(s["low"]), nan(s["high"]), color=style["color"], alpha=0.12, linewidth=0
+        )
     if figure["x_log"]:
         ax.set_xscale("log")
         if len(x):
@@ -384,14 +564,23 @@ def draw(figure: dict, path: Path) -> None:
     ax.set_ylabel(figure["y_label"], fontsize=11)
     ax.tick_params(labelsize=10)
     ax.set_title(figure["title"], fontsize=13, pad=20)
-    ax.text(0.5, 1.012, figure["subtitle"], transform=ax.transAxes, ha="center", va="bottom",
-            fontsize=8.5, color="#444444")
+    ax.text(
+        0.5,
+        1.012,
+        figure["subtitle"],
+        transform=ax.transAxes,
+        ha="center",
+        va="bottom",
+        fontsize=8.5,
+        color="#444444",
+    )
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=10, frameon=False)
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
 
 
-# --- main ---------------------------------------------------------------------------------------------
+# --- main -----------------------------------------------------------------------------------------
+
 
 def save(res: dict, out: Path) -> None:
     path = out / JSON_NAME
@@ -415,12 +604,30 @@ def main(argv=None) -> int:
     engines, dacrt, missing = available_engines([args.threads], args.strategies, args.engines)
     for family, reason in missing.items():
         log(f"{family} not available: {reason}")
-    res = {"machine": machine_info(), "loadavg_start": list(os.getloadavg()), "missing": missing, "errors": [],
-           "args": {"scene": args.scene, "repeat": args.repeat, "max_rays": args.max_rays, "threads": args.threads,
-                    "frame_rays": args.frame_rays, "big": args.big, "grid_mesh": args.grid_mesh,
-                    "figures": sorted(args.figures), "engines": list(args.engines), "strategies": args.strategies,
-                    "seed": args.seed, "slow": args.slow, "widths": args.widths, "grid_sides": args.grid_sides},
-           "scenes": [], "figures": {}}
+    res = {
+        "machine": machine_info(),
+        "loadavg_start": list(os.getloadavg()),
+        "missing": missing,
+        "errors": [],
+        "args": {
+            "scene": args.scene,
+            "repeat": args.repeat,
+            "max_rays": args.max_rays,
+            "threads": args.threads,
+            "frame_rays": args.frame_rays,
+            "big": args.big,
+            "grid_mesh": args.grid_mesh,
+            "figures": sorted(args.figures),
+            "engines": list(args.engines),
+            "strategies": args.strategies,
+            "seed": args.seed,
+            "slow": args.slow,
+            "widths": args.widths,
+            "grid_sides": args.grid_sides,
+        },
+        "scenes": [],
+        "figures": {},
+    }
     if dacrt is not None:
         log("dacrt.warmup() ...")
         try:
@@ -437,7 +644,7 @@ def main(argv=None) -> int:
             res["scenes"].append(scene)
             figures = scene_figures(scene, res["machine"], args)
             res["figures"].update(figures)
-            save(res, out)                       # a figure at a time, so a failure later keeps what was done
+            save(res, out)  # a figure at a time, so a failure later keeps what was done
             draw_all(figures, out)
             log(f"{scene['name']}: {scene['seconds']:.0f} s")
     if "triangles" in args.figures:

@@ -18,10 +18,11 @@ Conventions (the same for dacrt, Embree and Open3D):
   rays missed, hit points are drawn again (with replacement) until there are ``n``, kept in the
   order of the rays they came from so that coherent sets stay coherent.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -36,7 +37,8 @@ AO_REACH_REL = 0.1
 #: shadow rays stop this far short of the light, in units of the origin-to-light distance
 SHADOW_SHORT = 1e-4
 
-# a trace callable: (origins (n,3) f32, directions (n,3) f32) -> (t (n,) inf on a miss, normals (n,3))
+# a trace callable: (origins (n,3) f32, directions (n,3) f32) -> (t (n,) inf on a miss,
+# normals (n,3))
 TraceFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
@@ -73,6 +75,7 @@ def scene_diagonal(bounds: np.ndarray) -> float:
 
 
 # --- sampling on spheres and hemispheres -------------------------------------------------------
+
 
 def orthonormal_basis(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit tangents (n, 3) completing unit ``normals`` (n, 3) to a right-handed frame.
@@ -123,6 +126,7 @@ def cosine_hemisphere(normals: np.ndarray, rng: np.random.Generator) -> np.ndarr
 
 # --- hit points ---------------------------------------------------------------------------------
 
+
 @dataclass
 class HitPoints:
     """Surface points that secondary rays start from.
@@ -138,8 +142,9 @@ class HitPoints:
         return len(self.points)
 
 
-def hit_points(origins: np.ndarray, directions: np.ndarray, t: np.ndarray,
-               normals: np.ndarray, eps: float) -> HitPoints:
+def hit_points(
+    origins: np.ndarray, directions: np.ndarray, t: np.ndarray, normals: np.ndarray, eps: float
+) -> HitPoints:
     """Offset hit points of the rays that hit (finite ``t``), in ray order.
 
     origins, directions : (n, 3) float   the rays that were traced
@@ -153,10 +158,12 @@ def hit_points(origins: np.ndarray, directions: np.ndarray, t: np.ndarray,
     d = np.asarray(directions, dtype=np.float64)[hit]
     nrm = np.asarray(normals, dtype=np.float64)[hit]
     length = np.linalg.norm(nrm, axis=1)
-    good = length > 0.0                      # a zero normal would give no side; drop the point
+    good = length > 0.0  # a zero normal would give no side; drop the point
     o, d, nrm, th, length = o[good], d[good], nrm[good], t[hit][good], length[good]
     nrm /= length[:, None]
-    nrm *= np.where(np.einsum("ij,ij->i", nrm, d) > 0.0, -1.0, 1.0)[:, None]  # face the incoming ray
+    nrm *= np.where(np.einsum("ij,ij->i", nrm, d) > 0.0, -1.0, 1.0)[
+        :, None
+    ]  # face the incoming ray
     p = o + th[:, None] * d + eps * nrm
     return HitPoints(p, nrm)
 
@@ -174,6 +181,7 @@ def resample(hits: HitPoints, n: int, rng: np.random.Generator) -> HitPoints:
 
 
 # --- the ray kinds --------------------------------------------------------------------------------
+
 
 def camera_frame(eye, target, up) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unit (forward, right, up) vectors of a pinhole camera at ``eye`` looking at ``target``."""
@@ -194,8 +202,14 @@ def image_size(n_rays: int) -> tuple[int, int]:
     return width, int(np.ceil(n_rays / width))
 
 
-def primary_rays(view: dict, width: int, height: int, rng: np.random.Generator,
-                 jitter: bool = True, n_rays: int | None = None) -> RaySet:
+def primary_rays(
+    view: dict,
+    width: int,
+    height: int,
+    rng: np.random.Generator,
+    jitter: bool = True,
+    n_rays: int | None = None,
+) -> RaySet:
     """Pinhole camera rays, one per pixel, row by row from the top left; unit directions.
 
     view : dict with "eye", "target", "up" (3 floats each) and "fov_deg" (vertical field of view)
@@ -242,16 +256,24 @@ def ao_rays(hits: HitPoints, reach: float, n: int, rng: np.random.Generator) -> 
     return RaySet("ao", OCCLUDED, _f32(hits.points), _f32(d), tmax=float(reach))
 
 
-def diffuse_rays(hits: HitPoints, n: int, rng: np.random.Generator, kind: str = "diffuse") -> RaySet:
+def diffuse_rays(
+    hits: HitPoints, n: int, rng: np.random.Generator, kind: str = "diffuse"
+) -> RaySet:
     """Closest-hit rays, cosine-weighted around the normal of each of ``n`` hit points."""
     hits = resample(hits, n, rng)
     d = cosine_hemisphere(hits.normals, rng)
     return RaySet(kind, CLOSEST, _f32(hits.points), _f32(d))
 
 
-def diffuse_bounces(primary: RaySet, primary_t: np.ndarray, primary_normals: np.ndarray,
-                    trace: TraceFn, n_bounces: int, eps: float,
-                    rng: np.random.Generator) -> list[RaySet]:
+def diffuse_bounces(
+    primary: RaySet,
+    primary_t: np.ndarray,
+    primary_normals: np.ndarray,
+    trace: TraceFn,
+    n_bounces: int,
+    eps: float,
+    rng: np.random.Generator,
+) -> list[RaySet]:
     """Diffuse rays of bounces 1..n_bounces, each of ``primary.n_rays`` rays.
 
     Bounce 1 starts from the primary hits; bounce k > 1 from the hits of bounce k - 1,
@@ -270,7 +292,8 @@ def diffuse_bounces(primary: RaySet, primary_t: np.ndarray, primary_normals: np.
 
 
 def random_rays(bounds: np.ndarray, n: int, rng: np.random.Generator) -> RaySet:
-    """Closest-hit rays, origins uniform in the (2, 3) ``bounds`` box, directions uniform on the sphere."""
+    """Closest-hit rays, origins uniform in the (2, 3) ``bounds`` box, directions uniform on the
+    sphere."""
     bounds = np.asarray(bounds, dtype=np.float64)
     o = bounds[0] + rng.random((n, 3)) * (bounds[1] - bounds[0])
     return RaySet("random", CLOSEST, _f32(o), _f32(uniform_sphere(n, rng)))

@@ -1,4 +1,5 @@
 """Markdown tables from the results dictionary that ``bench.run`` writes to JSON."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -51,11 +52,19 @@ def header(res: dict) -> str:
         "",
         f"- machine: {m['cpu_model']} ({cores}{mem}); Python {m['python']}; {versions}",
         f"- scene: `{s['path']}`: {s['triangles']:,} triangles, {s['vertices']:,} vertices, "
-        f"bounds {np.round(b[0], 3).tolist()} → {np.round(b[1], 3).tolist()}, diagonal {s['diagonal']:.4g}",
-        f"- view `{s['view_key']}`: eye {_vec(s['view']['eye'])}, target {_vec(s['view']['target'])}, "
-        f"up {_vec(s['view']['up'])}, fov {s['view']['fov_deg']:.4g}°, light {_vec(s['view'].get('light'))}",
-        f"- medians of {res['args']['repeat']} runs, engines alternating within each run; seed {res['args']['seed']}"
-        + (f"; dacrt.warmup() {_cell(res['dacrt_warmup_s'])} s" if res.get("dacrt_warmup_s") is not None else ""),
+        f"bounds {np.round(b[0], 3).tolist()} → {np.round(b[1], 3).tolist()}, "
+        f"diagonal {s['diagonal']:.4g}",
+        f"- view `{s['view_key']}`: eye {_vec(s['view']['eye'])}, "
+        f"target {_vec(s['view']['target'])}, "
+        f"up {_vec(s['view']['up'])}, fov {s['view']['fov_deg']:.4g}°, "
+        f"light {_vec(s['view'].get('light'))}",
+        f"- medians of {res['args']['repeat']} runs, engines alternating within each run; "
+        f"seed {res['args']['seed']}"
+        + (
+            f"; dacrt.warmup() {_cell(res['dacrt_warmup_s'])} s"
+            if res.get("dacrt_warmup_s") is not None
+            else ""
+        ),
     ]
     for family, reason in res.get("missing", {}).items():
         lines.append(f"- **{family} not available**: {reason}")
@@ -76,7 +85,7 @@ def speed_tables(res: dict, field: str, title: str) -> str:
     configs = _configs(res)
     threads = sorted({c[3] for c in configs if c[1] != "embree"}) or [1]
     names = []
-    for _, family, name, _ in configs:
+    for _, _family, name, _ in configs:
         if name not in names:
             names.append(name)
     strategies = [n for n in names if n not in ("embree", "open3d")]
@@ -88,18 +97,29 @@ def speed_tables(res: dict, field: str, title: str) -> str:
     rows = []
     for kind, info in res["kinds"].items():
         for t in threads:
-            def get(name, t=t):
+
+            def get(name, t=t, info=info):
                 key = f"{name}@1" if name == "embree" else f"{name}@{t}"
                 run = info["runs"].get(key)
                 return run.get(field) if run else None
+
             row = [kind, f"{info['n_rays']:,}", t] + [get(n) for n in names]
             if "sampling" in strategies and "sah" in strategies:
                 row.append(_fmt_x(_ratio(get("sampling"), get("sah"))))
             if strategies and "embree" in names:
                 row.append(_fmt_x(_ratio(get(strategies[0]), get("embree"))))
             rows.append(row)
-    cut = sorted({f"{run['name']}@{run['threads']} ({kind}: {len(run['trace_s'])} of {res['args']['repeat']} runs)"
-                  for kind, info in res["kinds"].items() for run in info["runs"].values() if run.get("cut_short")})
+    cut = sorted(
+        {
+            (
+                f"{run['name']}@{run['threads']} ({kind}: {len(run['trace_s'])} of "
+                f"{res['args']['repeat']} runs)"
+            )
+            for kind, info in res["kinds"].items()
+            for run in info["runs"].values()
+            if run.get("cut_short")
+        }
+    )
     note = f"\n\nFewer runs (a trace took longer than --slow): {', '.join(cut)}" if cut else ""
     return f"## {title}\n\n" + table(heads, rows, right_from=1) + note
 
@@ -108,13 +128,21 @@ def build_table(res: dict) -> str:
     """Median build time per engine configuration, over the build + trace runs of every kind."""
     rows = []
     for key, family, name, t in _configs(res):
-        builds = [v for kind in res["kinds"].values() if key in kind["runs"]
-                  for v in kind["runs"][key]["build_s"]]
-        what = {"dacrt": "dacrt.Scene(...)", "embree": "EmbreeScene + TriangleMesh((F,3,3)) + commit",
-                "open3d": "RaycastingScene + add_triangles + commit"}[family]
+        builds = [
+            v
+            for kind in res["kinds"].values()
+            if key in kind["runs"]
+            for v in kind["runs"][key]["build_s"]
+        ]
+        what = {
+            "dacrt": "dacrt.Scene(...)",
+            "embree": "EmbreeScene + TriangleMesh((F,3,3)) + commit",
+            "open3d": "RaycastingScene + add_triangles + commit",
+        }[family]
         rows.append([name, t, what, None if not builds else 1e3 * float(np.median(builds))])
     return "## Build time per frame (ms, median over all build + trace runs)\n\n" + table(
-        ["engine", "threads", "what is timed", "build ms"], rows, right_from=3)
+        ["engine", "threads", "what is timed", "build ms"], rows, right_from=3
+    )
 
 
 def scaling_table(res: dict) -> str | None:
@@ -134,8 +162,10 @@ def scaling_table(res: dict) -> str | None:
             one, many = info["runs"].get(f"{n}@1"), info["runs"].get(f"{n}@{top}")
             row.append(_fmt_x(_ratio(many and many["trace_mrays"], one and one["trace_mrays"])))
         rows.append(row)
-    return (f"## Thread scaling, trace only: speed at {top} threads / speed at 1 thread (target ≥ 1.8× at 2)\n\n"
-            + table(["kind"] + names, rows))
+    return (
+        f"## Thread scaling, trace only: speed at {top} threads / speed at 1 thread "
+        "(target ≥ 1.8× at 2)\n\n" + table(["kind"] + names, rows)
+    )
 
 
 def stats_table(res: dict) -> str | None:
@@ -160,11 +190,15 @@ def stats_table(res: dict) -> str | None:
             row += [st.get(s, {}).get("box_per_ray"), st.get(s, {}).get("tri_per_ray")]
         if both:
             a, b = st.get("sampling", {}), st.get("sah", {})
-            row += [_ratio(a.get("box_per_ray"), b.get("box_per_ray")),
-                    _ratio(a.get("tri_per_ray"), b.get("tri_per_ray"))]
+            row += [
+                _ratio(a.get("box_per_ray"), b.get("box_per_ray")),
+                _ratio(a.get("tri_per_ray"), b.get("tri_per_ray")),
+            ]
         rows.append(row)
-    return ("## Intersection tests per ray (dacrt `stats=True`, 1 thread; paper Fig. 10 reports the "
-            "box-test ratio to Afra's method, i.e. sampling/sah)\n\n" + table(heads, rows))
+    return (
+        "## Intersection tests per ray (dacrt `stats=True`, 1 thread; paper Fig. 10 reports the "
+        "box-test ratio to Afra's method, i.e. sampling/sah)\n\n" + table(heads, rows)
+    )
 
 
 def _pct(fraction: float) -> str:
@@ -182,21 +216,29 @@ def agreement_table(res: dict) -> str | None:
     for kind, info in res["kinds"].items():
         row = [kind, info["query"]]
         for n in names:
-            agreements = [r["agreement"] for k, r in info["runs"].items()
-                          if r["name"] == n and r.get("agreement")]
+            agreements = [
+                r["agreement"]
+                for k, r in info["runs"].items()
+                if r["name"] == n and r.get("agreement")
+            ]
             if not agreements:
                 row.append(None)
                 continue
             any_value = True
-            worst = {f: min(a[f] for a in agreements) for f in agreements[0] if f in ("hit", "t", "prim")}
+            worst = {
+                f: min(a[f] for a in agreements) for f in agreements[0] if f in ("hit", "t", "prim")
+            }
             row.append(" / ".join(_pct(worst[f]) for f in ("hit", "t", "prim") if f in worst))
         rows.append(row)
     if not any_value:
         return None
     tol = res["scene"]["diagonal"] * 1e-4
-    return ("## Agreement with Embree, % of rays (worst over thread counts)\n\n"
-            f"closest: same hit/miss / of common hits |t − t_embree| ≤ {tol:.3g} (1e-4 × diagonal) / same triangle; "
-            "occluded: same answer\n\n" + table(["kind", "query"] + names, rows, right_from=2))
+    return (
+        "## Agreement with Embree, % of rays (worst over thread counts)\n\n"
+        f"closest: same hit/miss / of common hits |t − t_embree| ≤ {tol:.3g} (1e-4 × diagonal) "
+        "/ same triangle; "
+        "occluded: same answer\n\n" + table(["kind", "query"] + names, rows, right_from=2)
+    )
 
 
 def memory_table(res: dict) -> str | None:
@@ -207,57 +249,139 @@ def memory_table(res: dict) -> str | None:
         rows = []
         for m in mem:
             if "error" in m:
-                rows.append([m["name"], m["threads"], m["kind"], f"{m['n_rays']:,}", "error: " + m["error"],
-                             None, None, None, None])
+                rows.append(
+                    [
+                        m["name"],
+                        m["threads"],
+                        m["kind"],
+                        f"{m['n_rays']:,}",
+                        "error: " + m["error"],
+                        None,
+                        None,
+                        None,
+                        None,
+                    ]
+                )
                 continue
             above = m["above_idle"]
             budget = 100 * m["n_rays"] + 100 * n_tri
             mib = f"{above / 2**20:.1f}" + (" (≤)" if m["upper_bound_only"] else "")
-            rows.append([m["name"], m["threads"], m["kind"], f"{m['n_rays']:,}",
-                         f"{m['build_above_idle'] / 2**20:.1f}", mib,
-                         above / m["n_rays"], above / n_tri, f"{100 * above / budget:.0f}%"])
-        lines.append("## Peak memory (RSS) of one build + trace, each in a fresh process\n\n"
-                     "MiB above the process with its inputs loaded and the engine warmed up; "
-                     "B/ray and B/triangle divide the build + trace figure by the rays or by the triangles\n\n"
-                     + table(["engine", "threads", "kind", "rays", "build MiB", "build + trace MiB", "B/ray",
-                              "B/triangle", "of budget 100 B/ray + 100 B/tri"], rows, right_from=3))
+            rows.append(
+                [
+                    m["name"],
+                    m["threads"],
+                    m["kind"],
+                    f"{m['n_rays']:,}",
+                    f"{m['build_above_idle'] / 2**20:.1f}",
+                    mib,
+                    above / m["n_rays"],
+                    above / n_tri,
+                    f"{100 * above / budget:.0f}%",
+                ]
+            )
+        lines.append(
+            "## Peak memory (RSS) of one build + trace, each in a fresh process\n\n"
+            "MiB above the process with its inputs loaded and the engine warmed up; "
+            "B/ray and B/triangle divide the build + trace figure by the rays or by the "
+            "triangles\n\n"
+            + table(
+                [
+                    "engine",
+                    "threads",
+                    "kind",
+                    "rays",
+                    "build MiB",
+                    "build + trace MiB",
+                    "B/ray",
+                    "B/triangle",
+                    "of budget 100 B/ray + 100 B/tri",
+                ],
+                rows,
+                right_from=3,
+            )
+        )
     if res.get("peak_rss_bytes"):
-        lines.append(f"Whole run (this process): peak RSS {res['peak_rss_bytes'] / 2**20:.0f} MiB, "
-                     f"{(res['peak_rss_bytes'] - res['idle_rss_bytes']) / 2**20:.0f} MiB above the idle process "
-                     f"(scene loaded, engines imported and warmed up).")
+        lines.append(
+            f"Whole run (this process): peak RSS {res['peak_rss_bytes'] / 2**20:.0f} MiB, "
+            f"{(res['peak_rss_bytes'] - res['idle_rss_bytes']) / 2**20:.0f} MiB "
+            "above the idle process "
+            f"(scene loaded, engines imported and warmed up)."
+        )
     return "\n\n".join(lines) if lines else None
 
 
 def resolution_table(res: dict) -> str:
     rows = []
     for r in res["resolutions"]:
-        rows.append([f"{r['width']}²", f"{r['n_rays']:,}", r["threads"],
-                     None if r.get("sampling_s") is None else 1e3 * r["sampling_s"],
-                     None if r.get("sah_s") is None else 1e3 * r["sah_s"],
-                     _fmt_x(r.get("ratio")), _fmt_x(r.get("paired_ratio")), _fmt_x(PAPER_RATIOS.get(r["width"])),
-                     r.get("sampling_box_per_ray"), r.get("sah_box_per_ray"),
-                     None if r.get("embree_s") is None else 1e3 * r["embree_s"]])
-    return ("## Ray-sampling ablation: primary rays, trace only (paper: Nabata et al. 2013 Fig. 4(a), Sibenik, "
-            "1 thread)\n\nratio = time sah / time sampling (the speed-up from sampling), of the medians; "
-            "paired: the median of each repetition's ratio (steadier when the machine's load drifts)\n\n"
-            + table(["resolution", "rays", "threads", "sampling ms", "sah ms", "sah/sampling",
-                     "sah/sampling, paired", "paper",
-                     "sampling box/ray", "sah box/ray", "embree ms (1 thread)"], rows))
+        rows.append(
+            [
+                f"{r['width']}²",
+                f"{r['n_rays']:,}",
+                r["threads"],
+                None if r.get("sampling_s") is None else 1e3 * r["sampling_s"],
+                None if r.get("sah_s") is None else 1e3 * r["sah_s"],
+                _fmt_x(r.get("ratio")),
+                _fmt_x(r.get("paired_ratio")),
+                _fmt_x(PAPER_RATIOS.get(r["width"])),
+                r.get("sampling_box_per_ray"),
+                r.get("sah_box_per_ray"),
+                None if r.get("embree_s") is None else 1e3 * r["embree_s"],
+            ]
+        )
+    return (
+        "## Ray-sampling ablation: primary rays, trace only "
+        "(paper: Nabata et al. 2013 Fig. 4(a), Sibenik, 1 thread)\n\n"
+        "ratio = time sah / time sampling (the speed-up from sampling), of the medians; "
+        "paired: the median of each repetition's ratio "
+        "(steadier when the machine's load drifts)\n\n"
+        + table(
+            [
+                "resolution",
+                "rays",
+                "threads",
+                "sampling ms",
+                "sah ms",
+                "sah/sampling",
+                "sah/sampling, paired",
+                "paper",
+                "sampling box/ray",
+                "sah box/ray",
+                "embree ms (1 thread)",
+            ],
+            rows,
+        )
+    )
 
 
 def render(res: dict) -> str:
     parts = [header(res)]
     if res.get("kinds"):
-        parts += [speed_tables(res, "trace_mrays", "Trace only, Mrays/s"),
-                  speed_tables(res, "build_trace_mrays",
-                               "Build + trace (per-frame cost: a new scene, then the trace), Mrays/s"),
-                  build_table(res)]
+        parts += [
+            speed_tables(res, "trace_mrays", "Trace only, Mrays/s"),
+            speed_tables(
+                res,
+                "build_trace_mrays",
+                "Build + trace (per-frame cost: a new scene, then the trace), Mrays/s",
+            ),
+            build_table(res),
+        ]
         parts += [p for p in (scaling_table(res), stats_table(res), agreement_table(res)) if p]
-        rows = [[k, v["query"], f"{v['n_rays']:,}", None if v["tmax"] is None else v["tmax"],
-                 None if v.get("reference_hit") is None else f"{100 * v['reference_hit']:.1f}%"]
-                for k, v in res["kinds"].items()]
-        parts.append("## Ray sets\n\n" + table(["kind", "query", "rays", "tmax", "hit / occluded (Embree)"],
-                                               rows, right_from=2))
+        rows = [
+            [
+                k,
+                v["query"],
+                f"{v['n_rays']:,}",
+                None if v["tmax"] is None else v["tmax"],
+                None if v.get("reference_hit") is None else f"{100 * v['reference_hit']:.1f}%",
+            ]
+            for k, v in res["kinds"].items()
+        ]
+        parts.append(
+            "## Ray sets\n\n"
+            + table(
+                ["kind", "query", "rays", "tmax", "hit / occluded (Embree)"], rows, right_from=2
+            )
+        )
     if res.get("resolutions"):
         parts.append(resolution_table(res))
     mem = memory_table(res)

@@ -2,11 +2,12 @@
 
     python -m bench.run SCENE_PATH [--rays 1000000] [--kinds primary,shadow,ao,diffuse,random]
                         [--threads 1,2] [--repeat 5] [--out results.json]
-    python -m bench.run SCENE_PATH --resolutions 512,1024,2048     # the paper's ray-sampling ablation
+    python -m bench.run SCENE_PATH --resolutions 512,1024,2048  # the paper's ray-sampling ablation
 
 Markdown tables go to stdout, progress to stderr, every figure to the JSON file (--out).
 See bench/README.md for what each column means.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,8 +23,17 @@ import numpy as np
 
 from bench import rays as R
 from bench.engines import add_engine_arguments, available_engines
-from bench.measure import (agreement, build_and_trace, current_rss_bytes, machine_info, measure_memory,
-                           median, mrays, peak_rss_bytes, timed)
+from bench.measure import (
+    agreement,
+    build_and_trace,
+    current_rss_bytes,
+    machine_info,
+    measure_memory,
+    median,
+    mrays,
+    peak_rss_bytes,
+    timed,
+)
 from bench.report import render
 from bench.scene_io import load_mesh, load_view, mesh_bounds
 
@@ -47,21 +57,40 @@ def parse_args(argv=None):
     p.add_argument("scene", help=".npz with vertices/faces, or a mesh file trimesh reads")
     p.add_argument("--rays", type=int, default=1_000_000, help="rays per kind (default 1000000)")
     p.add_argument("--kinds", default=",".join(KINDS), help="comma list of " + ",".join(KINDS))
-    p.add_argument("--bounces", default="1", help="diffuse bounces to report, e.g. 1,2,4,8 (default 1)")
-    p.add_argument("--threads", default=",".join(str(t) for t in sorted({1, usable})),
-                   help=f"comma list of thread counts (default 1,{usable})")
-    p.add_argument("--repeat", type=int, default=5, help="timed runs per engine; medians are reported")
+    p.add_argument(
+        "--bounces", default="1", help="diffuse bounces to report, e.g. 1,2,4,8 (default 1)"
+    )
+    p.add_argument(
+        "--threads",
+        default=",".join(str(t) for t in sorted({1, usable})),
+        help=f"comma list of thread counts (default 1,{usable})",
+    )
+    p.add_argument(
+        "--repeat", type=int, default=5, help="timed runs per engine; medians are reported"
+    )
     p.add_argument("--out", default=None, help="JSON results file (default results-SCENE.json)")
-    p.add_argument("--resolutions", default=None,
-                   help="ablation mode: primary rays at these square resolutions, e.g. 512,1024,2048")
+    p.add_argument(
+        "--resolutions",
+        default=None,
+        help="ablation mode: primary rays at these square resolutions, e.g. 512,1024,2048",
+    )
     add_engine_arguments(p)
-    p.add_argument("--memory-kinds", default="primary,random",
-                   help="kinds whose peak memory is measured in fresh processes, or 'none'")
+    p.add_argument(
+        "--memory-kinds",
+        default="primary,random",
+        help="kinds whose peak memory is measured in fresh processes, or 'none'",
+    )
     p.add_argument("--no-stats", action="store_true", help="skip the dacrt stats=True runs")
-    p.add_argument("--view", default=None, help="view name in scenes/views.json (default: scene file stem)")
-    p.add_argument("--slow", type=float, default=60.0,
-                   help="an engine whose trace takes longer than this many seconds is not repeated "
-                        "for that kind (its figure is then from fewer runs; default 60)")
+    p.add_argument(
+        "--view", default=None, help="view name in scenes/views.json (default: scene file stem)"
+    )
+    p.add_argument(
+        "--slow",
+        type=float,
+        default=60.0,
+        help="an engine whose trace takes longer than this many seconds is not repeated "
+        "for that kind (its figure is then from fewer runs; default 60)",
+    )
     args = p.parse_args(argv)
     args.threads = int_list(args.threads)
     args.kinds = [k for k in args.kinds.split(",") if k]
@@ -81,6 +110,7 @@ def parse_args(argv=None):
 
 # --- ray sets -------------------------------------------------------------------------------------
 
+
 def reference_tracer(vertices, faces):
     """(name, trace) where trace(o, d) -> (t, normals) finds hits for building secondary rays.
 
@@ -90,32 +120,38 @@ def reference_tracer(vertices, faces):
     try:
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
+
         scene = rtcore_scene.EmbreeScene()
         TriangleMesh(scene, np.ascontiguousarray(vertices[faces], dtype=np.float32))
 
         def trace(o, d):
             out = scene.run(o, d, output=1)
             return np.where(out["primID"] >= 0, out["tfar"], np.inf), out["Ng"]
+
         return "embree", trace
     except ImportError:
         pass
     try:
         import open3d as o3d
+
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(faces.astype(np.uint32)))
 
         def trace(o, d):
             out = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(np.hstack([o, d]))))
             return out["t_hit"].numpy(), out["primitive_normals"].numpy()
+
         return "open3d", trace
     except ImportError:
         pass
     import dacrt
+
     scene = dacrt.Scene([(vertices, faces)])
 
     def trace(o, d):
         hits = scene.closest(o, d)
         return hits.t, hits.normal
+
     return "dacrt", trace
 
 
@@ -139,7 +175,9 @@ def make_ray_sets(args, view, bounds, trace, n_rays: int, kinds) -> list[R.RaySe
         if "ao" in kinds:
             sets.append(R.ao_rays(hits, R.AO_REACH_REL * diag, n_rays, rng("ao")))
         if "diffuse" in kinds and args.bounces:
-            bounce_sets = R.diffuse_bounces(primary, t, normals, trace, max(args.bounces), eps, rng("diffuse"))
+            bounce_sets = R.diffuse_bounces(
+                primary, t, normals, trace, max(args.bounces), eps, rng("diffuse")
+            )
             sets += [s for s in bounce_sets if int(s.kind.rsplit("b", 1)[1]) in args.bounces]
     if "random" in kinds:
         sets.append(R.random_rays(bounds, n_rays, rng("random")))
@@ -148,6 +186,7 @@ def make_ray_sets(args, view, bounds, trace, n_rays: int, kinds) -> list[R.RaySe
 
 # --- timing ---------------------------------------------------------------------------------------
 
+
 def key_of(engine) -> str:
     return f"{engine.name}@{engine.threads}"
 
@@ -155,28 +194,45 @@ def key_of(engine) -> str:
 def run_kind(rays: R.RaySet, engines, vertices, faces, args, diag, errors) -> dict:
     """Trace-only and build + trace timings of every engine on one ray set, alternating engines."""
     n = rays.n_rays
-    small = R.RaySet(rays.kind, rays.query, rays.origins[:WARMUP_RAYS].copy(),
-                     rays.directions[:WARMUP_RAYS].copy(), rays.tmax)
+    small = R.RaySet(
+        rays.kind,
+        rays.query,
+        rays.origins[:WARMUP_RAYS].copy(),
+        rays.directions[:WARMUP_RAYS].copy(),
+        rays.tmax,
+    )
     live, handles, payloads = [], {}, {}
     for engine in engines:
         key = key_of(engine)
         try:
             handle = engine.build(vertices, faces)
             engine.commit(handle)
-            engine.trace(handle, engine.convert(small), small)          # warm-up, untimed
+            engine.trace(handle, engine.convert(small), small)  # warm-up, untimed
             handles[key], payloads[key] = handle, engine.convert(rays)
             live.append(engine)
         except Exception as exc:
             errors.append(_error(rays.kind, key, "warm-up", exc))
-    runs = {key_of(e): {"family": e.family, "name": e.name, "threads": e.threads, "trace_s": [],
-                        "build_trace_s": [], "build_s": [], "trace_in_frame_s": []} for e in live}
+    runs = {
+        key_of(e): {
+            "family": e.family,
+            "name": e.name,
+            "threads": e.threads,
+            "trace_s": [],
+            "build_trace_s": [],
+            "build_s": [],
+            "trace_in_frame_s": [],
+        }
+        for e in live
+    }
     results, slow = {}, set()
     for r in range(args.repeat):
-        order = live[r % len(live):] + live[:r % len(live)] if live else []   # rotate: no fixed position
+        order = (
+            live[r % len(live) :] + live[: r % len(live)] if live else []
+        )  # rotate: no fixed position
         for engine in order:
             key = key_of(engine)
             if (key in results and results[key] is None) or key in slow:
-                continue                                                       # failed or too slow
+                continue  # failed or too slow
             try:
                 seconds, result = timed(engine.trace, handles[key], payloads[key], rays)
                 build_s, trace_s, _ = build_and_trace(engine, vertices, faces, payloads[key], rays)
@@ -194,9 +250,16 @@ def run_kind(rays: R.RaySet, engines, vertices, faces, args, diag, errors) -> di
             if seconds > args.slow and r + 1 < args.repeat:
                 slow.add(key)
                 run["cut_short"] = True
-                log(f"  {key}: {seconds:.1f} s > --slow {args.slow:g} s, not repeated for {rays.kind}")
-        log(f"  {rays.kind} run {r + 1}/{args.repeat}, trace s: "
-            + ", ".join(f"{k} {v['trace_s'][-1]:.3g}" for k, v in runs.items() if len(v["trace_s"]) > r))
+                log(
+                    f"  {key}: {seconds:.1f} s > --slow {args.slow:g} s, "
+                    f"not repeated for {rays.kind}"
+                )
+        log(
+            f"  {rays.kind} run {r + 1}/{args.repeat}, trace s: "
+            + ", ".join(
+                f"{k} {v['trace_s'][-1]:.3g}" for k, v in runs.items() if len(v["trace_s"]) > r
+            )
+        )
     reference = results.get("embree@1")
     for key, run in runs.items():
         run["trace_mrays"] = mrays(n, median(run["trace_s"]))
@@ -204,15 +267,23 @@ def run_kind(rays: R.RaySet, engines, vertices, faces, args, diag, errors) -> di
         run["build_ms"] = None if not run["build_s"] else 1e3 * median(run["build_s"])
         if reference is not None and results.get(key) is not None and key != "embree@1":
             run["agreement"] = agreement(results[key], reference, 1e-4 * diag)
-    info = {"n_rays": n, "query": rays.query, "tmax": None if np.isinf(rays.tmax) else float(rays.tmax),
-            "reference_hit": None if reference is None else float(np.mean(reference.hit)), "runs": runs}
+    info = {
+        "n_rays": n,
+        "query": rays.query,
+        "tmax": None if np.isinf(rays.tmax) else float(rays.tmax),
+        "reference_hit": None if reference is None else float(np.mean(reference.hit)),
+        "runs": runs,
+    }
     if not args.no_stats:
-        info["stats"] = stats_runs(rays, [e for e in live if e.family == "dacrt"], handles, payloads, errors)
+        info["stats"] = stats_runs(
+            rays, [e for e in live if e.family == "dacrt"], handles, payloads, errors
+        )
     return info
 
 
 def stats_runs(rays, dacrt_engines, handles, payloads, errors) -> dict:
-    """Counters of one untimed stats=True trace per strategy, at 1 thread (or the fewest threads)."""
+    """Counters of one untimed stats=True trace per strategy, at 1 thread (or the fewest
+    threads)."""
     out = {}
     if not dacrt_engines:
         return out
@@ -226,21 +297,33 @@ def stats_runs(rays, dacrt_engines, handles, payloads, errors) -> dict:
             continue
         st = {k: int(v) for k, v in st.items()}
         n = max(1, rays.n_rays)
-        out[engine.strategy] = {**st, "threads": fewest, "box_per_ray": st.get("ray_box_tests", 0) / n,
-                                "tri_per_ray": st.get("ray_triangle_tests", 0) / n}
+        out[engine.strategy] = {
+            **st,
+            "threads": fewest,
+            "box_per_ray": st.get("ray_box_tests", 0) / n,
+            "tri_per_ray": st.get("ray_triangle_tests", 0) / n,
+        }
     return out
 
 
 def _error(kind, key, stage, exc) -> dict:
     log(f"  ERROR {key} {kind} {stage}: {type(exc).__name__}: {exc}")
-    return {"kind": kind, "engine": key, "stage": stage, "error": f"{type(exc).__name__}: {exc}",
-            "traceback": traceback.format_exc()}
+    return {
+        "kind": kind,
+        "engine": key,
+        "stage": stage,
+        "error": f"{type(exc).__name__}: {exc}",
+        "traceback": traceback.format_exc(),
+    }
 
 
 def run_resolutions(args, view, engines, vertices, faces, diag, errors) -> tuple[list[dict], dict]:
     """Ray-sampling ablation: sampling vs sah (and Embree) on primary rays at each resolution."""
-    pick = [e for e in engines if (e.family == "dacrt" and e.strategy in ("sampling", "sah"))
-            or e.family == "embree"]
+    pick = [
+        e
+        for e in engines
+        if (e.family == "dacrt" and e.strategy in ("sampling", "sah")) or e.family == "embree"
+    ]
     out, runs = [], {}
     for width in args.resolutions:
         rng = np.random.default_rng([args.seed, KIND_SEED["primary"], width])
@@ -250,26 +333,37 @@ def run_resolutions(args, view, engines, vertices, faces, diag, errors) -> tuple
         threads = sorted({e.threads for e in pick if e.family == "dacrt"}) or [1]
         embree = info["runs"].get("embree@1")
         for t in threads:
-            row = {"width": width, "n_rays": rays.n_rays, "threads": t,
-                   "embree_s": embree and median(embree["trace_s"])}
+            row = {
+                "width": width,
+                "n_rays": rays.n_rays,
+                "threads": t,
+                "embree_s": embree and median(embree["trace_s"]),
+            }
             for s in ("sampling", "sah"):
                 run = info["runs"].get(f"{s}@{t}")
                 row[f"{s}_s"] = run and median(run["trace_s"])
                 st = info.get("stats", {}).get(s)
                 row[f"{s}_box_per_ray"] = st and st["box_per_ray"]
                 row[f"{s}_tri_per_ray"] = st and st["tri_per_ray"]
-            row["ratio"] = (row["sah_s"] / row["sampling_s"]) if row["sah_s"] and row["sampling_s"] else None
+            row["ratio"] = (
+                (row["sah_s"] / row["sampling_s"]) if row["sah_s"] and row["sampling_s"] else None
+            )
             # Each repetition times both strategies one after the other: the median of their
-            # ratios, run by run, is steadier than the ratio of medians when the machine's load drifts.
+            # ratios, run by run, is steadier than the ratio of medians when the machine's load
+            # drifts.
             pair = [info["runs"].get(f"{s}@{t}") for s in ("sah", "sampling")]
-            row["paired_ratio"] = (median([a / b for a, b in zip(pair[0]["trace_s"], pair[1]["trace_s"])])
-                                   if all(pair) and pair[0]["trace_s"] and pair[1]["trace_s"] else None)
+            row["paired_ratio"] = (
+                median([a / b for a, b in zip(pair[0]["trace_s"], pair[1]["trace_s"])])
+                if all(pair) and pair[0]["trace_s"] and pair[1]["trace_s"]
+                else None
+            )
             out.append(row)
         runs[str(width)] = info
     return out, runs
 
 
 # --- main ---------------------------------------------------------------------------------------
+
 
 def main(argv=None) -> int:
     args = parse_args(argv)
@@ -279,37 +373,56 @@ def main(argv=None) -> int:
     diag = R.scene_diagonal(bounds)
     view_key, view = load_view(scene_path, bounds, args.view)
     engines, dacrt, missing = available_engines(args.threads, args.strategies, args.engines)
-    res = {"machine": machine_info(), "missing": missing, "errors": [],
-           "args": {k: v for k, v in vars(args).items()},
-           "scene": {"path": str(scene_path), "name": scene_path.stem, "triangles": int(len(faces)),
-                     "vertices": int(len(vertices)), "bounds": bounds.tolist(), "diagonal": diag,
-                     "view_key": view_key, "view": view}}
+    res = {
+        "machine": machine_info(),
+        "missing": missing,
+        "errors": [],
+        "args": {k: v for k, v in vars(args).items()},
+        "scene": {
+            "path": str(scene_path),
+            "name": scene_path.stem,
+            "triangles": int(len(faces)),
+            "vertices": int(len(vertices)),
+            "bounds": bounds.tolist(),
+            "diagonal": diag,
+            "view_key": view_key,
+            "view": view,
+        },
+    }
     for family, reason in missing.items():
         log(f"{family} not available: {reason}")
     if dacrt is not None:
         log("dacrt.warmup() ...")
         try:
             res["dacrt_warmup_s"] = float(dacrt.warmup())
-        except Exception as exc:                 # an engine that cannot warm up is left out
+        except Exception as exc:  # an engine that cannot warm up is left out
             missing["dacrt"] = f"warmup failed: {type(exc).__name__}: {exc}"
             res["errors"].append(_error("-", "dacrt", "warmup", exc))
             engines = [e for e in engines if e.family != "dacrt"]
-    idle_rss = current_rss_bytes()             # engines imported and warmed up, scene loaded
+    idle_rss = current_rss_bytes()  # engines imported and warmed up, scene loaded
     log(f"{scene_path.name}: {len(faces):,} triangles; engines: {[key_of(e) for e in engines]}")
 
     if args.resolutions:
-        res["resolutions"], res["resolution_runs"] = run_resolutions(args, view, engines, vertices, faces, diag, res["errors"])
+        res["resolutions"], res["resolution_runs"] = run_resolutions(
+            args, view, engines, vertices, faces, diag, res["errors"]
+        )
         ray_sets = []
     else:
         ref_name, trace = reference_tracer(vertices, faces)
         start = time.perf_counter()
         ray_sets = make_ray_sets(args, view, bounds, trace, args.rays, args.kinds)
-        res["ray_generation"] = {"tracer": ref_name, "seconds": time.perf_counter() - start,
-                                 "eps": R.EPS_REL * diag, "ao_reach": R.AO_REACH_REL * diag}
+        res["ray_generation"] = {
+            "tracer": ref_name,
+            "seconds": time.perf_counter() - start,
+            "eps": R.EPS_REL * diag,
+            "ao_reach": R.AO_REACH_REL * diag,
+        }
         res["kinds"] = {}
         for rays in ray_sets:
             log(f"{rays.kind}: {rays.n_rays:,} {rays.query} rays")
-            res["kinds"][rays.kind] = run_kind(rays, engines, vertices, faces, args, diag, res["errors"])
+            res["kinds"][rays.kind] = run_kind(
+                rays, engines, vertices, faces, args, diag, res["errors"]
+            )
 
     res["peak_rss_bytes"], res["idle_rss_bytes"] = peak_rss_bytes(), idle_rss
     if args.memory_kinds and ray_sets:
@@ -319,8 +432,12 @@ def main(argv=None) -> int:
     out.write_text(json.dumps(_clean(res), indent=1, default=_json_default, allow_nan=False))
     print(render(res))
     if res["errors"]:
-        print("## Errors\n\n" + "\n".join(f"- {e['engine']} {e['kind']} ({e['stage']}): {e['error']}"
-                                         for e in res["errors"]))
+        print(
+            "## Errors\n\n"
+            + "\n".join(
+                f"- {e['engine']} {e['kind']} ({e['stage']}): {e['error']}" for e in res["errors"]
+            )
+        )
     log(f"results written to {out}")
     return 1 if res["errors"] else 0
 
@@ -337,9 +454,20 @@ def memory_runs(args, engines, vertices, faces, ray_sets) -> list[dict]:
         for s in sets:
             rays_paths[s.kind] = os.path.join(tmp, f"{s.kind}.npz")
             np.savez(rays_paths[s.kind], origins=s.origins, directions=s.directions)
-        specs = [{"family": e.family, "name": e.name, "strategy": getattr(e, "strategy", None),
-                  "threads": e.threads, "kind": s.kind, "query": s.query, "tmax": float(s.tmax),
-                  "n_rays": s.n_rays} for s in sets for e in chosen]
+        specs = [
+            {
+                "family": e.family,
+                "name": e.name,
+                "strategy": getattr(e, "strategy", None),
+                "threads": e.threads,
+                "kind": s.kind,
+                "query": s.query,
+                "tmax": float(s.tmax),
+                "n_rays": s.n_rays,
+            }
+            for s in sets
+            for e in chosen
+        ]
         log(f"memory: {len(specs)} fresh processes ...")
         return measure_memory(specs, mesh_path, rays_paths)
 

@@ -4,6 +4,7 @@ A scene path is an ``.npz`` with ``vertices`` (V,3) and ``faces`` (F,3), or any 
 reads (several objects are merged). Its view comes from ``scenes/views.json`` by file stem; a
 scene with no entry gets an automatic view from outside its bounds.
 """
+
 from __future__ import annotations
 
 import json
@@ -21,7 +22,8 @@ def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         with np.load(path) as z:
             vertices, faces = z["vertices"], z["faces"]
     else:
-        import trimesh                           # only for mesh files
+        import trimesh  # only for mesh files
+
         mesh = trimesh.load(path, force="mesh", process=False)
         vertices, faces = mesh.vertices, mesh.faces
     vertices = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
@@ -48,17 +50,31 @@ def auto_view(bounds: np.ndarray) -> dict:
     direction /= np.linalg.norm(direction)
     eye = centre + direction * radius / np.sin(np.radians(fov / 2.0))
     light = centre + np.array([0.3, 1.2, 0.6]) * radius
-    return {"eye": eye.tolist(), "target": centre.tolist(), "up": [0.0, 1.0, 0.0],
-            "fov_deg": fov, "light": light.tolist(), "note": "automatic view (no entry in views.json)"}
+    return {
+        "eye": eye.tolist(),
+        "target": centre.tolist(),
+        "up": [0.0, 1.0, 0.0],
+        "fov_deg": fov,
+        "light": light.tolist(),
+        "note": "automatic view (no entry in views.json)",
+    }
 
 
-def load_view(scene_path: str | Path, bounds: np.ndarray, name: str | None = None,
-              views_path: str | Path = VIEWS_PATH) -> tuple[str, dict]:
+def load_view(
+    scene_path: str | Path,
+    bounds: np.ndarray,
+    name: str | None = None,
+    views_path: str | Path = VIEWS_PATH,
+) -> tuple[str, dict]:
     """(key used, view dict) for the scene: the entry ``name`` or the file stem, else automatic."""
     key = name or Path(scene_path).stem
     views = {}
     if Path(views_path).exists():
-        views = {k: v for k, v in json.loads(Path(views_path).read_text()).items() if not k.startswith("_")}
+        views = {
+            k: v
+            for k, v in json.loads(Path(views_path).read_text()).items()
+            if not k.startswith("_")
+        }
     if key in views:
         return key, views[key]
     if name is not None:

@@ -1,9 +1,10 @@
 """dacrt: divide-and-conquer ray casting without an acceleration structure.
 
-    scene = dacrt.Scene([(vertices, faces), ...])
-    hits = scene.closest(origins, directions)
-    blocked = scene.occluded(origins, directions, tmax=distances)
+scene = dacrt.Scene([(vertices, faces), ...])
+hits = scene.closest(origins, directions)
+blocked = scene.occluded(origins, directions, tmax=distances)
 """
+
 from .contracts import MISS, STRATEGIES, Hits
 from .scene import Scene
 from .warmup import warmup

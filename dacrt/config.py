@@ -6,6 +6,7 @@ exception check). No fastmath: the slab test relies on IEEE infinities, and cont
 could give one ray-triangle pair two different ``t`` in two call sites, which would break the
 promise that every strategy gives the same answer.
 """
+
 import numba
 
 jit = numba.njit(cache=True, nogil=True, boundscheck=False, error_model="numpy")
@@ -34,7 +35,8 @@ MIN_OCCLUSION_RAYS_TO_SAMPLE = 10000
 # Fewer, evenly strided over the active rays, choose the split axis (it needs three means, not
 # every candidate's counts): Sibenik 1024² primary rays 139 against 141 ms with all 100 (two runs).
 AXIS_SAMPLE_RAYS = 32
-# Afra's rule: use the cost function only when rays / triangles exceeds this, else split in the middle.
+# Afra's rule: use the cost function only when rays / triangles exceeds this, else split in the
+# middle.
 RAYS_PER_TRIANGLE_FOR_COST = 1.5
 # Leaves: brute force once either side is this small (4 triangles measured best on Sibenik
 # primary rays: 1.92 -> 2.11 Mrays/s against 8, one thread).

@@ -1,4 +1,5 @@
 """Array contracts shared by the engine: dtypes, the miss marker, strategies, the result type."""
+
 from dataclasses import dataclass
 
 import numpy as np

@@ -2,6 +2,7 @@
 
 Both are inlined into the traversal loops. They take scalars, so the callers decide the layout.
 """
+
 import numpy as np
 
 from .config import CULL_MARGIN, SLAB_GROWTH, inline
@@ -134,8 +135,9 @@ def woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz):
     det = e0 + e1 + e2
     # A triangle seen exactly edge-on projects to a segment: det is then rounding noise and so
     # would be t. det within the edge functions' rounding error counts as zero (a miss).
-    noise = (abs(cx * by) + abs(cy * bx) + abs(ax * cy) + abs(ay * cx) + abs(bx * ay)
-             + abs(by * ax)) * _EDGE_ON_TOLERANCE
+    noise = (
+        abs(cx * by) + abs(cy * bx) + abs(ax * cy) + abs(ay * cx) + abs(bx * ay) + abs(by * ax)
+    ) * _EDGE_ON_TOLERANCE
     scaled_t = e0 * (sz * az) + e1 * (sz * bz) + e2 * (sz * cz)
     return e0, e1, e2, det, noise, scaled_t
 

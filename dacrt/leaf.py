@@ -1,4 +1,5 @@
 """Leaves: brute-force every active ray of a node against every triangle of it."""
+
 import numpy as np
 
 from .config import inline
@@ -33,8 +34,12 @@ def leaf_scratch():
     for a block of rays, their best triangles and ``block_rows`` (u and v, then the rays'
     fields: RAY_ROWS). Zeros, so padding lanes that were never written compute on ordinary
     numbers."""
-    return (np.zeros(9 * LEAF_BLOCK, np.float64), np.zeros(LEAF_BLOCK, np.float32),
-            np.zeros(LEAF_BLOCK, np.int32), np.zeros((2 + RAY_ROWS, LEAF_BLOCK), np.float32))
+    return (
+        np.zeros(9 * LEAF_BLOCK, np.float64),
+        np.zeros(LEAF_BLOCK, np.float32),
+        np.zeros(LEAF_BLOCK, np.int32),
+        np.zeros((2 + RAY_ROWS, LEAF_BLOCK), np.float32),
+    )
 
 
 @inline
@@ -55,19 +60,30 @@ def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_block):
     ``corners`` holds coordinate c of the block's triangle k at [c * LEAF_BLOCK + k]: the rows
     are views of one array, so LLVM needs a single alias check against ``t_block``, and are
     indexed from 0 (see mark_rays_hitting_box)."""
-    a_x = corners[kx * LEAF_BLOCK:kx * LEAF_BLOCK + n]
-    a_y = corners[ky * LEAF_BLOCK:ky * LEAF_BLOCK + n]
-    a_z = corners[kz * LEAF_BLOCK:kz * LEAF_BLOCK + n]
-    b_x = corners[(3 + kx) * LEAF_BLOCK:(3 + kx) * LEAF_BLOCK + n]
-    b_y = corners[(3 + ky) * LEAF_BLOCK:(3 + ky) * LEAF_BLOCK + n]
-    b_z = corners[(3 + kz) * LEAF_BLOCK:(3 + kz) * LEAF_BLOCK + n]
-    c_x = corners[(6 + kx) * LEAF_BLOCK:(6 + kx) * LEAF_BLOCK + n]
-    c_y = corners[(6 + ky) * LEAF_BLOCK:(6 + ky) * LEAF_BLOCK + n]
-    c_z = corners[(6 + kz) * LEAF_BLOCK:(6 + kz) * LEAF_BLOCK + n]
+    a_x = corners[kx * LEAF_BLOCK : kx * LEAF_BLOCK + n]
+    a_y = corners[ky * LEAF_BLOCK : ky * LEAF_BLOCK + n]
+    a_z = corners[kz * LEAF_BLOCK : kz * LEAF_BLOCK + n]
+    b_x = corners[(3 + kx) * LEAF_BLOCK : (3 + kx) * LEAF_BLOCK + n]
+    b_y = corners[(3 + ky) * LEAF_BLOCK : (3 + ky) * LEAF_BLOCK + n]
+    b_z = corners[(3 + kz) * LEAF_BLOCK : (3 + kz) * LEAF_BLOCK + n]
+    c_x = corners[(6 + kx) * LEAF_BLOCK : (6 + kx) * LEAF_BLOCK + n]
+    c_y = corners[(6 + ky) * LEAF_BLOCK : (6 + ky) * LEAF_BLOCK + n]
+    c_z = corners[(6 + kz) * LEAF_BLOCK : (6 + kz) * LEAF_BLOCK + n]
     for k in range(n):
-        t_block[k], _, _ = woop_hit(a_x[k] - okx, a_y[k] - oky, a_z[k] - okz,
-                                    b_x[k] - okx, b_y[k] - oky, b_z[k] - okz,
-                                    c_x[k] - okx, c_y[k] - oky, c_z[k] - okz, sx, sy, sz)
+        t_block[k], _, _ = woop_hit(
+            a_x[k] - okx,
+            a_y[k] - oky,
+            a_z[k] - okz,
+            b_x[k] - okx,
+            b_y[k] - oky,
+            b_z[k] - okz,
+            c_x[k] - okx,
+            c_y[k] - oky,
+            c_z[k] - okz,
+            sx,
+            sy,
+            sz,
+        )
 
 
 @inline
@@ -106,12 +122,19 @@ def update_block(mode, n, tri_verts, tri, t_block, tri_block, block_rows):
         oky = pick(ky, ox, oy, oz)
         okz = pick(kz, ox, oy, oz)
         t, u, v = woop_hit(
-            pick(kx, p0x, p0y, p0z) - okx, pick(ky, p0x, p0y, p0z) - oky,
+            pick(kx, p0x, p0y, p0z) - okx,
+            pick(ky, p0x, p0y, p0z) - oky,
             pick(kz, p0x, p0y, p0z) - okz,
-            pick(kx, p1x, p1y, p1z) - okx, pick(ky, p1x, p1y, p1z) - oky,
+            pick(kx, p1x, p1y, p1z) - okx,
+            pick(ky, p1x, p1y, p1z) - oky,
             pick(kz, p1x, p1y, p1z) - okz,
-            pick(kx, p2x, p2y, p2z) - okx, pick(ky, p2x, p2y, p2z) - oky,
-            pick(kz, p2x, p2y, p2z) - okz, sx, sy, sz)
+            pick(kx, p2x, p2y, p2z) - okx,
+            pick(ky, p2x, p2y, p2z) - oky,
+            pick(kz, p2x, p2y, p2z) - okz,
+            sx,
+            sy,
+            sz,
+        )
         best = t_block[i]
         # A miss is NaN and fails every comparison; ties go to the lower triangle.
         take = (t >= tmin_row[i]) & ((t < best) | ((t == best) & (tri32 < tri_block[i])))
@@ -122,8 +145,24 @@ def update_block(mode, n, tri_verts, tri, t_block, tri_block, block_rows):
 
 
 @inline
-def intersect_leaf(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                   best_tri, hit_u, hit_v, corners, t_block, tri_block, block_rows):
+def intersect_leaf(
+    mode,
+    tri_verts,
+    rays,
+    ray_ids,
+    ray_lo,
+    ray_hi,
+    tri_ids,
+    tri_lo,
+    tri_hi,
+    best_tri,
+    hit_u,
+    hit_v,
+    corners,
+    t_block,
+    tri_block,
+    block_rows,
+):
     """Test rays ``ray_lo:ray_hi`` against triangles ``tri_ids[tri_lo:tri_hi]``.
 
     Keeps, per ray, the hit with the smallest (t, triangle index) in [tmin, best_t]; best_t
@@ -133,16 +172,59 @@ def intersect_leaf(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_
     The tests run as vectorised loops, over triangles (a few rays) or over rays (a few
     triangles, at least BY_RAYS_MIN_RAYS rays); the order of tests changes no answer."""
     if tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS:
-        return intersect_leaf_by_rays(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids,
-                                      tri_lo, tri_hi, best_tri, hit_u, hit_v, t_block, tri_block,
-                                      block_rows)
-    return intersect_leaf_by_triangles(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids,
-                                       tri_lo, tri_hi, best_tri, hit_u, hit_v, corners, t_block)
+        return intersect_leaf_by_rays(
+            mode,
+            tri_verts,
+            rays,
+            ray_ids,
+            ray_lo,
+            ray_hi,
+            tri_ids,
+            tri_lo,
+            tri_hi,
+            best_tri,
+            hit_u,
+            hit_v,
+            t_block,
+            tri_block,
+            block_rows,
+        )
+    return intersect_leaf_by_triangles(
+        mode,
+        tri_verts,
+        rays,
+        ray_ids,
+        ray_lo,
+        ray_hi,
+        tri_ids,
+        tri_lo,
+        tri_hi,
+        best_tri,
+        hit_u,
+        hit_v,
+        corners,
+        t_block,
+    )
 
 
 @inline
-def intersect_leaf_by_rays(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo,
-                           tri_hi, best_tri, hit_u, hit_v, t_block, tri_block, block_rows):
+def intersect_leaf_by_rays(
+    mode,
+    tri_verts,
+    rays,
+    ray_ids,
+    ray_lo,
+    ray_hi,
+    tri_ids,
+    tri_lo,
+    tri_hi,
+    best_tri,
+    hit_u,
+    hit_v,
+    t_block,
+    tri_block,
+    block_rows,
+):
     """intersect_leaf for few triangles: blocks of LEAF_BLOCK rays, each against every
     triangle in one vectorised loop that keeps the block's best (t, triangle, u, v); then
     the rays whose best changed take it. Recomputing u, v with the scalar test after each
@@ -155,8 +237,8 @@ def intersect_leaf_by_rays(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_i
         # The block starts from each ray's best t, with no triangle: a tie with that t is
         # settled against the ray's triangle afterwards, only for the rays that have one.
         # The block's fields go to rows once, read by every triangle's loop.
-        q0 = rays[ORIGIN_QUAD, 4 * block_lo:4 * (block_lo + n)]
-        q1 = rays[DIRECTION_QUAD, 4 * block_lo:4 * (block_lo + n)]
+        q0 = rays[ORIGIN_QUAD, 4 * block_lo : 4 * (block_lo + n)]
+        q1 = rays[DIRECTION_QUAD, 4 * block_lo : 4 * (block_lo + n)]
         for i in range(n):
             for a in range(3):
                 block_rows[2 + a, i] = q0[4 * i + a]
@@ -183,8 +265,22 @@ def intersect_leaf_by_rays(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_i
 
 
 @inline
-def intersect_leaf_by_triangles(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids,
-                                tri_lo, tri_hi, best_tri, hit_u, hit_v, corners, t_block):
+def intersect_leaf_by_triangles(
+    mode,
+    tri_verts,
+    rays,
+    ray_ids,
+    ray_lo,
+    ray_hi,
+    tri_ids,
+    tri_lo,
+    tri_hi,
+    best_tri,
+    hit_u,
+    hit_v,
+    corners,
+    t_block,
+):
     """intersect_leaf for few rays: triangles go in blocks of LEAF_BLOCK, copied to float64
     rows (``corners``), so each ray's tests over a block run as one vectorised loop; the
     winner's u, v then come from the scalar test, which is the same arithmetic."""
@@ -200,15 +296,29 @@ def intersect_leaf_by_triangles(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, 
             if best == -np.inf:
                 continue  # an occlusion ray that has already hit
             kx, ky, kz, sx, sy, sz = watertight_setup(
-                field(rays, DIRECTION, r), field(rays, DIRECTION + 1, r),
-                field(rays, DIRECTION + 2, r))
+                field(rays, DIRECTION, r),
+                field(rays, DIRECTION + 1, r),
+                field(rays, DIRECTION + 2, r),
+            )
             okx = np.float64(field(rays, ORIGIN + kx, r))
             oky = np.float64(field(rays, ORIGIN + ky, r))
             okz = np.float64(field(rays, ORIGIN + kz, r))
             n_tests += n
             # Padding lanes hold stale corners; their distances are never read.
-            block_distances(corners, min(LEAF_BLOCK, -(-n // LANES) * LANES), okx, oky, okz,
-                            kx, ky, kz, sx, sy, sz, t_block)
+            block_distances(
+                corners,
+                min(LEAF_BLOCK, -(-n // LANES) * LANES),
+                okx,
+                oky,
+                okz,
+                kx,
+                ky,
+                kz,
+                sx,
+                sy,
+                sz,
+                t_block,
+            )
             # Ranges and ties are decided on the float32 t that is reported.
             t_lo = field(rays, TMIN, r)
             ray = ray_ids[r]
@@ -223,8 +333,9 @@ def intersect_leaf_by_triangles(mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, 
                     if mode == MODE_OCCLUDED:
                         break
             if winner >= 0:
-                _, _, u, v = intersect_triangle(tri_verts, winner_tri, okx, oky, okz, kx, ky,
-                                                kz, sx, sy, sz)
+                _, _, u, v = intersect_triangle(
+                    tri_verts, winner_tri, okx, oky, okz, kx, ky, kz, sx, sy, sz
+                )
                 best_tri[ray] = winner_tri
                 hit_u[ray] = u
                 hit_v[ray] = v

@@ -3,6 +3,7 @@
 Every function works on a half-open range ``[lo, hi)`` of an index array and allocates nothing;
 the caller owns the scratch arrays. Triangle bounds are rows [x0, y0, z0, x1, y1, z1].
 """
+
 import numpy as np
 
 from .config import inline
@@ -95,8 +96,9 @@ def box_area(box):
 
 
 @inline
-def bin_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, bin_count, bin_box,
-                  tri_bins):
+def bin_triangles(
+    tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, bin_count, bin_box, tri_bins
+):
     """Count triangles per bin and the box of each bin's triangles; each position's bin goes to
     ``tri_bins[lo:hi]``, for ``partition_binned``.
 
@@ -168,8 +170,9 @@ def sweep_bins(n_bins, bin_count, bin_box, left_count, left_box, right_count, ri
 
 
 @inline
-def partition_triangles(tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, split_bin,
-                        box_left, box_right):
+def partition_triangles(
+    tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, split_bin, box_left, box_right
+):
     """Move triangles whose bin is <= split_bin to the front; returns the first right index.
 
     The boxes of both sides go to ``box_left`` and ``box_right`` (6,), bounded in the same pass
@@ -219,9 +222,14 @@ def partition_binned(tri_ids, tri_bins, lo, hi, split_bin):
 @inline
 def grow_box(x0, y0, z0, x1, y1, z1, tri_bounds, tri):
     """The box (x0, y0, z0)-(x1, y1, z1) grown to hold triangle ``tri``'s box."""
-    return (min(x0, tri_bounds[tri, 0]), min(y0, tri_bounds[tri, 1]),
-            min(z0, tri_bounds[tri, 2]), max(x1, tri_bounds[tri, 3]),
-            max(y1, tri_bounds[tri, 4]), max(z1, tri_bounds[tri, 5]))
+    return (
+        min(x0, tri_bounds[tri, 0]),
+        min(y0, tri_bounds[tri, 1]),
+        min(z0, tri_bounds[tri, 2]),
+        max(x1, tri_bounds[tri, 3]),
+        max(y1, tri_bounds[tri, 4]),
+        max(z1, tri_bounds[tri, 5]),
+    )
 
 
 @inline
@@ -251,8 +259,8 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_origin=False):
     x1 = box[3]
     y1 = box[4]
     z1 = box[5]
-    q0 = rays[ORIGIN_QUAD, 4 * lo:4 * hi]
-    q1 = rays[DIRECTION_QUAD, 4 * lo:4 * hi]
+    q0 = rays[ORIGIN_QUAD, 4 * lo : 4 * hi]
+    q1 = rays[DIRECTION_QUAD, 4 * lo : 4 * hi]
     mask = hit_mask[lo:hi]
     if fixed_origin and hi > lo:
         ox0 = q0[0]
@@ -260,16 +268,42 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_origin=False):
         oz0 = q0[2]
         t0 = q0[3]
         for i in range(hi - lo):
-            hit = intersect_box(ox0, oy0, oz0, _ONE32 / q1[4 * i], _ONE32 / q1[4 * i + 1],
-                                _ONE32 / q1[4 * i + 2], t0, cull_distance(q1[4 * i + 3]),
-                                x0, y0, z0, x1, y1, z1)
+            hit = intersect_box(
+                ox0,
+                oy0,
+                oz0,
+                _ONE32 / q1[4 * i],
+                _ONE32 / q1[4 * i + 1],
+                _ONE32 / q1[4 * i + 2],
+                t0,
+                cull_distance(q1[4 * i + 3]),
+                x0,
+                y0,
+                z0,
+                x1,
+                y1,
+                z1,
+            )
             mask[i] = hit
         return
     for i in range(hi - lo):
         # 1/d is +-inf for a zero component, which the slab test expects.
-        hit = intersect_box(q0[4 * i], q0[4 * i + 1], q0[4 * i + 2], _ONE32 / q1[4 * i],
-                            _ONE32 / q1[4 * i + 1], _ONE32 / q1[4 * i + 2], q0[4 * i + 3],
-                            cull_distance(q1[4 * i + 3]), x0, y0, z0, x1, y1, z1)
+        hit = intersect_box(
+            q0[4 * i],
+            q0[4 * i + 1],
+            q0[4 * i + 2],
+            _ONE32 / q1[4 * i],
+            _ONE32 / q1[4 * i + 1],
+            _ONE32 / q1[4 * i + 2],
+            q0[4 * i + 3],
+            cull_distance(q1[4 * i + 3]),
+            x0,
+            y0,
+            z0,
+            x1,
+            y1,
+            z1,
+        )
         mask[i] = hit
 
 
@@ -331,29 +365,34 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, fixed
     block = np.int64(PARTITION_BLOCK)
     off_l = offsets[:PARTITION_BLOCK]
     off_r = offsets[PARTITION_BLOCK:]
-    left = np.int64(0)      # every record before `left` is in place (front group)
+    left = np.int64(0)  # every record before `left` is in place (front group)
     right = np.int64(hi - lo)  # every record from `right` on is in place (back group)
-    num_l = np.int64(0)     # misplaced records of the current left block not yet swapped ...
+    num_l = np.int64(0)  # misplaced records of the current left block not yet swapped ...
     num_r = np.int64(0)
-    start_l = np.int64(0)   # ... from this position of its offsets on
+    start_l = np.int64(0)  # ... from this position of its offsets on
     start_r = np.int64(0)
     while right - left > 2 * block:
         if num_l == 0:
             start_l = 0
-            head = keep[left:left + block]
+            head = keep[left : left + block]
             for k in range(block):
                 off_l[num_l] = k
                 num_l += 0 if head[k] != to_back else 1
         if num_r == 0:
             start_r = 0
-            tail = keep[right - block:right]
+            tail = keep[right - block : right]
             for k in range(block):
                 off_r[num_r] = k
                 num_r += 1 if tail[block - 1 - k] != to_back else 0
         num = min(num_l, num_r)
         for k in range(num):
-            swap_rays(records, ids, np.uint64(left + off_l[start_l + k]),
-                      np.uint64(right - 1 - off_r[start_r + k]), fixed_origin)
+            swap_rays(
+                records,
+                ids,
+                np.uint64(left + off_l[start_l + k]),
+                np.uint64(right - 1 - off_r[start_r + k]),
+                fixed_origin,
+            )
         num_l -= num
         num_r -= num
         start_l += num

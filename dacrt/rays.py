@@ -96,8 +96,8 @@ def pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
                 block[DIRECTION_QUAD, i, a] = directions[ray, a]
             block[ORIGIN_QUAD, i, 3] = tmin[ray]
             block[DIRECTION_QUAD, i, 3] = tmax[ray]
-        q0 = rays[ORIGIN_QUAD, 4 * lo:4 * (lo + n)]
-        q1 = rays[DIRECTION_QUAD, 4 * lo:4 * (lo + n)]
+        q0 = rays[ORIGIN_QUAD, 4 * lo : 4 * (lo + n)]
+        q1 = rays[DIRECTION_QUAD, 4 * lo : 4 * (lo + n)]
         for i in range(4 * n):
             q0[i] = block0[i]
             q1[i] = block1[i]
@@ -131,12 +131,20 @@ def uniform_origin(rays, n):
     f2 = bits[2]
     f3 = bits[3]
     for lo in range(0, n, UNIFORM_CHECK_BLOCK):
-        block = bits[4 * lo:4 * min(lo + UNIFORM_CHECK_BLOCK, n)]
+        block = bits[4 * lo : 4 * min(lo + UNIFORM_CHECK_BLOCK, n)]
         m = block.shape[0] // 4
         same = 0
         for i in range(m):
-            same += 1 if ((block[4 * i] == f0) & (block[4 * i + 1] == f1)
-                          & (block[4 * i + 2] == f2) & (block[4 * i + 3] == f3)) else 0
+            same += (
+                1
+                if (
+                    (block[4 * i] == f0)
+                    & (block[4 * i + 1] == f1)
+                    & (block[4 * i + 2] == f2)
+                    & (block[4 * i + 3] == f3)
+                )
+                else 0
+            )
         if same != m:
             return False
     return True

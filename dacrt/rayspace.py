@@ -7,6 +7,7 @@ frustum (origin box, slope box, distance range), culls the triangles whose boxes
 then brute-forces it if R*G < C_r*R + C_g*G, else halves its rays along the widest of the five
 dimensions and pushes both halves with the surviving triangles.
 """
+
 import numpy as np
 
 from .config import (
@@ -61,8 +62,8 @@ def dominant_class(dx, dy, dz):
 @jit
 def bound_rays(rays, lo, hi, axis, frustum):
     """Frustum of the ray records ``lo:hi`` of one group into ``frustum`` (12,)."""
-    q0 = rays[ORIGIN_QUAD, 4 * lo:4 * hi]
-    q1 = rays[DIRECTION_QUAD, 4 * lo:4 * hi]
+    q0 = rays[ORIGIN_QUAD, 4 * lo : 4 * hi]
+    q1 = rays[DIRECTION_QUAD, 4 * lo : 4 * hi]
     u_axis = (axis + 1) % 3
     v_axis = (axis + 2) % 3
     x_lo = y_lo = z_lo = u_lo = v_lo = s_lo = np.inf
@@ -117,8 +118,7 @@ def slope_range(o_lo, o_hi, s_lo, s_hi, lo, hi):
 
 
 @jit
-def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, tolerance, keep,
-                   bounds):
+def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, tolerance, keep, bounds):
     """Move the triangles whose boxes a ray of the frustum can pass through to the front;
     returns how many they are.
 
@@ -170,8 +170,13 @@ def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, toleran
         p_lo, p_hi = slope_range(o1_lo, o1_hi, s_lo, s_hi, u_lo, u_hi)
         q_lo, q_hi = slope_range(o2_lo, o2_hi, s_lo, s_hi, v_lo, v_hi)
         # ~(a > b) rather than a <= b: a NaN never culls.
-        keep[k] = (~(s_lo > s_hi) & ~(p_hi < lo1[k] - tolerance) & ~(p_lo > hi1[k] + tolerance)
-                   & ~(q_hi < lo2[k] - tolerance) & ~(q_lo > hi2[k] + tolerance))
+        keep[k] = (
+            ~(s_lo > s_hi)
+            & ~(p_hi < lo1[k] - tolerance)
+            & ~(p_lo > hi1[k] + tolerance)
+            & ~(q_hi < lo2[k] - tolerance)
+            & ~(q_lo > hi2[k] + tolerance)
+        )
     i = 0
     j = n
     while i < j:
@@ -197,7 +202,7 @@ def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, fixe
     of the quads (``lane_into``), then compared in a vectorised loop. A slope is compared as
     lane < split * |axis lane| in float32: which side a ray near the split goes to does not
     matter, since each side's frustum is bounded from its own rays."""
-    quad = rays[ORIGIN_QUAD if dim < 3 else DIRECTION_QUAD, 4 * lo:4 * hi]
+    quad = rays[ORIGIN_QUAD if dim < 3 else DIRECTION_QUAD, 4 * lo : 4 * hi]
     mask = below[lo:hi]
     n = hi - lo
     values = np.empty(COMPARE_BLOCK, np.float32)
@@ -206,8 +211,8 @@ def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, fixe
     slope = (axis + 1 if dim == 3 else axis + 2) % 3
     for b in range(0, n, COMPARE_BLOCK):
         m = min(COMPARE_BLOCK, n - b)
-        block = quad[4 * b:4 * (b + m)]
-        out = mask[b:b + m]
+        block = quad[4 * b : 4 * (b + m)]
+        out = mask[b : b + m]
         if dim < 3:
             lane_into(block, m, dim, values)
             for i in range(m):
@@ -252,8 +257,22 @@ def drop_finished_rays(rays, ray_ids, lo, hi, fixed_origin):
 
 
 @jit
-def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_ids, best_tri,
-                    hit_u, hit_v, hit_mask, tri_bins, stats, fixed_origin):
+def trace_ray_space(
+    mode,
+    tri_verts,
+    tri_bounds,
+    scene_box,
+    rays,
+    ray_ids,
+    tri_ids,
+    best_tri,
+    hit_u,
+    hit_v,
+    hit_mask,
+    tri_bins,
+    stats,
+    fixed_origin,
+):
     """Trace the ray records ``rays`` against triangles ``tri_ids`` (both permuted in place).
 
     A node the termination rule makes a leaf but that still holds many triangles (incoherent
@@ -265,8 +284,12 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
     n_tris_all = tri_ids.shape[0]
     scene_size = 0.0
     for a in range(3):
-        scene_size = max(scene_size, np.float64(scene_box[a + 3] - scene_box[a]),
-                         abs(np.float64(scene_box[a])), abs(np.float64(scene_box[a + 3])))
+        scene_size = max(
+            scene_size,
+            np.float64(scene_box[a + 3] - scene_box[a]),
+            abs(np.float64(scene_box[a])),
+            abs(np.float64(scene_box[a + 3])),
+        )
     tolerance = 1e-5 * scene_size
     # Group rays by dominant axis and sign (a counting pass per group, in place).
     records = quad_view(rays)
@@ -277,8 +300,14 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
         j = n_rays_all
         i = lo
         while i < j:
-            if dominant_class(field(rays, DIRECTION, i), field(rays, DIRECTION + 1, i),
-                              field(rays, DIRECTION + 2, i)) == g:
+            if (
+                dominant_class(
+                    field(rays, DIRECTION, i),
+                    field(rays, DIRECTION + 1, i),
+                    field(rays, DIRECTION + 2, i),
+                )
+                == g
+            ):
                 i += 1
             else:
                 j -= 1
@@ -323,8 +352,18 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
             bound_rays(rays, ray_lo, ray_hi, axis, frustum)
             n_tris_before = tri_hi - tri_lo
             stats[STAT_BOX_TESTS] += n_tris_before
-            tri_hi = tri_lo + cull_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, frustum, axis,
-                                             negative, tolerance, keep, bounds)
+            tri_hi = tri_lo + cull_triangles(
+                tri_ids,
+                tri_lo,
+                tri_hi,
+                tri_bounds,
+                frustum,
+                axis,
+                negative,
+                tolerance,
+                keep,
+                bounds,
+            )
             n_tris = tri_hi - tri_lo
             if n_tris == 0:
                 continue
@@ -333,11 +372,15 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
             origin_spread = 0.0
             for a in range(3):
                 origin_spread = max(origin_spread, frustum[_O_MAX + a] - frustum[_O_MIN + a])
-            incoherent = (n_tris > RAYSPACE_KEPT_TO_GIVE_UP * n_tris_before
-                          and (depth >= RAYSPACE_MIN_DEPTH_TO_GIVE_UP
-                               or origin_spread > RAYSPACE_ORIGIN_SPREAD_TO_GIVE_UP * scene_size))
-            stop = (n_rays * n_tris < RAYSPACE_C_R * n_rays + RAYSPACE_C_G * n_tris
-                    or depth >= MAX_DEPTH or incoherent)
+            incoherent = n_tris > RAYSPACE_KEPT_TO_GIVE_UP * n_tris_before and (
+                depth >= RAYSPACE_MIN_DEPTH_TO_GIVE_UP
+                or origin_spread > RAYSPACE_ORIGIN_SPREAD_TO_GIVE_UP * scene_size
+            )
+            stop = (
+                n_rays * n_tris < RAYSPACE_C_R * n_rays + RAYSPACE_C_G * n_tris
+                or depth >= MAX_DEPTH
+                or incoherent
+            )
             if not stop:
                 # Split the rays at the middle of their widest dimension; slopes are weighed by
                 # the distance they travel across the scene, so both kinds are in world units.
@@ -360,22 +403,64 @@ def trace_ray_space(mode, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_i
                     else:
                         k = _U if dim == 3 else _V
                         split = 0.5 * (frustum[k] + frustum[k + 1])
-                    ray_mid = partition_rays(rays, ray_ids, ray_lo, ray_hi, axis, dim, split,
-                                             hit_mask, offsets, fixed_origin)
+                    ray_mid = partition_rays(
+                        rays,
+                        ray_ids,
+                        ray_lo,
+                        ray_hi,
+                        axis,
+                        dim,
+                        split,
+                        hit_mask,
+                        offsets,
+                        fixed_origin,
+                    )
                     stop = not ray_lo < ray_mid < ray_hi
             if stop:
                 # Finish the node here: brute force, or object splits for many triangles.
                 if n_tris > RAYSPACE_LEAF_TRIANGLES:
                     triangle_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, node_box)
-                    trace_object_split(SAMPLING, mode, tri_verts, tri_bounds, node_box, rays,
-                                       ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                                       best_tri, hit_u, hit_v, hit_mask, tri_bins, stats,
-                                       fixed_origin)
+                    trace_object_split(
+                        SAMPLING,
+                        mode,
+                        tri_verts,
+                        tri_bounds,
+                        node_box,
+                        rays,
+                        ray_ids,
+                        ray_lo,
+                        ray_hi,
+                        tri_ids,
+                        tri_lo,
+                        tri_hi,
+                        best_tri,
+                        hit_u,
+                        hit_v,
+                        hit_mask,
+                        tri_bins,
+                        stats,
+                        fixed_origin,
+                    )
                 else:
                     stats[STAT_LEAVES] += 1
                     stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
-                        mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                        best_tri, hit_u, hit_v, corners, t_block, tri_block, block_rows)
+                        mode,
+                        tri_verts,
+                        rays,
+                        ray_ids,
+                        ray_lo,
+                        ray_hi,
+                        tri_ids,
+                        tri_lo,
+                        tri_hi,
+                        best_tri,
+                        hit_u,
+                        hit_v,
+                        corners,
+                        t_block,
+                        tri_block,
+                        block_rows,
+                    )
                 continue
             for half in range(2):
                 stack[sp, 0] = ray_mid if half == 0 else ray_lo

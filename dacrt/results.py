@@ -1,4 +1,5 @@
 """Turning the kernels' per-ray results into the public answers (mesh, prim, normal, misses)."""
+
 import numpy as np
 
 from .config import inline, jit
@@ -23,8 +24,9 @@ def unit_normal(tri_verts, row):
 
 
 @jit
-def finish_closest(best_t, best_tri, tri_global, mesh_offsets, tri_verts, normals, mesh, prim,
-                   normal):
+def finish_closest(
+    best_t, best_tri, tri_global, mesh_offsets, tri_verts, normals, mesh, prim, normal
+):
     """Turn the kernels' per-ray results into the answers: ``best_t`` becomes t in place (inf
     on a miss), and mesh, prim, normal are written for every ray (MISS, MISS, 0 on a miss).
     hit_u and hit_v are u and v as they are (0 where a ray never hit).

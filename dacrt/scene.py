@@ -4,6 +4,7 @@ This is the only module that checks and converts input. A Scene keeps its triang
 O(F) and cheap to derive from them (gathered vertices, boxes); every query partitions rays and
 triangles from scratch and keeps nothing afterwards.
 """
+
 import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -24,10 +25,10 @@ from .contracts import (
 )
 from .leaf import NO_HIT
 from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
-from .results import finish_closest, unit_normals
-from .triangles import gather_triangles, triangle_boxes
 from .rayspace import trace_ray_space
+from .results import finish_closest, unit_normals
 from .traversal import trace_object_split
+from .triangles import gather_triangles, triangle_boxes
 from .validation import (
     check_mesh,
     check_rays,
@@ -196,16 +197,23 @@ class Scene:
         if not len(tri_verts):
             self._box[:] = 0
         # Bounds of the referenced vertices: every corner, degenerate triangles included.
-        self.bounds = (corner_box.reshape(2, 3) if self.n_triangles
-                       else np.zeros((2, 3), FLOAT))
+        self.bounds = corner_box.reshape(2, 3) if self.n_triangles else np.zeros((2, 3), FLOAT)
 
     @property
     def nbytes(self):
         """Bytes held by the scene's arrays, with those derived on demand once they exist."""
-        derived = [self.__dict__[name] for name in ("_unit_normals", "_centre_counts")
-                   if name in self.__dict__]
-        return int(self._tri_verts.nbytes + self._tri_bounds.nbytes + self._tri_global.nbytes
-                   + self.mesh_offsets.nbytes + sum(array.nbytes for array in derived))
+        derived = [
+            self.__dict__[name]
+            for name in ("_unit_normals", "_centre_counts")
+            if name in self.__dict__
+        ]
+        return int(
+            self._tri_verts.nbytes
+            + self._tri_bounds.nbytes
+            + self._tri_global.nbytes
+            + self.mesh_offsets.nbytes
+            + sum(array.nbytes for array in derived)
+        )
 
     @functools.cached_property
     def _centre_counts(self):
@@ -226,8 +234,17 @@ class Scene:
     def __repr__(self):
         return f"Scene({self.n_meshes} meshes, {self.n_triangles} triangles)"
 
-    def closest(self, origins, directions, tmin=None, tmax=None, *, strategy="sampling",
-                threads=None, stats=False):
+    def closest(
+        self,
+        origins,
+        directions,
+        tmin=None,
+        tmax=None,
+        *,
+        strategy="sampling",
+        threads=None,
+        stats=False,
+    ):
         """Nearest hit of each ray ``origins + t * directions`` with tmin <= t <= tmax.
 
         origins, directions : (n, 3) float; directions need not be unit, t is in their units
@@ -237,7 +254,8 @@ class Scene:
         Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
         """
         t, best_tri, u, v, counters = self._trace(
-            MODE_CLOSEST, origins, directions, tmin, tmax, strategy, threads)
+            MODE_CLOSEST, origins, directions, tmin, tmax, strategy, threads
+        )
         n = len(t)
         mesh = np.empty(n, INDEX)  # every element is written by finish_closest
         prim = np.empty(n, INDEX)
@@ -253,27 +271,46 @@ class Scene:
 
         def finish(k):
             part = slice(bounds[k], bounds[k + 1])
-            finish_closest(t[part], best_tri[part], self._tri_global, self.mesh_offsets,
-                           self._tri_verts, normals, mesh[part], prim[part], normal[part])
+            finish_closest(
+                t[part],
+                best_tri[part],
+                self._tri_global,
+                self.mesh_offsets,
+                self._tri_verts,
+                normals,
+                mesh[part],
+                prim[part],
+                normal[part],
+            )
 
         _map_on_threads(finish, n_parts, n_parts)
         return Hits(t, mesh, prim, u, v, normal, counters if stats else None)
 
-    def occluded(self, origins, directions, tmin=None, tmax=None, *, strategy="sampling",
-                 threads=None, stats=False):
+    def occluded(
+        self,
+        origins,
+        directions,
+        tmin=None,
+        tmax=None,
+        *,
+        strategy="sampling",
+        threads=None,
+        stats=False,
+    ):
         """Whether each ray hits anything with tmin <= t <= tmax (it stops at its first hit).
 
         Same arguments as ``closest``. Returns (n,) bool, or (occluded, stats dict) when
         ``stats`` is true."""
         _, best_tri, _, _, counters = self._trace(
-            MODE_OCCLUDED, origins, directions, tmin, tmax, strategy, threads)
+            MODE_OCCLUDED, origins, directions, tmin, tmax, strategy, threads
+        )
         occluded = best_tri != NO_HIT
         return (occluded, counters) if stats else occluded
 
     def _from_one_point(self, origins):
         """Whether the rays (a sample of up to 1024) start within COHERENT_ORIGIN_SPREAD of
         the scene's size of each other."""
-        sample = origins[::max(1, len(origins) // 1024)]
+        sample = origins[:: max(1, len(origins) // 1024)]
         spread = float(np.max(sample.max(axis=0) - sample.min(axis=0)))
         size = float(np.max(self._box[3:] - self._box[:3]))
         return spread <= COHERENT_ORIGIN_SPREAD * size
@@ -332,12 +369,16 @@ class Scene:
             if coherent:
                 chunk_rays = COHERENT_CHUNK_RAYS
                 if threads == 1:
-                    chunk_rays = min(COHERENT_CHUNK_RAYS_ONE_THREAD,
-                                     max(chunk_rays, COHERENT_RAYS_PER_TRIANGLE * n_live))
+                    chunk_rays = min(
+                        COHERENT_CHUNK_RAYS_ONE_THREAD,
+                        max(chunk_rays, COHERENT_RAYS_PER_TRIANGLE * n_live),
+                    )
                 n_chunks = max(n_chunks, -(-n_rays // chunk_rays))
                 if threads > 1:
-                    n_chunks = max(n_chunks, min(threads * COHERENT_CHUNKS_PER_THREAD,
-                                                 n_rays // MIN_RAYS_PER_THREAD))
+                    n_chunks = max(
+                        n_chunks,
+                        min(threads * COHERENT_CHUNKS_PER_THREAD, n_rays // MIN_RAYS_PER_THREAD),
+                    )
             # rayspace splits the rays by origin and direction itself: it keeps the input order.
             plan = self._chunk_plan(origins, n_chunks, coherent or ray_space)
 
@@ -352,14 +393,44 @@ class Scene:
             hit_mask = np.empty(len(ray_ids), np.bool_)
             tri_bins = np.empty(n_live, np.uint8)
             if ray_space:
-                trace_ray_space(mode, self._tri_verts, self._tri_bounds, self._box, rays,
-                                ray_ids, tri_ids, best_tri, hit_u, hit_v, hit_mask, tri_bins,
-                                chunk_stats, fixed_origin)
+                trace_ray_space(
+                    mode,
+                    self._tri_verts,
+                    self._tri_bounds,
+                    self._box,
+                    rays,
+                    ray_ids,
+                    tri_ids,
+                    best_tri,
+                    hit_u,
+                    hit_v,
+                    hit_mask,
+                    tri_bins,
+                    chunk_stats,
+                    fixed_origin,
+                )
             else:
-                trace_object_split(code, mode, self._tri_verts, self._tri_bounds, self._box,
-                                   rays, ray_ids, 0, len(ray_ids), tri_ids, 0, n_live,
-                                   best_tri, hit_u, hit_v, hit_mask, tri_bins, chunk_stats,
-                                   fixed_origin)
+                trace_object_split(
+                    code,
+                    mode,
+                    self._tri_verts,
+                    self._tri_bounds,
+                    self._box,
+                    rays,
+                    ray_ids,
+                    0,
+                    len(ray_ids),
+                    tri_ids,
+                    0,
+                    n_live,
+                    best_tri,
+                    hit_u,
+                    hit_v,
+                    hit_mask,
+                    tri_bins,
+                    chunk_stats,
+                    fixed_origin,
+                )
             unpack_best_t(rays, ray_ids, best_t)
             return chunk_stats
 

@@ -5,6 +5,7 @@ a box. Popping a node filters its rays by the box (unless ray sampling said the 
 not pay), then either brute-forces the node or splits its triangles in place and pushes both
 children, the one the rays reach first on top. No tree outlives the call.
 """
+
 import numpy as np
 
 from .config import (
@@ -29,14 +30,13 @@ from .contracts import (
     STAT_LEAVES,
     STAT_MAX_DEPTH,
     STAT_NODES,
-    STAT_SAMPLED,
     STAT_SAMPLE_BOX_TESTS,
+    STAT_SAMPLED,
     STAT_SKIPPED,
     STAT_TRIANGLE_TESTS,
 )
 from .geometry import cull_distance, intersect_box
 from .leaf import intersect_leaf, leaf_scratch
-from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, field
 from .partition import (
     bin_scale,
     bin_triangles,
@@ -50,6 +50,7 @@ from .partition import (
     sweep_bins,
     triangle_bounds,
 )
+from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, field
 
 MIDDLE = 0
 SAH = 1
@@ -62,9 +63,27 @@ PADDED_CANDIDATES = (N_BINS - 1 + 15) // 16 * 16
 
 
 @jit
-def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ray_ids, ray_lo,
-                       ray_hi, tri_ids, tri_lo, tri_hi, best_tri, hit_u, hit_v, hit_mask, tri_bins,
-                       stats, fixed_origin):
+def trace_object_split(
+    strategy,
+    mode,
+    tri_verts,
+    tri_bounds,
+    root_box,
+    rays,
+    ray_ids,
+    ray_lo,
+    ray_hi,
+    tri_ids,
+    tri_lo,
+    tri_hi,
+    best_tri,
+    hit_u,
+    hit_v,
+    hit_mask,
+    tri_bins,
+    stats,
+    fixed_origin,
+):
     """Trace ray records ``ray_lo:ray_hi`` against triangles ``tri_ids[tri_lo:tri_hi]``, whose
     box is ``root_box`` (both ranges are permuted in place).
 
@@ -96,8 +115,9 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
     box_b = np.empty(6, np.float32)
     corners, t_block, tri_block, block_rows = leaf_scratch()
     offsets = partition_scratch()
-    min_rays_to_sample = (MIN_OCCLUSION_RAYS_TO_SAMPLE if mode == MODE_OCCLUDED
-                          else MIN_RAYS_TO_SAMPLE)
+    min_rays_to_sample = (
+        MIN_OCCLUSION_RAYS_TO_SAMPLE if mode == MODE_OCCLUDED else MIN_RAYS_TO_SAMPLE
+    )
 
     stack_tri[0, 0] = tri_lo
     stack_tri[0, 1] = tri_hi
@@ -120,8 +140,9 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         # Ray filtering: keep the rays that can reach this node's box.
         if stack_filter[sp]:
             stats[STAT_BOX_TESTS] += ray_hi - ray_lo
-            ray_lo, ray_hi = filter_rays(rays, ray_ids, ray_lo, ray_hi, stack_box[sp], hit_mask,
-                                         offsets, fixed_origin)
+            ray_lo, ray_hi = filter_rays(
+                rays, ray_ids, ray_lo, ray_hi, stack_box[sp], hit_mask, offsets, fixed_origin
+            )
         else:
             stats[STAT_SKIPPED] += 1
         n_rays = ray_hi - ray_lo
@@ -131,8 +152,23 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
         if n_tris <= LEAF_TRIANGLES or n_rays <= LEAF_RAYS or depth >= MAX_DEPTH:
             stats[STAT_LEAVES] += 1
             stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
-                mode, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi,
-                best_tri, hit_u, hit_v, corners, t_block, tri_block, block_rows)
+                mode,
+                tri_verts,
+                rays,
+                ray_ids,
+                ray_lo,
+                ray_hi,
+                tri_ids,
+                tri_lo,
+                tri_hi,
+                best_tri,
+                hit_u,
+                hit_v,
+                corners,
+                t_block,
+                tri_block,
+                block_rows,
+            )
             continue
 
         # Choose the split; it leaves left triangles in [tri_lo, tri_mid), boxes in box_a/box_b.
@@ -150,30 +186,50 @@ def trace_object_split(strategy, mode, tri_verts, tri_bounds, root_box, rays, ra
             if extent > 0:
                 c_min = np.float64(c_box[axis])
                 scale = bin_scale(c_min, np.float64(c_box[axis + 3]), N_BINS)
-                bin_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, axis, c_min, scale, N_BINS,
-                              bin_count, bin_box, tri_bins)
-                sweep_bins(N_BINS, bin_count, bin_box, left_count, left_box, right_count,
-                           right_box)
+                bin_triangles(
+                    tri_ids,
+                    tri_lo,
+                    tri_hi,
+                    tri_bounds,
+                    axis,
+                    c_min,
+                    scale,
+                    N_BINS,
+                    bin_count,
+                    bin_box,
+                    tri_bins,
+                )
+                sweep_bins(N_BINS, bin_count, bin_box, left_count, left_box, right_count, right_box)
                 if sample_node:
                     sampled = True
                     stats[STAT_SAMPLED] += 1
                     n_sample_tests = sample_rays(
-                        rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box,
-                        axis, candidate_boxes, sample_counts)
+                        rays,
+                        ray_lo,
+                        ray_hi,
+                        left_count,
+                        left_box,
+                        right_count,
+                        right_box,
+                        axis,
+                        candidate_boxes,
+                        sample_counts,
+                    )
                     stats[STAT_BOX_TESTS] += n_sample_tests
                     stats[STAT_SAMPLE_BOX_TESTS] += n_sample_tests
-                    split = cheapest_sampled_split(left_count, right_count, hits_left,
-                                                   hits_right)
+                    split = cheapest_sampled_split(left_count, right_count, hits_left, hits_right)
                 else:
-                    split = cheapest_sah_split(left_count, left_box, right_count, right_box,
-                                               stack_box[sp])
+                    split = cheapest_sah_split(
+                        left_count, left_box, right_count, right_box, stack_box[sp]
+                    )
                 if split >= 0:
                     tri_mid = partition_binned(tri_ids, tri_bins, tri_lo, tri_hi, split)
                     box_a[:] = left_box[split]
                     box_b[:] = right_box[split]
         if split < 0:
-            axis, tri_mid = split_middle(tri_ids, tri_lo, tri_hi, tri_bounds, stack_box[sp],
-                                         c_box, box_a, box_b)
+            axis, tri_mid = split_middle(
+                tri_ids, tri_lo, tri_hi, tri_bounds, stack_box[sp], c_box, box_a, box_b
+            )
 
         # Traversal order and ray-filter skipping. Afra's order: the first active ray's
         # direction along the split axis.
@@ -224,8 +280,18 @@ def strided_sample(ray_lo, n_rays, s, n_samples):
 
 
 @jit
-def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_box, axis,
-                candidate_boxes, sample_counts):
+def sample_rays(
+    rays,
+    ray_lo,
+    ray_hi,
+    left_count,
+    left_box,
+    right_count,
+    right_box,
+    axis,
+    candidate_boxes,
+    sample_counts,
+):
     """Algorithm 2 of Nabata et al.: test sample rays against both sides of every candidate.
 
     Per candidate j: how many sample rays hit the left and right boxes, and of those that hit
@@ -249,10 +315,22 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
             candidate_boxes[a + 6, j] = right_box[j, a] if real else _INF32
             candidate_boxes[a + 9, j] = right_box[j, a + 3] if real else -_INF32
     sample_counts[:, :] = 0
-    lx0, ly0, lz0, lx1, ly1, lz1 = (candidate_boxes[0], candidate_boxes[1], candidate_boxes[2],
-                                    candidate_boxes[3], candidate_boxes[4], candidate_boxes[5])
-    rx0, ry0, rz0, rx1, ry1, rz1 = (candidate_boxes[6], candidate_boxes[7], candidate_boxes[8],
-                                    candidate_boxes[9], candidate_boxes[10], candidate_boxes[11])
+    lx0, ly0, lz0, lx1, ly1, lz1 = (
+        candidate_boxes[0],
+        candidate_boxes[1],
+        candidate_boxes[2],
+        candidate_boxes[3],
+        candidate_boxes[4],
+        candidate_boxes[5],
+    )
+    rx0, ry0, rz0, rx1, ry1, rz1 = (
+        candidate_boxes[6],
+        candidate_boxes[7],
+        candidate_boxes[8],
+        candidate_boxes[9],
+        candidate_boxes[10],
+        candidate_boxes[11],
+    )
     n_left, n_right, n_forward = sample_counts[0], sample_counts[1], sample_counts[2]
     for s in range(n_samples):
         r = strided_sample(ray_lo, n_rays, s, n_samples)
@@ -268,10 +346,12 @@ def sample_rays(rays, ray_lo, ray_hi, left_count, left_box, right_count, right_b
         going_up = (ix if axis == 0 else (iy if axis == 1 else iz)) >= 0
         step = np.int32(1) if going_up else np.int32(-1)
         for j in range(PADDED_CANDIDATES):
-            hit_l = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, lx0[j], ly0[j], lz0[j],
-                                  lx1[j], ly1[j], lz1[j])
-            hit_r = intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, rx0[j], ry0[j], rz0[j],
-                                  rx1[j], ry1[j], rz1[j])
+            hit_l = intersect_box(
+                ox, oy, oz, ix, iy, iz, t_lo, t_hi, lx0[j], ly0[j], lz0[j], lx1[j], ly1[j], lz1[j]
+            )
+            hit_r = intersect_box(
+                ox, oy, oz, ix, iy, iz, t_lo, t_hi, rx0[j], ry0[j], rz0[j], rx1[j], ry1[j], rz1[j]
+            )
             n_left[j] += np.int32(1) if hit_l else np.int32(0)
             n_right[j] += np.int32(1) if hit_r else np.int32(0)
             n_forward[j] += step if hit_l and hit_r else np.int32(0)
@@ -338,8 +418,9 @@ def cheapest_sampled_split(left_count, right_count, hits_left, hits_right):
     for j in range(left_count.shape[0]):
         if left_count[j] == 0 or right_count[j] == 0:
             continue
-        cost = SAH_C_T + SAH_C_I * np.float64(hits_left[j] * left_count[j]
-                                         + hits_right[j] * right_count[j])
+        cost = SAH_C_T + SAH_C_I * np.float64(
+            hits_left[j] * left_count[j] + hits_right[j] * right_count[j]
+        )
         if cost <= best_cost:
             best_cost = cost
             best = j
@@ -355,8 +436,12 @@ def cheapest_sah_split(left_count, left_box, right_count, right_box, node_box):
     for j in range(left_count.shape[0]):
         if left_count[j] == 0 or right_count[j] == 0:
             continue
-        cost = SAH_C_T + SAH_C_I * (box_area(left_box[j]) * left_count[j]
-                                    + box_area(right_box[j]) * right_count[j]) / area
+        cost = (
+            SAH_C_T
+            + SAH_C_I
+            * (box_area(left_box[j]) * left_count[j] + box_area(right_box[j]) * right_count[j])
+            / area
+        )
         if cost <= best_cost:
             best_cost = cost
             best = j
@@ -372,18 +457,38 @@ def split_middle(tri_ids, tri_lo, tri_hi, tri_bounds, node_box, c_box, box_a, bo
     axis, extent = longest_axis(node_box)
     if extent > 0:
         c_min = np.float64(node_box[axis])
-        tri_mid = partition_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, axis, c_min,
-                                      2.0 / (np.float64(node_box[axis + 3]) - c_min), 2, 0,
-                                      box_a, box_b)
+        tri_mid = partition_triangles(
+            tri_ids,
+            tri_lo,
+            tri_hi,
+            tri_bounds,
+            axis,
+            c_min,
+            2.0 / (np.float64(node_box[axis + 3]) - c_min),
+            2,
+            0,
+            box_a,
+            box_b,
+        )
         if tri_lo < tri_mid < tri_hi:
             return axis, tri_mid
     centroid_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, c_box)
     c_axis, c_extent = longest_axis(c_box)
     if c_extent > 0:
         c_min = np.float64(c_box[c_axis])
-        tri_mid = partition_triangles(tri_ids, tri_lo, tri_hi, tri_bounds, c_axis, c_min,
-                                      bin_scale(c_min, np.float64(c_box[c_axis + 3]), 2), 2, 0,
-                                      box_a, box_b)
+        tri_mid = partition_triangles(
+            tri_ids,
+            tri_lo,
+            tri_hi,
+            tri_bounds,
+            c_axis,
+            c_min,
+            bin_scale(c_min, np.float64(c_box[c_axis + 3]), 2),
+            2,
+            0,
+            box_a,
+            box_b,
+        )
         if tri_lo < tri_mid < tri_hi:
             return c_axis, tri_mid
     tri_mid = (tri_lo + tri_hi) // 2

@@ -3,6 +3,7 @@
 This is all a Scene derives from its meshes (O(F), a few milliseconds per 100K triangles);
 nothing here outlives the Scene or depends on the rays.
 """
+
 import numpy as np
 
 from .config import jit

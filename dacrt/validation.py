@@ -2,6 +2,7 @@
 index and how many there are. Everything past here assumes clean float32/int32 arrays; a ray
 batch's values are checked as the kernels pack them (``rays.pack_rays``), and a bad batch is
 named here (``explain_bad_rays``) before any answer is returned."""
+
 import numpy as np
 
 from .contracts import FLOAT, STRATEGIES
@@ -25,11 +26,18 @@ def as_float_rows(array, name, width=3, check_finite=True, contiguous=True):
     if array.dtype.kind not in "fiu" or array.dtype.kind == "b":
         raise ValueError(f"{name} must be a float array, got dtype {array.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
-        converted = (np.ascontiguousarray(array, dtype=FLOAT) if contiguous
-                     else np.asarray(array, dtype=FLOAT))
+        converted = (
+            np.ascontiguousarray(array, dtype=FLOAT)
+            if contiguous
+            else np.asarray(array, dtype=FLOAT)
+        )
     if check_finite:
-            _first_bad(~np.isfinite(converted).all(axis=1), name,
-                   "has a non-finite value (or one too large for float32)", "rows are not finite")
+        _first_bad(
+            ~np.isfinite(converted).all(axis=1),
+            name,
+            "has a non-finite value (or one too large for float32)",
+            "rows are not finite",
+        )
     return converted
 
 
@@ -54,8 +62,9 @@ def check_mesh(index, vertices, faces):
     if not all_finite(vertices):
         as_float_rows(vertices, f"{label}: vertices")  # names the first bad row
     # Kernels are compiled for int32 and int64 faces; other integer types are converted once.
-    faces = np.ascontiguousarray(faces, dtype=None if faces.dtype in (np.int32, np.int64)
-                                 else np.int64)
+    faces = np.ascontiguousarray(
+        faces, dtype=None if faces.dtype in (np.int32, np.int64) else np.int64
+    )
     n_vertices = len(vertices)
     if not faces_in_range(faces, n_vertices):
         out_of_range = ((faces < 0) | (faces >= n_vertices)).any(axis=1)
@@ -64,7 +73,8 @@ def check_mesh(index, vertices, faces):
         bad_vertex = faces[row][(faces[row] < 0) | (faces[row] >= n_vertices)][0]
         raise ValueError(
             f"{label}: faces[{row}] refers to vertex {bad_vertex}, but there are {n_vertices} "
-            f"vertices ({len(bad_rows)} faces out of range)")
+            f"vertices ({len(bad_rows)} faces out of range)"
+        )
     return vertices, faces
 
 

@@ -1,4 +1,5 @@
 """Compile (or load from the cache) every kernel by running each query kind on a tiny scene."""
+
 import time
 
 import numpy as np

@@ -5,4 +5,5 @@ environment), ``wire`` (body formats; its docstring is the spec), ``store`` (sce
 snapshots), ``tracing`` (the only caller of the engine), ``metrics``, ``deps`` and ``timing``
 (request plumbing), ``routes`` (thin handlers), ``app`` (the ``create_app`` factory), ``client``.
 """
+
 __version__ = "0.1.0"

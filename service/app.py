@@ -1,5 +1,6 @@
 """The app factory: ``uvicorn service.app:create_app --factory`` (with
 ``--http service.protocol:GuardedHttpProtocol`` for the deadlines and the connection bound)."""
+
 from __future__ import annotations
 
 import logging
@@ -32,8 +33,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI):
         if settings.load_demo:
             load_demo(store, settings)
-        threading.Thread(target=warm_up, args=(app.state.readiness,), name="dacrt-warmup",
-                         daemon=True).start()
+        threading.Thread(
+            target=warm_up, args=(app.state.readiness,), name="dacrt-warmup", daemon=True
+        ).start()
         yield
 
     app = FastAPI(title="dacrt ray-casting service", version=__version__, lifespan=lifespan)

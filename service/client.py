@@ -11,12 +11,13 @@ Binary by default (.npy rays in, .npz answers out); arrays are converted to the 
 the HTTP status and the server's message. Requests go through httpx on the standard library's
 ``http.client`` (``transport.StdlibTransport``), which reads big answers at half httpx's own cost.
 """
+
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import httpx
 import numpy as np
@@ -26,10 +27,24 @@ from .timing import parse_server_timing
 from .transport import StdlibTransport
 
 #: dtype of every answer key, for answers read from JSON.
-ANSWER_DTYPES = {"t": np.float32, "mesh": np.int32, "prim": np.int32, "u": np.float32,
-                 "v": np.float32, "normal": np.float32, "occluded": np.bool_}
-_SUFFIX_FORMATS = {".obj": "obj", ".ply": "ply", ".stl": "stl", ".glb": "glb", ".off": "off",
-                   ".npz": "npz", ".json": "json"}
+ANSWER_DTYPES = {
+    "t": np.float32,
+    "mesh": np.int32,
+    "prim": np.int32,
+    "u": np.float32,
+    "v": np.float32,
+    "normal": np.float32,
+    "occluded": np.bool_,
+}
+_SUFFIX_FORMATS = {
+    ".obj": "obj",
+    ".ply": "ply",
+    ".stl": "stl",
+    ".glb": "glb",
+    ".off": "off",
+    ".npz": "npz",
+    ".json": "json",
+}
 
 
 class APIError(Exception):
@@ -43,12 +58,17 @@ class APIError(Exception):
 class Answer(Mapping):
     """The arrays of a query answer (``answer["t"]`` or ``answer.t``) with its headers' facts."""
 
-    def __init__(self, arrays: dict[str, np.ndarray], version: int, timing: dict[str, float],
-                 stats: dict[str, Any] | None) -> None:
+    def __init__(
+        self,
+        arrays: dict[str, np.ndarray],
+        version: int,
+        timing: dict[str, float],
+        stats: dict[str, Any] | None,
+    ) -> None:
         self.arrays = arrays
-        self.version = version    #: X-Scene-Version: the scene version the answer was computed on
-        self.timing = timing      #: Server-Timing in ms: receive, decode, trace, encode
-        self.stats = stats        #: X-Trace-Stats (with stats=True), else None
+        self.version = version  #: X-Scene-Version: the scene version the answer was computed on
+        self.timing = timing  #: Server-Timing in ms: receive, decode, trace, encode
+        self.stats = stats  #: X-Trace-Stats (with stats=True), else None
 
     def __getitem__(self, key: str) -> np.ndarray:
         return self.arrays[key]
@@ -70,12 +90,17 @@ class Answer(Mapping):
         return f"Answer(version={self.version}, {shapes})"
 
 
-def rays_array(origins: Any, directions: Any = None, tmin: Any = None, tmax: Any = None) -> np.ndarray:
-    """One (N, 6) or (N, 8) float32 ray array from origins + directions (+ tmin, tmax), or as given."""
+def rays_array(
+    origins: Any, directions: Any = None, tmin: Any = None, tmax: Any = None
+) -> np.ndarray:
+    """One (N, 6) or (N, 8) float32 ray array from origins + directions (+ tmin, tmax), or as
+    given."""
     if directions is None:
         rays = np.asarray(origins)
         if rays.ndim != 2 or rays.shape[1] not in (6, 8):
-            raise ValueError(f"without directions, origins must be (N, 6) or (N, 8) rays, got {rays.shape}")
+            raise ValueError(
+                f"without directions, origins must be (N, 6) or (N, 8) rays, got {rays.shape}"
+            )
         if tmin is None and tmax is None:
             return np.ascontiguousarray(rays, dtype="<f4")
         origins, directions = rays[:, 0:3], rays[:, 3:6]
@@ -95,18 +120,24 @@ def rays_array(origins: Any, directions: Any = None, tmin: Any = None, tmax: Any
 class Client:
     """A connection to one service; use as a context manager or call ``close()``."""
 
-    def __init__(self, base_url: str = "http://127.0.0.1:8000", token: str | None = None,
-                 timeout: float = 600.0, http: httpx.Client | None = None) -> None:
+    def __init__(
+        self,
+        base_url: str = "http://127.0.0.1:8000",
+        token: str | None = None,
+        timeout: float = 600.0,
+        http: httpx.Client | None = None,
+    ) -> None:
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         # The stdlib transport reads big answers at about half httpx's own cost (transport.py).
-        self.http = http or httpx.Client(base_url=base_url, timeout=timeout,
-                                         transport=StdlibTransport())
+        self.http = http or httpx.Client(
+            base_url=base_url, timeout=timeout, transport=StdlibTransport()
+        )
         self.http.headers.update(headers)
 
     def close(self) -> None:
         self.http.close()
 
-    def __enter__(self) -> "Client":
+    def __enter__(self) -> Client:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -136,24 +167,41 @@ class Client:
         return response, body.finish()
 
     @staticmethod
-    def _binary_body(arrays: Mapping[str, np.ndarray], fmt: str, kwargs: dict[str, Any]) -> dict[str, Any]:
+    def _binary_body(
+        arrays: Mapping[str, np.ndarray], fmt: str, kwargs: dict[str, Any]
+    ) -> dict[str, Any]:
         """Request arguments sending arrays as one .npy (a single array) or .npz body: headers
         around the arrays' memory."""
         parts = wire.npy_parts(arrays) if fmt == "npy" else wire.npz_parts(arrays)
-        headers = {"Content-Type": wire.MEDIA_TYPES[fmt],
-                   "Content-Length": str(sum(len(part) for part in parts)), **kwargs.pop("headers", {})}
+        headers = {
+            "Content-Type": wire.MEDIA_TYPES[fmt],
+            "Content-Length": str(sum(len(part) for part in parts)),
+            **kwargs.pop("headers", {}),
+        }
         return {"content": _slices(parts), "headers": headers, **kwargs}
 
-    def _binary(self, method: str, path: str, arrays: Mapping[str, np.ndarray], fmt: str = "npz",
-                **kwargs: Any) -> httpx.Response:
+    def _binary(
+        self,
+        method: str,
+        path: str,
+        arrays: Mapping[str, np.ndarray],
+        fmt: str = "npz",
+        **kwargs: Any,
+    ) -> httpx.Response:
         return self.request(method, path, **self._binary_body(arrays, fmt, kwargs))
 
-    def _query(self, path: str, arrays: Mapping[str, np.ndarray], fmt: str, **kwargs: Any) -> Answer:
+    def _query(
+        self, path: str, arrays: Mapping[str, np.ndarray], fmt: str, **kwargs: Any
+    ) -> Answer:
         response, body = self.fetch("POST", path, **self._binary_body(arrays, fmt, kwargs))
-        return Answer(read_answer(response, body), int(response.headers["x-scene-version"]),
-                      parse_server_timing(response.headers.get("server-timing", "")),
-                      json.loads(response.headers["x-trace-stats"])
-                      if "x-trace-stats" in response.headers else None)
+        return Answer(
+            read_answer(response, body),
+            int(response.headers["x-scene-version"]),
+            parse_server_timing(response.headers.get("server-timing", "")),
+            json.loads(response.headers["x-trace-stats"])
+            if "x-trace-stats" in response.headers
+            else None,
+        )
 
     # ---- operations
 
@@ -172,26 +220,51 @@ class Client:
     def scene(self, scene: str) -> dict[str, Any]:
         return self.request("GET", f"/v1/scenes/{scene}").json()
 
-    def put_mesh(self, scene: str, mesh: str, vertices: Any = None, faces: Any = None, *,
-                 file: str | Path | bytes | None = None, format: str | None = None) -> dict[str, Any]:
+    def put_mesh(
+        self,
+        scene: str,
+        mesh: str,
+        vertices: Any = None,
+        faces: Any = None,
+        *,
+        file: str | Path | bytes | None = None,
+        format: str | None = None,
+    ) -> dict[str, Any]:
         """Add or replace a mesh from arrays, or from a mesh file (path or bytes; ``format`` is
         obj/ply/stl/glb/off, taken from the path's suffix if not given). Answers mesh info."""
         path = f"/v1/scenes/{scene}/meshes/{mesh}"
         if file is None:
-            return self._binary("PUT", path, {"vertices": np.asarray(vertices, dtype="<f4"),
-                                              "faces": np.asarray(faces, dtype="<i4")}).json()
+            return self._binary(
+                "PUT",
+                path,
+                {
+                    "vertices": np.asarray(vertices, dtype="<f4"),
+                    "faces": np.asarray(faces, dtype="<i4"),
+                },
+            ).json()
         if isinstance(file, (str, Path)):
             format = format or _SUFFIX_FORMATS.get(Path(file).suffix.lower())
             file = Path(file).read_bytes()
         if format is None:
-            raise ValueError("give format= (obj, ply, stl, glb, off) for a mesh file given as bytes")
-        return self.request("PUT", path, content=file, params={"format": format},
-                            headers={"Content-Type": wire.MEDIA_TYPES[format]}).json()
+            raise ValueError(
+                "give format= (obj, ply, stl, glb, off) for a mesh file given as bytes"
+            )
+        return self.request(
+            "PUT",
+            path,
+            content=file,
+            params={"format": format},
+            headers={"Content-Type": wire.MEDIA_TYPES[format]},
+        ).json()
 
     def update_vertices(self, scene: str, mesh: str, vertices: Any) -> dict[str, Any]:
         """New positions for a mesh's vertices (same count); answers mesh info."""
-        return self._binary("PUT", f"/v1/scenes/{scene}/meshes/{mesh}/vertices",
-                            {"vertices": np.asarray(vertices, dtype="<f4")}, "npy").json()
+        return self._binary(
+            "PUT",
+            f"/v1/scenes/{scene}/meshes/{mesh}/vertices",
+            {"vertices": np.asarray(vertices, dtype="<f4")},
+            "npy",
+        ).json()
 
     def frame(self, scene: str, meshes: Mapping[str, Any]) -> dict[str, Any]:
         """Change several meshes in one version: ``{name: vertices}`` moves a mesh,
@@ -212,45 +285,93 @@ class Client:
 
     # ---- queries
 
-    def closest(self, scene: str, origins: Any, directions: Any = None, tmin: Any = None,
-                tmax: Any = None, **options: Any) -> Answer:
+    def closest(
+        self,
+        scene: str,
+        origins: Any,
+        directions: Any = None,
+        tmin: Any = None,
+        tmax: Any = None,
+        **options: Any,
+    ) -> Answer:
         """Nearest hit per ray: t, mesh, prim, u, v, normal (see ``query`` for the options)."""
         return self.query(scene, "closest", origins, directions, tmin, tmax, **options)
 
-    def occluded(self, scene: str, origins: Any, directions: Any = None, tmin: Any = None,
-                 tmax: Any = None, **options: Any) -> Answer:
+    def occluded(
+        self,
+        scene: str,
+        origins: Any,
+        directions: Any = None,
+        tmin: Any = None,
+        tmax: Any = None,
+        **options: Any,
+    ) -> Answer:
         """Whether each ray hits anything in [tmin, tmax]: ``answer.occluded``."""
         return self.query(scene, "occluded", origins, directions, tmin, tmax, **options)
 
-    def query(self, scene: str, query: str, origins: Any, directions: Any = None,
-              tmin: Any = None, tmax: Any = None, *, fields: Any = None, strategy: str | None = None,
-              stats: bool = False, answer: str = "npz") -> Answer:
+    def query(
+        self,
+        scene: str,
+        query: str,
+        origins: Any,
+        directions: Any = None,
+        tmin: Any = None,
+        tmax: Any = None,
+        *,
+        fields: Any = None,
+        strategy: str | None = None,
+        stats: bool = False,
+        answer: str = "npz",
+    ) -> Answer:
         """A query on a stored scene. ``origins`` may be a whole (N, 6|8) ray array when
         ``directions`` is None. ``answer`` is npz, npy or json (the format the server writes)."""
         rays = rays_array(origins, directions, tmin, tmax)
-        return self._query(f"/v1/scenes/{scene}/{query}", {"rays": rays}, "npy",
-                           params=_params(fields, strategy, stats),
-                           headers={"Accept": wire.MEDIA_TYPES[answer]})
+        return self._query(
+            f"/v1/scenes/{scene}/{query}",
+            {"rays": rays},
+            "npy",
+            params=_params(fields, strategy, stats),
+            headers={"Accept": wire.MEDIA_TYPES[answer]},
+        )
 
-    def trace(self, vertices: Any, faces: Any, origins: Any, directions: Any, tmin: Any = None,
-              tmax: Any = None, *, query: str = "closest", fields: Any = None,
-              strategy: str | None = None, stats: bool = False, answer: str = "npz") -> Answer:
+    def trace(
+        self,
+        vertices: Any,
+        faces: Any,
+        origins: Any,
+        directions: Any,
+        tmin: Any = None,
+        tmax: Any = None,
+        *,
+        query: str = "closest",
+        fields: Any = None,
+        strategy: str | None = None,
+        stats: bool = False,
+        answer: str = "npz",
+    ) -> Answer:
         """A one-shot query on a mesh sent with the rays (nothing is stored)."""
-        arrays = {"vertices": np.asarray(vertices, dtype="<f4"), "faces": np.asarray(faces, dtype="<i4"),
-                  "origins": np.asarray(origins, dtype="<f4"), "directions": np.asarray(directions, dtype="<f4")}
+        arrays = {
+            "vertices": np.asarray(vertices, dtype="<f4"),
+            "faces": np.asarray(faces, dtype="<i4"),
+            "origins": np.asarray(origins, dtype="<f4"),
+            "directions": np.asarray(directions, dtype="<f4"),
+        }
         if tmin is not None:
             arrays["tmin"] = np.asarray(tmin, dtype="<f4")
         if tmax is not None:
             arrays["tmax"] = np.asarray(tmax, dtype="<f4")
         params = {"query": query, **_params(fields, strategy, stats)}
-        return self._query("/v1/trace", arrays, "npz", params=params,
-                           headers={"Accept": wire.MEDIA_TYPES[answer]})
+        return self._query(
+            "/v1/trace", arrays, "npz", params=params, headers={"Accept": wire.MEDIA_TYPES[answer]}
+        )
 
 
 def _slices(parts: list, size: int = 1 << 20) -> list[memoryview]:
     """The body as 1 MiB views: sent with Content-Length and no join into one big copy."""
     views = [memoryview(part).cast("B") for part in parts]
-    return [view[i:i + size] for view in views for i in range(0, len(view), size)] or [memoryview(b"")]
+    return [view[i : i + size] for view in views for i in range(0, len(view), size)] or [
+        memoryview(b"")
+    ]
 
 
 def _params(fields: Any, strategy: str | None, stats: bool) -> dict[str, str]:

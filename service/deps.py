@@ -1,4 +1,5 @@
 """Request plumbing shared by the routes: app state, the bearer token, bounded body reading."""
+
 from __future__ import annotations
 
 import difflib
@@ -7,8 +8,8 @@ from dataclasses import dataclass, field
 from typing import Annotated, Any
 
 from fastapi import Depends, Request
-from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.routing import APIRoute
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from .errors import Invalid, TooLarge, Unauthorized
 from .metrics import Metrics
@@ -19,7 +20,8 @@ from .wire import BodyBuffer
 
 @dataclass
 class Readiness:
-    """Engine warm-up state: ``starting`` until ``dacrt.warmup()`` returns, then ``ok`` (or ``error``)."""
+    """Engine warm-up state: ``starting`` until ``dacrt.warmup()`` returns, then ``ok`` (or
+    ``error``)."""
 
     status: str = "starting"
     seconds: float | None = None
@@ -43,16 +45,18 @@ def metrics_of(request: Request) -> Metrics:
 bearer = HTTPBearer(auto_error=False, description="the server's DACRT_TOKEN, when it has one")
 
 
-def require_token(request: Request,
-                  credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
-                  ) -> None:
+def require_token(
+    request: Request, credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
+) -> None:
     """Dependency of every /v1 route: 401 unless the configured bearer token is presented."""
     token = settings_of(request).token
     if token is None:
         return
     if credentials is None or not credentials.credentials.strip():
-        raise Unauthorized("this server needs the header 'Authorization: Bearer <token>' on every "
-                           "/v1 request (the token is the server's DACRT_TOKEN)")
+        raise Unauthorized(
+            "this server needs the header 'Authorization: Bearer <token>' on every "
+            "/v1 request (the token is the server's DACRT_TOKEN)"
+        )
     presented = credentials.credentials.strip().encode()
     if not secrets.compare_digest(presented, token.get_secret_value().encode()):
         raise Unauthorized("the bearer token is wrong; use the server's DACRT_TOKEN")
@@ -90,8 +94,9 @@ async def read_body(request: Request) -> memoryview:
     declared = request.headers.get("content-length")
     expected = int(declared) if declared is not None and declared.isdigit() else None
     if expected is not None and expected > limit:
-        raise TooLarge(f"body of {expected} bytes is over the limit of {limit} bytes "
-                       "(DACRT_MAX_BODY_BYTES)")
+        raise TooLarge(
+            f"body of {expected} bytes is over the limit of {limit} bytes (DACRT_MAX_BODY_BYTES)"
+        )
     body = BodyBuffer(expected)
     async for chunk in request.stream():
         if body.size + len(chunk) > limit:

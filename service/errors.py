@@ -4,6 +4,7 @@ The rest of the service raises these (never ``HTTPException``); ``install`` turn
 including FastAPI's own, into ``{"detail": "<message a person can act on>"}``. This module
 imports nothing from FastAPI at import time, so ``wire`` and ``client`` stay light.
 """
+
 from __future__ import annotations
 
 import json
@@ -104,15 +105,21 @@ def install(app) -> None:
         return JSONResponse({"detail": exc.detail}, status_code=status_of(exc), headers=headers)
 
     async def on_http_error(request, exc: HTTPException):
-        return JSONResponse({"detail": str(exc.detail)}, status_code=exc.status_code,
-                            headers=getattr(exc, "headers", None))
+        return JSONResponse(
+            {"detail": str(exc.detail)},
+            status_code=exc.status_code,
+            headers=getattr(exc, "headers", None),
+        )
 
     async def on_validation_error(request, exc: RequestValidationError):
         return JSONResponse({"detail": describe_validation(exc.errors())}, status_code=422)
 
     async def on_client_gone(request, exc: ClientDisconnect):
-        log.info("%s %s: the client went away before sending the whole body",
-                 request.method, request.url.path)
+        log.info(
+            "%s %s: the client went away before sending the whole body",
+            request.method,
+            request.url.path,
+        )
         return Response(status_code=CLIENT_GONE)
 
     app.add_exception_handler(ServiceError, on_service_error)
@@ -122,14 +129,20 @@ def install(app) -> None:
 
 
 def describe_validation(errors) -> str:
-    """One line per FastAPI validation error, e.g. ``query parameter 'stats': Input should be ...``."""
+    """One line per FastAPI validation error,
+    e.g. ``query parameter 'stats': Input should be ...``."""
     parts = []
     for err in errors:
         loc = [str(x) for x in err.get("loc", ())]
         where = {"query": "query parameter", "path": "path parameter", "header": "header"}.get(
-            loc[0] if loc else "", loc[0] if loc else "request")
+            loc[0] if loc else "", loc[0] if loc else "request"
+        )
         name = ".".join(loc[1:])
-        parts.append(f"{where} {name!r}: {err.get('msg', 'invalid')}" if name else f"{where}: {err.get('msg')}")
+        parts.append(
+            f"{where} {name!r}: {err.get('msg', 'invalid')}"
+            if name
+            else f"{where}: {err.get('msg')}"
+        )
     return "; ".join(parts) or "invalid request"
 
 
@@ -139,7 +152,9 @@ class CatchAll:
     Without it the server answers a bare text 500 and drops the connection.
     """
 
-    BODY = json.dumps({"detail": "the server failed on this request; the error is in its log"}).encode()
+    BODY = json.dumps(
+        {"detail": "the server failed on this request; the error is in its log"}
+    ).encode()
 
     def __init__(self, app) -> None:
         self.app = app
@@ -160,7 +175,14 @@ class CatchAll:
             log.exception("unhandled error in %s %s", scope["method"], scope["path"])
             if started:  # half an answer is out: only closing the connection is honest now
                 raise
-            await send({"type": "http.response.start", "status": 500,
-                        "headers": [(b"content-type", b"application/json"),
-                                    (b"content-length", str(len(self.BODY)).encode())]})
+            await send(
+                {
+                    "type": "http.response.start",
+                    "status": 500,
+                    "headers": [
+                        (b"content-type", b"application/json"),
+                        (b"content-length", str(len(self.BODY)).encode()),
+                    ],
+                }
+            )
             await send({"type": "http.response.body", "body": self.BODY})

@@ -25,19 +25,20 @@ vertex, resolves negative OBJ indices from the end of the file instead of from t
 and reads the OFF face ``1000000 0 1 2`` as a triangle. PLY, STL and GLB are read by trimesh after
 their headers are checked here.
 """
+
 from __future__ import annotations
 
 import io
 import json
 import re
 import struct
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 
 from .errors import BadBody, Invalid, TooLarge
 
-Buffer = Union[bytes, memoryview]
+Buffer = bytes | memoryview
 
 #: A GLB may decode to at most this many times its size (buffer views, accessors, and the
 #: instanced mesh as float32 vertices and int32 faces).
@@ -72,15 +73,17 @@ def _read_with_trimesh(data: bytes, fmt: str) -> tuple[np.ndarray, np.ndarray]:
     import trimesh  # only these formats need it, and it is slow to import
 
     try:
-        scene = trimesh.load_scene(io.BytesIO(data), file_type=fmt, process=False,
-                                   skip_materials=True)
+        scene = trimesh.load_scene(
+            io.BytesIO(data), file_type=fmt, process=False, skip_materials=True
+        )
         _check_instances(scene, len(data), fmt)
         mesh = scene.to_mesh()
     except TooLarge:
         raise
     except Exception as exc:  # trimesh raises anything from its parsers: all mean "unreadable"
-        raise BadBody(f"body cannot be read as {fmt.upper()}: {type(exc).__name__}: "
-                      f"{exc}") from None
+        raise BadBody(
+            f"body cannot be read as {fmt.upper()}: {type(exc).__name__}: {exc}"
+        ) from None
     return np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.int64)
 
 
@@ -94,9 +97,11 @@ def _check_instances(scene, size: int, fmt: str) -> None:
             triangles += len(geometry.faces)
     decoded = 12 * (vertices + triangles)  # float32 (V, 3) and int32 (F, 3)
     if decoded > EXPANSION * size:
-        raise TooLarge(f"the {fmt.upper()} body instances its meshes into {triangles} triangles "
-                       f"and {vertices} vertices ({decoded} bytes), over {EXPANSION} times its "
-                       f"{size} bytes; send the instances flattened, or as .npz")
+        raise TooLarge(
+            f"the {fmt.upper()} body instances its meshes into {triangles} triangles "
+            f"and {vertices} vertices ({decoded} bytes), over {EXPANSION} times its "
+            f"{size} bytes; send the instances flattened, or as .npz"
+        )
 
 
 # --------------------------------------------------------------------------------------------
@@ -124,15 +129,19 @@ def read_obj(data: bytes) -> tuple[np.ndarray, np.ndarray]:
         for i, rest in zip(f_at, rests):
             for token in rest.split():
                 if not re.fullmatch(rb"[+-]?\d+", token.split(b"/", 1)[0]):
-                    raise BadBody(f"OBJ line {i + 1} ({_show(lines[i])}): {_show(token)} is "
-                                  "not a vertex index (an integer, optionally /texture/normal)")
+                    raise BadBody(
+                        f"OBJ line {i + 1} ({_show(lines[i])}): {_show(token)} is "
+                        "not a vertex index (an integer, optionally /texture/normal)"
+                    )
         raise BadBody("OBJ face lines cannot be read")  # pragma: no cover - the loop names one
     short = np.flatnonzero(counts < 3)
     if short.size:
         i = f_at[short[0]]
-        raise Invalid(f"OBJ line {i + 1} ({_show(lines[i])}): a face needs at least 3 vertices, "
-                      f"this one has {counts[short[0]]}; {short.size} of {len(counts)} faces "
-                      "have fewer than 3")
+        raise Invalid(
+            f"OBJ line {i + 1} ({_show(lines[i])}): a face needs at least 3 vertices, "
+            f"this one has {counts[short[0]]}; {short.size} of {len(counts)} faces "
+            "have fewer than 3"
+        )
     # A negative index counts back from the last vertex defined before the face's line.
     before = np.repeat(np.searchsorted(v_at, f_at), counts)
     resolved = np.where(indices > 0, indices - 1, before + indices)
@@ -148,8 +157,10 @@ def read_obj(data: bytes) -> tuple[np.ndarray, np.ndarray]:
             why = f"but only {int(before[first])} vertices are defined before it"
         else:
             why = f"but there are {len(vertices)} vertices (OBJ indices start at 1)"
-        raise Invalid(f"OBJ line {i + 1} ({_show(lines[i])}) refers to vertex {index}, {why}; "
-                      f"{n_bad} of {len(counts)} faces are out of range")
+        raise Invalid(
+            f"OBJ line {i + 1} ({_show(lines[i])}) refers to vertex {index}, {why}; "
+            f"{n_bad} of {len(counts)} faces are out of range"
+        )
     return vertices, fan(counts, resolved)
 
 
@@ -169,11 +180,13 @@ def _vertex_rows(lines: list[bytes], at: list[int], fmt: str, skip: int = 0) -> 
         try:
             [float(x) for x in words[:3]]
         except ValueError:
-            raise BadBody(f"{fmt} line {i + 1} ({_show(lines[i])}): a vertex must be numbers "
-                          "x y z") from None
+            raise BadBody(
+                f"{fmt} line {i + 1} ({_show(lines[i])}): a vertex must be numbers x y z"
+            ) from None
         if len(words) < 3:
-            raise BadBody(f"{fmt} line {i + 1} ({_show(lines[i])}): a vertex needs 3 "
-                          "coordinates x y z")
+            raise BadBody(
+                f"{fmt} line {i + 1} ({_show(lines[i])}): a vertex needs 3 coordinates x y z"
+            )
     raise BadBody(f"{fmt} vertex lines cannot be read")  # pragma: no cover - the loop names one
 
 
@@ -259,8 +272,10 @@ def read_off(data: bytes) -> tuple[np.ndarray, np.ndarray]:
         raise BadBody("the OFF body holds only comments")
     header = lines[at[0]].split()
     if not _OFF_KEYWORD.fullmatch(header[0]):
-        raise BadBody(f"OFF line {at[0] + 1}: the file must start with OFF (or COFF, NOFF, "
-                      f"CNOFF, STOFF), not {_show(header[0])}; 4OFF and nOFF are not read")
+        raise BadBody(
+            f"OFF line {at[0] + 1}: the file must start with OFF (or COFF, NOFF, "
+            f"CNOFF, STOFF), not {_show(header[0])}; 4OFF and nOFF are not read"
+        )
     if len(header) == 1:  # the counts are on the next line
         at = at[1:]
         if not at:
@@ -270,36 +285,48 @@ def read_off(data: bytes) -> tuple[np.ndarray, np.ndarray]:
     try:
         n_vertices, n_faces = (int(t) for t in header[1:3])
     except ValueError:
-        raise BadBody(f"OFF line {counts_line}: the counts must be integers "
-                      f"`vertices faces edges`, got {_show(lines[at[0]])}") from None
+        raise BadBody(
+            f"OFF line {counts_line}: the counts must be integers "
+            f"`vertices faces edges`, got {_show(lines[at[0]])}"
+        ) from None
     if n_vertices < 0 or n_faces < 0:
         raise BadBody(f"OFF line {counts_line}: the counts must not be negative")
-    v_at, f_at = at[1:1 + n_vertices], at[1 + n_vertices:]
+    v_at, f_at = at[1 : 1 + n_vertices], at[1 + n_vertices :]
     if len(v_at) != n_vertices or len(f_at) != n_faces:
-        raise BadBody(f"OFF line {counts_line} declares {n_vertices} vertices and {n_faces} "
-                      f"faces ({n_vertices + n_faces} lines), but {len(at) - 1} lines follow")
+        raise BadBody(
+            f"OFF line {counts_line} declares {n_vertices} vertices and {n_faces} "
+            f"faces ({n_vertices + n_faces} lines), but {len(at) - 1} lines follow"
+        )
     vertices = _vertex_rows(lines, v_at, "OFF")
     counts, values = integer_rows(b"\n".join(lines[i] for i in f_at), len(f_at))
     if counts is None:
         for i in f_at:
             if not all(re.fullmatch(rb"[+-]?\d+", t) for t in lines[i].split()):
-                raise BadBody(f"OFF line {i + 1} ({_show(lines[i])}): a face must be integers "
-                              "`n i1 .. in` (an integer colour may follow)")
+                raise BadBody(
+                    f"OFF line {i + 1} ({_show(lines[i])}): a face must be integers "
+                    "`n i1 .. in` (an integer colour may follow)"
+                )
         raise BadBody("OFF face lines cannot be read")  # pragma: no cover - the loop names one
     firsts = np.cumsum(counts) - counts
     sizes = values[firsts]
     listed = counts - 1
     for rows, problem, error in (
-            (sizes < 3, "a face needs at least 3 vertices, this one declares {size}", Invalid),
-            (listed < sizes, "declares a face of {size} vertices but lists {listed} indices",
-             BadBody),
-            (listed > sizes + 4, "declares a face of {size} vertices but lists {listed} values "
-                                 "(its indices and a colour of at most 4)", BadBody)):
+        (sizes < 3, "a face needs at least 3 vertices, this one declares {size}", Invalid),
+        (listed < sizes, "declares a face of {size} vertices but lists {listed} indices", BadBody),
+        (
+            listed > sizes + 4,
+            "declares a face of {size} vertices but lists {listed} values "
+            "(its indices and a colour of at most 4)",
+            BadBody,
+        ),
+    ):
         if rows.any():
             face = int(np.flatnonzero(rows)[0])
             i = f_at[face]
-            raise error(f"OFF line {i + 1} ({_show(lines[i])}): "
-                        + problem.format(size=sizes[face], listed=listed[face]))
+            raise error(
+                f"OFF line {i + 1} ({_show(lines[i])}): "
+                + problem.format(size=sizes[face], listed=listed[face])
+            )
     offset = np.arange(len(values)) - np.repeat(firsts, counts)  # within its line
     keep = (offset >= 1) & (offset <= np.repeat(sizes, counts))
     indices = values[keep]
@@ -308,9 +335,11 @@ def read_off(data: bytes) -> tuple[np.ndarray, np.ndarray]:
         face = int(np.searchsorted(np.cumsum(sizes), np.flatnonzero(bad)[0], side="right"))
         i = f_at[face]
         n_bad = np.unique(np.repeat(np.arange(len(sizes)), sizes)[bad]).size
-        raise Invalid(f"OFF line {i + 1} ({_show(lines[i])}) refers to vertex "
-                      f"{indices[bad][0]}, but there are {n_vertices} vertices (OFF indices "
-                      f"start at 0); {n_bad} of {n_faces} faces are out of range")
+        raise Invalid(
+            f"OFF line {i + 1} ({_show(lines[i])}) refers to vertex "
+            f"{indices[bad][0]}, but there are {n_vertices} vertices (OFF indices "
+            f"start at 0); {n_bad} of {n_faces} faces are out of range"
+        )
     return vertices, fan(sizes, indices)
 
 
@@ -318,9 +347,24 @@ def read_off(data: bytes) -> tuple[np.ndarray, np.ndarray]:
 # PLY, STL, GLB: headers checked before trimesh reads them
 
 
-_PLY_TYPES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2,
-              "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4,
-              "float32": 4, "double": 8, "float64": 8}
+_PLY_TYPES = {
+    "char": 1,
+    "uchar": 1,
+    "int8": 1,
+    "uint8": 1,
+    "short": 2,
+    "ushort": 2,
+    "int16": 2,
+    "uint16": 2,
+    "int": 4,
+    "uint": 4,
+    "int32": 4,
+    "uint32": 4,
+    "float": 4,
+    "float32": 4,
+    "double": 8,
+    "float64": 8,
+}
 _PLY_FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
 
 
@@ -329,7 +373,7 @@ def check_ply(data: bytes) -> None:
     end = re.search(rb"(?m)^end_header[ \t]*\r?$\n?", data)
     if end is None:
         raise BadBody("PLY header has no `end_header` line; the header must end with one")
-    header = data[:end.start()].decode("ascii", "replace").splitlines()
+    header = data[: end.start()].decode("ascii", "replace").splitlines()
     if not header or header[0].strip() != "ply":
         raise BadBody("a PLY file must start with the line `ply`")
     encoding, elements = None, []  # elements: [name, count, fixed bytes, list count bytes]
@@ -343,28 +387,41 @@ def check_ply(data: bytes) -> None:
             elements.append([words[1], int(words[2]), 0, 0])
         elif words[0] == "property" and elements and len(words) == 3 and words[1] in _PLY_TYPES:
             elements[-1][2] += _PLY_TYPES[words[1]]
-        elif (words[0] == "property" and elements and len(words) == 5 and words[1] == "list"
-              and words[2] in _PLY_TYPES and words[3] in _PLY_TYPES):
+        elif (
+            words[0] == "property"
+            and elements
+            and len(words) == 5
+            and words[1] == "list"
+            and words[2] in _PLY_TYPES
+            and words[3] in _PLY_TYPES
+        ):
             elements[-1][3] += _PLY_TYPES[words[2]]
         else:
-            raise BadBody(f"PLY header line {number} ({_show(line.encode())}) is not a format, "
-                          "element, property or comment line")
+            raise BadBody(
+                f"PLY header line {number} ({_show(line.encode())}) is not a format, "
+                "element, property or comment line"
+            )
     if encoding is None:
-        raise BadBody("PLY header has no `format ascii|binary_little_endian|binary_big_endian "
-                      "1.0` line")
+        raise BadBody(
+            "PLY header has no `format ascii|binary_little_endian|binary_big_endian 1.0` line"
+        )
     rest = len(data) - end.end()
     declared = ", ".join(f"{count} {name}" for name, count, _, _ in elements)
     if encoding == "ascii":
         lines = data.count(b"\n", end.end()) + (not data.endswith(b"\n"))
         needed = sum(count for _, count, _, _ in elements)
         if lines < needed:
-            raise BadBody(f"PLY header declares {declared} ({needed} lines), but the body holds "
-                          f"only {lines} lines after end_header")
+            raise BadBody(
+                f"PLY header declares {declared} ({needed} lines), but the body holds "
+                f"only {lines} lines after end_header"
+            )
     else:
         needed = sum(count * (fixed + lists) for _, count, fixed, lists in elements)
         if rest < needed:
-            raise BadBody(f"PLY header declares {declared} (at least {needed} bytes), but the "
-                          f"body holds only {rest} bytes after end_header")
+            raise BadBody(
+                f"PLY header declares {declared} (at least {needed} bytes), but the "
+                f"body holds only {rest} bytes after end_header"
+            )
 
 
 _STL_HEADER, _STL_TRIANGLE = 84, 50
@@ -376,12 +433,16 @@ def check_stl(data: bytes) -> None:
         if len(data) < _STL_HEADER or _stl_length(data) != len(data):
             return  # ASCII (a binary STL may also start with "solid": its length tells)
     if len(data) < _STL_HEADER:
-        raise BadBody(f"STL body is {len(data)} bytes: shorter than the 84-byte header of a "
-                      "binary STL, and not an ASCII STL (`solid` ... `endsolid`)")
+        raise BadBody(
+            f"STL body is {len(data)} bytes: shorter than the 84-byte header of a "
+            "binary STL, and not an ASCII STL (`solid` ... `endsolid`)"
+        )
     if _stl_length(data) != len(data):
         count = struct.unpack_from("<I", data, 80)[0]
-        raise BadBody(f"binary STL header declares {count} triangles ({_stl_length(data)} bytes), "
-                      f"but the body is {len(data)} bytes")
+        raise BadBody(
+            f"binary STL header declares {count} triangles ({_stl_length(data)} bytes), "
+            f"but the body is {len(data)} bytes"
+        )
 
 
 def _stl_length(data: bytes) -> int:
@@ -410,9 +471,11 @@ def check_glb(data: bytes) -> None:
             raise BadBody(f"GLB has {len(data) - offset} stray bytes after its last chunk")
         size, kind = struct.unpack_from("<II", data, offset)
         if size > len(data) - offset - 8:
-            raise BadBody(f"GLB chunk {len(chunks)} declares {size} bytes, but only "
-                          f"{len(data) - offset - 8} follow")
-        chunks.append((kind, data[offset + 8:offset + 8 + size]))
+            raise BadBody(
+                f"GLB chunk {len(chunks)} declares {size} bytes, but only "
+                f"{len(data) - offset - 8} follow"
+            )
+        chunks.append((kind, data[offset + 8 : offset + 8 + size]))
         offset += 8 + size
     if chunks[0][0] != _GLB_JSON:
         raise BadBody("GLB's first chunk must be its JSON")
@@ -426,29 +489,44 @@ def check_glb(data: bytes) -> None:
     for i, buffer in enumerate(buffers):
         if not isinstance(buffer, dict) or "uri" in buffer:
             uri = buffer.get("uri") if isinstance(buffer, dict) else buffer
-            raise BadBody(f"GLB buffer {i} refers to {str(uri)[:60]!r}: only a self-contained "
-                          "GLB is accepted (every buffer inside the file, in its BIN chunk)")
+            raise BadBody(
+                f"GLB buffer {i} refers to {str(uri)[:60]!r}: only a self-contained "
+                "GLB is accepted (every buffer inside the file, in its BIN chunk)"
+            )
     if len(buffers) > sum(kind == _GLB_BIN for kind, _ in chunks):
-        raise BadBody(f"GLB declares {len(buffers)} buffers but holds "
-                      f"{sum(kind == _GLB_BIN for kind, _ in chunks)} BIN chunks")
+        raise BadBody(
+            f"GLB declares {len(buffers)} buffers but holds "
+            f"{sum(kind == _GLB_BIN for kind, _ in chunks)} BIN chunks"
+        )
     used = set(_list(doc, "extensionsUsed")) | set(_list(doc, "extensionsRequired"))
     for name in _GLTF_UNREAD:
         if name in used:
             raise BadBody(f"GLB uses {name}, which is not read; send it uncompressed")
-    views = sum(_natural(v.get("byteLength") if isinstance(v, dict) else None, f"bufferViews[{i}]"
-                         ".byteLength") for i, v in enumerate(_list(doc, "bufferViews")))
+    views = sum(
+        _natural(
+            v.get("byteLength") if isinstance(v, dict) else None, f"bufferViews[{i}].byteLength"
+        )
+        for i, v in enumerate(_list(doc, "bufferViews"))
+    )
     accessors = 0
     for i, accessor in enumerate(_list(doc, "accessors")):
-        if not isinstance(accessor, dict) or accessor.get("type") not in _GLTF_COMPONENTS or (
-                accessor.get("componentType") not in _GLTF_ITEM_BYTES):
+        if (
+            not isinstance(accessor, dict)
+            or accessor.get("type") not in _GLTF_COMPONENTS
+            or (accessor.get("componentType") not in _GLTF_ITEM_BYTES)
+        ):
             raise BadBody(f"GLB accessors[{i}] needs a known type and componentType")
-        accessors += (_natural(accessor.get("count"), f"accessors[{i}].count")
-                      * _GLTF_COMPONENTS[accessor["type"]]
-                      * _GLTF_ITEM_BYTES[accessor["componentType"]])
+        accessors += (
+            _natural(accessor.get("count"), f"accessors[{i}].count")
+            * _GLTF_COMPONENTS[accessor["type"]]
+            * _GLTF_ITEM_BYTES[accessor["componentType"]]
+        )
     for what, size in (("buffer views", views), ("accessors", accessors)):
         if size > EXPANSION * len(data):
-            raise TooLarge(f"GLB {what} declare {size} bytes, over {EXPANSION} times the "
-                           f"file's {len(data)} bytes")
+            raise TooLarge(
+                f"GLB {what} declare {size} bytes, over {EXPANSION} times the "
+                f"file's {len(data)} bytes"
+            )
 
 
 def _list(doc: dict, key: str) -> list:

@@ -2,10 +2,11 @@
 
 Each app gets its own registry, so several apps (tests) can live in one process.
 """
+
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
@@ -17,16 +18,34 @@ class Metrics:
 
     def __init__(self, scene_bytes: Callable[[], float], scene_count: Callable[[], float]) -> None:
         self.registry = CollectorRegistry()
-        self.requests = Counter("dacrt_requests", "HTTP requests by method, route and status",
-                                ("method", "route", "status"), registry=self.registry)
-        self.request_seconds = Histogram("dacrt_request_seconds", "HTTP request time by route",
-                                         ("route",), buckets=_SECONDS, registry=self.registry)
-        self.rays = Counter("dacrt_rays_traced", "Rays traced, by query", ("query",),
-                            registry=self.registry)
-        self.trace_seconds = Histogram("dacrt_trace_seconds", "Engine time per query batch",
-                                       ("query",), buckets=_SECONDS, registry=self.registry)
-        Gauge("dacrt_scene_memory_bytes", "Bytes of vertices and faces held over all scenes",
-              registry=self.registry).set_function(scene_bytes)
+        self.requests = Counter(
+            "dacrt_requests",
+            "HTTP requests by method, route and status",
+            ("method", "route", "status"),
+            registry=self.registry,
+        )
+        self.request_seconds = Histogram(
+            "dacrt_request_seconds",
+            "HTTP request time by route",
+            ("route",),
+            buckets=_SECONDS,
+            registry=self.registry,
+        )
+        self.rays = Counter(
+            "dacrt_rays_traced", "Rays traced, by query", ("query",), registry=self.registry
+        )
+        self.trace_seconds = Histogram(
+            "dacrt_trace_seconds",
+            "Engine time per query batch",
+            ("query",),
+            buckets=_SECONDS,
+            registry=self.registry,
+        )
+        Gauge(
+            "dacrt_scene_memory_bytes",
+            "Bytes of vertices and faces held over all scenes",
+            registry=self.registry,
+        ).set_function(scene_bytes)
         Gauge("dacrt_scenes", "Scenes held", registry=self.registry).set_function(scene_count)
 
     def traced(self, query: str, n_rays: int, seconds: float) -> None:

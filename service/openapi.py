@@ -4,6 +4,7 @@ The handlers read their bodies themselves (binary formats are parsed by ``wire``
 declares here the media types it reads and writes, the JSON shapes of its bodies, and its error
 answers: ``{"detail": "<message>"}`` for every status.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -12,53 +13,87 @@ from . import wire
 
 _BINARY = {"type": "string", "format": "binary"}
 _NUMBER = {"type": "number"}
-_POINTS = {"type": "array", "items": {"type": "array", "items": _NUMBER, "minItems": 3,
-                                      "maxItems": 3}}
-_TRIANGLES = {"type": "array", "items": {"type": "array", "items": {"type": "integer"},
-                                         "minItems": 3, "maxItems": 3}}
-_BOUND = {"anyOf": [_NUMBER, {"type": "array", "items": {"anyOf": [_NUMBER, {"type": "null"}]}},
-                    {"type": "null"}],
-          "description": "one value for the batch or one per ray; null means the default"}
+_POINTS = {
+    "type": "array",
+    "items": {"type": "array", "items": _NUMBER, "minItems": 3, "maxItems": 3},
+}
+_TRIANGLES = {
+    "type": "array",
+    "items": {"type": "array", "items": {"type": "integer"}, "minItems": 3, "maxItems": 3},
+}
+_BOUND = {
+    "anyOf": [
+        _NUMBER,
+        {"type": "array", "items": {"anyOf": [_NUMBER, {"type": "null"}]}},
+        {"type": "null"},
+    ],
+    "description": "one value for the batch or one per ray; null means the default",
+}
 
 
 def _object(required: dict[str, Any], optional: dict[str, Any] | None = None) -> dict[str, Any]:
-    return {"type": "object", "required": list(required),
-            "properties": {**required, **(optional or {})}, "additionalProperties": False}
+    return {
+        "type": "object",
+        "required": list(required),
+        "properties": {**required, **(optional or {})},
+        "additionalProperties": False,
+    }
 
 
 RAYS_JSON = _object({"origins": _POINTS, "directions": _POINTS}, {"tmin": _BOUND, "tmax": _BOUND})
 MESH_JSON = _object({"vertices": _POINTS, "faces": _TRIANGLES})
 VERTICES_JSON = _object({"vertices": _POINTS})
-FRAME_JSON = {"type": "object", "minProperties": 1, "additionalProperties": False,
-              "patternProperties": {r"^.+\.vertices$": _POINTS, r"^.+\.faces$": _TRIANGLES}}
-TRACE_JSON = _object({"vertices": _POINTS, "faces": _TRIANGLES, "origins": _POINTS,
-                      "directions": _POINTS}, {"tmin": _BOUND, "tmax": _BOUND})
-ERROR = {"type": "object", "required": ["detail"], "additionalProperties": False,
-         "properties": {"detail": {"type": "string", "description": "what is wrong, for a person"}}}
+FRAME_JSON = {
+    "type": "object",
+    "minProperties": 1,
+    "additionalProperties": False,
+    "patternProperties": {r"^.+\.vertices$": _POINTS, r"^.+\.faces$": _TRIANGLES},
+}
+TRACE_JSON = _object(
+    {"vertices": _POINTS, "faces": _TRIANGLES, "origins": _POINTS, "directions": _POINTS},
+    {"tmin": _BOUND, "tmax": _BOUND},
+)
+ERROR = {
+    "type": "object",
+    "required": ["detail"],
+    "additionalProperties": False,
+    "properties": {"detail": {"type": "string", "description": "what is wrong, for a person"}},
+}
 
 #: The error statuses a route may answer besides its own, with when (API.md's table).
 ERROR_STATUSES = {
-    400: "the body cannot be parsed", 401: "a token is configured and missing or wrong",
-    404: "unknown scene or mesh", 406: "Accept names no answer format",
-    409: "the vertex count differs from the mesh's", 408: "the body arrived too slowly",
-    413: "over a configured limit", 415: "unsupported Content-Type",
+    400: "the body cannot be parsed",
+    401: "a token is configured and missing or wrong",
+    404: "unknown scene or mesh",
+    406: "Accept names no answer format",
+    409: "the vertex count differs from the mesh's",
+    408: "the body arrived too slowly",
+    413: "over a configured limit",
+    415: "unsupported Content-Type",
     422: "invalid values or parameters",
 }
 
 
-def request_body(formats: tuple[str, ...], json_schema: dict[str, Any] | None,
-                 description: str) -> dict[str, Any]:
+def request_body(
+    formats: tuple[str, ...], json_schema: dict[str, Any] | None, description: str
+) -> dict[str, Any]:
     """``openapi_extra`` declaring a required body in ``formats`` (see ``wire``)."""
-    content = {wire.MEDIA_TYPES[fmt]: {"schema": json_schema if fmt == "json" else _BINARY}
-               for fmt in formats}
+    content = {
+        wire.MEDIA_TYPES[fmt]: {"schema": json_schema if fmt == "json" else _BINARY}
+        for fmt in formats
+    }
     return {"requestBody": {"required": True, "description": description, "content": content}}
 
 
 def errors(*statuses: int) -> dict[int | str, dict[str, Any]]:
     """``responses`` entries for error statuses, each with the ``{"detail": str}`` schema."""
-    return {status: {"description": ERROR_STATUSES[status],
-                     "content": {"application/json": {"schema": ERROR}}}
-            for status in statuses}
+    return {
+        status: {
+            "description": ERROR_STATUSES[status],
+            "content": {"application/json": {"schema": ERROR}},
+        }
+        for status in statuses
+    }
 
 
 def answers(description: str) -> dict[int | str, dict[str, Any]]:
@@ -66,4 +101,3 @@ def answers(description: str) -> dict[int | str, dict[str, Any]]:
     content = {wire.MEDIA_TYPES[fmt]: {"schema": _BINARY} for fmt in ("npz", "npy")}
     content[wire.JSON] = {"schema": {"type": "object", "additionalProperties": {"type": "array"}}}
     return {200: {"description": description, "content": content}}
-

@@ -4,6 +4,7 @@ Values are checked by the service itself (``store.check_name``, ``tracing.make_o
 ``wire.resolve_format``), whose 422 messages name the fix; the declarations here tell the OpenAPI
 document what those checks accept.
 """
+
 from __future__ import annotations
 
 from typing import Annotated
@@ -15,28 +16,49 @@ from .store import NAME
 
 _NAME = {"pattern": f"^{NAME.pattern}$"}
 
-SceneName = Annotated[str, Path(description="1-64 characters of A-Z a-z 0-9 _ - .",
-                                json_schema_extra=_NAME)]
-MeshName = Annotated[str, Path(description="1-64 characters of A-Z a-z 0-9 _ - .",
-                               json_schema_extra=_NAME)]
-Fields = Annotated[str | None, Query(
-    description="comma-separated answer keys to send (default: all of the query's keys)")]
-Strategy = Annotated[str | None, Query(
-    description="the engine's partitioning strategy (default: the first); answers are the same",
-    json_schema_extra={"enum": list(tracing.strategies())})]
+SceneName = Annotated[
+    str, Path(description="1-64 characters of A-Z a-z 0-9 _ - .", json_schema_extra=_NAME)
+]
+MeshName = Annotated[
+    str, Path(description="1-64 characters of A-Z a-z 0-9 _ - .", json_schema_extra=_NAME)
+]
+Fields = Annotated[
+    str | None,
+    Query(description="comma-separated answer keys to send (default: all of the query's keys)"),
+]
+Strategy = Annotated[
+    str | None,
+    Query(
+        description="the engine's partitioning strategy (default: the first); answers are the same",
+        json_schema_extra={"enum": list(tracing.strategies())},
+    ),
+]
 Stats = Annotated[bool, Query(description="add the engine's counters as X-Trace-Stats")]
-Cull = Annotated[str, Query(description="which faces rays ignore",
-                            json_schema_extra={"enum": list(tracing.CULL_MODES)})]
+Cull = Annotated[
+    str,
+    Query(
+        description="which faces rays ignore", json_schema_extra={"enum": list(tracing.CULL_MODES)}
+    ),
+]
 Mask = Annotated[str | None, Query(description="the mesh's visibility mask (not served yet: 422)")]
-QueryKind = Annotated[str, Query(description="what the one-shot trace answers",
-                                 json_schema_extra={"enum": [q.value for q in tracing.Query]})]
+QueryKind = Annotated[
+    str,
+    Query(
+        description="what the one-shot trace answers",
+        json_schema_extra={"enum": [q.value for q in tracing.Query]},
+    ),
+]
 
 
 def body_format(formats: tuple[str, ...]):
     """``?format=``: the body's format when Content-Type does not say it, one of ``formats``."""
-    return Annotated[str | None, Query(
-        description="the body's format, overriding Content-Type",
-        json_schema_extra={"enum": list(formats)})]
+    return Annotated[
+        str | None,
+        Query(
+            description="the body's format, overriding Content-Type",
+            json_schema_extra={"enum": list(formats)},
+        ),
+    ]
 
 
 RayFormat = body_format(wire.RAY_FORMATS)

@@ -10,6 +10,7 @@ it answers 408 where it still can and closes the connection. Connections opened 
 ``python -m service`` uses it; with uvicorn's CLI, pass
 ``--http service.protocol:GuardedHttpProtocol`` (it then reads the DACRT_* environment).
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -36,13 +37,17 @@ def environment_settings() -> Settings:
     return load_settings_or_exit()
 
 
-def error_parts(error: ServiceError, extra: dict[str, str]
-                ) -> tuple[int, list[tuple[bytes, bytes]], bytes]:
+def error_parts(
+    error: ServiceError, extra: dict[str, str]
+) -> tuple[int, list[tuple[bytes, bytes]], bytes]:
     """Status, headers and ``{"detail": ...}`` body of an answer that closes the connection."""
     body = json.dumps({"detail": error.detail}).encode()
-    headers = [(b"content-type", b"application/json"),
-               (b"content-length", str(len(body)).encode()), (b"connection", b"close"),
-               *((name.encode(), value.encode()) for name, value in extra.items())]
+    headers = [
+        (b"content-type", b"application/json"),
+        (b"content-length", str(len(body)).encode()),
+        (b"connection", b"close"),
+        *((name.encode(), value.encode()) for name, value in extra.items()),
+    ]
     return status_of(error), headers, body
 
 
@@ -76,10 +81,13 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         super().connection_made(transport)
         if len(self.connections) > self.max_connections:  # the set includes this connection
             # uvicorn starts ``self.app`` for each request of this connection: refuse them all
-            self.app = refusal_app(TooManyConnections(
-                f"the server holds its limit of {self.max_connections} connections "
-                "(DACRT_MAX_CONNECTIONS); retry shortly"),
-                {"retry-after": str(RETRY_AFTER_SECONDS)})
+            self.app = refusal_app(
+                TooManyConnections(
+                    f"the server holds its limit of {self.max_connections} connections "
+                    "(DACRT_MAX_CONNECTIONS); retry shortly"
+                ),
+                {"retry-after": str(RETRY_AFTER_SECONDS)},
+            )
         self.header_deadline = self.loop.call_later(self.header_timeout, self.headers_too_slow)
 
     def connection_lost(self, exc: Exception | None) -> None:
@@ -90,8 +98,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         super().on_message_begin()
         self.request_begun = True
         if self.header_deadline is None:  # a later request on a keep-alive connection
-            self.header_deadline = self.loop.call_later(self.header_timeout,
-                                                        self.headers_too_slow)
+            self.header_deadline = self.loop.call_later(self.header_timeout, self.headers_too_slow)
 
     def on_headers_complete(self) -> None:
         if self.header_deadline is not None:
@@ -103,8 +110,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         # a pipelined request's body is read only from here on, so its deadline starts here
         super()._start_asgi_task(cycle, app)
         if cycle.more_body:
-            self.body_deadline = self.loop.call_later(self.body_timeout, self.body_too_slow,
-                                                      cycle)
+            self.body_deadline = self.loop.call_later(self.body_timeout, self.body_too_slow, cycle)
 
     def on_message_complete(self) -> None:
         if self.body_deadline is not None:
@@ -125,9 +131,12 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         if self.cycle is not None and not self.cycle.response_complete:
             self.cycle.keep_alive = False  # a pipelined request: end after the answer in progress
         elif self.request_begun:
-            self.answer_and_close(TimedOut(
-                f"request headers not received within {self.header_timeout:g} s "
-                "(DACRT_HEADER_TIMEOUT)"))
+            self.answer_and_close(
+                TimedOut(
+                    f"request headers not received within {self.header_timeout:g} s "
+                    "(DACRT_HEADER_TIMEOUT)"
+                )
+            )
         else:
             self.transport.close()  # nothing was asked: there is no one to answer
 
@@ -140,8 +149,11 @@ class GuardedHttpProtocol(HttpToolsProtocol):
             return
         cycle.disconnected = True  # the app's receive() sees a disconnect and its send() is mute
         cycle.message_event.set()
-        self.answer_and_close(TimedOut(
-            f"request body not received within {self.body_timeout:g} s (DACRT_BODY_TIMEOUT)"))
+        self.answer_and_close(
+            TimedOut(
+                f"request body not received within {self.body_timeout:g} s (DACRT_BODY_TIMEOUT)"
+            )
+        )
 
     def answer_and_close(self, error: ServiceError) -> None:
         """Write ``error`` as a whole response outside any ASGI cycle, then close."""

@@ -3,9 +3,10 @@
 Joining them would copy every answer array once more; ASGI lets us send them one by one under a
 Content-Length that covers them all. The buffers may be made as they are sent (``wire.NpzBody``).
 """
+
 from __future__ import annotations
 
-from typing import Iterable, Mapping
+from collections.abc import Iterable, Mapping
 
 from starlette.responses import Response
 
@@ -16,14 +17,21 @@ class BuffersResponse(Response):
     """``Response`` with ``parts`` (``length`` bytes in all) as its body, never joined into one
     buffer; each part is taken from ``parts`` only once the one before has been handed over."""
 
-    def __init__(self, parts: Iterable[Buffer], length: int, media_type: str,
-                 headers: Mapping[str, str], status_code: int = 200) -> None:
+    def __init__(
+        self,
+        parts: Iterable[Buffer],
+        length: int,
+        media_type: str,
+        headers: Mapping[str, str],
+        status_code: int = 200,
+    ) -> None:
         self.parts = parts
         super().__init__(b"", status_code, {**headers, "Content-Length": str(length)}, media_type)
 
     async def __call__(self, scope, receive, send) -> None:
-        await send({"type": "http.response.start", "status": self.status_code,
-                    "headers": self.raw_headers})
+        await send(
+            {"type": "http.response.start", "status": self.status_code, "headers": self.raw_headers}
+        )
         for part in self.parts:
             if len(part):
                 await send({"type": "http.response.body", "body": part, "more_body": True})

@@ -5,6 +5,7 @@ the default) and names the variable of a bad value, in one line.
 
 Byte sizes accept plain integers or a unit: ``64MiB``, ``4GiB``, ``500MB``, ``10k``.
 """
+
 from __future__ import annotations
 
 import difflib
@@ -18,8 +19,22 @@ from pydantic import BeforeValidator, Field, SecretStr, ValidationError, field_v
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 KiB, MiB, GiB = 2**10, 2**20, 2**30
-_UNITS = {"": 1, "b": 1, "k": KiB, "kb": 1000, "kib": KiB, "m": MiB, "mb": 1000**2, "mib": MiB,
-          "g": GiB, "gb": 1000**3, "gib": GiB, "t": 2**40, "tb": 1000**4, "tib": 2**40}
+_UNITS = {
+    "": 1,
+    "b": 1,
+    "k": KiB,
+    "kb": 1000,
+    "kib": KiB,
+    "m": MiB,
+    "mb": 1000**2,
+    "mib": MiB,
+    "g": GiB,
+    "gb": 1000**3,
+    "gib": GiB,
+    "t": 2**40,
+    "tb": 1000**4,
+    "tib": 2**40,
+}
 
 
 def parse_size(value: object) -> object:
@@ -39,8 +54,10 @@ PREFIX = "DACRT_"
 
 #: Where the demo scene is looked for when ``demo_scene`` is not set: the working directory,
 #: then the source checkout this package was imported from.
-DEMO_CANDIDATES = (Path("scenes") / "teapot.npz",
-                   Path(__file__).resolve().parent.parent / "scenes" / "teapot.npz")
+DEMO_CANDIDATES = (
+    Path("scenes") / "teapot.npz",
+    Path(__file__).resolve().parent.parent / "scenes" / "teapot.npz",
+)
 
 
 class Settings(BaseSettings):
@@ -48,20 +65,26 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix=PREFIX, frozen=True, extra="ignore")
 
-    host: str = "127.0.0.1"                       #: bind address of ``python -m service``
-    port: int = Field(8000, ge=0, le=65535)       #: port of ``python -m service``
-    token: SecretStr | None = None                #: when set, every /v1 request needs ``Authorization: Bearer <token>``
-    max_body_bytes: ByteSize = 512 * MiB          #: largest request body (also the largest decompressed .npz)
-    max_rays_per_request: Count = 16 * MiB        #: most rays in one query
-    max_triangles_per_scene: Count = 32 * MiB     #: most triangles in one scene
-    max_scene_bytes: ByteSize = 4 * GiB           #: total bytes of vertices and faces over all scenes
-    threads: int | None = Field(None, gt=0)       #: engine threads per query (None: every core)
-    demo_scene: Path | None = None                #: .npz (vertices, faces) for the demo scene; None: scenes/teapot.npz
-    demo_name: str = "demo"                       #: name of the demo scene
-    load_demo: bool = False                       #: load the demo scene at start (``python -m service`` turns it on)
-    header_timeout: Seconds = 10                  #: seconds a connection has to send a request's headers
-    body_timeout: Seconds = 600                   #: seconds a request has to send its whole body
-    max_connections: Count = 100                  #: open connections; more are answered 503
+    host: str = "127.0.0.1"  #: bind address of ``python -m service``
+    port: int = Field(8000, ge=0, le=65535)  #: port of ``python -m service``
+    token: SecretStr | None = (
+        None  #: when set, every /v1 request needs ``Authorization: Bearer <token>``
+    )
+    max_body_bytes: ByteSize = (
+        512 * MiB
+    )  #: largest request body (also the largest decompressed .npz)
+    max_rays_per_request: Count = 16 * MiB  #: most rays in one query
+    max_triangles_per_scene: Count = 32 * MiB  #: most triangles in one scene
+    max_scene_bytes: ByteSize = 4 * GiB  #: total bytes of vertices and faces over all scenes
+    threads: int | None = Field(None, gt=0)  #: engine threads per query (None: every core)
+    demo_scene: Path | None = (
+        None  #: .npz (vertices, faces) for the demo scene; None: scenes/teapot.npz
+    )
+    demo_name: str = "demo"  #: name of the demo scene
+    load_demo: bool = False  #: load the demo scene at start (``python -m service`` turns it on)
+    header_timeout: Seconds = 10  #: seconds a connection has to send a request's headers
+    body_timeout: Seconds = 600  #: seconds a request has to send its whole body
+    max_connections: Count = 100  #: open connections; more are answered 503
 
     @field_validator("token", mode="before")
     @classmethod
@@ -76,10 +99,12 @@ class Settings(BaseSettings):
 
     def limits(self) -> dict[str, int]:
         """The limits in force, as shown by /v1/capabilities."""
-        return {"max_body_bytes": self.max_body_bytes,
-                "max_rays_per_request": self.max_rays_per_request,
-                "max_triangles_per_scene": self.max_triangles_per_scene,
-                "max_scene_bytes": self.max_scene_bytes}
+        return {
+            "max_body_bytes": self.max_body_bytes,
+            "max_rays_per_request": self.max_rays_per_request,
+            "max_triangles_per_scene": self.max_triangles_per_scene,
+            "max_scene_bytes": self.max_scene_bytes,
+        }
 
 
 class SettingsError(ValueError):
@@ -98,8 +123,11 @@ def check_names(environ: Mapping[str, str]) -> None:
         field = name.lower().removeprefix(PREFIX.lower())
         if name.upper().startswith(PREFIX) and field not in fields:
             close = difflib.get_close_matches(field, fields, n=1)  # not on the shared prefix
-            hint = (f"did you mean {variable(close[0])}?" if close
-                    else "known: " + ", ".join(variable(f) for f in fields))
+            hint = (
+                f"did you mean {variable(close[0])}?"
+                if close
+                else "known: " + ", ".join(variable(f) for f in fields)
+            )
             raise SettingsError(f"unknown setting {name}; {hint}")
 
 

@@ -5,13 +5,15 @@ lock and swaps it in with one assignment, so a reader that took a snapshot keeps
 version however many changes follow. Arrays are owned by the store and read-only. Every change
 checks the limits and the request first and swaps last: a rejected change leaves nothing behind.
 """
+
 from __future__ import annotations
 
 import re
 import threading
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -24,8 +26,10 @@ NAME = re.compile(r"[A-Za-z0-9_.\-]{1,64}")
 def check_name(kind: str, name: str) -> str:
     """422 unless ``name`` is 1-64 characters of ``A-Z a-z 0-9 _ - .`` (and not ``.`` or ``..``)."""
     if not NAME.fullmatch(name) or name in (".", ".."):
-        raise Invalid(f"{kind} name {name!r} must be 1-64 characters of A-Z a-z 0-9 _ - . "
-                      "(and not '.' or '..')")
+        raise Invalid(
+            f"{kind} name {name!r} must be 1-64 characters of A-Z a-z 0-9 _ - . "
+            "(and not '.' or '..')"
+        )
     return name
 
 
@@ -46,8 +50,12 @@ def referenced_bounds(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     # its rows three values at a time, and gathering the referenced rows copies them (Sponza's
     # 154K vertices: 8.6 ms for the bounds, now 1.4 ms).
     columns = np.ascontiguousarray(vertices.T)
-    return np.stack([columns.min(axis=1, where=used, initial=np.inf),
-                     columns.max(axis=1, where=used, initial=-np.inf)]).astype(np.float32)
+    return np.stack(
+        [
+            columns.min(axis=1, where=used, initial=np.inf),
+            columns.max(axis=1, where=used, initial=-np.inf),
+        ]
+    ).astype(np.float32)
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,11 +63,11 @@ class Mesh:
     """One named mesh of a scene. Later: ``mask`` and ``transform`` fields fit here."""
 
     name: str
-    index: int            #: the mesh's number in hit results; fixed while the mesh exists
+    index: int  #: the mesh's number in hit results; fixed while the mesh exists
     vertices: np.ndarray  #: (V, 3) float32, read-only
-    faces: np.ndarray     #: (F, 3) int32, read-only, every index in [0, V)
-    bounds: np.ndarray    #: (2, 3) float32 of the referenced vertices
-    version: int          #: scene version of the mesh's last change
+    faces: np.ndarray  #: (F, 3) int32, read-only, every index in [0, V)
+    bounds: np.ndarray  #: (2, 3) float32 of the referenced vertices
+    version: int  #: scene version of the mesh's last change
 
     @property
     def n_triangles(self) -> int:
@@ -71,9 +79,15 @@ class Mesh:
 
     def info(self, scene: str) -> dict[str, Any]:
         """Mesh info JSON of API.md."""
-        return {"scene": scene, "mesh": self.name, "index": self.index,
-                "vertices": len(self.vertices), "triangles": self.n_triangles,
-                "bounds": json_ready(self.bounds), "version": self.version}
+        return {
+            "scene": scene,
+            "mesh": self.name,
+            "index": self.index,
+            "vertices": len(self.vertices),
+            "triangles": self.n_triangles,
+            "bounds": json_ready(self.bounds),
+            "version": self.version,
+        }
 
 
 def new_mesh(name: str, arrays: MeshArrays, index: int = -1, version: int = 0) -> Mesh:
@@ -88,8 +102,8 @@ class Snapshot:
 
     scene: str
     version: int
-    meshes: Mapping[str, Mesh]   #: by name, in index order
-    next_index: int              #: the index the next new mesh gets (indices are never reused)
+    meshes: Mapping[str, Mesh]  #: by name, in index order
+    next_index: int  #: the index the next new mesh gets (indices are never reused)
     _cache: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
     _cache_lock: threading.Lock = field(default_factory=threading.Lock, compare=False, repr=False)
 
@@ -113,16 +127,21 @@ class Snapshot:
         try:
             return self.meshes[name]
         except KeyError:
-            raise NotFound(f"scene {self.scene!r} has no mesh {name!r}; it has "
-                           f"{sorted(self.meshes) or 'none'}") from None
+            raise NotFound(
+                f"scene {self.scene!r} has no mesh {name!r}; it has {sorted(self.meshes) or 'none'}"
+            ) from None
 
     def info(self) -> dict[str, Any]:
         """Scene info JSON of API.md."""
-        return {"scene": self.scene, "version": self.version, "triangles": self.n_triangles,
-                "bounds": json_ready(self.bounds),
-                "meshes": [m.info(self.scene) for m in self.meshes.values()]}
+        return {
+            "scene": self.scene,
+            "version": self.version,
+            "triangles": self.n_triangles,
+            "bounds": json_ready(self.bounds),
+            "meshes": [m.info(self.scene) for m in self.meshes.values()],
+        }
 
-    def cached(self, key: str, build: Callable[["Snapshot"], Any]) -> Any:
+    def cached(self, key: str, build: Callable[[Snapshot], Any]) -> Any:
         """``build(self)`` once per snapshot (e.g. the engine's scene), shared by every query."""
         with self._cache_lock:
             if key not in self._cache:
@@ -170,21 +189,26 @@ class Store:
             return snapshot.meshes[name], old is None or name not in old.meshes
 
     def update_vertices(self, scene: str, name: str, vertices: np.ndarray) -> Mesh:
-        """New positions for a mesh's vertices, same count; faces are kept (409 on a count change)."""
+        """New positions for a mesh's vertices, same count; faces are kept (409 on a count
+        change)."""
         with self._lock:
             old = self.snapshot(scene)
             mesh = self._moved(old.mesh(name), vertices, old.scene)
             return self._commit(scene, old, {name: mesh}).meshes[name]
 
-    def apply_frame(self, scene: str, changes: Mapping[str, tuple[np.ndarray, np.ndarray | None]]
-                    ) -> Snapshot:
+    def apply_frame(
+        self, scene: str, changes: Mapping[str, tuple[np.ndarray, np.ndarray | None]]
+    ) -> Snapshot:
         """Change several meshes in one version: (vertices, faces) adds or replaces a mesh,
         (vertices, None) moves an existing one's vertices."""
         check_name("scene", scene)
         for name in changes:
             check_name("mesh", name)
-        added = {name: new_mesh(name, MeshArrays(vertices, faces))
-                 for name, (vertices, faces) in changes.items() if faces is not None}
+        added = {
+            name: new_mesh(name, MeshArrays(vertices, faces))
+            for name, (vertices, faces) in changes.items()
+            if faces is not None
+        }
         with self._lock:
             old = self._scenes.get(scene)
             meshes: dict[str, Mesh] = {}
@@ -192,8 +216,10 @@ class Store:
                 if faces is not None:
                     meshes[name] = added[name]
                 elif old is None:
-                    raise NotFound(f"no scene {scene!r}, so {name}.vertices has no faces to go "
-                                   f"with; send {name}.faces too to create it")
+                    raise NotFound(
+                        f"no scene {scene!r}, so {name}.vertices has no faces to go "
+                        f"with; send {name}.faces too to create it"
+                    )
                 else:
                     meshes[name] = self._moved(old.mesh(name), vertices, scene)
             return self._commit(scene, old, meshes)
@@ -215,14 +241,17 @@ class Store:
     @staticmethod
     def _moved(mesh: Mesh, vertices: np.ndarray, scene: str) -> Mesh:
         if len(vertices) != len(mesh.vertices):
-            raise Conflict(f"mesh {mesh.name!r} of scene {scene!r} has {len(mesh.vertices)} vertices "
-                           f"but the update has {len(vertices)}; to change the vertex count, "
-                           f"PUT the whole mesh to /v1/scenes/{scene}/meshes/{mesh.name}")
+            raise Conflict(
+                f"mesh {mesh.name!r} of scene {scene!r} has {len(mesh.vertices)} vertices "
+                f"but the update has {len(vertices)}; to change the vertex count, "
+                f"PUT the whole mesh to /v1/scenes/{scene}/meshes/{mesh.name}"
+            )
         vertices = _owned(vertices, "<f4")
         return replace(mesh, vertices=vertices, bounds=referenced_bounds(vertices, mesh.faces))
 
-    def _commit(self, scene: str, old: Snapshot | None,
-                changes: Mapping[str, Mesh | None]) -> Snapshot:
+    def _commit(
+        self, scene: str, old: Snapshot | None, changes: Mapping[str, Mesh | None]
+    ) -> Snapshot:
         """Check limits, then swap in the next version with ``changes`` (None deletes a mesh)."""
         version = (old.version if old else self._last_version.get(scene, 0)) + 1
         meshes = dict(old.meshes) if old else {}
@@ -239,12 +268,16 @@ class Store:
         meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))
         snapshot = Snapshot(scene, version, MappingProxyType(meshes), next_index)
         if snapshot.n_triangles > self.max_triangles_per_scene:
-            raise TooLarge(f"scene {scene!r} would hold {snapshot.n_triangles} triangles, over the "
-                           f"limit of {self.max_triangles_per_scene} (DACRT_MAX_TRIANGLES_PER_SCENE)")
+            raise TooLarge(
+                f"scene {scene!r} would hold {snapshot.n_triangles} triangles, over the "
+                f"limit of {self.max_triangles_per_scene} (DACRT_MAX_TRIANGLES_PER_SCENE)"
+            )
         nbytes = self._nbytes - (old.nbytes if old else 0) + snapshot.nbytes
         if nbytes > self.max_scene_bytes:
-            raise TooLarge(f"scenes would hold {nbytes} bytes of vertices and faces, over the limit "
-                           f"of {self.max_scene_bytes} bytes (DACRT_MAX_SCENE_BYTES)")
+            raise TooLarge(
+                f"scenes would hold {nbytes} bytes of vertices and faces, over the limit "
+                f"of {self.max_scene_bytes} bytes (DACRT_MAX_SCENE_BYTES)"
+            )
         self._scenes[scene] = snapshot
         self._last_version[scene] = version
         self._nbytes = nbytes

@@ -1,9 +1,10 @@
 """The ``Server-Timing`` header: named durations of one request, in milliseconds."""
+
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 
 class ServerTiming:

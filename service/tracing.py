@@ -4,12 +4,14 @@ The only module that calls the engine. It builds one ``dacrt.Scene`` per scene v
 in the snapshot), maps the engine's mesh positions to the meshes' stable indices, and turns the
 engine's ``ValueError`` (bad rays, named by the engine) into a 422.
 """
+
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -20,7 +22,7 @@ from .store import Snapshot
 from .wire import MeshArrays, Rays
 
 
-class Query(str, Enum):
+class Query(str, Enum):  # noqa: UP042 - StrEnum would change str() and format() of members
     """Kinds of query. Later: HITS (``/hits``) and COUNT (``/count``) join here."""
 
     CLOSEST = "closest"
@@ -55,30 +57,42 @@ class Options:
     cull: str = "none"
 
 
-def make_options(query: Query | str, fields: str | None = None, strategy: str | None = None,
-                 stats: bool = False, threads: int | None = None, cull: str = "none") -> Options:
+def make_options(
+    query: Query | str,
+    fields: str | None = None,
+    strategy: str | None = None,
+    stats: bool = False,
+    threads: int | None = None,
+    cull: str = "none",
+) -> Options:
     """Options from query-string values; 422 naming the choices for an unknown value."""
     try:
         query = Query(query)
     except ValueError:
-        raise Invalid(f"unknown query {query!r}; choose from "
-                      f"{', '.join(q.value for q in Query)}") from None
+        raise Invalid(
+            f"unknown query {query!r}; choose from {', '.join(q.value for q in Query)}"
+        ) from None
     known = FIELDS[query]
     chosen = known
     if fields is not None:
         names = [name.strip() for name in fields.split(",") if name.strip()]
         unknown = [name for name in names if name not in known]
         if unknown or not names:
-            raise Invalid(f"?fields={fields} names {'unknown fields ' + ', '.join(map(repr, unknown)) if unknown else 'no field'} "
-                          f"for {query.value}; choose from {', '.join(known)}")
+            raise Invalid(
+                f"?fields={fields} names "
+                f"{'unknown fields ' + ', '.join(map(repr, unknown)) if unknown else 'no field'} "
+                f"for {query.value}; choose from {', '.join(known)}"
+            )
         chosen = tuple(name for name in known if name in names)
     if strategy is None:
         strategy = strategies()[0]
     elif strategy not in strategies():
         raise Invalid(f"unknown strategy {strategy!r}; choose from {', '.join(strategies())}")
     if cull not in CULL_MODES:
-        raise Invalid(f"cull={cull} is not supported by this server yet; it answers "
-                      f"cull={' or '.join(CULL_MODES)} only")
+        raise Invalid(
+            f"cull={cull} is not supported by this server yet; it answers "
+            f"cull={' or '.join(CULL_MODES)} only"
+        )
     return Options(query, chosen, strategy, stats, threads, cull)
 
 
@@ -87,7 +101,9 @@ class EngineScene:
     """A built ``dacrt.Scene`` and, per engine mesh position, the stable mesh index."""
 
     scene: Any
-    mesh_index: np.ndarray | None  #: (n_meshes + 1,) int32 ending in -1, or None if positions are indices
+    mesh_index: (
+        np.ndarray | None
+    )  #: (n_meshes + 1,) int32 ending in -1, or None if positions are indices
 
     def map_mesh(self, positions: np.ndarray) -> np.ndarray:
         """Engine mesh positions (-1 on a miss) -> stable indices (-1 on a miss)."""
@@ -97,7 +113,8 @@ class EngineScene:
 
 
 def build_engine_scene(meshes: Iterable[tuple[int, np.ndarray, np.ndarray]]) -> EngineScene:
-    """The engine scene of (index, vertices, faces) triples; meshes without triangles are left out."""
+    """The engine scene of (index, vertices, faces) triples; meshes without triangles are left
+    out."""
     kept = [(index, vertices, faces) for index, vertices, faces in meshes if len(faces)]
     indices = np.array([index for index, _, _ in kept] + [-1], dtype=np.int32)
     try:
@@ -140,13 +157,17 @@ def _run(engine: EngineScene, rays: Rays, options: Options, version: int, start:
     kwargs = {"strategy": options.strategy, "threads": options.threads, "stats": options.stats}
     try:
         if options.query is Query.CLOSEST:
-            hits = engine.scene.closest(rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs)
+            hits = engine.scene.closest(
+                rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs
+            )
             stats = hits.stats
             arrays = {name: getattr(hits, name) for name in options.fields}
             if "mesh" in arrays:
                 arrays["mesh"] = engine.map_mesh(arrays["mesh"])
         else:
-            result = engine.scene.occluded(rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs)
+            result = engine.scene.occluded(
+                rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs
+            )
             occluded, stats = result if options.stats else (result, None)
             arrays = {"occluded": occluded}
     except ValueError as exc:  # the engine names the first bad ray and how many there are

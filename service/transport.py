@@ -10,6 +10,7 @@ HTTP/1.1 over TCP or TLS; keep-alive connections are pooled per origin, one requ
 each, so a client may be shared between threads. Proxies are httpx's: with HTTP(S)_PROXY set,
 httpx sends those requests through its own proxy transport instead.
 """
+
 from __future__ import annotations
 
 import http.client
@@ -41,8 +42,11 @@ class StdlibTransport(httpx.BaseTransport):
     def handle_request(self, request: httpx.Request) -> httpx.Response:
         timeout = request.extensions.get("timeout", {})
         url = request.url
-        origin = (url.scheme, url.raw_host.decode("ascii"),  # IDNA-encoded, as on the wire
-                  url.port or (443 if url.scheme == "https" else 80))
+        origin = (
+            url.scheme,
+            url.raw_host.decode("ascii"),  # IDNA-encoded, as on the wire
+            url.port or (443 if url.scheme == "https" else 80),
+        )
         connection = self._checkout(origin)
         try:
             response = _exchange(connection, request, timeout)
@@ -53,8 +57,10 @@ class StdlibTransport(httpx.BaseTransport):
             status_code=response.status,
             headers=response.getheaders(),
             stream=_ResponseBody(self, origin, connection, response, request),
-            extensions={"http_version": b"HTTP/1.1",
-                        "reason_phrase": response.reason.encode("latin-1", "replace")},
+            extensions={
+                "http_version": b"HTTP/1.1",
+                "reason_phrase": response.reason.encode("latin-1", "replace"),
+            },
         )
 
     def close(self) -> None:
@@ -79,7 +85,8 @@ class StdlibTransport(httpx.BaseTransport):
         scheme, host, port = origin
         if scheme == "https":
             return http.client.HTTPSConnection(
-                host, port, context=self._ssl_context or ssl.create_default_context())
+                host, port, context=self._ssl_context or ssl.create_default_context()
+            )
         return http.client.HTTPConnection(host, port)
 
     def _checkin(self, origin: Origin, connection: http.client.HTTPConnection) -> None:
@@ -95,9 +102,14 @@ class _ResponseBody(httpx.SyncByteStream):
     """A response body read READ_SIZE bytes at a time; gives the connection back once the body
     has been read to its end (and the server keeps it alive), else closes it."""
 
-    def __init__(self, transport: StdlibTransport, origin: Origin,
-                 connection: http.client.HTTPConnection, response: http.client.HTTPResponse,
-                 request: httpx.Request) -> None:
+    def __init__(
+        self,
+        transport: StdlibTransport,
+        origin: Origin,
+        connection: http.client.HTTPConnection,
+        response: http.client.HTTPResponse,
+        request: httpx.Request,
+    ) -> None:
         self._transport, self._origin = transport, origin
         self._connection, self._response, self._request = connection, response, request
 
@@ -108,7 +120,9 @@ class _ResponseBody(httpx.SyncByteStream):
         if self._response.length:  # http.client ends a body cut short without a word
             raise httpx.RemoteProtocolError(
                 f"the server closed the connection {self._response.length} bytes before the end "
-                "of the body", request=self._request)
+                "of the body",
+                request=self._request,
+            )
 
     def close(self) -> None:
         if self._connection is None:
@@ -120,8 +134,9 @@ class _ResponseBody(httpx.SyncByteStream):
             connection.close()
 
 
-def _exchange(connection: http.client.HTTPConnection, request: httpx.Request,
-              timeout: dict[str, float | None]) -> http.client.HTTPResponse:
+def _exchange(
+    connection: http.client.HTTPConnection, request: httpx.Request, timeout: dict[str, float | None]
+) -> http.client.HTTPResponse:
     """Send ``request`` on ``connection`` and read the response's status line and headers."""
     if connection.sock is None:
         connection.timeout = timeout.get("connect")
@@ -130,8 +145,12 @@ def _exchange(connection: http.client.HTTPConnection, request: httpx.Request,
     with _mapped_errors(request, httpx.WriteTimeout, httpx.WriteError):
         connection.sock.settimeout(timeout.get("write"))
         # httpx has set Host, Accept-Encoding, Content-Length or Transfer-Encoding.
-        connection.putrequest(request.method, request.url.raw_path.decode("ascii"),
-                              skip_host=True, skip_accept_encoding=True)
+        connection.putrequest(
+            request.method,
+            request.url.raw_path.decode("ascii"),
+            skip_host=True,
+            skip_accept_encoding=True,
+        )
         for name, value in request.headers.raw:
             connection.putheader(name, value)
         connection.endheaders()
@@ -160,8 +179,11 @@ def _closed_by_peer(connection: http.client.HTTPConnection) -> bool:
 
 
 @contextmanager
-def _mapped_errors(request: httpx.Request, timeout_error: type[httpx.TransportError],
-                   network_error: type[httpx.TransportError]) -> Iterator[None]:
+def _mapped_errors(
+    request: httpx.Request,
+    timeout_error: type[httpx.TransportError],
+    network_error: type[httpx.TransportError],
+) -> Iterator[None]:
     """Raise socket and http.client errors as httpx's exceptions: ``timeout_error`` for a
     timeout, RemoteProtocolError for a cut or malformed response, ``network_error`` for any
     other OS error."""
@@ -172,7 +194,8 @@ def _mapped_errors(request: httpx.Request, timeout_error: type[httpx.TransportEr
     except TimeoutError as error:
         raise timeout_error(str(error) or "timed out", request=request) from error
     except (http.client.HTTPException, ConnectionResetError) as error:
-        raise httpx.RemoteProtocolError(str(error) or type(error).__name__,
-                                        request=request) from error
+        raise httpx.RemoteProtocolError(
+            str(error) or type(error).__name__, request=request
+        ) from error
     except OSError as error:
         raise network_error(str(error), request=request) from error

@@ -8,9 +8,9 @@ Body formats
 ------------
 The format of a body is chosen by ``?format=`` if given, else by ``Content-Type``:
 
-=========  ==============================================  ==========================================
+=========  ==============================================  =========================================
 format     Content-Type                                    read with
-=========  ==============================================  ==========================================
+=========  ==============================================  =========================================
 ``npy``    ``application/x-npy`` (or ``application/npy``)  a header parse, then ``np.frombuffer``
 ``npz``    ``application/x-npz`` (``application/npz``,     ``zipfile``; stored members are viewed in
            ``application/zip``)                            place, deflated ones decompressed once
@@ -20,11 +20,11 @@ format     Content-Type                                    read with
 ``stl``    ``model/stl`` (``application/sla``)             ``meshfile``: trimesh (binary or ASCII)
 ``glb``    ``model/gltf-binary``                           ``meshfile``: trimesh
 ``off``    ``model/off`` (``application/off``)             ``meshfile`` (NumPy)
-=========  ==============================================  ==========================================
+=========  ==============================================  =========================================
 
 With no ``Content-Type`` or ``application/octet-stream`` the format is sniffed from the first bytes
-(``\\x93NUMPY`` npy, ``PK`` npz, ``glTF`` glb, ``ply`` ply, ``OFF`` off, ``{`` json); anything else is
-415, as is a known format the endpoint does not read.
+(``\\x93NUMPY`` npy, ``PK`` npz, ``glTF`` glb, ``ply`` ply, ``OFF`` off, ``{`` json); anything else
+is 415, as is a known format the endpoint does not read.
 
 Binary arrays must be little-endian with exactly the dtype below; a wrong dtype or shape is 422
 with the fix in the message (the binary path never converts behind the caller's back: that would
@@ -78,8 +78,10 @@ Answers (``negotiate`` and ``encode_answer``)
     npy  a single field is a plain array; several fields are one structured array with a named
          field each (``a["t"]``, ``a["normal"]`` of shape (N, 3)).
     json ``{"t": [...], ...}``; float32 values in their shortest round-trip form, so
-         ``np.float32(json_value)`` gives back the binary answer bit for bit; inf (and nan) are null.
+         ``np.float32(json_value)`` gives back the binary answer bit for bit; inf (and nan) are
+         null.
 """
+
 from __future__ import annotations
 
 import functools
@@ -90,8 +92,9 @@ import math
 import struct
 import zipfile
 import zlib
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any, Iterable, Iterator, Mapping, Union
+from typing import Any
 
 import numpy as np
 
@@ -103,23 +106,36 @@ except ImportError:  # pragma: no cover - isal is a dependency, but the wire for
     from zlib import crc32
 
 NPY, NPZ, JSON = "application/x-npy", "application/x-npz", "application/json"
-Buffer = Union[bytes, memoryview]  #: a part of a body
+Buffer = bytes | memoryview  #: a part of a body
 
 #: Content-Type (lower case, no parameters) -> format.
 CONTENT_TYPES: dict[str, str] = {
-    NPY: "npy", "application/npy": "npy",
-    NPZ: "npz", "application/npz": "npz", "application/zip": "npz",
+    NPY: "npy",
+    "application/npy": "npy",
+    NPZ: "npz",
+    "application/npz": "npz",
+    "application/zip": "npz",
     JSON: "json",
     "model/obj": "obj",
-    "application/ply": "ply", "model/ply": "ply",
-    "model/stl": "stl", "application/sla": "stl",
+    "application/ply": "ply",
+    "model/ply": "ply",
+    "model/stl": "stl",
+    "application/sla": "stl",
     "model/gltf-binary": "glb",
-    "model/off": "off", "application/off": "off",
+    "model/off": "off",
+    "application/off": "off",
 }
 #: The preferred Content-Type of each format (for messages and for the client).
-MEDIA_TYPES: dict[str, str] = {"npy": NPY, "npz": NPZ, "json": JSON, "obj": "model/obj",
-                               "ply": "application/ply", "stl": "model/stl",
-                               "glb": "model/gltf-binary", "off": "model/off"}
+MEDIA_TYPES: dict[str, str] = {
+    "npy": NPY,
+    "npz": NPZ,
+    "json": JSON,
+    "obj": "model/obj",
+    "ply": "application/ply",
+    "stl": "model/stl",
+    "glb": "model/gltf-binary",
+    "off": "model/off",
+}
 MESH_FILE_FORMATS = ("obj", "ply", "stl", "glb", "off")
 
 RAY_FORMATS = ("npy", "npz", "json")
@@ -129,8 +145,14 @@ FRAME_FORMATS = ("npz", "json")
 TRACE_FORMATS = ("npz", "json")
 ANSWER_FORMATS = ("npz", "npy", "json")
 
-_SNIFF = ((b"\x93NUMPY", "npy"), (b"PK\x03\x04", "npz"), (b"PK\x05\x06", "npz"),
-          (b"glTF", "glb"), (b"ply", "ply"), (b"OFF", "off"))
+_SNIFF = (
+    (b"\x93NUMPY", "npy"),
+    (b"PK\x03\x04", "npz"),
+    (b"PK\x05\x06", "npz"),
+    (b"glTF", "glb"),
+    (b"ply", "ply"),
+    (b"OFF", "off"),
+)
 _F32, _I32, _U32 = np.dtype("<f4"), np.dtype("<i4"), np.dtype("<u4")
 
 # Fixed parts of an uncompressed zip: local header, central directory entry, end record.
@@ -144,10 +166,10 @@ _DOS_DATE = (1 << 5) | 1  # 1980-01-01, as zip tools write for "no date"
 class Rays:
     """A ray batch as the engine takes it; arrays may be read-only strided views of the body."""
 
-    origins: np.ndarray                #: (N, 3) float32
-    directions: np.ndarray             #: (N, 3) float32
-    tmin: np.ndarray | float | None    #: (N,) float32, one value, or None (0)
-    tmax: np.ndarray | float | None    #: (N,) float32, one value, or None (+inf)
+    origins: np.ndarray  #: (N, 3) float32
+    directions: np.ndarray  #: (N, 3) float32
+    tmin: np.ndarray | float | None  #: (N,) float32, one value, or None (0)
+    tmax: np.ndarray | float | None  #: (N,) float32, one value, or None (+inf)
 
     def __len__(self) -> int:
         return len(self.origins)
@@ -158,15 +180,20 @@ class MeshArrays:
     """A checked triangle mesh: finite vertices, every face index in [0, V)."""
 
     vertices: np.ndarray  #: (V, 3) float32
-    faces: np.ndarray     #: (F, 3) int32
+    faces: np.ndarray  #: (F, 3) int32
 
 
 # --------------------------------------------------------------------------------------------
 # Which format a body is in
 
 
-def resolve_format(content_type: str | None, format: str | None, accepted: Iterable[str],
-                   body: Buffer = b"", what: str = "this endpoint") -> str:
+def resolve_format(
+    content_type: str | None,
+    format: str | None,
+    accepted: Iterable[str],
+    body: Buffer = b"",
+    what: str = "this endpoint",
+) -> str:
     """The format of a body from ``?format=``, else ``Content-Type``, else its first bytes.
 
     Raises UnsupportedMediaType (415) naming what ``what`` accepts.
@@ -176,21 +203,28 @@ def resolve_format(content_type: str | None, format: str | None, accepted: Itera
     if format:
         fmt = format.strip().lower()
         if fmt not in accepted:
-            raise UnsupportedMediaType(f"?format={format} is not read by {what}; use one of: {choices}")
+            raise UnsupportedMediaType(
+                f"?format={format} is not read by {what}; use one of: {choices}"
+            )
         return fmt
     media = (content_type or "").split(";", 1)[0].strip().lower()
     if media in ("", "application/octet-stream"):
         head = bytes(body[:8]).lstrip()
-        fmt = next((f for magic, f in _SNIFF if head.startswith(magic)),
-                   "json" if head.startswith(b"{") else None)
+        fmt = next(
+            (f for magic, f in _SNIFF if head.startswith(magic)),
+            "json" if head.startswith(b"{") else None,
+        )
         if fmt is None or fmt not in accepted:
             raise UnsupportedMediaType(
                 f"cannot tell the body's format from Content-Type {media or '(none)'!s}; "
-                f"set Content-Type to one of: {choices}")
+                f"set Content-Type to one of: {choices}"
+            )
         return fmt
     fmt = CONTENT_TYPES.get(media)
     if fmt is None or fmt not in accepted:
-        raise UnsupportedMediaType(f"Content-Type {media} is not read by {what}; use one of: {choices}")
+        raise UnsupportedMediaType(
+            f"Content-Type {media} is not read by {what}; use one of: {choices}"
+        )
     return fmt
 
 
@@ -215,7 +249,7 @@ class BodyBuffer:
 
     def add(self, chunk: bytes) -> None:
         if not self._extra and self.size + len(chunk) <= len(self._buffer):
-            self._buffer[self.size:self.size + len(chunk)] = np.frombuffer(chunk, np.uint8)
+            self._buffer[self.size : self.size + len(chunk)] = np.frombuffer(chunk, np.uint8)
         else:
             self._extra.append(chunk)
         self.size += len(chunk)
@@ -246,29 +280,40 @@ def read_npy(buf: bytes | memoryview, name: str = "body", structured: bool = Fal
         version = np.lib.format.read_magic(io.BytesIO(prefix))
         if version not in ((1, 0), (2, 0), (3, 0)):
             raise ValueError(f"unsupported .npy version {version}")
-        size = (10 + int.from_bytes(prefix[8:10], "little") if version == (1, 0)
-                else 12 + int.from_bytes(prefix[8:12], "little"))
+        size = (
+            10 + int.from_bytes(prefix[8:10], "little")
+            if version == (1, 0)
+            else 12 + int.from_bytes(prefix[8:12], "little")
+        )
         if size > MAX_NPY_HEADER_BYTES:
-            raise ValueError(f"its header claims {size} bytes, over the {MAX_NPY_HEADER_BYTES} read")
+            raise ValueError(
+                f"its header claims {size} bytes, over the {MAX_NPY_HEADER_BYTES} read"
+            )
         shape, fortran, dtype = _npy_header(bytes(view[:size]))
         if any(length < 0 for length in shape):
             raise ValueError(f"its shape {shape} has a negative length")
     except (ValueError, SyntaxError, TypeError, OverflowError, RecursionError) as exc:
         raise BadBody(f"{name} is not a readable .npy: {exc}") from None
     if dtype.hasobject:
-        raise Invalid(f"{name} holds Python objects ({dtype}); only numeric arrays are accepted "
-                      "(they are never unpickled)")
+        raise Invalid(
+            f"{name} holds Python objects ({dtype}); only numeric arrays are accepted "
+            "(they are never unpickled)"
+        )
     plain = dtype.fields is None and dtype.subdtype is None and dtype.kind in "biufc"
     if not (plain or structured and dtype.fields and dtype.itemsize):
-        raise Invalid(f"{name} has dtype {dtype!s}; only plain "
-                      "numeric arrays (no structured, subarray or void dtypes) are accepted")
+        raise Invalid(
+            f"{name} has dtype {dtype!s}; only plain "
+            "numeric arrays (no structured, subarray or void dtypes) are accepted"
+        )
     offset = size
     count = math.prod(shape)  # Python integers: a hostile shape cannot overflow
     expected = count * dtype.itemsize
     if len(view) - offset != expected:
         problem = "truncated" if len(view) - offset < expected else "longer than its header says"
-        raise BadBody(f"{name} is {problem}: its header promises {dtype} {shape} = {expected} "
-                      f"bytes of data, but {len(view) - offset} follow")
+        raise BadBody(
+            f"{name} is {problem}: its header promises {dtype} {shape} = {expected} "
+            f"bytes of data, but {len(view) - offset} follow"
+        )
     array = np.frombuffer(view, dtype=dtype, count=count, offset=offset)
     return array.reshape(shape, order="F" if fortran else "C")
 
@@ -301,13 +346,14 @@ def read_npz(buf: Buffer, max_bytes: int | None = None) -> dict[str, np.ndarray]
         _check_member_count(file)
         archive = zipfile.ZipFile(file)
         infos = archive.infolist()
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, EOFError,
-            struct.error) as exc:
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, EOFError, struct.error) as exc:
         raise BadBody(f"body is not a readable .npz (zip): {exc}") from None
     total = sum(info.file_size for info in infos)
     if max_bytes is not None and total > max_bytes:
-        raise TooLarge(f".npz members add up to {total} bytes, over the limit of {max_bytes} bytes "
-                       "(DACRT_MAX_BODY_BYTES)")
+        raise TooLarge(
+            f".npz members add up to {total} bytes, over the limit of {max_bytes} bytes "
+            "(DACRT_MAX_BODY_BYTES)"
+        )
     spans = _member_spans(view, infos)
     arrays: dict[str, np.ndarray] = {}
     for info, (start, end) in zip(infos, spans):
@@ -318,15 +364,19 @@ def read_npz(buf: Buffer, max_bytes: int | None = None) -> dict[str, np.ndarray]
             raise BadBody(f".npz member {key!r} is encrypted; send it unencrypted")
         if info.compress_type == zipfile.ZIP_STORED:
             if info.compress_size != info.file_size:
-                raise BadBody(f".npz member {key!r} is stored but its two sizes differ "
-                              f"({info.compress_size} and {info.file_size})")
+                raise BadBody(
+                    f".npz member {key!r} is stored but its two sizes differ "
+                    f"({info.compress_size} and {info.file_size})"
+                )
             member = view[start:end]
         elif info.compress_type == zipfile.ZIP_DEFLATED:
             member = _inflate(view[start:end], info, key)
         else:
-            raise BadBody(f".npz member {key!r} uses zip compression method {info.compress_type}; "
-                          "only stored and deflated members are read (np.savez, "
-                          "np.savez_compressed)")
+            raise BadBody(
+                f".npz member {key!r} uses zip compression method {info.compress_type}; "
+                "only stored and deflated members are read (np.savez, "
+                "np.savez_compressed)"
+            )
         arrays[key] = read_npy(member, name=f".npz member {key!r}")
     return arrays
 
@@ -353,8 +403,10 @@ def _member_spans(view: memoryview, infos: list[zipfile.ZipInfo]) -> list[tuple[
         if infos[index].header_offset < last_end:
             raise BadBody(f".npz member {name!r} overlaps the member before it")
         if end > len(view):
-            raise BadBody(f".npz member {name!r} is truncated: its {infos[index].compress_size} "
-                          f"bytes run past the end of the body")
+            raise BadBody(
+                f".npz member {name!r} is truncated: its {infos[index].compress_size} "
+                f"bytes run past the end of the body"
+            )
         last_end = end
     return spans
 
@@ -370,21 +422,25 @@ def _inflate(data: memoryview, info: zipfile.ZipInfo, key: str) -> memoryview:
     try:
         while not inflater.eof:
             if not pending:  # small feeds keep the copies of unconsumed_tail small
-                pending, fed = data[fed:fed + _FEED_PIECE], fed + _FEED_PIECE
+                pending, fed = data[fed : fed + _FEED_PIECE], fed + _FEED_PIECE
                 if not pending:
                     break
             piece = inflater.decompress(pending, _INFLATE_PIECE)
             pending = inflater.unconsumed_tail
             if filled + len(piece) > info.file_size:
-                raise BadBody(f".npz member {key!r} inflates to more than the {info.file_size} "
-                              "bytes its zip entry declares")
-            out[filled:filled + len(piece)] = np.frombuffer(piece, np.uint8)
+                raise BadBody(
+                    f".npz member {key!r} inflates to more than the {info.file_size} "
+                    "bytes its zip entry declares"
+                )
+            out[filled : filled + len(piece)] = np.frombuffer(piece, np.uint8)
             filled += len(piece)
     except zlib.error as exc:
         raise BadBody(f".npz member {key!r} cannot be inflated: {exc}") from None
     if filled < info.file_size or not inflater.eof:
-        raise BadBody(f".npz member {key!r} is truncated: it inflates to {filled} of the "
-                      f"{info.file_size} bytes its zip entry declares")
+        raise BadBody(
+            f".npz member {key!r} is truncated: it inflates to {filled} of the "
+            f"{info.file_size} bytes its zip entry declares"
+        )
     if zlib.crc32(out) != info.CRC:
         raise BadBody(f".npz member {key!r} fails its CRC-32 check")
     out.flags.writeable = False
@@ -407,7 +463,7 @@ class BufferFile(io.RawIOBase):
 
     def readinto(self, target) -> int:
         count = max(0, min(len(target), len(self._view) - self._position))
-        target[:count] = self._view[self._position:self._position + count]
+        target[:count] = self._view[self._position : self._position + count]
         self._position += count
         return count
 
@@ -422,8 +478,12 @@ class BufferFile(io.RawIOBase):
 
 def _member_data_offset(view: memoryview, info: zipfile.ZipInfo) -> int:
     """Where a member's bytes start: after its local header, name and extra field."""
-    header = bytes(view[max(0, info.header_offset):info.header_offset + _LOCAL.size])
-    if info.header_offset < 0 or len(header) < _LOCAL.size or _LOCAL.unpack(header)[0] != b"PK\x03\x04":
+    header = bytes(view[max(0, info.header_offset) : info.header_offset + _LOCAL.size])
+    if (
+        info.header_offset < 0
+        or len(header) < _LOCAL.size
+        or _LOCAL.unpack(header)[0] != b"PK\x03\x04"
+    ):
         raise BadBody(f".npz member {info.filename!r} has a bad local header")
     name_length, extra_length = _LOCAL.unpack(header)[10:12]
     return info.header_offset + _LOCAL.size + name_length + extra_length
@@ -442,7 +502,9 @@ def read_json(buf: Buffer, expected: str) -> dict[str, Any]:
     return doc
 
 
-def read_mapping(body: Buffer, fmt: str, expected: str, max_bytes: int | None = None) -> dict[str, Any]:
+def read_mapping(
+    body: Buffer, fmt: str, expected: str, max_bytes: int | None = None
+) -> dict[str, Any]:
     """The key -> value mapping of an npz or JSON body."""
     if fmt == "npz":
         return read_npz(body, max_bytes)
@@ -451,7 +513,9 @@ def read_mapping(body: Buffer, fmt: str, expected: str, max_bytes: int | None = 
     raise UnsupportedMediaType(f"{fmt} bodies hold no keys; send {expected} as .npz or JSON")
 
 
-def check_keys(mapping: Mapping[str, Any], required: Iterable[str], optional: Iterable[str] = ()) -> None:
+def check_keys(
+    mapping: Mapping[str, Any], required: Iterable[str], optional: Iterable[str] = ()
+) -> None:
     """400 for missing or unknown keys, listing what is expected."""
     required, optional = tuple(required), tuple(optional)
     expected = ", ".join(required) + (f" (optional: {', '.join(optional)})" if optional else "")
@@ -460,7 +524,9 @@ def check_keys(mapping: Mapping[str, Any], required: Iterable[str], optional: It
     if missing:
         raise BadBody(f"body lacks {', '.join(map(repr, missing))}; expected keys {expected}")
     if unknown:
-        raise BadBody(f"body has unknown keys {', '.join(map(repr, unknown))}; expected keys {expected}")
+        raise BadBody(
+            f"body has unknown keys {', '.join(map(repr, unknown))}; expected keys {expected}"
+        )
 
 
 # --------------------------------------------------------------------------------------------
@@ -471,11 +537,15 @@ def float_array(value: Any, name: str, columns: int | None) -> np.ndarray:
     """A float32 array of shape (N, columns), or (N,)/() when ``columns`` is None."""
     if isinstance(value, np.ndarray):
         if value.dtype != _F32:
-            raise Invalid(f"{name} must be little-endian float32, got {value.dtype.str} "
-                          f"({value.dtype}); convert with .astype('<f4')")
+            raise Invalid(
+                f"{name} must be little-endian float32, got {value.dtype.str} "
+                f"({value.dtype}); convert with .astype('<f4')"
+            )
         array = value
     else:
-        check_json_numbers(value, name, (int, float, type(None)) if columns is None else (int, float))
+        check_json_numbers(
+            value, name, (int, float, type(None)) if columns is None else (int, float)
+        )
         try:
             array = np.asarray(nulls_to_inf(value), dtype=np.float32)
         except (TypeError, ValueError, OverflowError) as exc:
@@ -502,7 +572,7 @@ def check_json_numbers(value: Any, name: str, kinds: tuple[type, ...]) -> None:
         return
     bad = next(item for item in items if type(item) not in kinds)
     wanted = "integers" if kinds == (int,) else "numbers"
-    raise Invalid(f"{name} must hold {wanted} in nested lists, found {_json_kind(bad)}")
+    raise Invalid(f"{name} must be {wanted}, found {_json_kind(bad)}")
 
 
 def _json_kind(value: Any) -> str:
@@ -527,8 +597,10 @@ def index_array(value: Any, name: str) -> np.ndarray:
     """An (F, 3) integer array: int32/uint32 when binary, any integers when from JSON."""
     if isinstance(value, np.ndarray):
         if value.dtype not in (_I32, _U32):
-            raise Invalid(f"{name} must be little-endian int32 or uint32, got {value.dtype.str} "
-                          f"({value.dtype}); convert with .astype('<i4')")
+            raise Invalid(
+                f"{name} must be little-endian int32 or uint32, got {value.dtype.str} "
+                f"({value.dtype}); convert with .astype('<i4')"
+            )
         array = value
     else:
         check_json_numbers(value, name, (int,))
@@ -537,7 +609,9 @@ def index_array(value: Any, name: str) -> np.ndarray:
         except (TypeError, ValueError) as exc:
             raise Invalid(f"{name} must be integers in nested lists: {exc}") from None
         if array.size == 0:
-            array = array.astype(np.int32).reshape(0, 3) if array.ndim == 1 else array.astype(np.int32)
+            array = (
+                array.astype(np.int32).reshape(0, 3) if array.ndim == 1 else array.astype(np.int32)
+            )
         elif array.dtype.kind not in "iu":
             raise Invalid(f"{name} must be integers, got {array.dtype} values")
     if array.ndim != 2 or array.shape[1] != 3:
@@ -547,11 +621,15 @@ def index_array(value: Any, name: str) -> np.ndarray:
 
 def check_vertices(vertices: np.ndarray, name: str = "vertices") -> np.ndarray:
     """422 unless every vertex is finite; names the first bad row and how many there are."""
-    if np.isfinite(vertices).all():  # one flat pass; by rows only to name a bad one (1.6 ms on Sponza)
+    if np.isfinite(
+        vertices
+    ).all():  # one flat pass; by rows only to name a bad one (1.6 ms on Sponza)
         return vertices
     rows = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
-    raise Invalid(f"{name}[{rows[0]}] is not finite ({vertices[rows[0]].tolist()}); "
-                  f"{rows.size} of {len(vertices)} vertices are not finite")
+    raise Invalid(
+        f"{name}[{rows[0]}] is not finite ({vertices[rows[0]].tolist()}); "
+        f"{rows.size} of {len(vertices)} vertices are not finite"
+    )
 
 
 def check_faces(faces: np.ndarray, n_vertices: int, name: str = "faces") -> np.ndarray:
@@ -561,8 +639,10 @@ def check_faces(faces: np.ndarray, n_vertices: int, name: str = "faces") -> np.n
         rows = np.flatnonzero(bad)
         row = faces[rows[0]]
         value = row[(row < 0) | (row >= n_vertices)][0]
-        raise Invalid(f"{name}[{rows[0]}] refers to vertex {value}, but there are {n_vertices} "
-                      f"vertices; {rows.size} of {len(faces)} faces are out of range")
+        raise Invalid(
+            f"{name}[{rows[0]}] refers to vertex {value}, but there are {n_vertices} "
+            f"vertices; {rows.size} of {len(faces)} faces are out of range"
+        )
     if faces.dtype == _I32:
         return faces
     if faces.dtype == _U32:
@@ -581,8 +661,9 @@ def mesh_arrays(vertices: Any, faces: Any, prefix: str = "") -> MeshArrays:
 # Decoding request bodies
 
 
-def decode_rays(body: Buffer, fmt: str, max_rays: int | None = None,
-                max_bytes: int | None = None) -> Rays:
+def decode_rays(
+    body: Buffer, fmt: str, max_rays: int | None = None, max_bytes: int | None = None
+) -> Rays:
     """A ray batch from an npy, npz or JSON body (see the module docstring)."""
     if fmt == "npy":
         array = read_npy(body, "rays body")
@@ -591,8 +672,12 @@ def decode_rays(body: Buffer, fmt: str, max_rays: int | None = None,
         _check_ray_count(len(array), max_rays)
         array = float_array(array, "rays", array.shape[1])
         has_t = array.shape[1] == 8
-        return Rays(array[:, 0:3], array[:, 3:6], array[:, 6] if has_t else None,
-                    array[:, 7] if has_t else None)
+        return Rays(
+            array[:, 0:3],
+            array[:, 3:6],
+            array[:, 6] if has_t else None,
+            array[:, 7] if has_t else None,
+        )
     mapping = read_mapping(body, fmt, "origins, directions", max_bytes)
     check_keys(mapping, ("origins", "directions"), ("tmin", "tmax"))
     return rays_from_mapping(mapping, max_rays)
@@ -601,8 +686,11 @@ def decode_rays(body: Buffer, fmt: str, max_rays: int | None = None,
 def rays_from_mapping(mapping: Mapping[str, Any], max_rays: int | None) -> Rays:
     """Rays from the keys origins, directions, tmin, tmax of an npz or JSON body."""
     origins = mapping["origins"]
-    n = origins.shape[0] if isinstance(origins, np.ndarray) and origins.ndim else (
-        len(origins) if isinstance(origins, list) else 0)
+    n = (
+        origins.shape[0]
+        if isinstance(origins, np.ndarray) and origins.ndim
+        else (len(origins) if isinstance(origins, list) else 0)
+    )
     _check_ray_count(n, max_rays)
     origins = float_array(origins, "origins", 3)
     directions = float_array(mapping["directions"], "directions", 3)
@@ -623,8 +711,10 @@ def rays_from_mapping(mapping: Mapping[str, Any], max_rays: int | None) -> Rays:
 
 def _check_ray_count(n: int, max_rays: int | None) -> None:
     if max_rays is not None and n > max_rays:
-        raise TooLarge(f"{n} rays in one request, over the limit of {max_rays} "
-                       "(DACRT_MAX_RAYS_PER_REQUEST); split the batch")
+        raise TooLarge(
+            f"{n} rays in one request, over the limit of {max_rays} "
+            "(DACRT_MAX_RAYS_PER_REQUEST); split the batch"
+        )
 
 
 def decode_mesh(body: Buffer, fmt: str, max_bytes: int | None = None) -> MeshArrays:
@@ -651,8 +741,9 @@ def decode_vertices(body: Buffer, fmt: str, max_bytes: int | None = None) -> np.
     return check_vertices(float_array(value, "vertices", 3))
 
 
-def decode_frame(body: Buffer, fmt: str, max_bytes: int | None = None
-                 ) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
+def decode_frame(
+    body: Buffer, fmt: str, max_bytes: int | None = None
+) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
     """mesh name -> (vertices, faces or None) from ``MESH.vertices`` / ``MESH.faces`` keys.
 
     Only shapes and dtypes are checked here; face indices are checked against the vertex count
@@ -671,8 +762,9 @@ def decode_frame(body: Buffer, fmt: str, max_bytes: int | None = None
     for mesh, arrays in parts.items():
         if "vertices" not in arrays:
             raise BadBody(f"frame has {mesh}.faces but no {mesh}.vertices")
-        vertices = check_vertices(float_array(arrays["vertices"], f"{mesh}.vertices", 3),
-                                  f"{mesh}.vertices")
+        vertices = check_vertices(
+            float_array(arrays["vertices"], f"{mesh}.vertices", 3), f"{mesh}.vertices"
+        )
         faces = arrays.get("faces")
         if faces is not None:
             faces = check_faces(index_array(faces, f"{mesh}.faces"), len(vertices), f"{mesh}.faces")
@@ -680,8 +772,9 @@ def decode_frame(body: Buffer, fmt: str, max_bytes: int | None = None
     return frame
 
 
-def decode_trace(body: Buffer, fmt: str, max_rays: int | None = None,
-                 max_bytes: int | None = None) -> tuple[MeshArrays, Rays]:
+def decode_trace(
+    body: Buffer, fmt: str, max_rays: int | None = None, max_bytes: int | None = None
+) -> tuple[MeshArrays, Rays]:
     """The mesh and the rays of a one-shot trace body."""
     mapping = read_mapping(body, fmt, "vertices, faces, origins, directions", max_bytes)
     check_keys(mapping, ("vertices", "faces", "origins", "directions"), ("tmin", "tmax"))
@@ -717,8 +810,9 @@ def negotiate(accept: str | None, request_format: str) -> str:
         fmt = CONTENT_TYPES.get(media)
         if fmt in ANSWER_FORMATS:
             return fmt
-    raise NotAcceptable(f"Accept: {accept} names no answer format this service writes; "
-                        f"use {NPZ}, {NPY} or {JSON}")
+    raise NotAcceptable(
+        f"Accept: {accept} names no answer format this service writes; use {NPZ}, {NPY} or {JSON}"
+    )
 
 
 def encode_answer(arrays: Mapping[str, np.ndarray], fmt: str) -> tuple[Iterable[Buffer], int, str]:
@@ -742,8 +836,9 @@ def encode_answer(arrays: Mapping[str, np.ndarray], fmt: str) -> tuple[Iterable[
 def npy_header(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
     """The .npy header (format 1.0, C order) of an array of ``dtype`` and ``shape``."""
     out = io.BytesIO()
-    np.lib.format.write_array_header_1_0(out, {"descr": np.lib.format.dtype_to_descr(dtype),
-                                               "fortran_order": False, "shape": shape})
+    np.lib.format.write_array_header_1_0(
+        out, {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False, "shape": shape}
+    )
     return out.getvalue()
 
 
@@ -776,16 +871,23 @@ class NpzBody:
     """
 
     def __init__(self, arrays: Mapping[str, np.ndarray]) -> None:
-        self._members = [(f"{key}.npy".encode(), npy_header(array.dtype, array.shape), array_bytes(array))
-                         for key, array in arrays.items()]
-        members = sum(_LOCAL.size + len(name) + len(header) + len(data) for name, header, data in self._members)
+        self._members = [
+            (f"{key}.npy".encode(), npy_header(array.dtype, array.shape), array_bytes(array))
+            for key, array in arrays.items()
+        ]
+        members = sum(
+            _LOCAL.size + len(name) + len(header) + len(data)
+            for name, header, data in self._members
+        )
         directory = sum(_CENTRAL.size + len(name) for name, _, _ in self._members)
         self._saved = None
         if members + directory >= 2**32 - 1:  # needs zip64: let zipfile write it
             out = io.BytesIO()
             np.savez(out, **arrays)
             self._saved = out.getbuffer()
-        self.length = len(self._saved) if self._saved is not None else members + directory + _END.size
+        self.length = (
+            len(self._saved) if self._saved is not None else members + directory + _END.size
+        )
 
     def __iter__(self) -> Iterator[Buffer]:
         if self._saved is not None:
@@ -794,17 +896,48 @@ class NpzBody:
         central, offset = [], 0
         for name, header, data in self._members:
             crc, length = crc32(data, crc32(header)), len(header) + len(data)
-            yield _LOCAL.pack(b"PK\x03\x04", 20, 0, 0, 0, 0, _DOS_DATE, crc, length, length, len(name), 0) + name + header
+            yield (
+                _LOCAL.pack(
+                    b"PK\x03\x04", 20, 0, 0, 0, 0, _DOS_DATE, crc, length, length, len(name), 0
+                )
+                + name
+                + header
+            )
             yield data
-            central.append(_CENTRAL.pack(b"PK\x01\x02", 20, 0, 20, 0, 0, 0, 0, _DOS_DATE, crc, length, length,
-                                         len(name), 0, 0, 0, 0, 0, offset) + name)
+            central.append(
+                _CENTRAL.pack(
+                    b"PK\x01\x02",
+                    20,
+                    0,
+                    20,
+                    0,
+                    0,
+                    0,
+                    0,
+                    _DOS_DATE,
+                    crc,
+                    length,
+                    length,
+                    len(name),
+                    0,
+                    0,
+                    0,
+                    0,
+                    0,
+                    offset,
+                )
+                + name
+            )
             offset += _LOCAL.size + len(name) + length
         directory = b"".join(central)
-        yield directory + _END.pack(b"PK\x05\x06", 0, 0, len(central), len(central), len(directory), offset, 0)
+        yield directory + _END.pack(
+            b"PK\x05\x06", 0, 0, len(central), len(central), len(directory), offset, 0
+        )
 
 
 def npz_parts(arrays: Mapping[str, np.ndarray]) -> list[Buffer]:
-    """An uncompressed .npz of ``arrays`` as a list of buffers: zip headers and the arrays' memory."""
+    """An uncompressed .npz of ``arrays`` as a list of buffers: zip headers and the arrays'
+    memory."""
     return list(NpzBody(arrays))
 
 
@@ -820,8 +953,11 @@ def encode_npy(arrays: Mapping[str, np.ndarray]) -> bytes:
 
 def encode_json(arrays: Mapping[str, np.ndarray]) -> bytes:
     """``{"key": [...], ...}`` with float32 in shortest round-trip form and null for inf/nan."""
-    return json.dumps({key: json_ready(array) for key, array in arrays.items()},
-                      separators=(",", ":"), allow_nan=False).encode()
+    return json.dumps(
+        {key: json_ready(array) for key, array in arrays.items()},
+        separators=(",", ":"),
+        allow_nan=False,
+    ).encode()
 
 
 def json_ready(array: np.ndarray) -> Any:

@@ -17,7 +17,6 @@ at a grazing angle the two may honestly disagree. The checks therefore
 from __future__ import annotations
 
 import numpy as np
-
 import reference
 
 T_RTOL = 1e-4
@@ -51,7 +50,8 @@ def global_prim(hits, mesh_offsets) -> np.ndarray:
 
 
 def scene_scale(vertices, origins) -> np.ndarray:
-    """(n,) float64 length scale per ray: the scene's diagonal plus the origin's distance from its centre."""
+    """(n,) float64 length scale per ray: the scene's diagonal plus the origin's distance from its
+    centre."""
     v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     if len(v) == 0:
@@ -61,7 +61,8 @@ def scene_scale(vertices, origins) -> np.ndarray:
 
 
 def incidence_cos(vertices, faces, prim, directions) -> np.ndarray:
-    """(n,) float64 |cos| between each ray and the normal of face ``prim`` (0 where ``prim < 0``)."""
+    """(n,) float64 |cos| between each ray and the normal of face ``prim``
+    (0 where ``prim < 0``)."""
     n = reference.normals(vertices, faces, prim)
     d = np.asarray(directions, dtype=np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -86,12 +87,22 @@ def check_layout(hits, n_rays) -> None:
     assert hits.normal.dtype == np.float32, f"hits.normal.dtype is {hits.normal.dtype}"
     assert hits.normal.shape == (n_rays, 3), f"hits.normal.shape is {hits.normal.shape}"
     miss = hits.prim < 0
-    assert np.array_equal(miss, hits.mesh < 0), f"mesh and prim disagree on misses: {_first(miss != (hits.mesh < 0))}"
-    assert np.all(hits.prim[miss] == -1) and np.all(hits.mesh[miss] == -1), "a miss has mesh/prim other than -1"
-    assert np.array_equal(miss, ~np.isfinite(hits.t)), f"finite t on a miss or inf t on a hit: {_first(miss == np.isfinite(hits.t))}"
+    assert np.array_equal(miss, hits.mesh < 0), (
+        f"mesh and prim disagree on misses: {_first(miss != (hits.mesh < 0))}"
+    )
+    assert np.all(hits.prim[miss] == -1) and np.all(hits.mesh[miss] == -1), (
+        "a miss has mesh/prim other than -1"
+    )
+    assert np.array_equal(miss, ~np.isfinite(hits.t)), (
+        f"finite t on a miss or inf t on a hit: {_first(miss == np.isfinite(hits.t))}"
+    )
     assert np.all(np.isposinf(hits.t[miss])), "a miss has t other than +inf"
-    assert np.all(hits.u[miss] == 0) and np.all(hits.v[miss] == 0), f"u/v not 0 on a miss: {_first(miss & ((hits.u != 0) | (hits.v != 0)))}"
-    assert np.all(hits.normal[miss] == 0), f"normal not 0 on a miss: {_first(miss & np.any(hits.normal != 0, axis=1))}"
+    assert np.all(hits.u[miss] == 0) and np.all(hits.v[miss] == 0), (
+        f"u/v not 0 on a miss: {_first(miss & ((hits.u != 0) | (hits.v != 0)))}"
+    )
+    assert np.all(hits.normal[miss] == 0), (
+        f"normal not 0 on a miss: {_first(miss & np.any(hits.normal != 0, axis=1))}"
+    )
     assert not np.any(np.isnan(hits.t)), f"nan t: {_first(np.isnan(hits.t))}"
 
 
@@ -133,14 +144,33 @@ def check_geometry(hits, vertices, faces, origins, directions, mesh_offsets=None
     # A sliver's float32 cross product loses bits in proportion to |e1||e2| / |e1 x e2|.
     p0, e1, e2 = reference.triangles(vertices, np.asarray(faces)[np.maximum(gp, 0)])
     with np.errstate(divide="ignore", invalid="ignore"):
-        cond = np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1) / np.linalg.norm(np.cross(e1, e2), axis=1)
+        cond = (
+            np.linalg.norm(e1, axis=1)
+            * np.linalg.norm(e2, axis=1)
+            / np.linalg.norm(np.cross(e1, e2), axis=1)
+        )
     err = np.linalg.norm(normal - expected, axis=1)
     bad = hit & ~(err <= 1e-5 + 1e-6 * cond)
-    assert not np.any(bad), f"normal is not normalise((p1-p0)x(p2-p0)): {_first(bad)}; got {normal[bad][:2]}, expected {expected[bad][:2]}"
+    assert not np.any(bad), (
+        f"normal is not normalise((p1-p0)x(p2-p0)): {_first(bad)}; "
+        f"got {normal[bad][:2]}, expected {expected[bad][:2]}"
+    )
 
 
-def check_against_reference(hits, vertices, faces, origins, directions, tmin=None, tmax=None, *,
-                            mesh_offsets=None, min_hits=1, min_clear=0.9, eps=1e-4):
+def check_against_reference(
+    hits,
+    vertices,
+    faces,
+    origins,
+    directions,
+    tmin=None,
+    tmax=None,
+    *,
+    mesh_offsets=None,
+    min_hits=1,
+    min_clear=0.9,
+    eps=1e-4,
+):
     """Compare an engine closest-hit result with the brute-force reference (see module docstring).
 
     Parameters
@@ -165,7 +195,9 @@ def check_against_reference(hits, vertices, faces, origins, directions, tmin=Non
     offsets = np.array([0, len(faces)]) if mesh_offsets is None else np.asarray(mesh_offsets)
     br = reference.closest_bracket(vertices, faces, origins, directions, tmin, tmax, eps=eps)
     ex, inner, outer = br.exact, br.inner, br.outer
-    assert ex.hit.sum() >= min_hits, f"vacuous test: the reference hits only {ex.hit.sum()} of {n} rays"
+    assert ex.hit.sum() >= min_hits, (
+        f"vacuous test: the reference hits only {ex.hit.sum()} of {n} rays"
+    )
 
     gp = global_prim(hits, offsets)
     eng_hit = gp >= 0
@@ -178,22 +210,37 @@ def check_against_reference(hits, vertices, faces, origins, directions, tmin=Non
 
     # Hit/miss, bracketed.
     bad = inner.hit & (cos_inner > GRAZING_COS / 10) & ~eng_hit
-    assert not np.any(bad), f"engine misses rays that hit well inside a triangle: {_first(bad)}; reference prim {inner.prim[bad][:5]}, t {inner.t[bad][:5]}"
+    assert not np.any(bad), (
+        f"engine misses rays that hit well inside a triangle: {_first(bad)}; "
+        f"reference prim {inner.prim[bad][:5]}, t {inner.t[bad][:5]}"
+    )
     bad = eng_hit & (cos_eng > GRAZING_COS / 10) & ~outer.hit
-    assert not np.any(bad), f"engine hits where the reference (with slack) misses: {_first(bad)}; engine prim {gp[bad][:5]}, t {t[bad][:5]}"
+    assert not np.any(bad), (
+        f"engine hits where the reference (with slack) misses: {_first(bad)}; "
+        f"engine prim {gp[bad][:5]}, t {t[bad][:5]}"
+    )
 
     # t, bracketed: no closer than the widened reference, no farther than the shrunk one.
     tol_eng = t_tolerance(t, d, scale, cos_eng)
     bad = eng_hit & (cos_eng > GRAZING_COS / 10) & (t < outer.t - tol_eng)
-    assert not np.any(bad), f"engine t closer than any reference hit: {_first(bad)}; engine {t[bad][:3]}, reference {outer.t[bad][:3]}"
+    assert not np.any(bad), (
+        f"engine t closer than any reference hit: {_first(bad)}; "
+        f"engine {t[bad][:3]}, reference {outer.t[bad][:3]}"
+    )
     tol_inner = t_tolerance(inner.t, d, scale, cos_inner)
     bad = inner.hit & (cos_inner > GRAZING_COS / 10) & (t > inner.t + tol_inner)
-    assert not np.any(bad), f"engine t beyond a clear reference hit: {_first(bad)}; engine {t[bad][:3]}, reference {inner.t[bad][:3]}"
+    assert not np.any(bad), (
+        f"engine t beyond a clear reference hit: {_first(bad)}; "
+        f"engine {t[bad][:3]}, reference {inner.t[bad][:3]}"
+    )
 
     # t in the requested range.
     lo, hi = reference.ray_ranges(n, tmin, tmax)
     bad = eng_hit & ((hits.t < lo.astype(np.float32)) | (hits.t > hi.astype(np.float32)))
-    assert not np.any(bad), f"t outside [tmin, tmax]: {_first(bad)}; t {hits.t[bad][:3]}, tmin {lo[bad][:3]}, tmax {hi[bad][:3]}"
+    assert not np.any(bad), (
+        f"t outside [tmin, tmax]: {_first(bad)}; "
+        f"t {hits.t[bad][:3]}, tmin {lo[bad][:3]}, tmax {hi[bad][:3]}"
+    )
 
     # Clear rays: exact prim, t, u, v.
     tol_ex = t_tolerance(ex.t, d, scale, cos_ex)
@@ -205,41 +252,72 @@ def check_against_reference(hits, vertices, faces, origins, directions, tmin=Non
         & (br.outer_second_t > ex.t + gap)
         & (cos_ex > GRAZING_COS)
     )
-    assert clear.sum() >= min_clear * ex.hit.sum(), f"vacuous test: only {clear.sum()} of {ex.hit.sum()} reference hits are clear"
+    assert clear.sum() >= min_clear * ex.hit.sum(), (
+        f"vacuous test: only {clear.sum()} of {ex.hit.sum()} reference hits are clear"
+    )
     bad = clear & (gp != ex.prim)
-    assert not np.any(bad), f"engine hit a different triangle: {_first(bad)}; engine {gp[bad][:5]}, reference {ex.prim[bad][:5]}"
+    assert not np.any(bad), (
+        f"engine hit a different triangle: {_first(bad)}; "
+        f"engine {gp[bad][:5]}, reference {ex.prim[bad][:5]}"
+    )
     bad = clear & ~(absdiff(t, ex.t) <= tol_ex)
-    assert not np.any(bad), f"t differs from the reference: {_first(bad)}; engine {t[bad][:3]}, reference {ex.t[bad][:3]}"
+    assert not np.any(bad), (
+        f"t differs from the reference: {_first(bad)}; "
+        f"engine {t[bad][:3]}, reference {ex.t[bad][:3]}"
+    )
     for name in ("u", "v"):
         got, want = getattr(hits, name).astype(np.float64), getattr(ex, name)
         bad = clear & ~(absdiff(got, want) <= UV_ATOL)
-        assert not np.any(bad), f"{name} differs from the reference: {_first(bad)}; engine {got[bad][:3]}, reference {want[bad][:3]}"
+        assert not np.any(bad), (
+            f"{name} differs from the reference: {_first(bad)}; "
+            f"engine {got[bad][:3]}, reference {want[bad][:3]}"
+        )
 
     # Mesh numbering of the reference's clear hits.
     ref_mesh = np.searchsorted(offsets, ex.prim, side="right") - 1
-    bad = clear & ((hits.mesh != ref_mesh) | (hits.prim != ex.prim - offsets[np.maximum(ref_mesh, 0)]))
+    bad = clear & (
+        (hits.mesh != ref_mesh) | (hits.prim != ex.prim - offsets[np.maximum(ref_mesh, 0)])
+    )
     assert not np.any(bad), f"(mesh, prim) do not map to the global triangle: {_first(bad)}"
     return br
 
 
-def check_occluded_against_reference(occ, vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=1e-4):
-    """Engine ``occluded`` within the reference's shrunk and widened verdicts (grazing rays excepted)."""
+def check_occluded_against_reference(
+    occ, vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=1e-4
+):
+    """Engine ``occluded`` within the reference's shrunk and widened verdicts (grazing rays
+    excepted)."""
     br = reference.closest_bracket(vertices, faces, origins, directions, tmin, tmax, eps=eps)
     d = np.asarray(directions, dtype=np.float64)
     cos_inner = incidence_cos(vertices, faces, br.inner.prim, d)
-    assert occ.dtype == np.bool_ and occ.shape == (len(origins),), f"occluded: dtype {occ.dtype}, shape {occ.shape}"
+    assert occ.dtype == np.bool_ and occ.shape == (len(origins),), (
+        f"occluded: dtype {occ.dtype}, shape {occ.shape}"
+    )
     bad = br.inner.hit & (cos_inner > GRAZING_COS / 10) & ~occ
     assert not np.any(bad), f"occluded is False for rays that clearly hit: {_first(bad)}"
     bad = occ & ~br.outer.hit
-    assert not np.any(bad), f"occluded is True for rays that the reference (with slack) misses: {_first(bad)}"
+    assert not np.any(bad), (
+        f"occluded is True for rays that the reference (with slack) misses: {_first(bad)}"
+    )
     return br
 
 
-def check_against_embree(hits, oracle, vertices, faces, origins, directions, *, mesh_offsets=None,
-                         min_agreement=0.999, min_hits=1):
+def check_against_embree(
+    hits,
+    oracle,
+    vertices,
+    faces,
+    origins,
+    directions,
+    *,
+    mesh_offsets=None,
+    min_agreement=0.999,
+    min_hits=1,
+):
     """Agreement with Embree: hit/miss on >= ``min_agreement`` of rays, ``t`` on rays both hit.
 
-    ``oracle`` is an ``oracle_embree.MeshHits`` for the same rays; vertices/faces the concatenated scene.
+    ``oracle`` is an ``oracle_embree.MeshHits`` for the same rays; vertices/faces the concatenated
+    scene.
     """
     n = len(origins)
     offsets = np.array([0, len(faces)]) if mesh_offsets is None else np.asarray(mesh_offsets)
@@ -250,7 +328,8 @@ def check_against_embree(hits, oracle, vertices, faces, origins, directions, *, 
     agree = np.mean(eng_hit == emb_hit) if n else 1.0
     assert agree >= min_agreement, (
         f"hit/miss agrees with Embree on {agree:.5f} of rays (< {min_agreement}); "
-        f"engine-only hits {_first(eng_hit & ~emb_hit)}, Embree-only hits {_first(emb_hit & ~eng_hit)}"
+        f"engine-only hits {_first(eng_hit & ~emb_hit)}, "
+        f"Embree-only hits {_first(emb_hit & ~eng_hit)}"
     )
     both = eng_hit & emb_hit
     d = np.asarray(directions, dtype=np.float64)
@@ -259,10 +338,15 @@ def check_against_embree(hits, oracle, vertices, faces, origins, directions, *, 
     t = hits.t.astype(np.float64)
     close = absdiff(t, oracle.t) <= t_tolerance(oracle.t, d, scale, cos)
     frac = np.mean(close[both]) if np.any(both) else 1.0
-    assert frac >= min_agreement, f"t agrees with Embree on {frac:.5f} of rays both hit; differing: {_first(both & ~close)}"
+    assert frac >= min_agreement, (
+        f"t agrees with Embree on {frac:.5f} of rays both hit; differing: {_first(both & ~close)}"
+    )
     same = both & (gp == emb_gp) & (cos > GRAZING_COS)
     bad = same & ~close
-    assert not np.any(bad), f"t differs from Embree on the same triangle: {_first(bad)}; engine {t[bad][:3]}, Embree {oracle.t[bad][:3]}"
+    assert not np.any(bad), (
+        f"t differs from Embree on the same triangle: {_first(bad)}; "
+        f"engine {t[bad][:3]}, Embree {oracle.t[bad][:3]}"
+    )
     for name in ("u", "v"):
         got, want = getattr(hits, name).astype(np.float64), getattr(oracle, name)
         bad = same & ~(absdiff(got, want) <= 1e-3)
@@ -273,8 +357,12 @@ def assert_bitwise_equal(a, b, what="") -> None:
     """Two closest-hit results are bitwise identical in t, mesh, prim, u, v and normal."""
     for name in ("t", "mesh", "prim", "u", "v", "normal"):
         x, y = np.ascontiguousarray(getattr(a, name)), np.ascontiguousarray(getattr(b, name))
-        assert x.dtype == y.dtype and x.shape == y.shape, f"{what}: {name} dtype/shape {x.dtype}{x.shape} vs {y.dtype}{y.shape}"
+        assert x.dtype == y.dtype and x.shape == y.shape, (
+            f"{what}: {name} dtype/shape {x.dtype}{x.shape} vs {y.dtype}{y.shape}"
+        )
         xb = x.view(np.uint8).reshape(len(x), -1) if len(x) else x
         yb = y.view(np.uint8).reshape(len(y), -1) if len(y) else y
         differ = np.any(xb != yb, axis=1) if len(x) else np.zeros(0, bool)
-        assert not np.any(differ), f"{what}: {name} differs bitwise: {_first(differ)}; {x[differ][:3]} vs {y[differ][:3]}"
+        assert not np.any(differ), (
+            f"{what}: {name} differs bitwise: {_first(differ)}; {x[differ][:3]} vs {y[differ][:3]}"
+        )

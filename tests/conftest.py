@@ -1,4 +1,5 @@
-"""Shared fixtures of the engine tests: the shared scene files, and one engine warm-up per session."""
+"""Shared fixtures of the engine tests: the shared scene files, and one engine warm-up per
+session."""
 
 from __future__ import annotations
 
@@ -11,13 +12,15 @@ import scenes
 
 @pytest.fixture(scope="session")
 def shared_scenes() -> Path:
-    """Path of ``../shared/scenes`` beside the repository (it may be absent: ``load_shared`` skips then)."""
+    """Path of ``../shared/scenes`` beside the repository (it may be absent: ``load_shared`` skips
+    then)."""
     return scenes.SHARED_SCENES
 
 
 @pytest.fixture(scope="session")
 def load_shared():
-    """``load_shared(name) -> (vertices, faces)``; skips the test when ``../shared/scenes/{name}.npz`` is absent."""
+    """``load_shared(name) -> (vertices, faces)``; skips the test when
+    ``../shared/scenes/{name}.npz`` is absent."""
     return scenes.load_shared
 
 

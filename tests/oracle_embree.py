@@ -27,7 +27,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-
 from reference import Hits  # the same answer type as the numpy reference
 
 
@@ -81,7 +80,11 @@ class EmbreeOracle:
         directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
         n = len(origins)
         lo = np.zeros(n) if tmin is None else np.broadcast_to(np.asarray(tmin, np.float64), (n,))
-        hi = np.full(n, np.inf) if tmax is None else np.broadcast_to(np.asarray(tmax, np.float64), (n,))
+        hi = (
+            np.full(n, np.inf)
+            if tmax is None
+            else np.broadcast_to(np.asarray(tmax, np.float64), (n,))
+        )
         o32 = np.ascontiguousarray(origins + lo[:, None] * directions, dtype=np.float32)
         d32 = np.ascontiguousarray(directions, dtype=np.float32)
         tfar = np.ascontiguousarray(np.minimum(hi - lo, 1e37), dtype=np.float32)
@@ -103,8 +106,11 @@ class EmbreeOracle:
         n = len(o32)
         if n == 0 or len(self.geom_to_mesh) == 0:
             return MeshHits(
-                t=np.full(n, np.inf), mesh=np.full(n, -1, np.int64), prim=np.full(n, -1, np.int64),
-                u=np.zeros(n), v=np.zeros(n),
+                t=np.full(n, np.inf),
+                mesh=np.full(n, -1, np.int64),
+                prim=np.full(n, -1, np.int64),
+                u=np.zeros(n),
+                v=np.zeros(n),
             )
         out = self.scene.run(o32, d32, dists=tfar.copy(), query="INTERSECT", output=1)
         geom = out["geomID"].astype(np.int64)
@@ -128,7 +134,8 @@ class EmbreeOracle:
 
 
 def closest_meshes(meshes, origins, directions, tmin=None, tmax=None) -> MeshHits:
-    """Closest hits in a list of meshes, through a one-off Embree scene (see :class:`EmbreeOracle`)."""
+    """Closest hits in a list of meshes, through a one-off Embree scene (see
+    :class:`EmbreeOracle`)."""
     return EmbreeOracle(meshes).closest(origins, directions, tmin, tmax)
 
 
@@ -145,7 +152,8 @@ def closest(vertices, faces, origins, directions, tmin=None, tmax=None) -> Hits:
     Returns
     -------
     hits : Hits
-      ``t`` (n,) float64 (``inf`` on a miss), ``prim`` (n,) int64 (``-1``), ``u``, ``v`` (n,) float64.
+      ``t`` (n,) float64 (``inf`` on a miss), ``prim`` (n,) int64 (``-1``),
+      ``u``, ``v`` (n,) float64.
     """
     h = closest_meshes([(vertices, faces)], origins, directions, tmin, tmax)
     return Hits(t=h.t, prim=h.prim, u=h.u, v=h.v)

@@ -97,21 +97,46 @@ def icosphere(subdivisions=3, radius=1.0):
     """
     phi = (1.0 + 5.0**0.5) / 2.0
     verts = [
-        (-1, phi, 0), (1, phi, 0), (-1, -phi, 0), (1, -phi, 0),
-        (0, -1, phi), (0, 1, phi), (0, -1, -phi), (0, 1, -phi),
-        (phi, 0, -1), (phi, 0, 1), (-phi, 0, -1), (-phi, 0, 1),
+        (-1, phi, 0),
+        (1, phi, 0),
+        (-1, -phi, 0),
+        (1, -phi, 0),
+        (0, -1, phi),
+        (0, 1, phi),
+        (0, -1, -phi),
+        (0, 1, -phi),
+        (phi, 0, -1),
+        (phi, 0, 1),
+        (-phi, 0, -1),
+        (-phi, 0, 1),
     ]
     faces = [
-        (0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11),
-        (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6), (7, 1, 8),
-        (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9),
-        (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1),
+        (0, 11, 5),
+        (0, 5, 1),
+        (0, 1, 7),
+        (0, 7, 10),
+        (0, 10, 11),
+        (1, 5, 9),
+        (5, 11, 4),
+        (11, 10, 2),
+        (10, 7, 6),
+        (7, 1, 8),
+        (3, 9, 4),
+        (3, 4, 2),
+        (3, 2, 6),
+        (3, 6, 8),
+        (3, 8, 9),
+        (4, 9, 5),
+        (2, 4, 11),
+        (6, 2, 10),
+        (8, 6, 7),
+        (9, 8, 1),
     ]
     verts = [np.asarray(p, dtype=np.float64) / np.linalg.norm(p) for p in verts]
     for _ in range(subdivisions):
         midpoint = {}
 
-        def middle(a, b):
+        def middle(a, b, midpoint=midpoint):
             key = (min(a, b), max(a, b))
             if key not in midpoint:
                 m = verts[a] + verts[b]
@@ -140,7 +165,9 @@ def uv_sphere(n_lat=16, n_lon=32, radius=1.0):
     theta = np.pi * np.arange(1, n_lat) / n_lat  # polar angles of the rings
     phi = 2 * np.pi * np.arange(n_lon) / n_lon
     th, ph = np.meshgrid(theta, phi, indexing="ij")
-    ring = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1).reshape(-1, 3)
+    ring = np.stack(
+        [np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1
+    ).reshape(-1, 3)
     vertices = np.concatenate([[[0.0, 0.0, 1.0]], ring, [[0.0, 0.0, -1.0]]]) * radius
     north, south = 0, len(vertices) - 1
 
@@ -206,7 +233,9 @@ def inner_radius(vertices, faces, center=(0.0, 0.0, 0.0)):
     inside = ok.copy()
     for x, y in ((a, b), (b, c), (c, a)):
         inside &= np.einsum("ij,ij->i", np.cross(y - x, q - x), n) >= 0
-    edge = np.minimum.reduce([_segment_distance(p, a, b), _segment_distance(p, b, c), _segment_distance(p, c, a)])
+    edge = np.minimum.reduce(
+        [_segment_distance(p, a, b), _segment_distance(p, b, c), _segment_distance(p, c, a)]
+    )
     return float(np.min(np.where(inside, np.abs(height), edge)))
 
 
@@ -224,7 +253,8 @@ def triangle_soup(n, rng, *, extent=1.0, size=0.15):
 
 
 def pinwheel(n, rng, *, radius=1.0):
-    """``n`` triangles of circumradius ``radius``, all with their centroid at the origin, randomly turned.
+    """``n`` triangles of circumradius ``radius``, all with their centroid at the origin, randomly
+    turned.
 
     Every centroid is the same point, so a partitioner that splits by centroid finds no extent.
 
@@ -241,7 +271,8 @@ def pinwheel(n, rng, *, radius=1.0):
 
 
 def edge_on_soup(n, rng, *, extent=1000.0, size=0.01, axis=0):
-    """``n`` small triangles whose planes contain the direction ``axis``, scattered in ``[0, extent]^3``.
+    """``n`` small triangles whose planes contain the direction ``axis``,
+    scattered in ``[0, extent]^3``.
 
     Seen along ``axis`` every triangle is edge-on: its projection has (nearly) zero area, and at
     a distance of ``extent`` its projected corners differ only in the last bits of float32. Rays
@@ -358,7 +389,8 @@ def with_degenerates(rng, n_good=300, n_degenerate=100):
 
 
 def multi_mesh(rng):
-    """Four meshes of different kinds side by side: a grid, a perturbed icosphere, a soup, a UV sphere.
+    """Four meshes of different kinds side by side: a grid, a perturbed icosphere, a soup, a UV
+    sphere.
 
     Returns
     -------
@@ -445,7 +477,8 @@ def random_rays(box, n, rng, *, margin=0.1):
 
 
 def aimed_rays(box, n, rng):
-    """Rays from a sphere around ``box`` towards random points inside it (mostly hits on solid scenes).
+    """Rays from a sphere around ``box`` towards random points inside it (mostly hits on solid
+    scenes).
 
     Returns
     -------
@@ -515,7 +548,9 @@ def rays_at(targets, directions, distance=1.0):
     """
     targets = np.asarray(targets, dtype=np.float64)
     directions = np.broadcast_to(np.asarray(directions, dtype=np.float64), targets.shape)
-    return (targets - distance * directions).astype(np.float32), np.ascontiguousarray(directions, dtype=np.float32)
+    return (targets - distance * directions).astype(np.float32), np.ascontiguousarray(
+        directions, dtype=np.float32
+    )
 
 
 def grid_targets(vertices, faces, n, kind):
@@ -570,9 +605,19 @@ def down_directions(kind, n, rng=None, to_world=None):
     return local if to_world is None else local @ np.asarray(to_world, dtype=np.float64).T
 
 
-def grid_rays(vertices, faces, n, target="vertices", direction="normal", *, rng=None, to_world=None,
-              distance=0.5):
-    """Rays from above aimed exactly at a :func:`grid`'s interior vertices, edge midpoints or face centres.
+def grid_rays(
+    vertices,
+    faces,
+    n,
+    target="vertices",
+    direction="normal",
+    *,
+    rng=None,
+    to_world=None,
+    distance=0.5,
+):
+    """Rays from above aimed exactly at a :func:`grid`'s interior vertices, edge midpoints or face
+    centres.
 
     Combines :func:`grid_targets`, :func:`down_directions` and :func:`rays_at`; every ray reaches
     its target at ``t = distance``.

@@ -152,13 +152,22 @@ def barycentric_points(vertices, faces, prim, u, v) -> np.ndarray:
 
 def ray_ranges(n_rays, tmin=None, tmax=None):
     """Per-ray ``tmin`` and ``tmax`` as (n,) float64 from None, a scalar or an (n,) array."""
-    lo = np.zeros(n_rays) if tmin is None else np.broadcast_to(np.asarray(tmin, np.float64), (n_rays,))
-    hi = np.full(n_rays, np.inf) if tmax is None else np.broadcast_to(np.asarray(tmax, np.float64), (n_rays,))
+    lo = (
+        np.zeros(n_rays)
+        if tmin is None
+        else np.broadcast_to(np.asarray(tmin, np.float64), (n_rays,))
+    )
+    hi = (
+        np.full(n_rays, np.inf)
+        if tmax is None
+        else np.broadcast_to(np.asarray(tmax, np.float64), (n_rays,))
+    )
     return np.array(lo, dtype=np.float64), np.array(hi, dtype=np.float64)
 
 
 def _barycentrics(p0, e1, e2, origins, directions):
-    """Möller–Trumbore for matching rows: ``(t, u, v, det)``, each (n,) float64 (inf/nan where det == 0)."""
+    """Möller–Trumbore for matching rows: ``(t, u, v, det)``, each (n,) float64
+    (inf/nan where det == 0)."""
     pvec = np.cross(directions, e2)
     det = np.einsum("ij,ij->i", e1, pvec)
     svec = origins - p0
@@ -304,7 +313,9 @@ def occluded(vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=
     return np.isfinite(t)
 
 
-def closest_bracket(vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=1e-4) -> Bracket:
+def closest_bracket(
+    vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=1e-4
+) -> Bracket:
     """Closest hits under shrunk (``-eps``), exact and widened (``+eps``) acceptance, in one pass.
 
     Parameters are those of :func:`closest`; ``eps`` must be positive.

@@ -14,15 +14,14 @@ import functools
 from pathlib import Path
 
 import numpy as np
-import pytest
-
 import procedural as pg
+import pytest
 
 # ../shared/scenes relative to the repository root (tests/ -> repo -> its parent).
 SHARED_SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _read_npz(path: str):
     with np.load(path) as z:
         vertices, faces = z["vertices"], z["faces"]
@@ -33,7 +32,8 @@ def _read_npz(path: str):
 
 
 def load_shared(name: str):
-    """Vertices (v, 3) float32 and faces (f, 3) int32 of ``../shared/scenes/{name}.npz`` (cached, read-only).
+    """Vertices (v, 3) float32 and faces (f, 3) int32 of ``../shared/scenes/{name}.npz`` (cached,
+    read-only).
 
     Skips the calling test when the folder or the file is absent.
     """
@@ -60,7 +60,14 @@ def tilted_grid(seed):
     """A 24 x 24 grid with alternating diagonals, rotated and shifted out of the axis planes."""
     rng = np.random.default_rng(seed)
     v, f = pg.grid(24, 2.0, alternate=True)
-    return [(pg.transform(v, pg.rotation(rng.normal(size=3), rng.uniform(0.3, 1.2)), (0.3, -0.2, 0.1)), f)]
+    return [
+        (
+            pg.transform(
+                v, pg.rotation(rng.normal(size=3), rng.uniform(0.3, 1.2)), (0.3, -0.2, 0.1)
+            ),
+            f,
+        )
+    ]
 
 
 def degenerate_mix(seed):

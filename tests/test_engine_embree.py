@@ -8,13 +8,12 @@ rays where both hit the same triangle at a non-grazing angle).
 
 from __future__ import annotations
 
+import assertions as check
 import numpy as np
+import procedural as pg
 import pytest
 
 import dacrt
-
-import assertions as check
-import procedural as pg
 import scenes
 
 embreex = pytest.importorskip("embreex")
@@ -30,12 +29,27 @@ def test_procedural_closest_matches_embree(scene_name):
     origins, directions = scenes.mixed_rays(meshes, 50, n=3000)
     hits = dacrt.Scene(meshes).closest(origins, directions)
     oracle = oracle_embree.EmbreeOracle(meshes).closest(origins, directions)
-    check.check_against_embree(hits, oracle, vertices, faces, origins, directions,
-                               mesh_offsets=offsets, min_agreement=MIN_AGREEMENT, min_hits=300)
+    check.check_against_embree(
+        hits,
+        oracle,
+        vertices,
+        faces,
+        origins,
+        directions,
+        mesh_offsets=offsets,
+        min_agreement=MIN_AGREEMENT,
+        min_hits=300,
+    )
 
 
 # (scene, camera inside the bounds?): architecture is seen from inside, objects from outside.
-SHARED = [("teapot", False), ("bunny", False), ("sibenik", True), ("conference", True), ("dragon", False)]
+SHARED = [
+    ("teapot", False),
+    ("bunny", False),
+    ("sibenik", True),
+    ("conference", True),
+    ("dragon", False),
+]
 
 
 @pytest.fixture(scope="module")
@@ -63,8 +77,9 @@ def test_shared_scene_closest_matches_embree(name, inside, shared_setup):
     check.check_layout(hits, len(origins))
     check.check_geometry(hits, v, f, origins, directions)
     expected = oracle.closest(origins, directions)
-    check.check_against_embree(hits, expected, v, f, origins, directions,
-                               min_agreement=MIN_AGREEMENT, min_hits=500)
+    check.check_against_embree(
+        hits, expected, v, f, origins, directions, min_agreement=MIN_AGREEMENT, min_hits=500
+    )
 
 
 @pytest.mark.parametrize("name,inside", SHARED)
@@ -87,5 +102,13 @@ def test_shared_scene_strategies_match_embree(strategy, shared_setup):
     v, f, scene, oracle, (origins, directions) = shared_setup("sibenik", True)
     hits = scene.closest(origins, directions, strategy=strategy)
     check.check_geometry(hits, v, f, origins, directions)
-    check.check_against_embree(hits, oracle.closest(origins, directions), v, f, origins, directions,
-                               min_agreement=MIN_AGREEMENT, min_hits=500)
+    check.check_against_embree(
+        hits,
+        oracle.closest(origins, directions),
+        v,
+        f,
+        origins,
+        directions,
+        min_agreement=MIN_AGREEMENT,
+        min_hits=500,
+    )

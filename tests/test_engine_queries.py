@@ -6,16 +6,15 @@ dacrt) or with a property that holds for any correct ray caster.
 
 from __future__ import annotations
 
+import assertions as check
 import numpy as np
+import procedural as pg
 import pytest
+import reference
 
 import dacrt
-from dacrt.geometry import cull_distance, intersect_box
-
-import assertions as check
-import procedural as pg
-import reference
 import scenes
+from dacrt.geometry import cull_distance, intersect_box
 
 SEEDS = (0, 1)
 
@@ -39,8 +38,9 @@ def test_closest_matches_reference(scene_name, seed):
     hits = scene.closest(origins, directions)
     check.check_layout(hits, len(origins))
     check.check_geometry(hits, vertices, faces, origins, directions, offsets)
-    check.check_against_reference(hits, vertices, faces, origins, directions,
-                                  mesh_offsets=offsets, min_hits=200)
+    check.check_against_reference(
+        hits, vertices, faces, origins, directions, mesh_offsets=offsets, min_hits=200
+    )
 
 
 @pytest.mark.parametrize("scene_name", sorted(scenes.SCENES))
@@ -101,10 +101,13 @@ def test_ray_ranges_honoured(scene_name, kind):
     hit = hits.prim >= 0
     assert np.all(hits.t[hit] >= lo[hit].astype(np.float32)), "t < tmin"
     assert np.all(hits.t[hit] <= hi[hit].astype(np.float32)), "t > tmax"
-    check.check_against_reference(hits, vertices, faces, origins, directions, tmin, tmax,
-                                  mesh_offsets=offsets, min_hits=100)
+    check.check_against_reference(
+        hits, vertices, faces, origins, directions, tmin, tmax, mesh_offsets=offsets, min_hits=100
+    )
     occ = scene.occluded(origins, directions, tmin, tmax)
-    np.testing.assert_array_equal(occ, np.isfinite(hits.t), err_msg="occluded != isfinite(closest.t)")
+    np.testing.assert_array_equal(
+        occ, np.isfinite(hits.t), err_msg="occluded != isfinite(closest.t)"
+    )
 
 
 def test_per_ray_range_skips_first_hit():
@@ -120,7 +123,9 @@ def test_per_ray_range_skips_first_hit():
     hits = scene.closest(origins, directions, tmin, tmax)
     np.testing.assert_array_equal(hits.prim, [0, 1, -1, 0])
     np.testing.assert_allclose(hits.t, [1.0, 2.0, np.inf, 1.0], rtol=1e-6)
-    np.testing.assert_array_equal(scene.occluded(origins, directions, tmin, tmax), [True, True, False, True])
+    np.testing.assert_array_equal(
+        scene.occluded(origins, directions, tmin, tmax), [True, True, False, True]
+    )
 
 
 @pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
@@ -135,12 +140,18 @@ def test_range_ends_are_inclusive_and_exact(scene_name, strategy):
     hit = first.prim >= 0
     o, d, t = origins[hit], directions[hit], first.t[hit]
     below = np.nextafter(t, np.float32(0))
-    for tmin, tmax, what in [(None, t, "tmax = t"), (t, None, "tmin = t"), (t, t, "tmin = tmax = t")]:
+    for tmin, tmax, what in [
+        (None, t, "tmax = t"),
+        (t, None, "tmin = t"),
+        (t, t, "tmin = tmax = t"),
+    ]:
         again = scene.closest(o, d, tmin, tmax, strategy=strategy)
         np.testing.assert_array_equal(again.t, t, err_msg=what)
         np.testing.assert_array_equal(again.prim, first.prim[hit], err_msg=what)
         assert scene.occluded(o, d, tmin, tmax, strategy=strategy).all(), what
-    assert not scene.occluded(o, d, None, below, strategy=strategy).any(), "tmax just below the closest t"
+    assert not scene.occluded(o, d, None, below, strategy=strategy).any(), (
+        "tmax just below the closest t"
+    )
     assert np.all(np.isinf(scene.closest(o, d, None, below, strategy=strategy).t))
 
 
@@ -154,13 +165,17 @@ def test_t_scales_inversely_with_direction_length(length):
     scaled = scene.closest(origins, scaled_dirs)
     check.check_against_reference(scaled, vertices, faces, origins, scaled_dirs, min_hits=200)
     same = (unit.prim >= 0) & (unit.prim == scaled.prim)
-    assert same.sum() >= 0.99 * (unit.prim >= 0).sum(), "scaling the directions changed which triangles are hit"
+    assert same.sum() >= 0.99 * (unit.prim >= 0).sum(), (
+        "scaling the directions changed which triangles are hit"
+    )
     np.testing.assert_allclose(scaled.t[same] * np.float64(length), unit.t[same], rtol=1e-5)
     np.testing.assert_allclose(scaled.u[same], unit.u[same], atol=1e-5)
     # The range is in the same units as t.
     tmax = 0.5 * np.where(np.isfinite(unit.t), unit.t, 1.0) / length
-    np.testing.assert_array_equal(scene.occluded(origins, scaled_dirs, tmax=tmax),
-                                  np.isfinite(scene.closest(origins, scaled_dirs, tmax=tmax).t))
+    np.testing.assert_array_equal(
+        scene.occluded(origins, scaled_dirs, tmax=tmax),
+        np.isfinite(scene.closest(origins, scaled_dirs, tmax=tmax).t),
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -171,7 +186,7 @@ def test_t_scales_inversely_with_direction_length(length):
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("scene_name", ["soup", "sphere", "tilted_grid"])
 def test_shuffling_triangles_changes_no_t(scene_name, seed):
-    (vertices, faces), = scenes.SCENES[scene_name](seed)
+    ((vertices, faces),) = scenes.SCENES[scene_name](seed)
     rng = np.random.default_rng(seed)
     origins, directions = scenes.mixed_rays([(vertices, faces)], seed)
     base = dacrt.Scene([(vertices, faces)]).closest(origins, directions)
@@ -189,7 +204,7 @@ def test_shuffling_triangles_changes_no_t(scene_name, seed):
 
 
 def test_rotating_face_corners_keeps_t_and_maps_barycentrics():
-    (vertices, faces), = scenes.soup(4)
+    ((vertices, faces),) = scenes.soup(4)
     origins, directions = scenes.mixed_rays([(vertices, faces)], 4)
     base = dacrt.Scene([(vertices, faces)]).closest(origins, directions)
     rot = dacrt.Scene([(vertices, faces[:, [1, 2, 0]])]).closest(origins, directions)
@@ -209,8 +224,12 @@ def test_float64_and_int64_inputs_give_the_same_answers():
     tmax = np.full(len(origins), 5.0, np.float32)
     a = dacrt.Scene(meshes).closest(origins, directions, tmin, tmax)
     wide = [(v.astype(np.float64), f.astype(np.int64)) for v, f in meshes]
-    b = dacrt.Scene(wide).closest(origins.astype(np.float64), directions.astype(np.float64),
-                                  tmin.astype(np.float64), tmax.astype(np.float64))
+    b = dacrt.Scene(wide).closest(
+        origins.astype(np.float64),
+        directions.astype(np.float64),
+        tmin.astype(np.float64),
+        tmax.astype(np.float64),
+    )
     check.assert_bitwise_equal(a, b, "float64/int64 inputs")
 
 
@@ -227,7 +246,7 @@ def test_non_contiguous_inputs_give_the_same_answers():
     meshes = scenes.soup(6)
     origins, directions = scenes.mixed_rays(meshes, 6)
     a = dacrt.Scene(meshes).closest(origins, directions)
-    (v, f), = meshes
+    ((v, f),) = meshes
     v_strided = np.zeros((len(v), 6), np.float32)
     v_strided[:, ::2] = v
     f_fortran = np.asfortranarray(f)
@@ -247,14 +266,20 @@ def test_small_and_large_batches_give_the_same_answers(scene_name):
     assert len(origins) >= scene.n_triangles > 10
     whole = scene.closest(origins, directions)
     small = scene.n_triangles - 1
-    parts = [scene.closest(origins[i:i + small], directions[i:i + small])
-             for i in range(0, len(origins), small)]
+    parts = [
+        scene.closest(origins[i : i + small], directions[i : i + small])
+        for i in range(0, len(origins), small)
+    ]
     for name in ("t", "mesh", "prim", "u", "v", "normal"):
         joined = np.concatenate([getattr(part, name) for part in parts])
-        np.testing.assert_array_equal(joined.view(np.uint8), getattr(whole, name).view(np.uint8),
-                                      err_msg=f"{scene_name}: {name} differs between batch sizes")
-    check.check_against_reference(whole, vertices, faces, origins, directions,
-                                  mesh_offsets=offsets, min_hits=200)
+        np.testing.assert_array_equal(
+            joined.view(np.uint8),
+            getattr(whole, name).view(np.uint8),
+            err_msg=f"{scene_name}: {name} differs between batch sizes",
+        )
+    check.check_against_reference(
+        whole, vertices, faces, origins, directions, mesh_offsets=offsets, min_hits=200
+    )
 
 
 def test_inputs_are_not_modified():
@@ -262,11 +287,18 @@ def test_inputs_are_not_modified():
     origins, directions = scenes.mixed_rays(meshes, 8)
     tmin = np.zeros(len(origins), np.float32)
     tmax = np.full(len(origins), np.inf, np.float32)
-    copies = [a.copy() for m in meshes for a in m] + [origins.copy(), directions.copy(), tmin.copy(), tmax.copy()]
+    copies = [a.copy() for m in meshes for a in m] + [
+        origins.copy(),
+        directions.copy(),
+        tmin.copy(),
+        tmax.copy(),
+    ]
     scene = dacrt.Scene(meshes)
     scene.closest(origins, directions, tmin, tmax)
     scene.occluded(origins, directions, tmin, tmax)
-    for before, after in zip(copies, [a for m in meshes for a in m] + [origins, directions, tmin, tmax]):
+    for before, after in zip(
+        copies, [a for m in meshes for a in m] + [origins, directions, tmin, tmax]
+    ):
         np.testing.assert_array_equal(before, after)
 
 
@@ -310,7 +342,9 @@ def test_empty_mesh_between_others_keeps_numbering():
     origins, directions = pg.aimed_rays(pg.bounds(vertices), 1000, rng)
     hits = scene.closest(origins, directions)
     assert not np.any(hits.mesh == 1), "a hit in the empty mesh"
-    check.check_against_reference(hits, vertices, faces, origins, directions, mesh_offsets=offsets, min_hits=100)
+    check.check_against_reference(
+        hits, vertices, faces, origins, directions, mesh_offsets=offsets, min_hits=100
+    )
 
 
 @pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
@@ -320,7 +354,9 @@ def test_many_identical_triangles_tie_to_the_first(strategy):
     scene = dacrt.Scene([(v, np.repeat(f, 2000, axis=0))])
     rng = np.random.default_rng(16)
     targets = np.c_[rng.uniform(0.05, 0.45, (5000, 2)), np.zeros(5000)]
-    origins, directions = pg.rays_at(targets, pg.unit_vectors(5000, rng) * [0.5, 0.5, 0.1] + [0, 0, -1])
+    origins, directions = pg.rays_at(
+        targets, pg.unit_vectors(5000, rng) * [0.5, 0.5, 0.1] + [0, 0, -1]
+    )
     hits = scene.closest(origins, directions, strategy=strategy)
     np.testing.assert_array_equal(hits.prim, 0)
     np.testing.assert_allclose(hits.t, 1.0, rtol=1e-5)
@@ -328,7 +364,8 @@ def test_many_identical_triangles_tie_to_the_first(strategy):
 
 @pytest.mark.parametrize("first,second", [(0, 3), (4, 1), (2, 2)])
 def test_tie_goes_to_lowest_global_index(first, second):
-    """The same triangle twice (in one mesh, or once in each of two meshes): the lower index wins."""
+    """The same triangle twice (in one mesh, or once in each of two meshes): the lower index
+    wins."""
     rng = np.random.default_rng(first * 10 + second)
     tri_v, tri_f = pg.single_triangle()
     soup_v, soup_f = pg.triangle_soup(6, rng, extent=0.2, size=0.01)
@@ -346,7 +383,10 @@ def test_tie_goes_to_lowest_global_index(first, second):
         meshes = [(v, f)]
         expect_mesh, expect_prim = 0, min(first, second)
     scene = dacrt.Scene(meshes)
-    origins, directions = pg.rays_at(rng.uniform(0.05, 0.45, size=(64, 3)) * [1, 1, 0], pg.unit_vectors(64, rng) * [1, 1, 0.2] + [0, 0, -1])
+    origins, directions = pg.rays_at(
+        rng.uniform(0.05, 0.45, size=(64, 3)) * [1, 1, 0],
+        pg.unit_vectors(64, rng) * [1, 1, 0.2] + [0, 0, -1],
+    )
     for strategy in dacrt.STRATEGIES:
         hits = scene.closest(origins, directions, strategy=strategy)
         np.testing.assert_array_equal(hits.mesh, expect_mesh, err_msg=strategy)
@@ -373,7 +413,8 @@ def test_single_triangle_exact_hit_front_and_back():
 
 
 def test_origin_on_the_triangle_hits_at_t_zero():
-    """tmin <= t is inclusive: a ray starting on a triangle hits it at t = 0 (but not with tmin > 0)."""
+    """tmin <= t is inclusive: a ray starting on a triangle hits it at t = 0
+    (but not with tmin > 0)."""
     scene = dacrt.Scene([pg.single_triangle()])
     origins = np.float32([[0.25, 0.25, 0.0], [0.25, 0.25, 0.0]])
     directions = np.float32([[0, 0, 1], [0.5, 0.25, -1]])
@@ -391,7 +432,9 @@ def test_zero_rays_give_typed_empty_arrays(query):
     if query == "closest":
         hits = scene.closest(empty, empty)
         check.check_layout(hits, 0)
-        hits = scene.closest(empty, empty, np.zeros(0, np.float32), np.zeros(0, np.float32), stats=True)
+        hits = scene.closest(
+            empty, empty, np.zeros(0, np.float32), np.zeros(0, np.float32), stats=True
+        )
         check.check_layout(hits, 0)
         assert hits.stats["rays"] == 0
     else:
@@ -442,11 +485,18 @@ def test_degenerate_triangles_never_hit(seed):
     assert np.all(reference.degenerate(vertices, faces))
     scene = dacrt.Scene([(vertices, faces)])
     # Through each degenerate triangle's segment or point, from random and axis directions.
-    dirs = np.concatenate([pg.unit_vectors(len(targets), rng), np.tile(np.eye(3), (len(targets) // 3 + 1, 1))[: len(targets)]])
+    dirs = np.concatenate(
+        [
+            pg.unit_vectors(len(targets), rng),
+            np.tile(np.eye(3), (len(targets) // 3 + 1, 1))[: len(targets)],
+        ]
+    )
     origins, directions = pg.rays_at(np.concatenate([targets, targets]), dirs, distance=0.5)
     for strategy in dacrt.STRATEGIES:
         hits = scene.closest(origins, directions, strategy=strategy)
-        assert np.all(hits.prim == -1), f"{strategy}: degenerate triangles hit: {np.flatnonzero(hits.prim >= 0)[:5]}"
+        assert np.all(hits.prim == -1), (
+            f"{strategy}: degenerate triangles hit: {np.flatnonzero(hits.prim >= 0)[:5]}"
+        )
         assert not np.any(scene.occluded(origins, directions, strategy=strategy)), strategy
 
 
@@ -481,34 +531,47 @@ def test_no_false_hits_on_far_edge_on_slivers(seed, strategy):
     false = np.flatnonzero((hits.prim >= 0) & (loose.prim < 0))
     assert len(false) == 0, (
         f"{len(false)} false hits, first ray {false[0]}: origin {origins[false[0]].tolist()}, "
-        f"direction {directions[false[0]].tolist()}, engine prim {hits.prim[false[0]]} at t {hits.t[false[0]]}"
+        f"direction {directions[false[0]].tolist()}, "
+        f"engine prim {hits.prim[false[0]]} at t {hits.t[false[0]]}"
     )
     check.check_geometry(hits, vertices, faces, origins, directions)
 
 
 # Found on conference.npz (faces 57980, 62353, 62354): the three triangles form one leaf; the
 # ray passes 230 units from the first (a 6 mm sliver seen edge-on) and hits none of them.
-CONFERENCE_LEAF = np.array([
-    [1638.146728515625, 1015.1870727539062, -0.1397857666015625],
-    [1638.140380859375, 1015.1880493164062, -0.1397857666015625],
-    [1638.140380859375, 1015.1851196289062, -0.1339874267578125],
-    [-1017.9334106445312, 1042.62109375, 210.8332061767578],
-    [-1017.9334106445312, 1042.62109375, 650.2925415039062],
-    [-1020.1306762695312, 1035.880615234375, 210.8332061767578],
-    [1467.161865234375, -555.58837890625, 187.56381225585938],
-    [1469.047119140625, -555.58837890625, 181.7612762451172],
-    [1467.161865234375, -555.58837890625, 181.46266174316406],
-], dtype=np.float32)
-CONFERENCE_RAY = (np.float32([[55.33673095703125, 954.3300170898438, 600.7444458007812]]),
-                  np.float32([[0.9902759790420532, -0.10602521896362305, -0.09006760269403458]]))
+CONFERENCE_LEAF = np.array(
+    [
+        [1638.146728515625, 1015.1870727539062, -0.1397857666015625],
+        [1638.140380859375, 1015.1880493164062, -0.1397857666015625],
+        [1638.140380859375, 1015.1851196289062, -0.1339874267578125],
+        [-1017.9334106445312, 1042.62109375, 210.8332061767578],
+        [-1017.9334106445312, 1042.62109375, 650.2925415039062],
+        [-1020.1306762695312, 1035.880615234375, 210.8332061767578],
+        [1467.161865234375, -555.58837890625, 187.56381225585938],
+        [1469.047119140625, -555.58837890625, 181.7612762451172],
+        [1467.161865234375, -555.58837890625, 181.46266174316406],
+    ],
+    dtype=np.float32,
+)
+CONFERENCE_RAY = (
+    np.float32([[55.33673095703125, 954.3300170898438, 600.7444458007812]]),
+    np.float32([[0.9902759790420532, -0.10602521896362305, -0.09006760269403458]]),
+)
 
 
 @pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
 def test_conference_sliver_is_not_hit(strategy):
     scene = dacrt.Scene([(CONFERENCE_LEAF, np.arange(9).reshape(3, 3))])
-    assert reference.closest(CONFERENCE_LEAF, np.arange(9).reshape(3, 3), *CONFERENCE_RAY, eps=1e-2).prim[0] == -1
+    assert (
+        reference.closest(
+            CONFERENCE_LEAF, np.arange(9).reshape(3, 3), *CONFERENCE_RAY, eps=1e-2
+        ).prim[0]
+        == -1
+    )
     hits = scene.closest(*CONFERENCE_RAY, strategy=strategy)
-    assert hits.prim[0] == -1, f"false hit: prim {hits.prim[0]}, t {hits.t[0]}, u {hits.u[0]}, v {hits.v[0]}"
+    assert hits.prim[0] == -1, (
+        f"false hit: prim {hits.prim[0]}, t {hits.t[0]}, u {hits.u[0]}, v {hits.v[0]}"
+    )
     assert not scene.occluded(*CONFERENCE_RAY, strategy=strategy)[0]
 
 
@@ -516,8 +579,17 @@ def test_conference_sliver_is_not_hit(strategy):
 # Stats
 # ---------------------------------------------------------------------------------------------
 
-STAT_KEYS = ("rays", "triangles", "ray_box_tests", "ray_triangle_tests", "nodes", "leaves",
-             "sampled_nodes", "skipped_filterings", "max_depth")
+STAT_KEYS = (
+    "rays",
+    "triangles",
+    "ray_box_tests",
+    "ray_triangle_tests",
+    "nodes",
+    "leaves",
+    "sampled_nodes",
+    "skipped_filterings",
+    "max_depth",
+)
 
 
 def _check_stats(stats, n_rays):
@@ -526,7 +598,9 @@ def _check_stats(stats, n_rays):
     assert not missing, f"stats keys missing: {missing}"
     for key in STAT_KEYS:
         value = stats[key]
-        assert isinstance(value, int) and not isinstance(value, bool), f"stats[{key!r}] is {type(value).__name__}, not int"
+        assert isinstance(value, int) and not isinstance(value, bool), (
+            f"stats[{key!r}] is {type(value).__name__}, not int"
+        )
         assert value >= 0, f"stats[{key!r}] = {value} < 0"
     assert stats["rays"] == n_rays
 
@@ -560,10 +634,14 @@ def test_stats_counters(stats_scene, strategy, threads):
     assert stats["skipped_filterings"] <= stats["nodes"]
     assert 0 < stats["max_depth"] <= stats["nodes"]
     if strategy == "sampling":
-        assert stats["sampled_nodes"] > 0, "ray sampling never sampled on 10,800 rays x 5120 triangles"
+        assert stats["sampled_nodes"] > 0, (
+            "ray sampling never sampled on 10,800 rays x 5120 triangles"
+        )
     if strategy == "sah":
         assert stats["sampled_nodes"] == 0
-    occ, occ_stats = scene.occluded(origins, directions, strategy=strategy, threads=threads, stats=True)
+    occ, occ_stats = scene.occluded(
+        origins, directions, strategy=strategy, threads=threads, stats=True
+    )
     _check_stats(occ_stats, len(origins))
     np.testing.assert_array_equal(occ, hits.prim >= 0)
     assert occ_stats["ray_triangle_tests"] > 0
@@ -597,7 +675,8 @@ def test_occlusion_stops_at_the_first_hit(strategy):
     assert occ.all() and (hits.prim < len(f)).all(), "every ray should hit the first layer"
     assert occ_stats["ray_triangle_tests"] <= 1.25 * hits.stats["ray_triangle_tests"], (
         f"occlusion made {occ_stats['ray_triangle_tests']} triangle tests, closest hits "
-        f"{hits.stats['ray_triangle_tests']}: rays that are done went on")
+        f"{hits.stats['ray_triangle_tests']}: rays that are done went on"
+    )
 
 
 def test_stats_absent_unless_asked(stats_scene):

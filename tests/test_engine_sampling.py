@@ -19,8 +19,14 @@ def _records(origins, directions):
     origins = np.asarray(origins, np.float32)
     directions = np.asarray(directions, np.float32)
     rays = new_records(n)
-    assert pack_rays(origins, directions, np.zeros(n, np.float32), np.full(n, np.inf, np.float32),
-                     np.arange(n, dtype=np.int32), rays)
+    assert pack_rays(
+        origins,
+        directions,
+        np.zeros(n, np.float32),
+        np.full(n, np.inf, np.float32),
+        np.arange(n, dtype=np.int32),
+        rays,
+    )
     return rays, origins, directions
 
 
@@ -53,9 +59,18 @@ def test_sample_rays_counts_match_algorithm_2():
     left_count[[3, n_cand // 2 + 2]] = 0  # no triangles on one side: not a candidate
     right_count[n_cand - 2] = 0
     counts = np.full((3, PADDED_CANDIDATES), -7, np.int32)  # stale scratch
-    n_tests = sample_rays(rays, 0, n_rays, left_count, left_box.astype(np.float32), right_count,
-                          right_box.astype(np.float32), axis,
-                          np.empty((12, PADDED_CANDIDATES), np.float32), counts)
+    n_tests = sample_rays(
+        rays,
+        0,
+        n_rays,
+        left_count,
+        left_box.astype(np.float32),
+        right_count,
+        right_box.astype(np.float32),
+        axis,
+        np.empty((12, PADDED_CANDIDATES), np.float32),
+        counts,
+    )
     outputs = counts[:, :n_cand]
 
     picked = (np.arange(N_SAMPLE_RAYS) * n_rays) // N_SAMPLE_RAYS

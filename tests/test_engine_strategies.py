@@ -6,13 +6,12 @@ lowest global triangle index wins), so these tests compare whole result arrays b
 
 from __future__ import annotations
 
+import assertions as check
 import numpy as np
+import procedural as pg
 import pytest
 
 import dacrt
-
-import assertions as check
-import procedural as pg
 import scenes
 
 
@@ -25,8 +24,10 @@ def _grid_vertex_rays():
 
 
 def _inside_sphere():
-    (v, f), = scenes.sphere(40)
-    o, d = pg.rays_from_inside((0, 0, 0), 0.9 * pg.inner_radius(v, f), 3000, np.random.default_rng(40))
+    ((v, f),) = scenes.sphere(40)
+    o, d = pg.rays_from_inside(
+        (0, 0, 0), 0.9 * pg.inner_radius(v, f), 3000, np.random.default_rng(40)
+    )
     return [(v, f)], o, d, None, None
 
 
@@ -45,7 +46,7 @@ def _multi():
 
 def _duplicates():
     """A soup with every triangle twice (in both meshes too): every hit is a tie."""
-    (v, f), = scenes.soup(43)
+    ((v, f),) = scenes.soup(43)
     meshes = [(v, np.concatenate([f, f[::-1]])), (v, f)]
     return meshes, *scenes.mixed_rays(meshes, 43, n=2000), None, None
 
@@ -66,8 +67,10 @@ def _stacked(n_copies=64, n_rays=3000):
 
 def _many_rays():
     """40,000 rays from inside a sphere: enough for the engine to split the batch across threads."""
-    (v, f), = scenes.sphere(44)
-    o, d = pg.rays_from_inside((0, 0, 0), 0.9 * pg.inner_radius(v, f), 40_000, np.random.default_rng(44))
+    ((v, f),) = scenes.sphere(44)
+    o, d = pg.rays_from_inside(
+        (0, 0, 0), 0.9 * pg.inner_radius(v, f), 40_000, np.random.default_rng(44)
+    )
     return [(v, f)], o, d, None, None
 
 
@@ -123,8 +126,12 @@ def default_answers():
         if name not in cache:
             meshes, o, d, tmin, tmax = CASES[name]()
             scene = dacrt.Scene(meshes)
-            cache[name] = (scene, (o, d, tmin, tmax), scene.closest(o, d, tmin, tmax),
-                           scene.occluded(o, d, tmin, tmax))
+            cache[name] = (
+                scene,
+                (o, d, tmin, tmax),
+                scene.closest(o, d, tmin, tmax),
+                scene.occluded(o, d, tmin, tmax),
+            )
         return cache[name]
 
     return get
@@ -140,7 +147,9 @@ def test_strategy_and_threads_match_default(case, strategy, threads, default_ans
     check.assert_bitwise_equal(hits, closest, f"{strategy}, threads={threads} vs default")
     occ = scene.occluded(o, d, tmin, tmax, strategy=strategy, threads=threads)
     np.testing.assert_array_equal(occ, occluded, err_msg=f"occluded: {strategy}, threads={threads}")
-    np.testing.assert_array_equal(occ, np.isfinite(closest.t), err_msg="occluded != isfinite(closest.t)")
+    np.testing.assert_array_equal(
+        occ, np.isfinite(closest.t), err_msg="occluded != isfinite(closest.t)"
+    )
 
 
 @pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
@@ -159,11 +168,17 @@ def test_batch_split_does_not_change_answers(strategy, default_answers):
     half = len(o) // 2
     first = scene.closest(o[:half], d[:half], tmin[:half], tmax[:half], strategy=strategy)
     second = scene.closest(o[half:], d[half:], tmin[half:], tmax[half:], strategy=strategy)
-    joined = type(closest)(**{k: np.concatenate([getattr(first, k), getattr(second, k)])
-                              for k in ("t", "mesh", "prim", "u", "v", "normal")})
+    joined = type(closest)(
+        **{
+            k: np.concatenate([getattr(first, k), getattr(second, k)])
+            for k in ("t", "mesh", "prim", "u", "v", "normal")
+        }
+    )
     check.assert_bitwise_equal(joined, closest, f"{strategy}, two halves")
     rev = scene.closest(o[::-1], d[::-1], tmin[::-1], tmax[::-1], strategy=strategy)
-    reversed_back = type(closest)(**{k: getattr(rev, k)[::-1] for k in ("t", "mesh", "prim", "u", "v", "normal")})
+    reversed_back = type(closest)(
+        **{k: getattr(rev, k)[::-1] for k in ("t", "mesh", "prim", "u", "v", "normal")}
+    )
     check.assert_bitwise_equal(reversed_back, closest, f"{strategy}, reversed order")
 
 
@@ -211,11 +226,12 @@ def test_shared_rows_answer_as_when_rows_differ(case, strategy, default_answers)
     tmin_mixed[-1] = 0.125
     for threads in (1, 2):
         mixed = scene.closest(o_mixed, d_mixed, tmin_mixed, strategy=strategy, threads=threads)
-        head = type(closest)(**{k: getattr(mixed, k)[:len(o)]
-                                for k in ("t", "mesh", "prim", "u", "v", "normal")})
+        head = type(closest)(
+            **{k: getattr(mixed, k)[: len(o)] for k in ("t", "mesh", "prim", "u", "v", "normal")}
+        )
         check.assert_bitwise_equal(head, closest, f"{strategy}, threads={threads}")
         occ = scene.occluded(o_mixed, d_mixed, tmin_mixed, strategy=strategy, threads=threads)
-        np.testing.assert_array_equal(occ[:len(o)], occluded)
+        np.testing.assert_array_equal(occ[: len(o)], occluded)
 
 
 @pytest.mark.parametrize("threads", [1, 2])
@@ -265,8 +281,12 @@ def test_slabs_hold_fewer_rays_where_the_triangles_are_dense():
     n = 60_000
     origins = rng.uniform(-1, 1, (n, 3)).astype(np.float32)
     origins[:, 0] *= 3  # x is the widest axis
-    centres = np.concatenate([rng.uniform([-3, -1, -1], [0, 1, 1], (20_000, 3)),
-                              rng.uniform([0, -1, -1], [3, 1, 1], (40, 3))])
+    centres = np.concatenate(
+        [
+            rng.uniform([-3, -1, -1], [0, 1, 1], (20_000, 3)),
+            rng.uniform([0, -1, -1], [3, 1, 1], (40, 3)),
+        ]
+    )
     corners = np.repeat(centres, 3, axis=0) + rng.uniform(-0.01, 0.01, (3 * len(centres), 3))
     scene = Scene([(corners.astype(np.float32), np.arange(3 * len(centres)).reshape(-1, 3))])
     plan = scene._chunk_plan(origins, 2, keep_order=False)

@@ -1,4 +1,5 @@
-"""Invalid input raises ValueError, and the message names the first bad index and how many there are.
+"""Invalid input raises ValueError, and the message names the first bad index and how many there
+are.
 
 Bad rows are placed at FIRST_BAD and after it, N_BAD of them in all; numbers chosen so that they
 cannot appear in a message by accident.
@@ -9,16 +10,18 @@ from __future__ import annotations
 import re
 
 import numpy as np
+import procedural as pg
 import pytest
 
 import dacrt
 
-import procedural as pg
-
 N_RAYS = 400
 FIRST_BAD = 137
 N_BAD = 11
-BAD_ROWS = np.r_[FIRST_BAD, np.random.default_rng(0).choice(np.arange(FIRST_BAD + 1, N_RAYS), N_BAD - 1, replace=False)]
+BAD_ROWS = np.r_[
+    FIRST_BAD,
+    np.random.default_rng(0).choice(np.arange(FIRST_BAD + 1, N_RAYS), N_BAD - 1, replace=False),
+]
 
 
 def _mesh():
@@ -31,7 +34,9 @@ def _rays():
 
 def _mentions(message, *numbers):
     for number in numbers:
-        assert re.search(rf"(?<![\d.]){re.escape(str(number))}(?![\d.])", message), f"{number} not in message: {message!r}"
+        assert re.search(rf"(?<![\d.]){re.escape(str(number))}(?![\d.])", message), (
+            f"{number} not in message: {message!r}"
+        )
 
 
 def _run(query, meshes, origins, directions, tmin=None, tmax=None, **kwargs):
@@ -57,13 +62,38 @@ def _with_bad_rows(array, value, column=1):
 RAY_CASES = {
     "origin_nan": lambda o, d: (_with_bad_rows(o, np.nan), d, None, None),
     "origin_inf": lambda o, d: (_with_bad_rows(o, np.inf, 2), d, None, None),
-    "origin_too_large_for_float32": lambda o, d: (_with_bad_rows(o.astype(np.float64), 1e39), d, None, None),
+    "origin_too_large_for_float32": lambda o, d: (
+        _with_bad_rows(o.astype(np.float64), 1e39),
+        d,
+        None,
+        None,
+    ),
     "direction_nan": lambda o, d: (o, _with_bad_rows(d, np.nan, 0), None, None),
     "direction_neg_inf": lambda o, d: (o, _with_bad_rows(d, -np.inf), None, None),
-    "direction_zero": lambda o, d: (o, _with_bad_rows(_with_bad_rows(_with_bad_rows(d, 0.0, 0), 0.0, 1), 0.0, 2), None, None),
-    "tmin_gt_tmax": lambda o, d: (o, d, _with_bad_rows(np.zeros((N_RAYS, 2), np.float32), 2.0)[:, 1], np.ones(N_RAYS, np.float32)),
-    "tmin_nan": lambda o, d: (o, d, _with_bad_rows(np.zeros((N_RAYS, 2), np.float32), np.nan)[:, 1], None),
-    "tmax_nan": lambda o, d: (o, d, None, _with_bad_rows(np.ones((N_RAYS, 2), np.float32), np.nan)[:, 1]),
+    "direction_zero": lambda o, d: (
+        o,
+        _with_bad_rows(_with_bad_rows(_with_bad_rows(d, 0.0, 0), 0.0, 1), 0.0, 2),
+        None,
+        None,
+    ),
+    "tmin_gt_tmax": lambda o, d: (
+        o,
+        d,
+        _with_bad_rows(np.zeros((N_RAYS, 2), np.float32), 2.0)[:, 1],
+        np.ones(N_RAYS, np.float32),
+    ),
+    "tmin_nan": lambda o, d: (
+        o,
+        d,
+        _with_bad_rows(np.zeros((N_RAYS, 2), np.float32), np.nan)[:, 1],
+        None,
+    ),
+    "tmax_nan": lambda o, d: (
+        o,
+        d,
+        None,
+        _with_bad_rows(np.ones((N_RAYS, 2), np.float32), np.nan)[:, 1],
+    ),
 }
 
 

@@ -7,13 +7,13 @@ hits a shared vertex or edge. These tests fire such rays, for every strategy, an
 from __future__ import annotations
 
 import numpy as np
+import procedural as pg
 import pytest
 
 import dacrt
 
-import procedural as pg
-
 GRID_N = 16  # quads per side; a power of two keeps vertices and midpoints exact in float32
+
 
 def _grid(plane, alternate):
     """Grid vertices and faces, the plane's unit normal, and a matrix taking grid axes to world."""
@@ -36,12 +36,18 @@ def _grid(plane, alternate):
 @pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
 @pytest.mark.parametrize("direction", ["normal", "exact_oblique", "random_oblique"])
 @pytest.mark.parametrize("target", ["vertices", "midpoints", "centers"])
-@pytest.mark.parametrize("plane,alternate", [("flat", False), ("flat", True), ("jittered", True), ("tilted", True), ("far", True)])
-def test_rays_through_grid_vertices_and_edges_all_hit(plane, alternate, target, direction, strategy):
+@pytest.mark.parametrize(
+    "plane,alternate",
+    [("flat", False), ("flat", True), ("jittered", True), ("tilted", True), ("far", True)],
+)
+def test_rays_through_grid_vertices_and_edges_all_hit(
+    plane, alternate, target, direction, strategy
+):
     vertices, faces, _, to_world = _grid(plane, alternate)
     rng = np.random.default_rng(len(target) * 7 + len(direction))
-    origins, directions, targets = pg.grid_rays(vertices, faces, GRID_N, target, direction,
-                                                rng=rng, to_world=to_world, distance=0.5)
+    origins, directions, targets = pg.grid_rays(
+        vertices, faces, GRID_N, target, direction, rng=rng, to_world=to_world, distance=0.5
+    )
     scene = dacrt.Scene([(vertices, faces)])
     hits = scene.closest(origins, directions, strategy=strategy)
     missed = np.flatnonzero(hits.prim < 0)
@@ -97,7 +103,9 @@ def test_rays_from_centre_through_every_vertex_hit(kind, strategy):
     scene = dacrt.Scene([(vertices, faces)])
     hits = scene.closest(origins, directions, strategy=strategy)
     missed = np.flatnonzero(hits.prim < 0)
-    assert len(missed) == 0, f"{len(missed)} rays through vertices missed, first: vertex {missed[0]}"
+    assert len(missed) == 0, (
+        f"{len(missed)} rays through vertices missed, first: vertex {missed[0]}"
+    )
     np.testing.assert_allclose(hits.t, 1.0, rtol=1e-4)
     # The vertex is on the hit triangle: one of its corners.
     corner = np.any(faces[hits.prim] == np.arange(len(vertices))[:, None], axis=1)

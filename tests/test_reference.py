@@ -6,9 +6,8 @@ If these fail, the engine tests that lean on the helpers cannot be trusted.
 from __future__ import annotations
 
 import numpy as np
-import pytest
-
 import procedural as pg
+import pytest
 import reference
 
 
@@ -48,7 +47,9 @@ def test_reference_blocks_agree_with_one_block(monkeypatch):
         for x, y in zip(a if isinstance(a, tuple) else [a], b if isinstance(b, tuple) else [b]):
             np.testing.assert_array_equal(x, y)
     assert np.all(whole.exact.prim[whole.exact.hit] < 300), "a tie did not go to the lower index"
-    np.testing.assert_array_equal(whole.outer_second_t[whole.exact.hit], whole.outer.t[whole.exact.hit])
+    np.testing.assert_array_equal(
+        whole.outer_second_t[whole.exact.hit], whole.outer.t[whole.exact.hit]
+    )
 
 
 def test_reference_single_triangle_and_conventions():
@@ -60,7 +61,9 @@ def test_reference_single_triangle_and_conventions():
     np.testing.assert_allclose(hits.t, [2.0, 1.0, np.inf, np.inf])
     np.testing.assert_allclose(hits.u, [0.25, 0.25, 0, 0])
     np.testing.assert_allclose(hits.v, [0.5, 0.5, 0, 0])
-    np.testing.assert_allclose(reference.normals(v, f, hits.prim), [[0, 0, 1], [0, 0, 1], [0, 0, 0], [0, 0, 0]])
+    np.testing.assert_allclose(
+        reference.normals(v, f, hits.prim), [[0, 0, 1], [0, 0, 1], [0, 0, 0], [0, 0, 0]]
+    )
     empty = reference.closest(v, f, np.zeros((0, 3)), np.zeros((0, 3)))
     assert empty.t.shape == (0,) and empty.prim.dtype == np.int64
 

@@ -1,4 +1,5 @@
 """Operations: /health, /metrics (no token), /v1/capabilities."""
+
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Request, Response
@@ -12,12 +13,23 @@ router = APIRouter(tags=["operations"])
 unauthenticated = [Depends(reject_unknown_query)]
 
 
-@router.get("/health", dependencies=unauthenticated, responses={
-    503: {"description": "the engine is compiling (starting) or failed to (error)"}})
+@router.get(
+    "/health",
+    dependencies=unauthenticated,
+    responses={503: {"description": "the engine is compiling (starting) or failed to (error)"}},
+)
 async def health(request: Request) -> JSONResponse:
-    """200 ``{"status": "ok", ...}`` once the engine is compiled; 503 ``starting``/``error`` before."""
+    # one string, so that the OpenAPI description stays one line
+    (
+        """200 ``{"status": "ok", ...}`` once the engine is compiled; """
+        """503 ``starting``/``error`` before."""
+    )
     ready = request.app.state.readiness
-    body = {"status": ready.status, "service": __version__, "scenes": len(store_of(request).snapshots())}
+    body = {
+        "status": ready.status,
+        "service": __version__,
+        "scenes": len(store_of(request).snapshots()),
+    }
     if ready.seconds is not None:
         body["warmup_seconds"] = round(ready.seconds, 3)
     if ready.error:
@@ -25,16 +37,24 @@ async def health(request: Request) -> JSONResponse:
     return JSONResponse(body, status_code=200 if ready.status == "ok" else 503)
 
 
-@router.get("/metrics", dependencies=unauthenticated, response_class=PlainTextResponse,
-            responses={200: {"description": "Prometheus text format"}})
+@router.get(
+    "/metrics",
+    dependencies=unauthenticated,
+    response_class=PlainTextResponse,
+    responses={200: {"description": "Prometheus text format"}},
+)
 async def metrics(request: Request) -> Response:
     return Response(generate_latest(metrics_of(request).registry), media_type=CONTENT_TYPE_LATEST)
 
 
-@router.get("/v1/capabilities", dependencies=[Depends(require_token), Depends(reject_unknown_query)],
-            responses=openapi.errors(401, 422))
+@router.get(
+    "/v1/capabilities",
+    dependencies=[Depends(require_token), Depends(reject_unknown_query)],
+    responses=openapi.errors(401, 422),
+)
 async def capabilities(request: Request) -> dict:
     """Formats, fields, strategies and the limits in force."""
+
     def media(formats):
         return [wire.MEDIA_TYPES[f] for f in formats]
 
@@ -46,9 +66,14 @@ async def capabilities(request: Request) -> dict:
         "strategies": list(tracing.strategies()),
         "default_strategy": tracing.strategies()[0],
         "cull": list(tracing.CULL_MODES),
-        "formats": {"rays": media(wire.RAY_FORMATS), "meshes": media(wire.MESH_FORMATS),
-                    "vertices": media(wire.VERTEX_FORMATS), "frame": media(wire.FRAME_FORMATS),
-                    "trace": media(wire.TRACE_FORMATS), "answers": media(wire.ANSWER_FORMATS)},
+        "formats": {
+            "rays": media(wire.RAY_FORMATS),
+            "meshes": media(wire.MESH_FORMATS),
+            "vertices": media(wire.VERTEX_FORMATS),
+            "frame": media(wire.FRAME_FORMATS),
+            "trace": media(wire.TRACE_FORMATS),
+            "answers": media(wire.ANSWER_FORMATS),
+        },
         "limits": settings.limits(),
         "auth": settings.token is not None,
         "threads": settings.threads,

@@ -1,4 +1,5 @@
 """Ray queries: closest and occluded on a stored scene, and the one-shot /trace."""
+
 from __future__ import annotations
 
 import json
@@ -7,67 +8,111 @@ from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request
 
 from .. import openapi, tracing, wire
-from ..deps import (metrics_of, read_body, reject_unknown_query, require_token, settings_of,
-                    store_of)
-from ..params import (Cull, Fields, QueryKind, RayFormat, SceneName, Stats, Strategy,
-                      TraceFormat)
+from ..deps import metrics_of, read_body, reject_unknown_query, require_token, settings_of, store_of
+from ..params import Cull, Fields, QueryKind, RayFormat, SceneName, Stats, Strategy, TraceFormat
 from ..responses import BuffersResponse
 from ..store import check_name
 from ..timing import ServerTiming
 from ..tracing import Query
 
-router = APIRouter(prefix="/v1", tags=["queries"], dependencies=[Depends(require_token),
-                   Depends(reject_unknown_query)])
+router = APIRouter(
+    prefix="/v1",
+    tags=["queries"],
+    dependencies=[Depends(require_token), Depends(reject_unknown_query)],
+)
 
 
-RAYS_BODY = openapi.request_body(wire.RAY_FORMATS, openapi.RAYS_JSON,
-                                 "rays: .npy (N, 6) or (N, 8) float32, .npz or JSON")
-TRACE_BODY = openapi.request_body(wire.TRACE_FORMATS, openapi.TRACE_JSON,
-                                  "a mesh and rays: .npz or JSON")
+RAYS_BODY = openapi.request_body(
+    wire.RAY_FORMATS, openapi.RAYS_JSON, "rays: .npy (N, 6) or (N, 8) float32, .npz or JSON"
+)
+TRACE_BODY = openapi.request_body(
+    wire.TRACE_FORMATS, openapi.TRACE_JSON, "a mesh and rays: .npz or JSON"
+)
 QUERY_ERRORS = openapi.errors(400, 401, 404, 406, 408, 413, 415, 422)
 
 
-@router.post("/scenes/{scene}/closest", openapi_extra=RAYS_BODY, response_class=BuffersResponse,
-             responses={**openapi.answers("t, mesh, prim, u, v, normal per ray"), **QUERY_ERRORS})
-async def closest(scene: SceneName, request: Request, fields: Fields = None,
-                  strategy: Strategy = None, stats: Stats = False, cull: Cull = "none",
-                  format: RayFormat = None):
+@router.post(
+    "/scenes/{scene}/closest",
+    openapi_extra=RAYS_BODY,
+    response_class=BuffersResponse,
+    responses={**openapi.answers("t, mesh, prim, u, v, normal per ray"), **QUERY_ERRORS},
+)
+async def closest(
+    scene: SceneName,
+    request: Request,
+    fields: Fields = None,
+    strategy: Strategy = None,
+    stats: Stats = False,
+    cull: Cull = "none",
+    format: RayFormat = None,
+):
     """The nearest hit of each ray."""
-    options = tracing.make_options(Query.CLOSEST, fields, strategy, stats, settings_of(request).threads, cull)
+    options = tracing.make_options(
+        Query.CLOSEST, fields, strategy, stats, settings_of(request).threads, cull
+    )
     return await answer(request, options, scene, format)
 
 
-@router.post("/scenes/{scene}/occluded", openapi_extra=RAYS_BODY, response_class=BuffersResponse,
-             responses={**openapi.answers("occluded per ray"), **QUERY_ERRORS})
-async def occluded(scene: SceneName, request: Request, fields: Fields = None,
-                   strategy: Strategy = None, stats: Stats = False, cull: Cull = "none",
-                   format: RayFormat = None):
+@router.post(
+    "/scenes/{scene}/occluded",
+    openapi_extra=RAYS_BODY,
+    response_class=BuffersResponse,
+    responses={**openapi.answers("occluded per ray"), **QUERY_ERRORS},
+)
+async def occluded(
+    scene: SceneName,
+    request: Request,
+    fields: Fields = None,
+    strategy: Strategy = None,
+    stats: Stats = False,
+    cull: Cull = "none",
+    format: RayFormat = None,
+):
     """Whether each ray hits anything in [tmin, tmax]."""
-    options = tracing.make_options(Query.OCCLUDED, fields, strategy, stats, settings_of(request).threads, cull)
+    options = tracing.make_options(
+        Query.OCCLUDED, fields, strategy, stats, settings_of(request).threads, cull
+    )
     return await answer(request, options, scene, format)
 
 
-@router.post("/trace", openapi_extra=TRACE_BODY, response_class=BuffersResponse,
-             responses={**openapi.answers("the answer of the query"), **QUERY_ERRORS})
-async def trace(request: Request, query: QueryKind = "closest", fields: Fields = None,
-                strategy: Strategy = None, stats: Stats = False, cull: Cull = "none",
-                format: TraceFormat = None):
+@router.post(
+    "/trace",
+    openapi_extra=TRACE_BODY,
+    response_class=BuffersResponse,
+    responses={**openapi.answers("the answer of the query"), **QUERY_ERRORS},
+)
+async def trace(
+    request: Request,
+    query: QueryKind = "closest",
+    fields: Fields = None,
+    strategy: Strategy = None,
+    stats: Stats = False,
+    cull: Cull = "none",
+    format: TraceFormat = None,
+):
     """A stateless one-shot: the mesh comes with the rays (answers carry X-Scene-Version: 0)."""
-    options = tracing.make_options(query, fields, strategy, stats, settings_of(request).threads, cull)
+    options = tracing.make_options(
+        query, fields, strategy, stats, settings_of(request).threads, cull
+    )
     return await answer(request, options, None, format)
 
 
-async def answer(request: Request, options: tracing.Options, scene: str | None,
-                 format: str | None) -> BuffersResponse:
+async def answer(
+    request: Request, options: tracing.Options, scene: str | None, format: str | None
+) -> BuffersResponse:
     """Read, decode, trace and encode one batch; the last three off the event loop."""
     settings, store, timing = settings_of(request), store_of(request), ServerTiming()
     if scene is not None:
         store.snapshot(check_name("scene", scene))  # 404 before reading the body
     with timing("receive"):
         body = await read_body(request)
-    fmt = wire.resolve_format(request.headers.get("content-type"), format,
-                              wire.RAY_FORMATS if scene is not None else wire.TRACE_FORMATS, body,
-                              f"POST {request.url.path}")
+    fmt = wire.resolve_format(
+        request.headers.get("content-type"),
+        format,
+        wire.RAY_FORMATS if scene is not None else wire.TRACE_FORMATS,
+        body,
+        f"POST {request.url.path}",
+    )
     answer_format = wire.negotiate(request.headers.get("accept"), fmt)
     limits = {"max_rays": settings.max_rays_per_request, "max_bytes": settings.max_body_bytes}
 
@@ -78,8 +123,11 @@ async def answer(request: Request, options: tracing.Options, scene: str | None,
             else:
                 rays = wire.decode_rays(body, fmt, **limits)
         with timing("trace"):
-            result = (tracing.trace(store.snapshot(scene), rays, options) if scene is not None
-                      else tracing.trace_once(mesh, rays, options))
+            result = (
+                tracing.trace(store.snapshot(scene), rays, options)
+                if scene is not None
+                else tracing.trace_once(mesh, rays, options)
+            )
         with timing("encode"):
             content, length, media = wire.encode_answer(result.arrays, answer_format)
         return result, len(rays), content, length, media

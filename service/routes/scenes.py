@@ -1,4 +1,5 @@
 """Scenes and meshes: upload, deform, frame, inspect, delete."""
+
 from __future__ import annotations
 
 from functools import partial
@@ -12,48 +13,80 @@ from ..errors import Invalid
 from ..params import FrameFormat, Mask, MeshFormat, MeshName, SceneName, VertexFormat
 from ..store import check_name
 
-router = APIRouter(prefix="/v1/scenes", tags=["scenes"], dependencies=[Depends(require_token),
-                   Depends(reject_unknown_query)])
+router = APIRouter(
+    prefix="/v1/scenes",
+    tags=["scenes"],
+    dependencies=[Depends(require_token), Depends(reject_unknown_query)],
+)
 
 
-MESH_BODY = openapi.request_body(wire.MESH_FORMATS, openapi.MESH_JSON,
-                                 "a mesh: .npz, JSON or a mesh file (OBJ, PLY, STL, GLB, OFF)")
-VERTICES_BODY = openapi.request_body(wire.VERTEX_FORMATS, openapi.VERTICES_JSON,
-                                     "vertex positions, as many as the mesh has")
-FRAME_BODY = openapi.request_body(wire.FRAME_FORMATS, openapi.FRAME_JSON,
-                                  "MESH.vertices (and MESH.faces) for several meshes")
+MESH_BODY = openapi.request_body(
+    wire.MESH_FORMATS,
+    openapi.MESH_JSON,
+    "a mesh: .npz, JSON or a mesh file (OBJ, PLY, STL, GLB, OFF)",
+)
+VERTICES_BODY = openapi.request_body(
+    wire.VERTEX_FORMATS, openapi.VERTICES_JSON, "vertex positions, as many as the mesh has"
+)
+FRAME_BODY = openapi.request_body(
+    wire.FRAME_FORMATS, openapi.FRAME_JSON, "MESH.vertices (and MESH.faces) for several meshes"
+)
 CHANGE_ERRORS = openapi.errors(400, 401, 404, 408, 409, 413, 415, 422)
 READ_ERRORS = openapi.errors(401, 404, 422)
 
 
-@router.put("/{scene}/meshes/{mesh}", openapi_extra=MESH_BODY, status_code=200,
-            responses={201: {"description": "a new mesh: its info"}, **CHANGE_ERRORS})
-async def put_mesh(scene: SceneName, mesh: MeshName, request: Request, response: Response,
-                   format: MeshFormat = None, mask: Mask = None) -> dict:
+@router.put(
+    "/{scene}/meshes/{mesh}",
+    openapi_extra=MESH_BODY,
+    status_code=200,
+    responses={201: {"description": "a new mesh: its info"}, **CHANGE_ERRORS},
+)
+async def put_mesh(
+    scene: SceneName,
+    mesh: MeshName,
+    request: Request,
+    response: Response,
+    format: MeshFormat = None,
+    mask: Mask = None,
+) -> dict:
     """Add or replace a mesh (201 new / 200 replaced); creates the scene if needed."""
     check_name("scene", scene), check_name("mesh", mesh)
     if mask is not None:
         raise Invalid("?mask= (visibility masks) is not supported by this server yet")
     body = await read_body(request)
-    fmt = wire.resolve_format(request.headers.get("content-type"), format, wire.MESH_FORMATS,
-                              body, "PUT /v1/scenes/{scene}/meshes/{mesh}")
-    arrays = await run_sync(partial(wire.decode_mesh, body, fmt, settings_of(request).max_body_bytes))
+    fmt = wire.resolve_format(
+        request.headers.get("content-type"),
+        format,
+        wire.MESH_FORMATS,
+        body,
+        "PUT /v1/scenes/{scene}/meshes/{mesh}",
+    )
+    arrays = await run_sync(
+        partial(wire.decode_mesh, body, fmt, settings_of(request).max_body_bytes)
+    )
     stored, created = await run_sync(store_of(request).put_mesh, scene, mesh, arrays)
     response.status_code = 201 if created else 200
     return stored.info(scene)
 
 
-@router.put("/{scene}/meshes/{mesh}/vertices", openapi_extra=VERTICES_BODY,
-            responses=CHANGE_ERRORS)
-async def put_vertices(scene: SceneName, mesh: MeshName, request: Request,
-                       format: VertexFormat = None) -> dict:
+@router.put("/{scene}/meshes/{mesh}/vertices", openapi_extra=VERTICES_BODY, responses=CHANGE_ERRORS)
+async def put_vertices(
+    scene: SceneName, mesh: MeshName, request: Request, format: VertexFormat = None
+) -> dict:
     """New vertex positions for a mesh, same count (409 otherwise); faces are kept."""
     check_name("scene", scene), check_name("mesh", mesh)
     store_of(request).snapshot(scene).mesh(mesh)  # 404 before reading the body
     body = await read_body(request)
-    fmt = wire.resolve_format(request.headers.get("content-type"), format, wire.VERTEX_FORMATS,
-                              body, "PUT /v1/scenes/{scene}/meshes/{mesh}/vertices")
-    vertices = await run_sync(partial(wire.decode_vertices, body, fmt, settings_of(request).max_body_bytes))
+    fmt = wire.resolve_format(
+        request.headers.get("content-type"),
+        format,
+        wire.VERTEX_FORMATS,
+        body,
+        "PUT /v1/scenes/{scene}/meshes/{mesh}/vertices",
+    )
+    vertices = await run_sync(
+        partial(wire.decode_vertices, body, fmt, settings_of(request).max_body_bytes)
+    )
     stored = await run_sync(store_of(request).update_vertices, scene, mesh, vertices)
     return stored.info(scene)
 
@@ -63,9 +96,16 @@ async def post_frame(scene: SceneName, request: Request, format: FrameFormat = N
     """Change several meshes in one version, atomically."""
     check_name("scene", scene)
     body = await read_body(request)
-    fmt = wire.resolve_format(request.headers.get("content-type"), format, wire.FRAME_FORMATS,
-                              body, "POST /v1/scenes/{scene}/frame")
-    frame = await run_sync(partial(wire.decode_frame, body, fmt, settings_of(request).max_body_bytes))
+    fmt = wire.resolve_format(
+        request.headers.get("content-type"),
+        format,
+        wire.FRAME_FORMATS,
+        body,
+        "POST /v1/scenes/{scene}/frame",
+    )
+    frame = await run_sync(
+        partial(wire.decode_frame, body, fmt, settings_of(request).max_body_bytes)
+    )
     snapshot = await run_sync(store_of(request).apply_frame, scene, frame)
     return snapshot.info()
 

@@ -5,6 +5,7 @@ minute; later starts load the cache): ``server`` with default settings, ``secure
 bearer token and tiny limits, and ``hostile_server`` for the hostile corpus, all configured
 through DACRT_* environment variables.
 """
+
 from __future__ import annotations
 
 import re
@@ -13,10 +14,10 @@ import uuid
 import httpx
 import numpy as np
 import pytest
-
-from service.client import Client
 from server_process import ServerProcess
 from service_helpers import HOSTILE_BODY_LIMIT, REPO, SECURE_LIMITS, TOKEN
+
+from service.client import Client
 
 
 @pytest.fixture(scope="session")
@@ -37,9 +38,11 @@ def scene_name(request) -> str:
 @pytest.fixture(scope="session")
 def _servers():
     """Start the servers at once so that their warm-ups overlap; stop them at the end."""
-    processes = {"plain": ServerProcess({}),
-                 "secure": ServerProcess({"DACRT_TOKEN": TOKEN, **SECURE_LIMITS}),
-                 "hostile": ServerProcess({"DACRT_MAX_BODY_BYTES": HOSTILE_BODY_LIMIT})}
+    processes = {
+        "plain": ServerProcess({}),
+        "secure": ServerProcess({"DACRT_TOKEN": TOKEN, **SECURE_LIMITS}),
+        "hostile": ServerProcess({"DACRT_MAX_BODY_BYTES": HOSTILE_BODY_LIMIT}),
+    }
     yield processes
     for process in processes.values():
         process.stop()

@@ -2,6 +2,7 @@
 
 Shared by the in-process wire tests and the corpus run against a real server.
 """
+
 from __future__ import annotations
 
 import functools
@@ -9,7 +10,6 @@ import struct
 import zlib
 
 import numpy as np
-
 from service_helpers import npy_bytes
 
 _LOCAL = struct.Struct("<4s2B4HL2L2H")
@@ -21,7 +21,7 @@ ENCRYPTED = 0x1
 
 def npy_with_header(descr, shape, data: bytes = b"") -> bytes:
     """A version 1.0 .npy whose header says ``descr`` and ``shape``, followed by ``data``."""
-    header = "{'descr': %r, 'fortran_order': False, 'shape': %r, }" % (descr, shape)
+    header = f"{{'descr': {descr!r}, 'fortran_order': False, 'shape': {shape!r}, }}"
     header += " " * (63 - len(header) % 64) + "\n"
     return b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header.encode() + data
 
@@ -38,19 +38,53 @@ def raw_zip(members: list[dict], directory: list[dict] | None = None) -> bytes:
     for m in members:
         name = m["name"].encode()
         offsets.append(len(body))
-        body += _LOCAL.pack(b"PK\x03\x04", 20, 0, m.get("flags", 0), m.get("method", STORED), 0,
-                            33, m.get("crc", zlib.crc32(m["payload"])), len(m["payload"]),
-                            m.get("size", len(m["payload"])), len(name), 0) + name + m["payload"]
+        body += (
+            _LOCAL.pack(
+                b"PK\x03\x04",
+                20,
+                0,
+                m.get("flags", 0),
+                m.get("method", STORED),
+                0,
+                33,
+                m.get("crc", zlib.crc32(m["payload"])),
+                len(m["payload"]),
+                m.get("size", len(m["payload"])),
+                len(name),
+                0,
+            )
+            + name
+            + m["payload"]
+        )
     entries = directory if directory is not None else [{"member": i} for i in range(len(members))]
     central = b""
     for entry in entries:
         m = members[entry["member"]]
         name = entry.get("name", m["name"]).encode()
-        central += _CENTRAL.pack(b"PK\x01\x02", 20, 0, 20, 0, m.get("flags", 0),
-                                 m.get("method", STORED), 0, 33,
-                                 m.get("crc", zlib.crc32(m["payload"])), len(m["payload"]),
-                                 m.get("size", len(m["payload"])), len(name), 0, 0, 0, 0, 0,
-                                 offsets[entry["member"]]) + name
+        central += (
+            _CENTRAL.pack(
+                b"PK\x01\x02",
+                20,
+                0,
+                20,
+                0,
+                m.get("flags", 0),
+                m.get("method", STORED),
+                0,
+                33,
+                m.get("crc", zlib.crc32(m["payload"])),
+                len(m["payload"]),
+                m.get("size", len(m["payload"])),
+                len(name),
+                0,
+                0,
+                0,
+                0,
+                0,
+                offsets[entry["member"]],
+            )
+            + name
+        )
     end = _END.pack(b"PK\x05\x06", 0, 0, len(entries), len(entries), len(central), len(body), 0)
     return body + central + end
 
@@ -62,8 +96,10 @@ def raw_deflater():
 def deflate_zeros(compressor, size: int) -> bytes:
     """The rest of ``compressor``'s stream after ``size`` more zero bytes (about 1/1000 of it)."""
     chunk = bytes(min(size, 16 << 20))
-    parts = [compressor.compress(chunk[:min(len(chunk), size - done)])
-             for done in range(0, size, len(chunk))]
+    parts = [
+        compressor.compress(chunk[: min(len(chunk), size - done)])
+        for done in range(0, size, len(chunk))
+    ]
     return b"".join(parts) + compressor.flush()
 
 
@@ -85,22 +121,36 @@ def ray_npy(n: int = 2) -> bytes:
 
 def zip_bomb(inflated: int, declared: int = 1024) -> bytes:
     """One member that declares ``declared`` bytes but inflates to ``inflated``."""
-    return raw_zip([{"name": "origins.npy", "payload": deflated_zeros(inflated),
-                     "method": DEFLATED, "size": declared}])
+    return raw_zip(
+        [
+            {
+                "name": "origins.npy",
+                "payload": deflated_zeros(inflated),
+                "method": DEFLATED,
+                "size": declared,
+            }
+        ]
+    )
 
 
 def overlapping_zip(entries: int = 50) -> bytes:
     """One deflate stream behind many central-directory entries, each a valid small .npy."""
     data = ray_npy(2)
-    member = {"name": "origins.npy", "payload": deflate(data), "method": DEFLATED,
-              "size": len(data), "crc": zlib.crc32(data)}
+    member = {
+        "name": "origins.npy",
+        "payload": deflate(data),
+        "method": DEFLATED,
+        "size": len(data),
+        "crc": zlib.crc32(data),
+    }
     return raw_zip([member], [{"member": 0, "name": f"m{i}.npy"} for i in range(entries)])
 
 
 def duplicate_zip() -> bytes:
     data = npy_bytes(np.zeros((1, 3), np.float32))
-    return raw_zip([{"name": "origins.npy", "payload": data}, {"name": "origins.npy",
-                                                               "payload": data}])
+    return raw_zip(
+        [{"name": "origins.npy", "payload": data}, {"name": "origins.npy", "payload": data}]
+    )
 
 
 def encrypted_zip() -> bytes:
@@ -120,12 +170,20 @@ def honest_big_zip(inflated: int) -> bytes:
     compressor = raw_deflater()
     stream = compressor.compress(header) + deflate_zeros(compressor, size)
     crc = zlib.crc32(bytes(size), zlib.crc32(header))
-    return raw_zip([{"name": "origins.npy", "payload": stream, "method": DEFLATED,
-                     "size": len(header) + size, "crc": crc}])
+    return raw_zip(
+        [
+            {
+                "name": "origins.npy",
+                "payload": stream,
+                "method": DEFLATED,
+                "size": len(header) + size,
+                "crc": crc,
+            }
+        ]
+    )
 
 
 def deep_json(key: str, depth: int) -> bytes:
     """``{key: [[[...]]], ...}`` nested ``depth`` lists deep, with the other ray key valid."""
     other = "directions" if key == "origins" else "origins"
     return (f'{{"{key}": ' + "[" * depth + "]" * depth + f', "{other}": [[0, 0, 1]]}}').encode()
-

@@ -1,4 +1,5 @@
 """A real server in a subprocess, started the way users start it, for the service tests."""
+
 from __future__ import annotations
 
 import os
@@ -10,7 +11,6 @@ import time
 
 import httpx
 import pytest
-
 from service_helpers import REPO
 
 STARTUP_SECONDS = 180
@@ -29,12 +29,18 @@ class ServerProcess:
         # settings come only from ``env``, whatever DACRT_* the test run itself has
         inherited = {k: v for k, v in os.environ.items() if not k.upper().startswith("DACRT_")}
         pythonpath = os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])
-        where = {"DACRT_HOST": "127.0.0.1", "DACRT_PORT": str(self.port),
-                 "DACRT_LOAD_DEMO": "false"}
+        where = {
+            "DACRT_HOST": "127.0.0.1",
+            "DACRT_PORT": str(self.port),
+            "DACRT_LOAD_DEMO": "false",
+        }
         self.process = subprocess.Popen(
             [sys.executable, "-m", "service"],
-            cwd=REPO, env={**inherited, "PYTHONPATH": pythonpath, **where, **env},
-            stdout=self.log, stderr=subprocess.STDOUT)
+            cwd=REPO,
+            env={**inherited, "PYTHONPATH": pythonpath, **where, **env},
+            stdout=self.log,
+            stderr=subprocess.STDOUT,
+        )
 
     def output(self, last: int = 4000) -> str:
         """The last ``last`` characters the server printed."""

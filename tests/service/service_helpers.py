@@ -1,4 +1,6 @@
-"""Meshes, rays and paths shared by the service tests (a module, not a conftest, so tests import it)."""
+"""Meshes, rays and paths shared by the service tests (a module, not a conftest, so tests import
+it)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -9,8 +11,12 @@ REPO = Path(__file__).resolve().parents[2]
 SHARED_SCENES = REPO.parent / "shared" / "scenes"
 #: The second test server's bearer token and limits (tiny, so that 413s are cheap to provoke).
 TOKEN = "test-token-3f9a"
-SECURE_LIMITS = {"DACRT_MAX_BODY_BYTES": "64KiB", "DACRT_MAX_RAYS_PER_REQUEST": "1000",
-                 "DACRT_MAX_TRIANGLES_PER_SCENE": "1000", "DACRT_MAX_SCENE_BYTES": "40000"}
+SECURE_LIMITS = {
+    "DACRT_MAX_BODY_BYTES": "64KiB",
+    "DACRT_MAX_RAYS_PER_REQUEST": "1000",
+    "DACRT_MAX_TRIANGLES_PER_SCENE": "1000",
+    "DACRT_MAX_SCENE_BYTES": "40000",
+}
 #: The hostile corpus server's body limit: a zip bomb under it could inflate to gigabytes.
 HOSTILE_BODY_LIMIT = "4MiB"
 
@@ -27,7 +33,12 @@ def grid(n: int, z: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     x, y = np.meshgrid(xs, xs, indexing="ij")
     vertices = np.stack([x.ravel(), y.ravel(), np.full(x.size, z, np.float32)], axis=1)
     ids = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
-    a, b, c, d = ids[:-1, :-1].ravel(), ids[1:, :-1].ravel(), ids[1:, 1:].ravel(), ids[:-1, 1:].ravel()
+    a, b, c, d = (
+        ids[:-1, :-1].ravel(),
+        ids[1:, :-1].ravel(),
+        ids[1:, 1:].ravel(),
+        ids[:-1, 1:].ravel(),
+    )
     faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int32)
     return vertices, faces
 
@@ -40,21 +51,24 @@ def down_rays(xy: np.ndarray, z: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
     return origins, directions
 
 
-def rays_at(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int = 0,
-            distance: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
-    """Rays from random points outside a mesh's bounds towards random points inside its triangles."""
+def rays_at(
+    vertices: np.ndarray, faces: np.ndarray, n: int, seed: int = 0, distance: float = 3.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rays from random points outside a mesh's bounds towards random points inside its
+    triangles."""
     rng = np.random.default_rng(seed)
     lo, hi = vertices.min(0), vertices.max(0)
     centre, radius = (lo + hi) / 2, np.linalg.norm(hi - lo) / 2
     tri = faces[rng.integers(0, len(faces), n)]
     w = rng.uniform(0.1, 0.45, (n, 2))
-    targets = (vertices[tri[:, 0]] * (1 - w.sum(1, keepdims=True)) + vertices[tri[:, 1]] * w[:, :1]
-               + vertices[tri[:, 2]] * w[:, 1:])
+    targets = (
+        vertices[tri[:, 0]] * (1 - w.sum(1, keepdims=True))
+        + vertices[tri[:, 1]] * w[:, :1]
+        + vertices[tri[:, 2]] * w[:, 1:]
+    )
     away = rng.normal(size=(n, 3))
     origins = centre + distance * radius * away / np.linalg.norm(away, axis=1, keepdims=True)
     return origins.astype(np.float32), (targets - origins).astype(np.float32)
-
-
 
 
 def npy_bytes(array) -> bytes:

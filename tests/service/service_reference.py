@@ -3,6 +3,7 @@
 Imports nothing from dacrt or service: it is the reference the service's answers are checked
 against. Ties in t go to the lowest triangle index; zero-area triangles never hit.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,8 +25,8 @@ def closest(vertices, faces, origins, directions, tmin=0.0, tmax=np.inf):
     has_area = np.linalg.norm(np.cross(e1, e2), axis=1) > 0
     step = max(1, 4_000_000 // len(faces))
     for lo in range(0, n, step):
-        o = origins[lo:lo + step, None, :]
-        d = directions[lo:lo + step, None, :]
+        o = origins[lo : lo + step, None, :]
+        d = directions[lo : lo + step, None, :]
         pvec = np.cross(d, e2)
         det = np.einsum("rtk,tk->rt", pvec, e1)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -35,11 +36,18 @@ def closest(vertices, faces, origins, directions, tmin=0.0, tmax=np.inf):
             qvec = np.cross(tvec, e1)
             v = np.einsum("rtk,rtk->rt", d, qvec) * inv
             dist = np.einsum("tk,rtk->rt", e2, qvec) * inv
-        ok = (has_area & (det != 0) & (u >= 0) & (v >= 0) & (u + v <= 1)
-              & (dist >= tmin[lo:lo + step, None]) & (dist <= tmax[lo:lo + step, None]))
+        ok = (
+            has_area
+            & (det != 0)
+            & (u >= 0)
+            & (v >= 0)
+            & (u + v <= 1)
+            & (dist >= tmin[lo : lo + step, None])
+            & (dist <= tmax[lo : lo + step, None])
+        )
         dist = np.where(ok, dist, np.inf)
         best = np.argmin(dist, axis=1)  # first minimum: the lowest index wins a tie
         best_t = dist[np.arange(len(best)), best]
-        t[lo:lo + step] = best_t
-        prim[lo:lo + step] = np.where(np.isfinite(best_t), best, -1)
+        t[lo : lo + step] = best_t
+        prim[lo : lo + step] = np.where(np.isfinite(best_t), best, -1)
     return t, prim

@@ -1,4 +1,5 @@
 """The app in-process: health before and after warm-up, the demo scene, the error shape."""
+
 from __future__ import annotations
 
 import anyio

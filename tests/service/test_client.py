@@ -1,5 +1,6 @@
 """The service end to end: a real uvicorn process driven through service.client (and raw httpx
 where the wire itself is under test). Answers are compared with a plain-NumPy brute force."""
+
 from __future__ import annotations
 
 import io
@@ -7,11 +8,11 @@ import zipfile
 
 import numpy as np
 import pytest
-
-from service import wire
-from service.client import APIError, Answer
 from service_helpers import NPY, NPZ, down_rays, grid, npy_bytes, npz_bytes, quad, rays_at
 from service_reference import closest as reference_closest
+
+from service import wire
+from service.client import Answer, APIError
 
 CLOSEST_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")
 
@@ -38,20 +39,32 @@ def test_health_is_ok_once_warm(client):
 
 def test_capabilities_list_formats_fields_strategies_and_limits(client):
     caps = client.capabilities()
-    assert caps["fields"]["closest"] == list(CLOSEST_FIELDS) and caps["fields"]["occluded"] == ["occluded"]
+    assert caps["fields"]["closest"] == list(CLOSEST_FIELDS) and caps["fields"]["occluded"] == [
+        "occluded"
+    ]
     assert caps["strategies"][0] == caps["default_strategy"] and len(caps["strategies"]) >= 1
-    assert "model/obj" in caps["formats"]["meshes"] and "application/x-npy" in caps["formats"]["rays"]
+    assert (
+        "model/obj" in caps["formats"]["meshes"] and "application/x-npy" in caps["formats"]["rays"]
+    )
     assert caps["limits"]["max_rays_per_request"] == 16 * 2**20 and caps["auth"] is False
 
 
 def test_metrics_count_requests_rays_and_memory(client, http, teapot_scene):
     client.closest(teapot_scene, *down_rays(np.zeros((7, 2))))
     text = http.get("/metrics").text
-    assert 'dacrt_requests_total{method="POST",route="/v1/scenes/{scene}/closest",status="200"}' in text
+    assert (
+        'dacrt_requests_total{method="POST",route="/v1/scenes/{scene}/closest",status="200"}'
+        in text
+    )
     assert 'dacrt_rays_traced_total{query="closest"}' in text
     assert "dacrt_trace_seconds_bucket" in text
-    memory = float(next(line.split()[-1] for line in text.splitlines()
-                        if line.startswith("dacrt_scene_memory_bytes ")))
+    memory = float(
+        next(
+            line.split()[-1]
+            for line in text.splitlines()
+            if line.startswith("dacrt_scene_memory_bytes ")
+        )
+    )
     assert memory >= 3644 * 12 + 6320 * 12
 
 
@@ -64,15 +77,24 @@ def test_put_mesh_is_201_then_200_with_mesh_info(http, scene_name):
     first = http.put(f"/v1/scenes/{scene_name}/meshes/floor", content=body, headers=NPZ)
     again = http.put(f"/v1/scenes/{scene_name}/meshes/floor", content=body, headers=NPZ)
     assert (first.status_code, again.status_code) == (201, 200)
-    assert first.json() == {"scene": scene_name, "mesh": "floor", "index": 0, "vertices": 4,
-                            "triangles": 2, "bounds": [[-1, 0, 3], [2, 1, 3]], "version": 1}
+    assert first.json() == {
+        "scene": scene_name,
+        "mesh": "floor",
+        "index": 0,
+        "vertices": 4,
+        "triangles": 2,
+        "bounds": [[-1, 0, 3], [2, 1, 3]],
+        "version": 1,
+    }
     assert again.json()["version"] == 2 and again.json()["index"] == 0
 
 
 def test_json_mesh_body(http, scene_name):
     vertices, faces = quad(0, 1, 0, 1, 0)
-    response = http.put(f"/v1/scenes/{scene_name}/meshes/m",
-                        json={"vertices": vertices.tolist(), "faces": faces.tolist()})
+    response = http.put(
+        f"/v1/scenes/{scene_name}/meshes/m",
+        json={"vertices": vertices.tolist(), "faces": faces.tolist()},
+    )
     assert response.status_code == 201 and response.json()["triangles"] == 2
 
 
@@ -82,7 +104,10 @@ def test_scene_info_and_list(client, scene_name):
     info = client.scene(scene_name)
     assert info["version"] == 2 and info["triangles"] == 10
     assert info["bounds"] == [[0, 0, 0], [1, 1, 5]]
-    assert [(m["mesh"], m["index"], m["version"]) for m in info["meshes"]] == [("a", 0, 1), ("b", 1, 2)]
+    assert [(m["mesh"], m["index"], m["version"]) for m in info["meshes"]] == [
+        ("a", 0, 1),
+        ("b", 1, 2),
+    ]
     assert info in client.scenes()
     assert client.http.get(f"/v1/scenes/{scene_name}/meshes/b").json() == info["meshes"][1]
 
@@ -109,8 +134,10 @@ def test_update_vertices_moves_the_mesh_and_keeps_faces(client, scene_name):
 
 def test_json_vertices_update(http, client, scene_name):
     client.put_mesh(scene_name, "m", *quad(0, 1, 0, 1, 0))
-    response = http.put(f"/v1/scenes/{scene_name}/meshes/m/vertices",
-                        json={"vertices": quad(0, 1, 0, 1, 2)[0].tolist()})
+    response = http.put(
+        f"/v1/scenes/{scene_name}/meshes/m/vertices",
+        json={"vertices": quad(0, 1, 0, 1, 2)[0].tolist()},
+    )
     assert response.status_code == 200 and response.json()["bounds"][1][2] == 2
 
 
@@ -143,21 +170,28 @@ def test_closest_matches_the_reference(client, teapot_scene, teapot):
     on_ray = origins[hit] + hits.t[hit, None] * directions[hit]
     np.testing.assert_allclose(on_triangle, on_ray, atol=1e-3)
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    np.testing.assert_allclose(hits.normal[hit], n / np.linalg.norm(n, axis=1, keepdims=True), atol=1e-4)
+    np.testing.assert_allclose(
+        hits.normal[hit], n / np.linalg.norm(n, axis=1, keepdims=True), atol=1e-4
+    )
     assert (hits.normal[~hit] == 0).all() and (hits.u[~hit] == 0).all()
 
 
-def test_chunked_ray_body_without_content_length_gets_the_same_answer(http, client, teapot_scene, teapot):
+def test_chunked_ray_body_without_content_length_gets_the_same_answer(
+    http, client, teapot_scene, teapot
+):
     origins, directions = rays_at(*teapot, 3000, seed=4)
     body = npy_bytes(np.hstack([origins, directions]).astype(np.float32))
-    pieces = (body[i:i + 4096] for i in range(0, len(body), 4096))  # a generator: sent chunked
-    response = http.post(f"/v1/scenes/{teapot_scene}/closest", content=pieces,
-                         headers={**NPY, "Accept": wire.NPZ})
+    pieces = (body[i : i + 4096] for i in range(0, len(body), 4096))  # a generator: sent chunked
+    response = http.post(
+        f"/v1/scenes/{teapot_scene}/closest", content=pieces, headers={**NPY, "Accept": wire.NPZ}
+    )
     assert response.status_code == 200 and "content-length" not in response.request.headers
     chunked = np.load(io.BytesIO(response.content))
     expected = client.closest(teapot_scene, origins, directions)
     assert np.isfinite(expected.t).sum() > 1000
-    assert np.array_equal(chunked["t"], expected.t) and np.array_equal(chunked["prim"], expected.prim)
+    assert np.array_equal(chunked["t"], expected.t) and np.array_equal(
+        chunked["prim"], expected.prim
+    )
 
 
 def test_query_errors_raise_api_error_with_the_servers_message(client, teapot_scene, scene_name):
@@ -195,16 +229,25 @@ def test_fields_limit_the_answer(client, teapot_scene):
 
 def test_every_strategy_gives_the_same_answer(client, teapot_scene, teapot):
     origins, directions = rays_at(*teapot, 300, seed=4)
-    answers = [client.closest(teapot_scene, origins, directions, strategy=s)
-               for s in client.capabilities()["strategies"]]
+    answers = [
+        client.closest(teapot_scene, origins, directions, strategy=s)
+        for s in client.capabilities()["strategies"]
+    ]
     for other in answers[1:]:
         assert_same_answer(answers[0], other)
 
 
 def test_stats_header_has_the_engine_counters(client, teapot_scene, teapot):
     hits = client.closest(teapot_scene, *rays_at(*teapot, 100), stats=True)
-    for key in ("rays", "triangles", "ray_box_tests", "ray_triangle_tests", "nodes",
-                "sampled_nodes", "skipped_filterings"):
+    for key in (
+        "rays",
+        "triangles",
+        "ray_box_tests",
+        "ray_triangle_tests",
+        "nodes",
+        "sampled_nodes",
+        "skipped_filterings",
+    ):
         assert isinstance(hits.stats[key], int), key
     assert hits.stats["rays"] == 100 and hits.stats["triangles"] == 6320
     occluded = client.occluded(teapot_scene, *rays_at(*teapot, 100), stats=True)
@@ -214,8 +257,11 @@ def test_stats_header_has_the_engine_counters(client, teapot_scene, teapot):
 
 @pytest.mark.parametrize("query", ["closest", "occluded"])
 def test_every_query_answer_has_version_and_server_timing(http, teapot_scene, query):
-    response = http.post(f"/v1/scenes/{teapot_scene}/{query}", headers=NPY,
-                         content=npy_bytes(np.hstack(down_rays([[0, 0]])).astype(np.float32)))
+    response = http.post(
+        f"/v1/scenes/{teapot_scene}/{query}",
+        headers=NPY,
+        content=npy_bytes(np.hstack(down_rays([[0, 0]])).astype(np.float32)),
+    )
     assert response.status_code == 200 and response.headers["x-scene-version"] == "1"
     timing = response.headers["server-timing"]
     assert all(f"{name};dur=" in timing for name in ("decode", "trace", "encode"))
@@ -255,7 +301,9 @@ def test_npz_answer_is_a_zip_whose_every_crc_is_right(http, client, teapot_scene
     response = http.post(f"/v1/scenes/{teapot_scene}/closest", content=body, headers=NPY)
     assert int(response.headers["content-length"]) == len(response.content)
     archive = zipfile.ZipFile(io.BytesIO(response.content))
-    assert archive.testzip() is None and archive.namelist() == [f"{key}.npy" for key in CLOSEST_FIELDS]
+    assert archive.testzip() is None and archive.namelist() == [
+        f"{key}.npy" for key in CLOSEST_FIELDS
+    ]
     expected = client.closest(teapot_scene, origins, directions)
     assert np.isfinite(expected.t).all()  # every ray hits the teapot
     with np.load(io.BytesIO(response.content)) as got:
@@ -269,14 +317,23 @@ def test_npz_ray_body_equals_npy_ray_body(http, client, teapot_scene, teapot):
     body = npz_bytes(True, origins=origins, directions=directions, tmax=tmax)
     response = http.post(f"/v1/scenes/{teapot_scene}/closest", content=body, headers=NPZ)
     with np.load(io.BytesIO(response.content)) as got:
-        assert np.array_equal(got["t"], client.closest(teapot_scene, origins, directions, tmax=tmax).t)
+        assert np.array_equal(
+            got["t"], client.closest(teapot_scene, origins, directions, tmax=tmax).t
+        )
 
 
-@pytest.mark.parametrize("query, key, shape", [("closest", "normal", (0, 3)), ("occluded", "occluded", (0,))])
+@pytest.mark.parametrize(
+    "query, key, shape", [("closest", "normal", (0, 3)), ("occluded", "occluded", (0,))]
+)
 def test_empty_batch_answers_empty_arrays(client, teapot_scene, query, key, shape):
     answer = client.query(teapot_scene, query, np.zeros((0, 3)), np.zeros((0, 3)))
     assert answer[key].shape == shape
-    assert client.query(teapot_scene, query, np.zeros((0, 3)), np.zeros((0, 3)), answer="json")[key].shape == shape
+    assert (
+        client.query(teapot_scene, query, np.zeros((0, 3)), np.zeros((0, 3)), answer="json")[
+            key
+        ].shape
+        == shape
+    )
 
 
 def test_scene_without_triangles_answers_misses(client, scene_name):
@@ -295,10 +352,17 @@ def test_hits_report_each_mesh_by_its_stable_index(client, scene_name):
     client.put_mesh(scene_name, "d", *quad(1, 2, 0, 1, 0))  # where b was: gets a new index, 3
     client.put_mesh(scene_name, "e", np.zeros((0, 3)), np.zeros((0, 3)))  # no triangles: index 4
     client.put_mesh(scene_name, "f", *quad(3, 4, 0, 1, 0))
-    hits = client.closest(scene_name, *down_rays([[0.5, 0.5], [1.5, 0.5], [2.5, 0.5], [3.5, 0.5], [9, 9]]))
+    hits = client.closest(
+        scene_name, *down_rays([[0.5, 0.5], [1.5, 0.5], [2.5, 0.5], [3.5, 0.5], [9, 9]])
+    )
     assert hits.mesh.tolist() == [0, 3, 2, 5, -1]
     assert {m["mesh"]: m["index"] for m in client.scene(scene_name)["meshes"]} == {
-        "a": 0, "c": 2, "d": 3, "e": 4, "f": 5}
+        "a": 0,
+        "c": 2,
+        "d": 3,
+        "e": 4,
+        "f": 5,
+    }
 
 
 def test_prim_is_the_row_in_its_own_mesh(client, scene_name):
@@ -324,9 +388,15 @@ def test_one_shot_trace_equals_a_stored_scene(client, teapot_scene, teapot):
 def test_one_shot_trace_with_json(http):
     vertices, faces = quad(0, 1, 0, 1, 0)
     origins, directions = down_rays([[0.5, 0.5], [5, 5]])
-    response = http.post("/v1/trace?query=closest&fields=t,mesh", json={
-        "vertices": vertices.tolist(), "faces": faces.tolist(),
-        "origins": origins.tolist(), "directions": directions.tolist()})
+    response = http.post(
+        "/v1/trace?query=closest&fields=t,mesh",
+        json={
+            "vertices": vertices.tolist(),
+            "faces": faces.tolist(),
+            "origins": origins.tolist(),
+            "directions": directions.tolist(),
+        },
+    )
     assert response.status_code == 200 and response.headers["x-scene-version"] == "0"
     assert response.json() == {"t": [10.0, None], "mesh": [0, -1]}
 
@@ -343,16 +413,30 @@ def _mesh_file(fmt: str) -> tuple[bytes, int, np.ndarray]:
     ball.apply_translation([4, 0, 0])
     scene = trimesh.Scene({"box": box, "ball": ball})
     data = scene.to_mesh().export(file_type=fmt) if fmt == "off" else scene.export(file_type=fmt)
-    return (data.encode() if isinstance(data, str) else data), len(box.faces) + len(ball.faces), scene.bounds
+    return (
+        (data.encode() if isinstance(data, str) else data),
+        len(box.faces) + len(ball.faces),
+        scene.bounds,
+    )
 
 
-@pytest.mark.parametrize("fmt, content_type", [
-    ("obj", "model/obj"), ("ply", "application/ply"), ("stl", "model/stl"),
-    ("glb", "model/gltf-binary"), ("off", "model/off")])
+@pytest.mark.parametrize(
+    "fmt, content_type",
+    [
+        ("obj", "model/obj"),
+        ("ply", "application/ply"),
+        ("stl", "model/stl"),
+        ("glb", "model/gltf-binary"),
+        ("off", "model/off"),
+    ],
+)
 def test_mesh_files_by_content_type(http, client, scene_name, fmt, content_type):
     body, n_faces, bounds = _mesh_file(fmt)
-    response = http.put(f"/v1/scenes/{scene_name}/meshes/things", content=body,
-                        headers={"Content-Type": content_type})
+    response = http.put(
+        f"/v1/scenes/{scene_name}/meshes/things",
+        content=body,
+        headers={"Content-Type": content_type},
+    )
     assert response.status_code == 201, response.text
     info = response.json()
     assert info["triangles"] == n_faces
@@ -364,8 +448,12 @@ def test_mesh_files_by_content_type(http, client, scene_name, fmt, content_type)
 @pytest.mark.parametrize("fmt", ["obj", "ply", "stl", "glb", "off"])
 def test_mesh_files_by_format_parameter(http, client, scene_name, tmp_path, fmt):
     body, n_faces, _ = _mesh_file(fmt)
-    response = http.put(f"/v1/scenes/{scene_name}/meshes/raw", content=body, params={"format": fmt},
-                        headers={"Content-Type": "application/octet-stream"})
+    response = http.put(
+        f"/v1/scenes/{scene_name}/meshes/raw",
+        content=body,
+        params={"format": fmt},
+        headers={"Content-Type": "application/octet-stream"},
+    )
     assert response.status_code == 201 and response.json()["triangles"] == n_faces
     path = tmp_path / f"things.{fmt}"
     path.write_bytes(body)

@@ -1,13 +1,14 @@
 """Queries from several threads while another thread keeps posting frames: every answer is
 computed on exactly one scene version, the one its X-Scene-Version names."""
+
 from __future__ import annotations
 
 import threading
 
 import numpy as np
+from service_helpers import down_rays, quad
 
 from service.client import Client
-from service_helpers import down_rays, quad
 
 HEIGHT = 100.0
 

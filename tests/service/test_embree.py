@@ -1,9 +1,9 @@
 """Answers of the service against Embree (through embreex) on real scenes from ../shared/scenes."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from service_helpers import SHARED_SCENES, rays_at
 
 embree_scene = pytest.importorskip("embreex.rtcore_scene")
@@ -17,11 +17,14 @@ def embree_closest(vertices, faces, origins, directions):
     mesh_construction.TriangleMesh(scene, vertices[faces])
     result = scene.run(origins, directions, output=1)
     hit = result["geomID"] >= 0
-    return np.where(hit, result["tfar"], np.inf).astype(np.float32), np.where(hit, result["primID"], -1)
+    return np.where(hit, result["tfar"], np.inf).astype(np.float32), np.where(
+        hit, result["primID"], -1
+    )
 
 
 def random_rays(vertices, n, seed):
-    """Origins anywhere in the bounds, directions uniform on the sphere: hits and misses, inside and out."""
+    """Origins anywhere in the bounds, directions uniform on the sphere: hits and misses, inside and
+    out."""
     rng = np.random.default_rng(seed)
     lo, hi = vertices.min(0), vertices.max(0)
     origins = rng.uniform(lo, hi, (n, 3)).astype(np.float32)
@@ -37,7 +40,10 @@ def test_closest_agrees_with_embree(client, scene_name, name):
     with np.load(path) as archive:
         vertices, faces = archive["vertices"], archive["faces"]
     client.put_mesh(scene_name, name, vertices, faces)
-    aimed, random = rays_at(vertices, faces, 10_000, seed=11), random_rays(vertices, 10_000, seed=12)
+    aimed, random = (
+        rays_at(vertices, faces, 10_000, seed=11),
+        random_rays(vertices, 10_000, seed=12),
+    )
     origins = np.concatenate([aimed[0], random[0]])
     directions = np.concatenate([aimed[1], random[1]])
 

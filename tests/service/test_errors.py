@@ -1,5 +1,6 @@
 """Every error status of API.md on a real server: the status, a {"detail": str} body whose message
 names the problem, and (for changes) that a rejected request changes nothing."""
+
 from __future__ import annotations
 
 import json
@@ -8,10 +9,10 @@ import re
 import httpx
 import numpy as np
 import pytest
-
 from mesh_files import BAD_MESH_FILES, GLB, png, triangle_glb
-from service.client import APIError, Client
 from service_helpers import NPY, NPZ, TOKEN, down_rays, grid, npy_bytes, npz_bytes, quad
+
+from service.client import APIError, Client
 
 RAYS = np.hstack(down_rays([[0.5, 0.5], [0.2, 0.7]])).astype(np.float32)
 
@@ -34,30 +35,51 @@ def detail(response: httpx.Response, status: int) -> str:
 def state(client: Client, scene: str) -> dict:
     """What a rejected request must leave unchanged: scene info (version, meshes, bounds) and
     the answer of a query."""
-    return {"info": client.scene(scene),
-            "t": client.closest(scene, *down_rays([[0.5, 0.5], [0.9, 0.1]])).t.tolist()}
+    return {
+        "info": client.scene(scene),
+        "t": client.closest(scene, *down_rays([[0.5, 0.5], [0.9, 0.1]])).t.tolist(),
+    }
 
 
 # ---- 400: the body cannot be parsed
 
 
-@pytest.mark.parametrize("path, body, headers, message", [
-    ("closest", b"\x93NUMPY garbage", NPY, "not a readable .npy"),
-    ("closest", npy_bytes(RAYS)[:-7], NPY, "truncated"),
-    ("closest", b"PK\x03\x04 nope", NPZ, "not a readable .npz"),
-    ("closest", npz_bytes(origins=RAYS[:, :3]), NPZ, "lacks 'directions'"),
-    ("closest", b'{"origins": [[0,0,0]], "directions": ', {"Content-Type": "application/json"}, "not valid JSON"),
-    ("occluded", b'{"origin": [], "directions": []}', {"Content-Type": "application/json"}, "lacks 'origins'"),
-    ("meshes/m", npz_bytes(vertices=quad(0, 1, 0, 1, 0)[0]), NPZ, "lacks 'faces'"),
-    ("meshes/m", b"not an obj at all", {"Content-Type": "model/obj"}, "no triangles found in the OBJ"),
-    ("meshes/m", b"ply\ngarbage", {"Content-Type": "application/ply"}, "cannot be read as PLY"),
-    ("frame", npz_bytes(**{"m.normals": RAYS}), NPZ, "not MESH.vertices or MESH.faces"),
-])
+@pytest.mark.parametrize(
+    "path, body, headers, message",
+    [
+        ("closest", b"\x93NUMPY garbage", NPY, "not a readable .npy"),
+        ("closest", npy_bytes(RAYS)[:-7], NPY, "truncated"),
+        ("closest", b"PK\x03\x04 nope", NPZ, "not a readable .npz"),
+        ("closest", npz_bytes(origins=RAYS[:, :3]), NPZ, "lacks 'directions'"),
+        (
+            "closest",
+            b'{"origins": [[0,0,0]], "directions": ',
+            {"Content-Type": "application/json"},
+            "not valid JSON",
+        ),
+        (
+            "occluded",
+            b'{"origin": [], "directions": []}',
+            {"Content-Type": "application/json"},
+            "lacks 'origins'",
+        ),
+        ("meshes/m", npz_bytes(vertices=quad(0, 1, 0, 1, 0)[0]), NPZ, "lacks 'faces'"),
+        (
+            "meshes/m",
+            b"not an obj at all",
+            {"Content-Type": "model/obj"},
+            "no triangles found in the OBJ",
+        ),
+        ("meshes/m", b"ply\ngarbage", {"Content-Type": "application/ply"}, "cannot be read as PLY"),
+        ("frame", npz_bytes(**{"m.normals": RAYS}), NPZ, "not MESH.vertices or MESH.faces"),
+    ],
+)
 def test_unparseable_bodies_are_400(http, client, quad_scene, path, body, headers, message):
     before = state(client, quad_scene)
     method = "PUT" if path.startswith("meshes") else "POST"
-    assert message in detail(http.request(method, f"/v1/scenes/{quad_scene}/{path}", content=body,
-                                          headers=headers), 400)
+    assert message in detail(
+        http.request(method, f"/v1/scenes/{quad_scene}/{path}", content=body, headers=headers), 400
+    )
     assert state(client, quad_scene) == before
 
 
@@ -70,14 +92,26 @@ def secure(secure_server):
         yield c
 
 
-@pytest.mark.parametrize("headers, message", [
-    ({}, "Authorization: Bearer"), ({"Authorization": "Bearer wrong"}, "token is wrong"),
-    ({"Authorization": f"Basic {TOKEN}"}, "Authorization: Bearer"), ({"Authorization": "Bearer"}, "Bearer"),
-])
-@pytest.mark.parametrize("method, path", [
-    ("GET", "/v1/scenes"), ("GET", "/v1/capabilities"), ("PUT", "/v1/scenes/s/meshes/m"),
-    ("POST", "/v1/scenes/s/closest"), ("POST", "/v1/trace"), ("DELETE", "/v1/scenes/s"),
-])
+@pytest.mark.parametrize(
+    "headers, message",
+    [
+        ({}, "Authorization: Bearer"),
+        ({"Authorization": "Bearer wrong"}, "token is wrong"),
+        ({"Authorization": f"Basic {TOKEN}"}, "Authorization: Bearer"),
+        ({"Authorization": "Bearer"}, "Bearer"),
+    ],
+)
+@pytest.mark.parametrize(
+    "method, path",
+    [
+        ("GET", "/v1/scenes"),
+        ("GET", "/v1/capabilities"),
+        ("PUT", "/v1/scenes/s/meshes/m"),
+        ("POST", "/v1/scenes/s/closest"),
+        ("POST", "/v1/trace"),
+        ("DELETE", "/v1/scenes/s"),
+    ],
+)
 def test_every_v1_route_needs_the_token(secure, headers, message, method, path):
     response = secure.request(method, path, headers=headers, content=b"")
     assert message in detail(response, 401) and response.headers["www-authenticate"] == "Bearer"
@@ -96,17 +130,20 @@ def test_the_right_token_works_and_health_and_metrics_are_open(secure_server, sc
 # ---- 404: unknown scene or mesh
 
 
-@pytest.mark.parametrize("method, path, message", [
-    ("GET", "/v1/scenes/{missing}", "no scene"),
-    ("DELETE", "/v1/scenes/{missing}", "no scene"),
-    ("POST", "/v1/scenes/{missing}/closest", "no scene"),
-    ("POST", "/v1/scenes/{missing}/occluded", "no scene"),
-    ("GET", "/v1/scenes/{scene}/meshes/nope", "has no mesh 'nope'"),
-    ("DELETE", "/v1/scenes/{scene}/meshes/nope", "has no mesh 'nope'"),
-    ("PUT", "/v1/scenes/{scene}/meshes/nope/vertices", "has no mesh 'nope'"),
-    ("PUT", "/v1/scenes/{missing}/meshes/m/vertices", "no scene"),
-    ("GET", "/v1/nowhere", "Not Found"),
-])
+@pytest.mark.parametrize(
+    "method, path, message",
+    [
+        ("GET", "/v1/scenes/{missing}", "no scene"),
+        ("DELETE", "/v1/scenes/{missing}", "no scene"),
+        ("POST", "/v1/scenes/{missing}/closest", "no scene"),
+        ("POST", "/v1/scenes/{missing}/occluded", "no scene"),
+        ("GET", "/v1/scenes/{scene}/meshes/nope", "has no mesh 'nope'"),
+        ("DELETE", "/v1/scenes/{scene}/meshes/nope", "has no mesh 'nope'"),
+        ("PUT", "/v1/scenes/{scene}/meshes/nope/vertices", "has no mesh 'nope'"),
+        ("PUT", "/v1/scenes/{missing}/meshes/m/vertices", "no scene"),
+        ("GET", "/v1/nowhere", "Not Found"),
+    ],
+)
 def test_unknown_things_are_404(http, quad_scene, method, path, message):
     url = path.format(scene=quad_scene, missing=quad_scene + "-missing")
     assert message in detail(http.request(method, url, content=npy_bytes(RAYS), headers=NPY), 404)
@@ -114,8 +151,12 @@ def test_unknown_things_are_404(http, quad_scene, method, path, message):
 
 def test_frame_moving_an_unknown_mesh_is_404_and_changes_nothing(http, client, quad_scene):
     before = state(client, quad_scene)
-    body = npz_bytes(**{"m.vertices": quad(0, 1, 0, 1, 3)[0], "ghost.vertices": quad(0, 1, 0, 1, 3)[0]})
-    assert "no mesh 'ghost'" in detail(http.post(f"/v1/scenes/{quad_scene}/frame", content=body, headers=NPZ), 404)
+    body = npz_bytes(
+        **{"m.vertices": quad(0, 1, 0, 1, 3)[0], "ghost.vertices": quad(0, 1, 0, 1, 3)[0]}
+    )
+    assert "no mesh 'ghost'" in detail(
+        http.post(f"/v1/scenes/{quad_scene}/frame", content=body, headers=NPZ), 404
+    )
     assert state(client, quad_scene) == before
 
 
@@ -123,8 +164,11 @@ def test_frame_moving_an_unknown_mesh_is_404_and_changes_nothing(http, client, q
 
 
 def test_unacceptable_accept_is_406(http, quad_scene):
-    response = http.post(f"/v1/scenes/{quad_scene}/closest", content=npy_bytes(RAYS),
-                         headers={**NPY, "Accept": "text/csv"})
+    response = http.post(
+        f"/v1/scenes/{quad_scene}/closest",
+        content=npy_bytes(RAYS),
+        headers={**NPY, "Accept": "text/csv"},
+    )
     assert "application/x-npz" in detail(response, 406)
 
 
@@ -134,10 +178,15 @@ def test_vertex_count_change_is_409_and_changes_nothing(http, client, quad_scene
     before = state(client, quad_scene)
     nine = grid(2, z=1)[0]
     if route == "vertices":
-        response = http.put(f"/v1/scenes/{quad_scene}/meshes/m/vertices", content=npy_bytes(nine), headers=NPY)
+        response = http.put(
+            f"/v1/scenes/{quad_scene}/meshes/m/vertices", content=npy_bytes(nine), headers=NPY
+        )
     else:  # the first mesh of the frame is fine: it must not be applied either
-        response = http.post(f"/v1/scenes/{quad_scene}/frame", headers=NPZ, content=npz_bytes(
-            **{"other.vertices": quad(5, 6, 0, 1, 2)[0], "m.vertices": nine}))
+        response = http.post(
+            f"/v1/scenes/{quad_scene}/frame",
+            headers=NPZ,
+            content=npz_bytes(**{"other.vertices": quad(5, 6, 0, 1, 2)[0], "m.vertices": nine}),
+        )
     assert "has 4 vertices but the update has 9" in detail(response, 409)
     assert state(client, quad_scene) == before
 
@@ -170,8 +219,10 @@ def test_too_many_rays_is_413(limited, scene_name):
 def test_too_many_triangles_is_413_and_changes_nothing(limited, scene_name):
     limited.put_mesh(scene_name, "a", *grid(20))  # 800 triangles
     before = limited.scene(scene_name)
-    for call in (lambda: limited.put_mesh(scene_name, "b", *grid(15)),  # +450
-                 lambda: limited.frame(scene_name, {"a": grid(20, z=1)[0], "b": grid(15)})):
+    for call in (
+        lambda: limited.put_mesh(scene_name, "b", *grid(15)),  # +450
+        lambda: limited.frame(scene_name, {"a": grid(20, z=1)[0], "b": grid(15)}),
+    ):
         with pytest.raises(APIError) as caught:
             call()
         assert caught.value.status == 413 and "1250 triangles" in caught.value.detail
@@ -197,20 +248,28 @@ def test_total_scene_memory_over_the_limit_is_413(limited, scene_name):
 # ---- 415: unsupported Content-Type
 
 
-@pytest.mark.parametrize("path, headers, params", [
-    ("closest", {"Content-Type": "text/plain"}, {}),
-    ("closest", {"Content-Type": "application/x-www-form-urlencoded"}, {}),
-    ("closest", {"Content-Type": "model/obj"}, {}),
-    ("closest", NPY, {"format": "csv"}),
-    ("meshes/m", {"Content-Type": "image/png"}, {}),
-    ("meshes/m/vertices", {"Content-Type": "model/stl"}, {}),
-    ("frame", NPY, {}),
-])
+@pytest.mark.parametrize(
+    "path, headers, params",
+    [
+        ("closest", {"Content-Type": "text/plain"}, {}),
+        ("closest", {"Content-Type": "application/x-www-form-urlencoded"}, {}),
+        ("closest", {"Content-Type": "model/obj"}, {}),
+        ("closest", NPY, {"format": "csv"}),
+        ("meshes/m", {"Content-Type": "image/png"}, {}),
+        ("meshes/m/vertices", {"Content-Type": "model/stl"}, {}),
+        ("frame", NPY, {}),
+    ],
+)
 def test_unsupported_content_type_is_415(http, client, quad_scene, path, headers, params):
     before = state(client, quad_scene)
     method = "PUT" if path.startswith("meshes") else "POST"
-    response = http.request(method, f"/v1/scenes/{quad_scene}/{path}", content=npy_bytes(RAYS),
-                            headers=headers, params=params)
+    response = http.request(
+        method,
+        f"/v1/scenes/{quad_scene}/{path}",
+        content=npy_bytes(RAYS),
+        headers=headers,
+        params=params,
+    )
     assert "use one of" in detail(response, 415)
     assert state(client, quad_scene) == before
 
@@ -231,32 +290,69 @@ def _nan_vertex() -> bytes:
     return npz_bytes(vertices=vertices, faces=faces)
 
 
-@pytest.mark.parametrize("path, body, message", [
-    ("meshes/m", _bad_faces(), "faces[1043] refers to vertex 90211, but there are 90000 vertices"),
-    ("meshes/m", _nan_vertex(), "vertices[2] is not finite"),
-    ("meshes/m", npz_bytes(vertices=np.zeros((3, 3)), faces=np.zeros((1, 3), np.int32)), "must be little-endian float32"),
-    ("meshes/m", npz_bytes(vertices=np.zeros((3, 3), np.float32), faces=np.zeros((1, 3), np.int64)), "int32 or uint32"),
-    ("meshes/m", npz_bytes(vertices=np.zeros((3, 3), np.float32), faces=np.array([None, 1], dtype=object)), "Python objects"),
-    ("meshes/m/vertices", npy_bytes(np.zeros((4, 2), np.float32)), "shape (N, 3)"),
-    ("meshes/m/vertices", npy_bytes(np.full((4, 3), np.inf, np.float32)), "vertices[0] is not finite"),
-    ("closest", npy_bytes(np.zeros((2, 6), np.float64)), "float32, got <f8"),
-    ("closest", npy_bytes(np.array([{"x": 1}], dtype=object)), "Python objects"),
-    ("frame", npz_bytes(**{"m.vertices": quad(0, 1, 0, 1, 1)[0], "bad name.vertices": quad(0, 1, 0, 1, 0)[0]}), "mesh name 'bad name'"),
-])
+@pytest.mark.parametrize(
+    "path, body, message",
+    [
+        (
+            "meshes/m",
+            _bad_faces(),
+            "faces[1043] refers to vertex 90211, but there are 90000 vertices",
+        ),
+        ("meshes/m", _nan_vertex(), "vertices[2] is not finite"),
+        (
+            "meshes/m",
+            npz_bytes(vertices=np.zeros((3, 3)), faces=np.zeros((1, 3), np.int32)),
+            "must be little-endian float32",
+        ),
+        (
+            "meshes/m",
+            npz_bytes(vertices=np.zeros((3, 3), np.float32), faces=np.zeros((1, 3), np.int64)),
+            "int32 or uint32",
+        ),
+        (
+            "meshes/m",
+            npz_bytes(
+                vertices=np.zeros((3, 3), np.float32), faces=np.array([None, 1], dtype=object)
+            ),
+            "Python objects",
+        ),
+        ("meshes/m/vertices", npy_bytes(np.zeros((4, 2), np.float32)), "shape (N, 3)"),
+        (
+            "meshes/m/vertices",
+            npy_bytes(np.full((4, 3), np.inf, np.float32)),
+            "vertices[0] is not finite",
+        ),
+        ("closest", npy_bytes(np.zeros((2, 6), np.float64)), "float32, got <f8"),
+        ("closest", npy_bytes(np.array([{"x": 1}], dtype=object)), "Python objects"),
+        (
+            "frame",
+            npz_bytes(
+                **{
+                    "m.vertices": quad(0, 1, 0, 1, 1)[0],
+                    "bad name.vertices": quad(0, 1, 0, 1, 0)[0],
+                }
+            ),
+            "mesh name 'bad name'",
+        ),
+    ],
+)
 def test_invalid_values_are_422_and_change_nothing(http, client, quad_scene, path, body, message):
     before = state(client, quad_scene)
     method = "PUT" if path.startswith("meshes") else "POST"
     headers = NPY if body.startswith(b"\x93NUMPY") else NPZ
-    assert message in detail(http.request(method, f"/v1/scenes/{quad_scene}/{path}", content=body,
-                                          headers=headers), 422)
+    assert message in detail(
+        http.request(method, f"/v1/scenes/{quad_scene}/{path}", content=body, headers=headers), 422
+    )
     assert state(client, quad_scene) == before
 
 
 # ---- mesh files: malformed or hostile files are 400, 413 or 422 and change nothing
 
+
 @pytest.mark.parametrize("body, headers, status, message", BAD_MESH_FILES)
-def test_bad_mesh_files_are_4xx_and_change_nothing(http, client, quad_scene, body, headers, status,
-                                                    message):
+def test_bad_mesh_files_are_4xx_and_change_nothing(
+    http, client, quad_scene, body, headers, status, message
+):
     before = state(client, quad_scene)
     response = http.put(f"/v1/scenes/{quad_scene}/meshes/m", content=body, headers=headers)
     assert message in detail(response, status)
@@ -271,18 +367,29 @@ def test_glb_textures_are_not_decoded_and_the_mesh_is_stored(http, scene_name):
     http.delete(f"/v1/scenes/{scene_name}")
 
 
-@pytest.mark.parametrize("method, url", [
-    ("GET", "/v1/scenes/bad%20name"), ("GET", "/v1/scenes/{scene}/meshes/a%2Ab"),
-    ("GET", "/v1/scenes/" + "x" * 65), ("POST", "/v1/scenes/bad$/closest"), ("DELETE", "/v1/scenes/a%3Ab"),
-])
+@pytest.mark.parametrize(
+    "method, url",
+    [
+        ("GET", "/v1/scenes/bad%20name"),
+        ("GET", "/v1/scenes/{scene}/meshes/a%2Ab"),
+        ("GET", "/v1/scenes/" + "x" * 65),
+        ("POST", "/v1/scenes/bad$/closest"),
+        ("DELETE", "/v1/scenes/a%3Ab"),
+    ],
+)
 def test_bad_names_are_422(http, quad_scene, method, url):
-    response = http.request(method, url.format(scene=quad_scene), content=npy_bytes(RAYS), headers=NPY)
+    response = http.request(
+        method, url.format(scene=quad_scene), content=npy_bytes(RAYS), headers=NPY
+    )
     assert "1-64 characters of A-Z a-z 0-9 _ - ." in detail(response, 422)
 
 
 def test_bad_name_on_upload_is_422(http, scene_name):
-    response = http.put(f"/v1/scenes/{scene_name}/meshes/caf%C3%A9", headers=NPZ,
-                        content=npz_bytes(vertices=quad(0, 1, 0, 1, 0)[0], faces=quad(0, 1, 0, 1, 0)[1]))
+    response = http.put(
+        f"/v1/scenes/{scene_name}/meshes/caf%C3%A9",
+        headers=NPZ,
+        content=npz_bytes(vertices=quad(0, 1, 0, 1, 0)[0], faces=quad(0, 1, 0, 1, 0)[1]),
+    )
     assert "mesh name 'café'" in detail(response, 422)
     assert http.get(f"/v1/scenes/{scene_name}").status_code == 404
 
@@ -303,7 +410,9 @@ def _bad_rays(kind: str, rows=(3, 8), n: int = 10) -> np.ndarray:
     return rays
 
 
-@pytest.mark.parametrize("kind", ["nan-origin", "inf-direction", "zero-direction", "tmin-over-tmax"])
+@pytest.mark.parametrize(
+    "kind", ["nan-origin", "inf-direction", "zero-direction", "tmin-over-tmax"]
+)
 @pytest.mark.parametrize("query", ["closest", "occluded"])
 def test_bad_rays_are_422_naming_the_first_one_and_the_count(http, quad_scene, kind, query):
     body = npy_bytes(_bad_rays(kind))
@@ -311,29 +420,41 @@ def test_bad_rays_are_422_naming_the_first_one_and_the_count(http, quad_scene, k
     assert re.search(r"\b3\b", message) and re.search(r"\b2\b", message), message
 
 
-@pytest.mark.parametrize("params, message", [
-    ({"fields": "t,depth"}, "unknown fields 'depth'"),
-    ({"fields": ","}, "no field"),
-    ({"strategy": "magic"}, "unknown strategy 'magic'"),
-    ({"stats": "maybe"}, "query parameter 'stats'"),
-    ({"cull": "back"}, "cull=back is not supported by this server yet"),
-])
+@pytest.mark.parametrize(
+    "params, message",
+    [
+        ({"fields": "t,depth"}, "unknown fields 'depth'"),
+        ({"fields": ","}, "no field"),
+        ({"strategy": "magic"}, "unknown strategy 'magic'"),
+        ({"stats": "maybe"}, "query parameter 'stats'"),
+        ({"cull": "back"}, "cull=back is not supported by this server yet"),
+    ],
+)
 def test_bad_options_are_422(http, quad_scene, params, message):
-    response = http.post(f"/v1/scenes/{quad_scene}/closest", content=npy_bytes(RAYS), headers=NPY, params=params)
+    response = http.post(
+        f"/v1/scenes/{quad_scene}/closest", content=npy_bytes(RAYS), headers=NPY, params=params
+    )
     assert message in detail(response, 422)
 
 
 def test_masks_are_refused_rather_than_ignored(http, scene_name):
     vertices, faces = quad(0, 1, 0, 1, 0)
-    response = http.put(f"/v1/scenes/{scene_name}/meshes/m?mask=0x1", headers=NPZ,
-                        content=npz_bytes(vertices=vertices, faces=faces))
+    response = http.put(
+        f"/v1/scenes/{scene_name}/meshes/m?mask=0x1",
+        headers=NPZ,
+        content=npz_bytes(vertices=vertices, faces=faces),
+    )
     assert "not supported by this server yet" in detail(response, 422)
 
 
 def test_bad_one_shot_query_kind_is_422(http):
     vertices, faces = quad(0, 1, 0, 1, 0)
-    body = npz_bytes(vertices=vertices, faces=faces, origins=RAYS[:, :3].copy(), directions=RAYS[:, 3:].copy())
-    assert "unknown query 'hitz'" in detail(http.post("/v1/trace?query=hitz", content=body, headers=NPZ), 422)
+    body = npz_bytes(
+        vertices=vertices, faces=faces, origins=RAYS[:, :3].copy(), directions=RAYS[:, 3:].copy()
+    )
+    assert "unknown query 'hitz'" in detail(
+        http.post("/v1/trace?query=hitz", content=body, headers=NPZ), 422
+    )
 
 
 def test_client_raises_api_error_with_the_detail(client):

@@ -2,6 +2,7 @@
 names the problem, within a stated time, while the server's peak memory stays under a stated
 bound; afterwards the server is healthy, its scenes are unchanged, and no request reached the
 catch-all 500."""
+
 from __future__ import annotations
 
 import re
@@ -9,10 +10,9 @@ import socket
 import time
 from pathlib import Path
 
+import hostile_bodies as hostile
 import httpx
 import numpy as np
-
-import hostile_bodies as hostile
 from mesh_files import BAD_MESH_FILES, GLB, png, triangle_glb
 from service_helpers import NPY, NPZ, down_rays, npy_bytes, npz_bytes, quad
 
@@ -34,83 +34,265 @@ def json_with(**fields: str) -> bytes:
 # bodies are built lazily: some take a second to make.
 CORPUS = [
     # zip bombs of each kind
-    ("npz member inflating to 1 GiB", "POST", "closest", NPZ,
-     lambda: hostile.zip_bomb(1 << 30), 400, "inflates to more than the 1024 bytes"),
-    ("honest npz member of 512 MiB", "POST", "closest", NPZ,
-     lambda: hostile.honest_big_zip(512 << 20), 413, "DACRT_MAX_BODY_BYTES"),
-    ("1000 entries over one deflate stream", "POST", "closest", NPZ,
-     lambda: hostile.overlapping_zip(1000), 400, "overlaps the member before it"),
+    (
+        "npz member inflating to 1 GiB",
+        "POST",
+        "closest",
+        NPZ,
+        lambda: hostile.zip_bomb(1 << 30),
+        400,
+        "inflates to more than the 1024 bytes",
+    ),
+    (
+        "honest npz member of 512 MiB",
+        "POST",
+        "closest",
+        NPZ,
+        lambda: hostile.honest_big_zip(512 << 20),
+        413,
+        "DACRT_MAX_BODY_BYTES",
+    ),
+    (
+        "1000 entries over one deflate stream",
+        "POST",
+        "closest",
+        NPZ,
+        lambda: hostile.overlapping_zip(1000),
+        400,
+        "overlaps the member before it",
+    ),
     ("npz member twice", "POST", "closest", NPZ, hostile.duplicate_zip, 400, "twice"),
     ("encrypted npz member", "POST", "closest", NPZ, hostile.encrypted_zip, 400, "encrypted"),
     ("bzip2 npz member", "POST", "closest", NPZ, hostile.bzip2_zip, 400, "compression method"),
-    ("zip bomb as a mesh", "PUT", "meshes/bomb", NPZ,
-     lambda: hostile.zip_bomb(1 << 30), 400, "inflates to more than"),
-    ("zip bomb as a frame", "POST", "frame", NPZ,
-     lambda: hostile.zip_bomb(1 << 30), 400, "inflates to more than"),
-    ("zip bomb as a one-shot trace", "POST", "/v1/trace", NPZ,
-     lambda: hostile.zip_bomb(1 << 30), 400, "inflates to more than"),
+    (
+        "zip bomb as a mesh",
+        "PUT",
+        "meshes/bomb",
+        NPZ,
+        lambda: hostile.zip_bomb(1 << 30),
+        400,
+        "inflates to more than",
+    ),
+    (
+        "zip bomb as a frame",
+        "POST",
+        "frame",
+        NPZ,
+        lambda: hostile.zip_bomb(1 << 30),
+        400,
+        "inflates to more than",
+    ),
+    (
+        "zip bomb as a one-shot trace",
+        "POST",
+        "/v1/trace",
+        NPZ,
+        lambda: hostile.zip_bomb(1 << 30),
+        400,
+        "inflates to more than",
+    ),
     # forged .npy headers
-    *[(f"npy shape {shape}", "POST", "closest", NPY,
-       lambda shape=shape: hostile.npy_with_header("<f4", shape, bytes(48)), 400, problem)
-      for shape, problem in [((-2, -3), "negative length"), ((-1, -6), "negative length"),
-                             ((2**32, 2**32), "truncated"), ((2**62, 8), "truncated"),
-                             ((2**64, 6), "truncated")]],
-    ("npy dtype |V0", "POST", "closest", NPY,
-     lambda: hostile.npy_with_header("|V0", (2, 6)), 422, "only plain numeric arrays"),
-    ("npy subarray dtype", "POST", "closest", NPY,
-     lambda: hostile.npy_with_header(("<f4", (6,)), (2,), bytes(48)), 422, "only plain numeric"),
-    ("npy vertices of shape (-1, 3)", "PUT", "meshes/m/vertices", NPY,
-     lambda: hostile.npy_with_header("<f4", (-1, 3)), 400, "negative length"),
+    *[
+        (
+            f"npy shape {shape}",
+            "POST",
+            "closest",
+            NPY,
+            lambda shape=shape: hostile.npy_with_header("<f4", shape, bytes(48)),
+            400,
+            problem,
+        )
+        for shape, problem in [
+            ((-2, -3), "negative length"),
+            ((-1, -6), "negative length"),
+            ((2**32, 2**32), "truncated"),
+            ((2**62, 8), "truncated"),
+            ((2**64, 6), "truncated"),
+        ]
+    ],
+    (
+        "npy dtype |V0",
+        "POST",
+        "closest",
+        NPY,
+        lambda: hostile.npy_with_header("|V0", (2, 6)),
+        422,
+        "only plain numeric arrays",
+    ),
+    (
+        "npy subarray dtype",
+        "POST",
+        "closest",
+        NPY,
+        lambda: hostile.npy_with_header(("<f4", (6,)), (2,), bytes(48)),
+        422,
+        "only plain numeric",
+    ),
+    (
+        "npy vertices of shape (-1, 3)",
+        "PUT",
+        "meshes/m/vertices",
+        NPY,
+        lambda: hostile.npy_with_header("<f4", (-1, 3)),
+        400,
+        "negative length",
+    ),
     # JSON: deep, huge numbers, strings and booleans
-    ("rays nested 100,000 deep", "POST", "closest", JSON,
-     lambda: hostile.deep_json("origins", 100_000), 400, "nested too deeply"),
-    ("rays nested 1,000 deep", "POST", "closest", JSON,
-     lambda: hostile.deep_json("directions", 1000), 400, "nested too deeply"),
-    ("mesh nested 5,000 deep", "PUT", "meshes/deep", JSON,
-     lambda: json_with(vertices="[" * 5000 + "]" * 5000, faces="[]"), 400, "nested too deeply"),
-    ("frame nested 5,000 deep", "POST", "frame", JSON,
-     lambda: json_with(**{"m.vertices": "[" * 5000 + "]" * 5000}), 400, "nested too deeply"),
-    ("origin of 10**400", "POST", "closest", JSON,
-     lambda: json_with(origins="[[1" + "0" * 400 + ", 0, 0]]", directions="[[0, 0, 1]]"),
-     422, "int too large"),
-    ("origin of 5,000 digits", "POST", "closest", JSON,
-     lambda: json_with(origins="[[1" + "0" * 5000 + ", 0, 0]]", directions="[[0, 0, 1]]"),
-     400, "4300 digits"),
-    ("tmax of 10**400", "POST", "occluded", JSON,
-     lambda: json_with(origins="[[0, 0, 0]]", directions="[[0, 0, 1]]", tmax="1" + "0" * 400),
-     422, "int too large"),
-    ("vertex of 10**400", "PUT", "meshes/big", JSON,
-     lambda: json_with(vertices="[[1" + "0" * 400 + ", 0, 0], [1, 0, 0], [0, 1, 0]]",
-                       faces="[[0, 1, 2]]"), 422, "int too large"),
-    ("coordinates as strings", "POST", "closest", JSON,
-     lambda: json_with(origins='[["0.5", 0, 0]]', directions="[[0, 0, 1]]"), 422, "the string"),
-    ("coordinates as booleans", "PUT", "meshes/m/vertices", JSON,
-     lambda: json_with(vertices="[[true, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]"), 422,
-     "found true"),
-    ("a face index as a boolean", "PUT", "meshes/b", JSON,
-     lambda: json_with(vertices="[[0, 0, 0], [1, 0, 0], [0, 1, 0]]", faces="[[true, 1, 2]]"),
-     422, "found true"),
-    ("a one-shot trace with string rays", "POST", "/v1/trace", JSON,
-     lambda: ("{" + TRIANGLE + ', "origins": [["a", 0, 0]], "directions": [[0, 0, 1]]}').encode(),
-     422, "the string 'a'"),
+    (
+        "rays nested 100,000 deep",
+        "POST",
+        "closest",
+        JSON,
+        lambda: hostile.deep_json("origins", 100_000),
+        400,
+        "nested too deeply",
+    ),
+    (
+        "rays nested 1,000 deep",
+        "POST",
+        "closest",
+        JSON,
+        lambda: hostile.deep_json("directions", 1000),
+        400,
+        "nested too deeply",
+    ),
+    (
+        "mesh nested 5,000 deep",
+        "PUT",
+        "meshes/deep",
+        JSON,
+        lambda: json_with(vertices="[" * 5000 + "]" * 5000, faces="[]"),
+        400,
+        "nested too deeply",
+    ),
+    (
+        "frame nested 5,000 deep",
+        "POST",
+        "frame",
+        JSON,
+        lambda: json_with(**{"m.vertices": "[" * 5000 + "]" * 5000}),
+        400,
+        "nested too deeply",
+    ),
+    (
+        "origin of 10**400",
+        "POST",
+        "closest",
+        JSON,
+        lambda: json_with(origins="[[1" + "0" * 400 + ", 0, 0]]", directions="[[0, 0, 1]]"),
+        422,
+        "int too large",
+    ),
+    (
+        "origin of 5,000 digits",
+        "POST",
+        "closest",
+        JSON,
+        lambda: json_with(origins="[[1" + "0" * 5000 + ", 0, 0]]", directions="[[0, 0, 1]]"),
+        400,
+        "4300 digits",
+    ),
+    (
+        "tmax of 10**400",
+        "POST",
+        "occluded",
+        JSON,
+        lambda: json_with(origins="[[0, 0, 0]]", directions="[[0, 0, 1]]", tmax="1" + "0" * 400),
+        422,
+        "int too large",
+    ),
+    (
+        "vertex of 10**400",
+        "PUT",
+        "meshes/big",
+        JSON,
+        lambda: json_with(
+            vertices="[[1" + "0" * 400 + ", 0, 0], [1, 0, 0], [0, 1, 0]]", faces="[[0, 1, 2]]"
+        ),
+        422,
+        "int too large",
+    ),
+    (
+        "coordinates as strings",
+        "POST",
+        "closest",
+        JSON,
+        lambda: json_with(origins='[["0.5", 0, 0]]', directions="[[0, 0, 1]]"),
+        422,
+        "the string",
+    ),
+    (
+        "coordinates as booleans",
+        "PUT",
+        "meshes/m/vertices",
+        JSON,
+        lambda: json_with(vertices="[[true, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]"),
+        422,
+        "found true",
+    ),
+    (
+        "a face index as a boolean",
+        "PUT",
+        "meshes/b",
+        JSON,
+        lambda: json_with(vertices="[[0, 0, 0], [1, 0, 0], [0, 1, 0]]", faces="[[true, 1, 2]]"),
+        422,
+        "found true",
+    ),
+    (
+        "a one-shot trace with string rays",
+        "POST",
+        "/v1/trace",
+        JSON,
+        lambda: (
+            "{" + TRIANGLE + ', "origins": [["a", 0, 0]], "directions": [[0, 0, 1]]}'
+        ).encode(),
+        422,
+        "the string 'a'",
+    ),
     # bodies that are not what they say
-    ("an empty zip as rays", "POST", "closest", NPZ, lambda: b"PK\x05\x06" + bytes(18), 400,
-     "lacks 'origins'"),
+    (
+        "an empty zip as rays",
+        "POST",
+        "closest",
+        NPZ,
+        lambda: b"PK\x05\x06" + bytes(18),
+        400,
+        "lacks 'origins'",
+    ),
     ("binary as JSON", "POST", "closest", JSON, lambda: b"\xff\xfe\x00{", 400, "not valid JSON"),
-    ("an npy of 2 GiB promised, 48 bytes sent", "POST", "closest", NPY,
-     lambda: hostile.npy_with_header("<f4", (2**28, 2)), 400, "truncated"),
-    ("unknown query parameter", "POST", "closest?feilds=t", NPY, lambda: npy_bytes(RAYS), 422,
-     "unknown query parameter 'feilds' (did you mean 'fields'?)"),
+    (
+        "an npy of 2 GiB promised, 48 bytes sent",
+        "POST",
+        "closest",
+        NPY,
+        lambda: hostile.npy_with_header("<f4", (2**28, 2)),
+        400,
+        "truncated",
+    ),
+    (
+        "unknown query parameter",
+        "POST",
+        "closest?feilds=t",
+        NPY,
+        lambda: npy_bytes(RAYS),
+        422,
+        "unknown query parameter 'feilds' (did you mean 'fields'?)",
+    ),
     # malformed or hostile mesh files
-    *[(f"mesh file: {phrase}", "PUT", "meshes/m", headers, lambda body=body: body, status, phrase)
-      for body, headers, status, phrase in BAD_MESH_FILES],
+    *[
+        (f"mesh file: {phrase}", "PUT", "meshes/m", headers, lambda body=body: body, status, phrase)
+        for body, headers, status, phrase in BAD_MESH_FILES
+    ],
 ]
 
 
 def peak_and_reset(pid: int) -> tuple[int, int]:
     """(peak RSS since the last reset, RSS now) of a process, in bytes; resets the peak."""
     status = Path(f"/proc/{pid}/status").read_text()
-    rss = {key: int(value) * 1024 for key, value in re.findall(r"(VmHWM|VmRSS):\s+(\d+) kB", status)}
+    rss = {
+        key: int(value) * 1024 for key, value in re.findall(r"(VmHWM|VmRSS):\s+(\d+) kB", status)
+    }
     Path(f"/proc/{pid}/clear_refs").write_text("5")  # Linux: reset VmHWM to the current RSS
     return rss["VmHWM"], rss["VmRSS"]
 
@@ -118,17 +300,26 @@ def peak_and_reset(pid: int) -> tuple[int, int]:
 def server_state(http: httpx.Client, scene: str) -> dict:
     """What no rejected request may change: health, the scene list, one scene and an answer."""
     health = http.get("/health").json()
-    answer = http.post(f"/v1/scenes/{scene}/closest?fields=t,prim", content=npy_bytes(RAYS),
-                       headers={**NPY, "Accept": "application/json"}).json()
-    return {"health": {k: v for k, v in health.items() if k != "warmup_seconds"},
-            "scenes": http.get("/v1/scenes").json(), "answer": answer}
+    answer = http.post(
+        f"/v1/scenes/{scene}/closest?fields=t,prim",
+        content=npy_bytes(RAYS),
+        headers={**NPY, "Accept": "application/json"},
+    ).json()
+    return {
+        "health": {k: v for k, v in health.items() if k != "warmup_seconds"},
+        "scenes": http.get("/v1/scenes").json(),
+        "answer": answer,
+    }
 
 
 def test_hostile_corpus_gets_4xx_at_bounded_cost_and_changes_nothing(hostile_server):
     with httpx.Client(base_url=hostile_server.url, timeout=60) as http:
         scene = "target"
-        assert http.put(f"/v1/scenes/{scene}/meshes/m", content=npz_bytes(
-            vertices=quad(0, 1, 0, 1, 0)[0], faces=quad(0, 1, 0, 1, 0)[1]), headers=NPZ).is_success
+        assert http.put(
+            f"/v1/scenes/{scene}/meshes/m",
+            content=npz_bytes(vertices=quad(0, 1, 0, 1, 0)[0], faces=quad(0, 1, 0, 1, 0)[1]),
+            headers=NPZ,
+        ).is_success
         before = server_state(http, scene)
         bodies = [(case, case[4]()) for case in CORPUS]  # built before the memory is watched
         peak_and_reset(hostile_server.process.pid)
@@ -139,11 +330,20 @@ def test_hostile_corpus_gets_4xx_at_bounded_cost_and_changes_nothing(hostile_ser
             start = time.perf_counter()
             response = http.request(method, url, content=body, headers=headers)
             seconds = time.perf_counter() - start
-            detail = response.json().get("detail", "") if response.headers.get(
-                "content-type") == "application/json" else response.text
-            if (response.status_code != status or not isinstance(detail, str)
-                    or phrase not in detail or seconds > CASE_SECONDS):
-                failures.append(f"{name}: {response.status_code} in {seconds:.2f} s: {detail[:200]}")
+            detail = (
+                response.json().get("detail", "")
+                if response.headers.get("content-type") == "application/json"
+                else response.text
+            )
+            if (
+                response.status_code != status
+                or not isinstance(detail, str)
+                or phrase not in detail
+                or seconds > CASE_SECONDS
+            ):
+                failures.append(
+                    f"{name}: {response.status_code} in {seconds:.2f} s: {detail[:200]}"
+                )
         peak, _ = peak_and_reset(hostile_server.process.pid)
         assert not failures, "\n".join(failures)
         assert peak - rss_before < MEMORY_BOUND, f"peak RSS rose by {(peak - rss_before) >> 20} MiB"
@@ -155,8 +355,11 @@ def test_hostile_corpus_gets_4xx_at_bounded_cost_and_changes_nothing(hostile_ser
 def test_rejected_uploads_create_no_scene(hostile_server):
     with httpx.Client(base_url=hostile_server.url, timeout=60) as http:
         scenes = http.get("/v1/scenes").json()
-        response = http.put("/v1/scenes/never-made/meshes/m", headers=JSON,
-                            content=json_with(vertices="[[true, 0, 0]]", faces="[[0, 0, 0]]"))
+        response = http.put(
+            "/v1/scenes/never-made/meshes/m",
+            headers=JSON,
+            content=json_with(vertices="[[true, 0, 0]]", faces="[[0, 0, 0]]"),
+        )
         assert response.status_code == 422
         assert http.get("/v1/scenes/never-made").status_code == 404
         assert http.get("/v1/scenes").json() == scenes
@@ -165,9 +368,10 @@ def test_rejected_uploads_create_no_scene(hostile_server):
 def test_a_client_leaving_mid_body_is_counted_apart_from_server_errors(hostile_server):
     host, port = hostile_server.url.removeprefix("http://").split(":")
     with socket.create_connection((host, int(port)), timeout=5) as raw:
-        raw.sendall(b"POST /v1/scenes/target/closest HTTP/1.1\r\nHost: x\r\n"
-                    b"Content-Type: application/x-npy\r\nContent-Length: 100000\r\n\r\n"
-                    + bytes(1000))
+        raw.sendall(
+            b"POST /v1/scenes/target/closest HTTP/1.1\r\nHost: x\r\n"
+            b"Content-Type: application/x-npy\r\nContent-Length: 100000\r\n\r\n" + bytes(1000)
+        )
         time.sleep(0.3)
     deadline = time.monotonic() + 5
     while time.monotonic() < deadline:

@@ -1,6 +1,7 @@
 """Mesh files in-process: geometry only (textures never decoded), and every malformed or hostile
 file refused with a 4xx error naming the problem (``BadBody`` 400, ``Invalid`` 422, ``TooLarge``
 413). The hostile files are built by ``mesh_files``."""
+
 from __future__ import annotations
 
 import random
@@ -8,9 +9,19 @@ import struct
 
 import numpy as np
 import pytest
+from mesh_files import (
+    OBJ_TRIANGLE,
+    OFF_TRIANGLE,
+    PLY_TRIANGLE_HEADER,
+    TRIANGLE,
+    glb,
+    ply,
+    png,
+    stl,
+    triangle_doc,
+    triangle_glb,
+)
 
-from mesh_files import (OBJ_TRIANGLE, OFF_TRIANGLE, PLY_TRIANGLE_HEADER, TRIANGLE, glb, ply, png,
-                        stl, triangle_doc, triangle_glb)
 from service import wire
 from service.errors import BadBody, Invalid, ServiceError, TooLarge
 
@@ -24,6 +35,7 @@ def decode(body: bytes, fmt: str) -> wire.MeshArrays:
 
 def _peak_rss_growth_mb(work) -> float:
     """How much ``work()`` raises this process's peak RSS, in MB (Linux)."""
+
     def status(key: str) -> int:
         with open("/proc/self/status") as f:
             return next(int(line.split()[1]) for line in f if line.startswith(key)) // 1024
@@ -56,8 +68,9 @@ def test_glb_textures_are_never_decoded(monkeypatch):
 def test_obj_material_library_and_ply_texture_file_are_ignored():
     obj = b"mtllib /etc/passwd\nusemtl x\n" + OBJ_TRIANGLE + b"vt 0 0\nf 1/1 2/1 3/1\n"
     assert decode(obj, "obj").faces.tolist() == [[0, 1, 2]]
-    body = ply(["comment TextureFile /etc/passwd", *PLY_TRIANGLE_HEADER],
-               b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    body = ply(
+        ["comment TextureFile /etc/passwd", *PLY_TRIANGLE_HEADER], b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    )
     assert decode(body, "ply").faces.tolist() == [[0, 1, 2]]
 
 
@@ -65,37 +78,57 @@ def test_obj_material_library_and_ply_texture_file_are_ignored():
 
 
 def test_obj_polygons_relative_indices_and_texture_normal_references():
-    body = (b"o a\n" + OBJ_TRIANGLE + b"v 1 1 0\nvt 0 0\nvn 0 0 1\n"
-            b"f 1/1/1 2/1/1 4/1/1 3/1/1\n"      # a quad: two triangles, a fan from its first
-            b"  f\t1//1 2//1 3//1  # comment\n"  # leading blanks, tab, comment
-            b"o b\nv 5 0 0\nv 6 0 0\nv 5 1 0\nf -3 -2 -1\n"  # relative to the lines above
-            b"v 9 9 9\n")
+    body = (
+        b"o a\n" + OBJ_TRIANGLE + b"v 1 1 0\nvt 0 0\nvn 0 0 1\n"
+        b"f 1/1/1 2/1/1 4/1/1 3/1/1\n"  # a quad: two triangles, a fan from its first
+        b"  f\t1//1 2//1 3//1  # comment\n"  # leading blanks, tab, comment
+        b"o b\nv 5 0 0\nv 6 0 0\nv 5 1 0\nf -3 -2 -1\n"  # relative to the lines above
+        b"v 9 9 9\n"
+    )
     mesh = decode(body, "obj")
     assert mesh.faces.tolist() == [[0, 1, 3], [0, 3, 2], [0, 1, 2], [4, 5, 6]]
     assert mesh.vertices.shape == (8, 3) and mesh.faces.dtype == np.int32
 
 
-@pytest.mark.parametrize("body, error, message", [
-    (OBJ_TRIANGLE + b"f 0 1 2\n", Invalid,
-     "OBJ line 4 (`f 0 1 2`) refers to vertex 0, but OBJ indices start at 1"),
-    (OBJ_TRIANGLE + b"f 1 2 3\nf 1 2 9\n", Invalid,
-     "line 5 (`f 1 2 9`) refers to vertex 9, but there are 3 vertices"),
-    (b"v 0 0 0\nf -1 -2 -3\n" + OBJ_TRIANGLE, Invalid,
-     "refers to vertex -2, but only 1 vertices are defined before it"),
-    (OBJ_TRIANGLE + b"f 1 2\n", Invalid, "a face needs at least 3 vertices, this one has 2"),
-    (OBJ_TRIANGLE + b"f 1 2 x\n", BadBody, "OBJ line 4 (`f 1 2 x`): `x` is not a vertex index"),
-    (OBJ_TRIANGLE + b"f 1 2 3.5\n", BadBody, "`3.5` is not a vertex index"),
-    (OBJ_TRIANGLE + b"f 1 2 /3\n", BadBody, "`/3` is not a vertex index"),
-    (b"v 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", BadBody,
-     "OBJ line 1 (`v 0 0`): a vertex needs 3 coordinates"),
-    (b"v 0 0 zero\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", BadBody,
-     "OBJ line 1 (`v 0 0 zero`): a vertex must be numbers"),
-    (b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", Invalid, "vertices[0] is not finite"),
-    (b"v 1e39 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", Invalid, "vertices[0] is not finite"),
-    (OBJ_TRIANGLE, BadBody, "no triangles found in the OBJ body"),
-    (b"\n  \n", BadBody, "the OBJ body is empty"),
-    (b"", BadBody, "the OBJ body is empty"),
-])
+@pytest.mark.parametrize(
+    "body, error, message",
+    [
+        (
+            OBJ_TRIANGLE + b"f 0 1 2\n",
+            Invalid,
+            "OBJ line 4 (`f 0 1 2`) refers to vertex 0, but OBJ indices start at 1",
+        ),
+        (
+            OBJ_TRIANGLE + b"f 1 2 3\nf 1 2 9\n",
+            Invalid,
+            "line 5 (`f 1 2 9`) refers to vertex 9, but there are 3 vertices",
+        ),
+        (
+            b"v 0 0 0\nf -1 -2 -3\n" + OBJ_TRIANGLE,
+            Invalid,
+            "refers to vertex -2, but only 1 vertices are defined before it",
+        ),
+        (OBJ_TRIANGLE + b"f 1 2\n", Invalid, "a face needs at least 3 vertices, this one has 2"),
+        (OBJ_TRIANGLE + b"f 1 2 x\n", BadBody, "OBJ line 4 (`f 1 2 x`): `x` is not a vertex index"),
+        (OBJ_TRIANGLE + b"f 1 2 3.5\n", BadBody, "`3.5` is not a vertex index"),
+        (OBJ_TRIANGLE + b"f 1 2 /3\n", BadBody, "`/3` is not a vertex index"),
+        (
+            b"v 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+            BadBody,
+            "OBJ line 1 (`v 0 0`): a vertex needs 3 coordinates",
+        ),
+        (
+            b"v 0 0 zero\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+            BadBody,
+            "OBJ line 1 (`v 0 0 zero`): a vertex must be numbers",
+        ),
+        (b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", Invalid, "vertices[0] is not finite"),
+        (b"v 1e39 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", Invalid, "vertices[0] is not finite"),
+        (OBJ_TRIANGLE, BadBody, "no triangles found in the OBJ body"),
+        (b"\n  \n", BadBody, "the OBJ body is empty"),
+        (b"", BadBody, "the OBJ body is empty"),
+    ],
+)
 def test_bad_obj(body, error, message):
     with pytest.raises(error) as caught:
         decode(body, "obj")
@@ -110,27 +143,53 @@ def test_off_polygons_comments_colours_and_counts_on_the_keyword_line():
     assert decode(body, "off").faces.tolist() == [[0, 1, 2], [0, 2, 3], [0, 1, 2]]
 
 
-@pytest.mark.parametrize("body, error, message", [
-    (OFF_TRIANGLE + b"1000000 0 1 2\n", BadBody,
-     "OFF line 6 (`1000000 0 1 2`): declares a face of 1000000 vertices but lists 3 indices"),
-    (OFF_TRIANGLE + b"3 0 1 7\n", Invalid,
-     "OFF line 6 (`3 0 1 7`) refers to vertex 7, but there are 3 vertices"),
-    (OFF_TRIANGLE + b"3 0 -1 2\n", Invalid, "refers to vertex -1, but there are 3 vertices"),
-    (OFF_TRIANGLE + b"2 0 1\n", Invalid, "a face needs at least 3 vertices, this one declares 2"),
-    (OFF_TRIANGLE + b"3 0 1 2 1 2 3 4 5\n", BadBody, "lists 8 values"),
-    (OFF_TRIANGLE + b"3 0 1 x\n", BadBody, "OFF line 6 (`3 0 1 x`): a face must be integers"),
-    (b"OFF\n1000000000 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", BadBody,
-     "declares 1000000000 vertices and 1 faces (1000000001 lines), but 4 lines follow"),
-    (OFF_TRIANGLE + b"3 0 1 2\n3 0 1 2\n", BadBody,
-     "declares 3 vertices and 1 faces (4 lines), but 5 lines follow"),
-    (b"OFF\nthree 1 0\n", BadBody, "the counts must be integers"),
-    (b"4OFF\n3 1 0\n0 0 0 0\n1 0 0 0\n0 1 0 0\n3 0 1 2\n", BadBody, "4OFF and nOFF are not read"),
-    (b"OFF\n3 1 0\n0 0\n1 0 0\n0 1 0\n3 0 1 2\n", BadBody,
-     "OFF line 3 (`0 0`): a vertex needs 3 coordinates"),
-    (b"OFF\n3 1 0\ninf 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", Invalid, "vertices[0] is not finite"),
-    (b"OFF\n# nothing\n", BadBody, "no counts line"),
-    (b"OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n", BadBody, "no triangles found in the OFF body"),
-])
+@pytest.mark.parametrize(
+    "body, error, message",
+    [
+        (
+            OFF_TRIANGLE + b"1000000 0 1 2\n",
+            BadBody,
+            "OFF line 6 (`1000000 0 1 2`): declares a face of 1000000 vertices but lists 3 indices",
+        ),
+        (
+            OFF_TRIANGLE + b"3 0 1 7\n",
+            Invalid,
+            "OFF line 6 (`3 0 1 7`) refers to vertex 7, but there are 3 vertices",
+        ),
+        (OFF_TRIANGLE + b"3 0 -1 2\n", Invalid, "refers to vertex -1, but there are 3 vertices"),
+        (
+            OFF_TRIANGLE + b"2 0 1\n",
+            Invalid,
+            "a face needs at least 3 vertices, this one declares 2",
+        ),
+        (OFF_TRIANGLE + b"3 0 1 2 1 2 3 4 5\n", BadBody, "lists 8 values"),
+        (OFF_TRIANGLE + b"3 0 1 x\n", BadBody, "OFF line 6 (`3 0 1 x`): a face must be integers"),
+        (
+            b"OFF\n1000000000 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+            BadBody,
+            "declares 1000000000 vertices and 1 faces (1000000001 lines), but 4 lines follow",
+        ),
+        (
+            OFF_TRIANGLE + b"3 0 1 2\n3 0 1 2\n",
+            BadBody,
+            "declares 3 vertices and 1 faces (4 lines), but 5 lines follow",
+        ),
+        (b"OFF\nthree 1 0\n", BadBody, "the counts must be integers"),
+        (
+            b"4OFF\n3 1 0\n0 0 0 0\n1 0 0 0\n0 1 0 0\n3 0 1 2\n",
+            BadBody,
+            "4OFF and nOFF are not read",
+        ),
+        (
+            b"OFF\n3 1 0\n0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+            BadBody,
+            "OFF line 3 (`0 0`): a vertex needs 3 coordinates",
+        ),
+        (b"OFF\n3 1 0\ninf 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", Invalid, "vertices[0] is not finite"),
+        (b"OFF\n# nothing\n", BadBody, "no counts line"),
+        (b"OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n", BadBody, "no triangles found in the OFF body"),
+    ],
+)
 def test_bad_off(body, error, message):
     with pytest.raises(error) as caught:
         decode(body, "off")
@@ -140,10 +199,16 @@ def test_bad_off(body, error, message):
 # ---- PLY
 
 
-@pytest.mark.parametrize("encoding, data", [
-    ("ascii", b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
-    ("binary_little_endian", TRIANGLE.tobytes() + b"\x03" + np.array([0, 1, 2], "<i4").tobytes()),
-])
+@pytest.mark.parametrize(
+    "encoding, data",
+    [
+        ("ascii", b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
+        (
+            "binary_little_endian",
+            TRIANGLE.tobytes() + b"\x03" + np.array([0, 1, 2], "<i4").tobytes(),
+        ),
+    ],
+)
 def test_ply(encoding, data):
     assert decode(ply(PLY_TRIANGLE_HEADER, data, encoding), "ply").faces.tolist() == [[0, 1, 2]]
 
@@ -151,27 +216,55 @@ def test_ply(encoding, data):
 BILLION_VERTICES = ["element vertex 1000000000", *PLY_TRIANGLE_HEADER[1:]]
 
 
-@pytest.mark.parametrize("body, error, message", [
-    (ply(BILLION_VERTICES, encoding="binary_little_endian"), BadBody,
-     "PLY header declares 1000000000 vertex, 1 face (at least 12000000001 bytes), "
-     "but the body holds only 0 bytes"),
-    (ply(BILLION_VERTICES), BadBody,
-     "declares 1000000000 vertex, 1 face (1000000001 lines), but the body holds only 0 lines"),
-    (ply(PLY_TRIANGLE_HEADER, b"0 0 0\n1 0 0\n"), BadBody,
-     "(4 lines), but the body holds only 2 lines"),
-    (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n", BadBody,
-     "PLY header has no `end_header` line"),
-    (ply(["element vertex 3", "property float128 x"]), BadBody,
-     "line 4 (`property float128 x`) is not a format, element"),
-    (ply(["element vertex -3"]), BadBody, "(`element vertex -3`) is not a format, element"),
-    (ply(PLY_TRIANGLE_HEADER, b"0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n"), Invalid,
-     "faces[0] refers to vertex 7, but there are 3 vertices"),
-    (ply(PLY_TRIANGLE_HEADER, b"nan 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"), Invalid,
-     "vertices[0] is not finite"),
-    (b"ply\nend_header\n", BadBody,
-     "has no `format ascii|binary_little_endian|binary_big_endian 1.0` line"),
-    (b"obj\nformat ascii 1.0\nend_header\n", BadBody, "must start with the line `ply`"),
-])
+@pytest.mark.parametrize(
+    "body, error, message",
+    [
+        (
+            ply(BILLION_VERTICES, encoding="binary_little_endian"),
+            BadBody,
+            "PLY header declares 1000000000 vertex, 1 face (at least 12000000001 bytes), "
+            "but the body holds only 0 bytes",
+        ),
+        (
+            ply(BILLION_VERTICES),
+            BadBody,
+            "declares 1000000000 vertex, 1 face (1000000001 lines), "
+            "but the body holds only 0 lines",
+        ),
+        (
+            ply(PLY_TRIANGLE_HEADER, b"0 0 0\n1 0 0\n"),
+            BadBody,
+            "(4 lines), but the body holds only 2 lines",
+        ),
+        (
+            b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n",
+            BadBody,
+            "PLY header has no `end_header` line",
+        ),
+        (
+            ply(["element vertex 3", "property float128 x"]),
+            BadBody,
+            "line 4 (`property float128 x`) is not a format, element",
+        ),
+        (ply(["element vertex -3"]), BadBody, "(`element vertex -3`) is not a format, element"),
+        (
+            ply(PLY_TRIANGLE_HEADER, b"0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n"),
+            Invalid,
+            "faces[0] refers to vertex 7, but there are 3 vertices",
+        ),
+        (
+            ply(PLY_TRIANGLE_HEADER, b"nan 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
+            Invalid,
+            "vertices[0] is not finite",
+        ),
+        (
+            b"ply\nend_header\n",
+            BadBody,
+            "has no `format ascii|binary_little_endian|binary_big_endian 1.0` line",
+        ),
+        (b"obj\nformat ascii 1.0\nend_header\n", BadBody, "must start with the line `ply`"),
+    ],
+)
 def test_bad_ply(body, error, message):
     with pytest.raises(error) as caught:
         decode(body, "ply")
@@ -186,17 +279,26 @@ def test_binary_stl_starting_with_solid_is_read_as_binary():
     assert decode(body, "stl").faces.tolist() == [[0, 1, 2]]
 
 
-@pytest.mark.parametrize("body, error, message", [
-    (stl(TRIANGLE[None], count=100_000_000), BadBody,
-     "binary STL header declares 100000000 triangles (5000000084 bytes), "
-     "but the body is 134 bytes"),
-    (stl(TRIANGLE[None])[:-1], BadBody,
-     "declares 1 triangles (134 bytes), but the body is 133 bytes"),
-    (b"\x01" * 50, BadBody, "shorter than the 84-byte header of a binary STL"),
-    (stl(np.full((1, 3, 3), np.nan, np.float32)), Invalid, "is not finite"),
-    (stl(np.zeros((0, 3, 3), np.float32)), BadBody, "no triangles found in the STL body"),
-    (b"solid x\nendsolid x\n", BadBody, "no triangles found in the STL body"),
-])
+@pytest.mark.parametrize(
+    "body, error, message",
+    [
+        (
+            stl(TRIANGLE[None], count=100_000_000),
+            BadBody,
+            "binary STL header declares 100000000 triangles (5000000084 bytes), "
+            "but the body is 134 bytes",
+        ),
+        (
+            stl(TRIANGLE[None])[:-1],
+            BadBody,
+            "declares 1 triangles (134 bytes), but the body is 133 bytes",
+        ),
+        (b"\x01" * 50, BadBody, "shorter than the 84-byte header of a binary STL"),
+        (stl(np.full((1, 3, 3), np.nan, np.float32)), Invalid, "is not finite"),
+        (stl(np.zeros((0, 3, 3), np.float32)), BadBody, "no triangles found in the STL body"),
+        (b"solid x\nendsolid x\n", BadBody, "no triangles found in the STL body"),
+    ],
+)
 def test_bad_stl(body, error, message):
     with pytest.raises(error) as caught:
         decode(body, "stl")
@@ -224,43 +326,81 @@ def _many_instances() -> bytes:
 
 def _set(path: str, value):
     """An edit of a glTF document: set ``value`` at a dotted path (list indices as numbers)."""
+
     def edit(doc):
         *parents, last = path.split(".")
         for key in parents:
             doc = doc[int(key)] if key.isdigit() else doc[key]
         doc[int(last) if last.isdigit() else last] = value
+
     return edit
 
 
-@pytest.mark.parametrize("body, error, message", [
-    (triangle_glb(edit=_set("buffers.0.uri", "model.bin")), BadBody,
-     "GLB buffer 0 refers to 'model.bin': only a self-contained GLB is accepted"),
-    (triangle_glb(edit=_set("buffers.0.uri", "data:application/octet-stream;base64,AAAA")), BadBody,
-     "only a self-contained GLB is accepted"),
-    (glb(triangle_doc(), json_length=2**31), BadBody,
-     "GLB chunk 0 declares 2147483648 bytes, but only"),
-    (triangle_glb()[:-4], BadBody, "GLB header declares"),
-    (b"glTF" + struct.pack("<II", 2, 24) + struct.pack("<I", 4) + b"JSON{{{{", BadBody,
-     "GLB JSON chunk is not valid JSON"),
-    (glb([1, 2]), BadBody, "GLB JSON chunk must be an object"),
-    (b"glTF" + struct.pack("<II", 1, 20) + b"\0" * 8, BadBody, "version 2"),
-    (b"glTF", BadBody, "shorter than a GLB header"),
-    (triangle_glb(edit=lambda doc: doc["accessors"].append(  # no bufferView: zeros
-        {"componentType": 5126, "count": 10**9, "type": "VEC3"})),
-     TooLarge, "GLB accessors declare 12000000048 bytes, over 8 times"),
-    (triangle_glb(edit=_set("bufferViews.1.byteLength", 10**12)), TooLarge,
-     "GLB buffer views declare"),
-    (triangle_glb(edit=_set("accessors.0.count", -3)), BadBody,
-     "accessors[0].count must be an integer >= 0"),
-    (triangle_glb(edit=_set("accessors.0.type", "VEC7")), BadBody,
-     "accessors[0] needs a known type"),
-    (triangle_glb(edit=_set("extensionsRequired", ["KHR_draco_mesh_compression"])), BadBody,
-     "uses KHR_draco_mesh_compression, which is not read"),
-    (_many_instances(), TooLarge, "instances its meshes into 1000000 triangles"),
-    (triangle_glb(indices=(0, 1, 7)), Invalid,
-     "faces[0] refers to vertex 7, but there are 3 vertices"),
-    (triangle_glb(edit=_set("accessors.1.count", 300)), BadBody, "body cannot be read as GLB"),
-])
+@pytest.mark.parametrize(
+    "body, error, message",
+    [
+        (
+            triangle_glb(edit=_set("buffers.0.uri", "model.bin")),
+            BadBody,
+            "GLB buffer 0 refers to 'model.bin': only a self-contained GLB is accepted",
+        ),
+        (
+            triangle_glb(edit=_set("buffers.0.uri", "data:application/octet-stream;base64,AAAA")),
+            BadBody,
+            "only a self-contained GLB is accepted",
+        ),
+        (
+            glb(triangle_doc(), json_length=2**31),
+            BadBody,
+            "GLB chunk 0 declares 2147483648 bytes, but only",
+        ),
+        (triangle_glb()[:-4], BadBody, "GLB header declares"),
+        (
+            b"glTF" + struct.pack("<II", 2, 24) + struct.pack("<I", 4) + b"JSON{{{{",
+            BadBody,
+            "GLB JSON chunk is not valid JSON",
+        ),
+        (glb([1, 2]), BadBody, "GLB JSON chunk must be an object"),
+        (b"glTF" + struct.pack("<II", 1, 20) + b"\0" * 8, BadBody, "version 2"),
+        (b"glTF", BadBody, "shorter than a GLB header"),
+        (
+            triangle_glb(
+                edit=lambda doc: doc["accessors"].append(  # no bufferView: zeros
+                    {"componentType": 5126, "count": 10**9, "type": "VEC3"}
+                )
+            ),
+            TooLarge,
+            "GLB accessors declare 12000000048 bytes, over 8 times",
+        ),
+        (
+            triangle_glb(edit=_set("bufferViews.1.byteLength", 10**12)),
+            TooLarge,
+            "GLB buffer views declare",
+        ),
+        (
+            triangle_glb(edit=_set("accessors.0.count", -3)),
+            BadBody,
+            "accessors[0].count must be an integer >= 0",
+        ),
+        (
+            triangle_glb(edit=_set("accessors.0.type", "VEC7")),
+            BadBody,
+            "accessors[0] needs a known type",
+        ),
+        (
+            triangle_glb(edit=_set("extensionsRequired", ["KHR_draco_mesh_compression"])),
+            BadBody,
+            "uses KHR_draco_mesh_compression, which is not read",
+        ),
+        (_many_instances(), TooLarge, "instances its meshes into 1000000 triangles"),
+        (
+            triangle_glb(indices=(0, 1, 7)),
+            Invalid,
+            "faces[0] refers to vertex 7, but there are 3 vertices",
+        ),
+        (triangle_glb(edit=_set("accessors.1.count", 300)), BadBody, "body cannot be read as GLB"),
+    ],
+)
 def test_bad_glb(body, error, message):
     with pytest.raises(error) as caught:
         decode(body, "glb")
@@ -291,7 +431,7 @@ def test_mutated_files_give_only_4xx_errors(fmt):
             if action < 0.4:
                 body[at] = rng.randrange(256)
             elif action < 0.6:
-                body[at:at + rng.randint(1, 8)] = b""
+                body[at : at + rng.randint(1, 8)] = b""
             elif action < 0.8:
                 body[at:at] = rng.choice([b"0", b"-1", b" ", b"\n", b"/", b"999999999", b"#"])
             else:

@@ -1,5 +1,6 @@
 """Settings from DACRT_* environment variables, with sizes in units; unknown names and bad
 values refused in one line."""
+
 from __future__ import annotations
 
 import os
@@ -8,15 +9,30 @@ import sys
 
 import pytest
 from pydantic import ValidationError
-
-from service.settings import (MiB, Settings, SettingsError, check_names, load_settings,
-                              load_settings_or_exit, parse_size)
 from service_helpers import REPO
+
+from service.settings import (
+    MiB,
+    Settings,
+    SettingsError,
+    check_names,
+    load_settings,
+    load_settings_or_exit,
+    parse_size,
+)
 
 
 def test_defaults_are_sane(monkeypatch):
-    for name in ("TOKEN", "MAX_BODY_BYTES", "MAX_RAYS_PER_REQUEST", "MAX_TRIANGLES_PER_SCENE",
-                 "MAX_SCENE_BYTES", "LOAD_DEMO", "HOST", "PORT"):
+    for name in (
+        "TOKEN",
+        "MAX_BODY_BYTES",
+        "MAX_RAYS_PER_REQUEST",
+        "MAX_TRIANGLES_PER_SCENE",
+        "MAX_SCENE_BYTES",
+        "LOAD_DEMO",
+        "HOST",
+        "PORT",
+    ):
         monkeypatch.delenv(f"DACRT_{name}", raising=False)
     settings = Settings()
     assert settings.token is None and settings.load_demo is False
@@ -42,14 +58,30 @@ def test_empty_token_means_no_token(monkeypatch):
     assert Settings().token is None
 
 
-@pytest.mark.parametrize("text, value", [("10", 10), ("10k", 10240), ("2 MiB", 2 * MiB), ("1GB", 10**9),
-                                         ("4GiB", 4 * 2**30), ("1_000", 1000)])
+@pytest.mark.parametrize(
+    "text, value",
+    [
+        ("10", 10),
+        ("10k", 10240),
+        ("2 MiB", 2 * MiB),
+        ("1GB", 10**9),
+        ("4GiB", 4 * 2**30),
+        ("1_000", 1000),
+    ],
+)
 def test_sizes_take_units(text, value):
     assert parse_size(text) == value
 
 
-@pytest.mark.parametrize("field, value", [("max_body_bytes", "0"), ("max_rays_per_request", "-5"),
-                                          ("max_scene_bytes", "lots"), ("port", "70000")])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("max_body_bytes", "0"),
+        ("max_rays_per_request", "-5"),
+        ("max_scene_bytes", "lots"),
+        ("port", "70000"),
+    ],
+)
 def test_bad_values_are_refused(field, value):
     with pytest.raises(ValidationError):
         Settings(**{field: value})
@@ -70,9 +102,14 @@ def environ(monkeypatch):
     return lambda **variables: [monkeypatch.setenv(k, v) for k, v in variables.items()]
 
 
-@pytest.mark.parametrize("name, closest", [("DACRT_MAX_BODY_BYTE", "DACRT_MAX_BODY_BYTES"),
-                                           ("DACRT_TOKN", "DACRT_TOKEN"),
-                                           ("dacrt_header_timout", "DACRT_HEADER_TIMEOUT")])
+@pytest.mark.parametrize(
+    "name, closest",
+    [
+        ("DACRT_MAX_BODY_BYTE", "DACRT_MAX_BODY_BYTES"),
+        ("DACRT_TOKN", "DACRT_TOKEN"),
+        ("dacrt_header_timout", "DACRT_HEADER_TIMEOUT"),
+    ],
+)
 def test_unknown_variables_are_refused_with_the_closest_name(name, closest):
     with pytest.raises(SettingsError) as refused:
         check_names({"PATH": "/bin", "DACRT_PORT": "80", name: "1MiB"})
@@ -114,22 +151,34 @@ def test_launchers_exit_with_the_message(environ):
     assert str(exited.value).startswith("dacrt-service: bad setting DACRT_PORT='x': ")
 
 
-LAUNCHERS = {"python -m service": ["-m", "service"],
-             "uvicorn factory": ["-m", "uvicorn", "service.app:create_app", "--factory",
-                                 "--port", "0"]}
+LAUNCHERS = {
+    "python -m service": ["-m", "service"],
+    "uvicorn factory": ["-m", "uvicorn", "service.app:create_app", "--factory", "--port", "0"],
+}
 
 
 @pytest.mark.parametrize("launcher", LAUNCHERS)
-@pytest.mark.parametrize("variable, value, message", [
-    ("DACRT_MAX_BODY_BYTE", "1MiB", "unknown setting DACRT_MAX_BODY_BYTE; did you mean "
-                                    "DACRT_MAX_BODY_BYTES?"),
-    ("DACRT_MAX_BODY_BYTES", "lots", "bad setting DACRT_MAX_BODY_BYTES='lots': "),
-])
+@pytest.mark.parametrize(
+    "variable, value, message",
+    [
+        (
+            "DACRT_MAX_BODY_BYTE",
+            "1MiB",
+            "unknown setting DACRT_MAX_BODY_BYTE; did you mean DACRT_MAX_BODY_BYTES?",
+        ),
+        ("DACRT_MAX_BODY_BYTES", "lots", "bad setting DACRT_MAX_BODY_BYTES='lots': "),
+    ],
+)
 def test_the_server_refuses_to_start(launcher, variable, value, message):
     inherited = {k: v for k, v in os.environ.items() if not k.upper().startswith("DACRT_")}
-    done = subprocess.run([sys.executable, *LAUNCHERS[launcher]], cwd=REPO, timeout=120,
-                          env={**inherited, "PYTHONPATH": str(REPO), variable: value},
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, *LAUNCHERS[launcher]],
+        cwd=REPO,
+        timeout=120,
+        env={**inherited, "PYTHONPATH": str(REPO), variable: value},
+        capture_output=True,
+        text=True,
+    )
     output = (done.stdout + done.stderr).strip()
     assert done.returncode != 0
     assert output.splitlines() == [output] and "Traceback" not in output

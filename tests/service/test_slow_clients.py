@@ -3,6 +3,7 @@
 A server of its own with short deadlines (DACRT_HEADER_TIMEOUT, DACRT_BODY_TIMEOUT) and a small
 DACRT_MAX_CONNECTIONS; raw sockets play the stalling clients, all at once.
 """
+
 from __future__ import annotations
 
 import socket
@@ -12,20 +13,23 @@ from dataclasses import dataclass
 
 import httpx
 import pytest
-
 from server_process import ServerProcess
 
 HEADER_TIMEOUT, BODY_TIMEOUT, MAX_CONNECTIONS = 1.0, 2.0, 8
-MARGIN = 1.0          # seconds a cut-off may come after its deadline on a busy machine
-GIVE_UP = 6.0         # a client still connected after this long was never cut off
-TRICKLE_EVERY = 0.3   # seconds between the bytes of a trickling client
+MARGIN = 1.0  # seconds a cut-off may come after its deadline on a busy machine
+GIVE_UP = 6.0  # a client still connected after this long was never cut off
+TRICKLE_EVERY = 0.3  # seconds between the bytes of a trickling client
 
 
 @pytest.fixture(scope="module")
 def process():
-    process = ServerProcess({"DACRT_HEADER_TIMEOUT": str(HEADER_TIMEOUT),
-                             "DACRT_BODY_TIMEOUT": str(BODY_TIMEOUT),
-                             "DACRT_MAX_CONNECTIONS": str(MAX_CONNECTIONS)})
+    process = ServerProcess(
+        {
+            "DACRT_HEADER_TIMEOUT": str(HEADER_TIMEOUT),
+            "DACRT_BODY_TIMEOUT": str(BODY_TIMEOUT),
+            "DACRT_MAX_CONNECTIONS": str(MAX_CONNECTIONS),
+        }
+    )
     try:
         process.wait_ready()
         yield process
@@ -53,14 +57,18 @@ STALLS = {
     "nothing": Stall(b"", b"", HEADER_TIMEOUT),
     "partial headers": Stall(HEAD, b"", HEADER_TIMEOUT),
     "trickled headers": Stall(b"", HEAD * 10, HEADER_TIMEOUT),
-    "second request's partial headers": Stall(GET_HEALTH + b"GET /health HTTP/1.1\r\n", b"",
-                                              HEADER_TIMEOUT),
-    "body shorter than its Content-Length": Stall(HEAD + b"Content-Length: 1000\r\n\r\nPK", b"",
-                                                  BODY_TIMEOUT),
+    "second request's partial headers": Stall(
+        GET_HEALTH + b"GET /health HTTP/1.1\r\n", b"", HEADER_TIMEOUT
+    ),
+    "body shorter than its Content-Length": Stall(
+        HEAD + b"Content-Length: 1000\r\n\r\nPK", b"", BODY_TIMEOUT
+    ),
     "trickled body": Stall(HEAD + b"Content-Length: 1000\r\n\r\n", b"x" * 1000, BODY_TIMEOUT),
     "trickled body the app never reads": Stall(
-        b"GET /health HTTP/1.1\r\nHost: test\r\nContent-Length: 1000\r\n\r\n", b"x" * 1000,
-        BODY_TIMEOUT),
+        b"GET /health HTTP/1.1\r\nHost: test\r\nContent-Length: 1000\r\n\r\n",
+        b"x" * 1000,
+        BODY_TIMEOUT,
+    ),
 }
 
 
@@ -75,10 +83,10 @@ def stall(url: str, plan: Stall) -> tuple[float, bytes, bool]:
         while time.monotonic() - start < GIVE_UP:
             try:
                 if sent < len(plan.trickles):
-                    sock.sendall(plan.trickles[sent:sent + 1])
+                    sock.sendall(plan.trickles[sent : sent + 1])
                     sent += 1
                 data = sock.recv(65536)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             except ConnectionError:  # closed while bytes of ours were unread: a reset
                 return time.monotonic() - start, received, True
@@ -91,8 +99,11 @@ def stall(url: str, plan: Stall) -> tuple[float, bytes, bool]:
 def test_stalled_connections_are_closed_at_their_deadline(server, process):
     with ThreadPoolExecutor(len(STALLS)) as pool:
         outcomes = dict(zip(STALLS, pool.map(lambda plan: stall(server, plan), STALLS.values())))
-    problems = [f"{name}: {problem}" for name, outcome in outcomes.items()
-                if (problem := check_stall(STALLS[name], *outcome, answered=ANSWERED.get(name)))]
+    problems = [
+        f"{name}: {problem}"
+        for name, outcome in outcomes.items()
+        if (problem := check_stall(STALLS[name], *outcome, answered=ANSWERED.get(name)))
+    ]
     assert not problems, "\n".join(problems)
     assert httpx.get(f"{server}/health", timeout=5).status_code == 200
     assert "Traceback" not in process.output(last=10**6)  # cut-off bodies are no server errors
@@ -102,8 +113,9 @@ def test_stalled_connections_are_closed_at_their_deadline(server, process):
 ANSWERED = {"trickled body the app never reads": b"200 "}
 
 
-def check_stall(plan: Stall, seconds: float, received: bytes, closed: bool,
-                answered: bytes | None) -> str | None:
+def check_stall(
+    plan: Stall, seconds: float, received: bytes, closed: bool, answered: bytes | None
+) -> str | None:
     """What is wrong with how the server treated a stalling client, or None."""
     if not closed:
         return f"still open after {seconds:.1f} s"
@@ -116,8 +128,11 @@ def check_stall(plan: Stall, seconds: float, received: bytes, closed: bool,
         return None if received == b"" else f"answered {received!r} though nothing was asked"
     setting = "DACRT_BODY_TIMEOUT" if plan.deadline == BODY_TIMEOUT else "DACRT_HEADER_TIMEOUT"
     last = answers[-1] if answers else b""
-    if not (last.startswith(b"408 ") and b"connection: close" in last.lower()
-            and last.endswith(f"({setting})\"}}".encode())):
+    if not (
+        last.startswith(b"408 ")
+        and b"connection: close" in last.lower()
+        and last.endswith(f'({setting})"}}'.encode())
+    ):
         return f"no 408 naming {setting}: {received[-300:]!r}"
     return None
 

@@ -1,16 +1,17 @@
 """The scene store in-process: versions, stable indices, immutable snapshots, atomic frames,
 limits, and that a rejected change leaves nothing behind."""
+
 from __future__ import annotations
 
 import threading
 
 import numpy as np
 import pytest
+from service_helpers import grid, quad
 
 from service.errors import Conflict, Invalid, NotFound, TooLarge
 from service.store import Store, check_name, referenced_bounds
 from service.wire import MeshArrays
-from service_helpers import grid, quad
 
 
 def mesh(*args) -> MeshArrays:
@@ -25,7 +26,7 @@ def store() -> Store:
 def test_each_change_increments_the_version(store):
     info, created = store.put_mesh("s", "a", mesh())
     assert created and info.version == 1 and store.snapshot("s").version == 1
-    assert store.put_mesh("s", "a", mesh(0, 2, 0, 2, 1)) [1] is False
+    assert store.put_mesh("s", "a", mesh(0, 2, 0, 2, 1))[1] is False
     store.update_vertices("s", "a", quad(0, 3, 0, 3, 0)[0])
     store.apply_frame("s", {"a": (quad(0, 4, 0, 4, 0)[0], None)})
     store.delete_mesh("s", "a")
@@ -38,7 +39,11 @@ def test_indices_are_stable_and_never_reused(store):
     store.delete_mesh("s", "b")
     store.put_mesh("s", "a", mesh(0, 5, 0, 5, 0))  # a replacement keeps its index
     store.put_mesh("s", "d", mesh())
-    assert {m.name: m.index for m in store.snapshot("s").meshes.values()} == {"a": 0, "c": 2, "d": 3}
+    assert {m.name: m.index for m in store.snapshot("s").meshes.values()} == {
+        "a": 0,
+        "c": 2,
+        "d": 3,
+    }
 
 
 def test_versions_go_on_after_a_scene_is_deleted(store):
@@ -73,19 +78,24 @@ def test_store_owns_its_arrays(store):
 
 def test_frame_changes_several_meshes_in_one_version(store):
     store.put_mesh("s", "a", mesh())
-    snapshot = store.apply_frame("s", {"a": (quad(0, 1, 0, 1, 5)[0], None), "b": quad(0, 1, 0, 1, 6)})
+    snapshot = store.apply_frame(
+        "s", {"a": (quad(0, 1, 0, 1, 5)[0], None), "b": quad(0, 1, 0, 1, 6)}
+    )
     assert snapshot.version == 2 and snapshot.meshes["b"].index == 1
     assert [m.version for m in snapshot.meshes.values()] == [2, 2]
     assert snapshot.bounds[:, 2].tolist() == [5, 6]
 
 
-@pytest.mark.parametrize("changes, error", [
-    ({"a": (quad(0, 1, 0, 1, 5)[0], None), "b": (grid(2)[0], None)}, NotFound),     # b unknown
-    ({"a": (quad(0, 1, 0, 1, 5)[0], None), "c": (grid(2)[0], None)}, NotFound),
-    ({"a": (quad(0, 1, 0, 1, 5)[0], None), "b": grid(30)}, TooLarge),               # 1800 triangles
-    ({"a": (grid(2)[0], None)}, Conflict),                                           # 9 vertices, not 4
-    ({"a": (quad(0, 1, 0, 1, 5)[0], None), "b c": quad(0, 1, 0, 1, 0)}, Invalid),    # bad name
-])
+@pytest.mark.parametrize(
+    "changes, error",
+    [
+        ({"a": (quad(0, 1, 0, 1, 5)[0], None), "b": (grid(2)[0], None)}, NotFound),  # b unknown
+        ({"a": (quad(0, 1, 0, 1, 5)[0], None), "c": (grid(2)[0], None)}, NotFound),
+        ({"a": (quad(0, 1, 0, 1, 5)[0], None), "b": grid(30)}, TooLarge),  # 1800 triangles
+        ({"a": (grid(2)[0], None)}, Conflict),  # 9 vertices, not 4
+        ({"a": (quad(0, 1, 0, 1, 5)[0], None), "b c": quad(0, 1, 0, 1, 0)}, Invalid),  # bad name
+    ],
+)
 def test_a_rejected_frame_changes_nothing(store, changes, error):
     store.put_mesh("s", "a", mesh())
     before = store.snapshot("s")
@@ -102,7 +112,9 @@ def test_vertex_count_change_is_409_with_advice(store):
 
 
 def test_limits_name_their_setting(store):
-    with pytest.raises(TooLarge, match="1800 triangles, over the limit of 1000 .*DACRT_MAX_TRIANGLES_PER_SCENE"):
+    with pytest.raises(
+        TooLarge, match="1800 triangles, over the limit of 1000 .*DACRT_MAX_TRIANGLES_PER_SCENE"
+    ):
         store.put_mesh("s", "big", MeshArrays(*grid(30)))
     small = MeshArrays(*grid(20))  # 800 triangles, 441 vertices: 14892 bytes
     for i in range(6):
@@ -145,8 +157,12 @@ def test_bounds_cover_referenced_vertices_only():
 def test_bounds_match_a_plain_reduction(unreferenced):
     rng = np.random.default_rng(unreferenced)
     v = (rng.normal(size=(2000, 3)) * [1, 10, 100]).astype(np.float32)
-    faces = rng.permutation(2000)[:2000 - unreferenced]  # each referenced vertex once at least
-    faces = np.concatenate([faces, rng.choice(faces, 3 - len(faces) % 3)]).reshape(-1, 3).astype(np.int32)
+    faces = rng.permutation(2000)[: 2000 - unreferenced]  # each referenced vertex once at least
+    faces = (
+        np.concatenate([faces, rng.choice(faces, 3 - len(faces) % 3)])
+        .reshape(-1, 3)
+        .astype(np.int32)
+    )
     used = v[np.unique(faces)]
     expected = [[min(used[:, a]) for a in range(3)], [max(used[:, a]) for a in range(3)]]
     assert referenced_bounds(v, faces).tolist() == expected
@@ -161,8 +177,10 @@ def test_cached_builds_once_per_snapshot_under_concurrency(store):
         return object()
 
     results = []
-    threads = [threading.Thread(target=lambda: results.append(snapshot.cached("k", build)))
-               for _ in range(8)]
+    threads = [
+        threading.Thread(target=lambda: results.append(snapshot.cached("k", build)))
+        for _ in range(8)
+    ]
     for t in threads:
         t.start()
     for t in threads:

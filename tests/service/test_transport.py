@@ -2,6 +2,7 @@
 keep-alive connections, chunked uploads, errors as httpx exceptions, threads sharing one client.
 Against the real uvicorn server, and against tiny socket servers for what uvicorn will not do
 on demand (close an idle connection, never answer)."""
+
 from __future__ import annotations
 
 import socket
@@ -11,11 +12,11 @@ from concurrent.futures import ThreadPoolExecutor
 import httpx
 import numpy as np
 import pytest
+from service_helpers import TOKEN, down_rays, grid, quad
 
 from service import wire
 from service.client import APIError, Client
 from service.transport import StdlibTransport
-from service_helpers import TOKEN, down_rays, grid, quad
 
 
 def joined(parts) -> bytes:
@@ -53,9 +54,12 @@ def test_big_answer_is_read_whole_and_the_connection_reused(client, scene_name):
 def test_a_chunked_upload_arrives_whole(client, scene_name):
     vertices, faces = grid(3)
     body = joined(wire.npz_parts({"vertices": vertices, "faces": faces}))
-    pieces = (body[i:i + 100] for i in range(0, len(body), 100))  # no length: Transfer-Encoding: chunked
-    response = client.http.put(f"/v1/scenes/{scene_name}/meshes/grid", content=pieces,
-                               headers={"Content-Type": wire.NPZ})
+    pieces = (
+        body[i : i + 100] for i in range(0, len(body), 100)
+    )  # no length: Transfer-Encoding: chunked
+    response = client.http.put(
+        f"/v1/scenes/{scene_name}/meshes/grid", content=pieces, headers={"Content-Type": wire.NPZ}
+    )
     assert response.status_code == 201, response.text
     assert response.json()["triangles"] == len(faces)
 
@@ -63,9 +67,12 @@ def test_a_chunked_upload_arrives_whole(client, scene_name):
 def test_a_response_left_unread_closes_its_connection(client, scene_name):
     client.put_mesh(scene_name, "quad", *quad(0, 1, 0, 1, 9))
     rays = np.hstack(down_rays(np.full((100_000, 2), 0.25))).astype(np.float32)
-    with client.http.stream("POST", f"/v1/scenes/{scene_name}/closest",
-                            content=joined(wire.npy_parts({"rays": rays})),
-                            headers={"Content-Type": wire.NPY}) as response:
+    with client.http.stream(
+        "POST",
+        f"/v1/scenes/{scene_name}/closest",
+        content=joined(wire.npy_parts({"rays": rays})),
+        headers={"Content-Type": wire.NPY},
+    ) as response:
         next(response.iter_bytes())  # the first piece only
     assert idle_connections(client) == []
     assert client.closest(scene_name, *down_rays([[0.25, 0.25]])).t[0] == pytest.approx(1.0)
@@ -120,7 +127,7 @@ class OneShotServer:
     def client(self, timeout: float) -> httpx.Client:
         return httpx.Client(base_url=self.url, transport=StdlibTransport(), timeout=timeout)
 
-    def __enter__(self) -> "OneShotServer":
+    def __enter__(self) -> OneShotServer:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -129,7 +136,9 @@ class OneShotServer:
             connection.close()
 
 
-KEEP_ALIVE_REPLY = b"HTTP/1.1 200 OK\r\nContent-Length: 2\r\nContent-Type: application/json\r\n\r\n{}"
+KEEP_ALIVE_REPLY = (
+    b"HTTP/1.1 200 OK\r\nContent-Length: 2\r\nContent-Type: application/json\r\n\r\n{}"
+)
 
 
 def test_a_connection_the_server_closed_while_idle_is_not_reused():
@@ -142,8 +151,11 @@ def test_a_connection_the_server_closed_while_idle_is_not_reused():
 
 
 def test_a_server_that_never_answers_is_a_read_timeout():
-    with (OneShotServer(None, close_after=False) as server, server.client(0.3) as http,
-          pytest.raises(httpx.ReadTimeout)):
+    with (
+        OneShotServer(None, close_after=False) as server,
+        server.client(0.3) as http,
+        pytest.raises(httpx.ReadTimeout),
+    ):
         http.get("/")
 
 
@@ -151,15 +163,20 @@ def test_a_closed_port_is_a_connect_error():
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]  # nothing listens once the probe is closed
-    with (httpx.Client(transport=StdlibTransport(), timeout=5) as http,
-          pytest.raises(httpx.ConnectError)):
+    with (
+        httpx.Client(transport=StdlibTransport(), timeout=5) as http,
+        pytest.raises(httpx.ConnectError),
+    ):
         http.get(f"http://127.0.0.1:{port}/")
 
 
 def test_a_cut_answer_is_a_protocol_error():
     cut = b"HTTP/1.1 200 OK\r\nContent-Length: 100\r\n\r\nonly this"
-    with (OneShotServer(cut, close_after=True) as server, server.client(5) as http,
-          pytest.raises(httpx.RemoteProtocolError)):
+    with (
+        OneShotServer(cut, close_after=True) as server,
+        server.client(5) as http,
+        pytest.raises(httpx.RemoteProtocolError),
+    ):
         http.get("/")
 
 

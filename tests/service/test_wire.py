@@ -1,5 +1,6 @@
 """The wire format in-process: every body kind parses, every answer kind round-trips, and each
 bad body gets the status and message the module docstring promises."""
+
 from __future__ import annotations
 
 import io
@@ -9,14 +10,13 @@ import tracemalloc
 import zipfile
 import zlib
 
+import hostile_bodies
 import numpy as np
 import pytest
+from service_helpers import grid, npy_bytes, npz_bytes, quad
 
 from service import wire
 from service.errors import BadBody, Invalid, NotAcceptable, TooLarge, UnsupportedMediaType
-
-import hostile_bodies
-from service_helpers import grid, npy_bytes, npz_bytes, quad
 
 
 def rays6(n: int = 5) -> np.ndarray:
@@ -27,19 +27,36 @@ def rays6(n: int = 5) -> np.ndarray:
 # ---- which format a body is in
 
 
-@pytest.mark.parametrize("content_type, fmt", [
-    ("application/x-npy", "npy"), ("application/npy", "npy"), ("application/x-npz", "npz"),
-    ("application/json; charset=utf-8", "json"), ("APPLICATION/JSON", "json"), ("model/obj", "obj"),
-    ("application/ply", "ply"), ("model/stl", "stl"), ("model/gltf-binary", "glb"), ("model/off", "off"),
-])
+@pytest.mark.parametrize(
+    "content_type, fmt",
+    [
+        ("application/x-npy", "npy"),
+        ("application/npy", "npy"),
+        ("application/x-npz", "npz"),
+        ("application/json; charset=utf-8", "json"),
+        ("APPLICATION/JSON", "json"),
+        ("model/obj", "obj"),
+        ("application/ply", "ply"),
+        ("model/stl", "stl"),
+        ("model/gltf-binary", "glb"),
+        ("model/off", "off"),
+    ],
+)
 def test_content_type_picks_the_format(content_type, fmt):
     assert wire.resolve_format(content_type, None, wire.MESH_FORMATS + ("npy",)) == fmt
 
 
-@pytest.mark.parametrize("head, fmt", [
-    (npy_bytes(rays6()), "npy"), (npz_bytes(a=np.zeros(1)), "npz"), (b'  {"a": 1}', "json"),
-    (b"glTF\x02\x00\x00\x00", "glb"), (b"ply\nformat", "ply"), (b"OFF\n", "off"),
-])
+@pytest.mark.parametrize(
+    "head, fmt",
+    [
+        (npy_bytes(rays6()), "npy"),
+        (npz_bytes(a=np.zeros(1)), "npz"),
+        (b'  {"a": 1}', "json"),
+        (b"glTF\x02\x00\x00\x00", "glb"),
+        (b"ply\nformat", "ply"),
+        (b"OFF\n", "off"),
+    ],
+)
 @pytest.mark.parametrize("content_type", [None, "application/octet-stream"])
 def test_format_is_sniffed_without_a_content_type(head, fmt, content_type):
     assert wire.resolve_format(content_type, None, wire.MESH_FORMATS + ("npy",), head) == fmt
@@ -49,13 +66,16 @@ def test_format_parameter_overrides_content_type():
     assert wire.resolve_format("application/octet-stream", "OBJ", wire.MESH_FORMATS) == "obj"
 
 
-@pytest.mark.parametrize("content_type, format, body", [
-    ("text/plain", None, b"1 2 3"),
-    ("application/x-www-form-urlencoded", None, b"a=1"),
-    ("model/obj", None, b"v 0 0 0"),          # a known format this endpoint does not read
-    (None, "xyz", b""),
-    (None, None, b"v 0 0 0\nf 1 2 3"),        # OBJ cannot be sniffed
-])
+@pytest.mark.parametrize(
+    "content_type, format, body",
+    [
+        ("text/plain", None, b"1 2 3"),
+        ("application/x-www-form-urlencoded", None, b"a=1"),
+        ("model/obj", None, b"v 0 0 0"),  # a known format this endpoint does not read
+        (None, "xyz", b""),
+        (None, None, b"v 0 0 0\nf 1 2 3"),  # OBJ cannot be sniffed
+    ],
+)
 def test_unreadable_format_is_415_listing_the_choices(content_type, format, body):
     with pytest.raises(UnsupportedMediaType, match="application/x-npy"):
         wire.resolve_format(content_type, format, wire.RAY_FORMATS, body)
@@ -84,15 +104,21 @@ def test_fortran_order_npy_keeps_its_values():
     assert np.array_equal(wire.read_npy(npy_bytes(rays)), rays)
 
 
-@pytest.mark.parametrize("body, message", [
-    (b"", "not a readable .npy"),
-    (b"\x93NUMPY\x01\x00garbage", "not a readable .npy"),
-    (npy_bytes(rays6(3))[:-5], "truncated"),
-    (npy_bytes(rays6(3)) + b"xx", "longer than its header says"),
-    (b"not an npy at all", "magic string is not correct"),
-    (b"\x93NUMPY\x09\x00" + npy_bytes(rays6(3))[8:], r"unsupported .npy version \(9, 0\)"),
-    (b"\x93NUMPY\x02\x00\xff\xff\xff\x7f" + npy_bytes(rays6(3))[10:], "header claims 2147483659 bytes"),
-])
+@pytest.mark.parametrize(
+    "body, message",
+    [
+        (b"", "not a readable .npy"),
+        (b"\x93NUMPY\x01\x00garbage", "not a readable .npy"),
+        (npy_bytes(rays6(3))[:-5], "truncated"),
+        (npy_bytes(rays6(3)) + b"xx", "longer than its header says"),
+        (b"not an npy at all", "magic string is not correct"),
+        (b"\x93NUMPY\x09\x00" + npy_bytes(rays6(3))[8:], r"unsupported .npy version \(9, 0\)"),
+        (
+            b"\x93NUMPY\x02\x00\xff\xff\xff\x7f" + npy_bytes(rays6(3))[10:],
+            "header claims 2147483659 bytes",
+        ),
+    ],
+)
 def test_unreadable_npy_is_400(body, message):
     with pytest.raises(BadBody, match=message):
         wire.read_npy(body)
@@ -134,7 +160,7 @@ def test_npz_in_a_body_buffer_is_read_in_place(compressed):
     raw = npz_bytes(compressed, **arrays)
     body = wire.BodyBuffer(len(raw))
     for start in range(0, len(raw), 100):
-        body.add(raw[start:start + 100])
+        body.add(raw[start : start + 100])
     view = body.finish()
     got = wire.read_npz(view)
     assert all(np.array_equal(got[k], v) for k, v in arrays.items())
@@ -161,7 +187,9 @@ def test_npy_rays(columns):
     array = np.random.default_rng(0).uniform(0, 1, (9, columns)).astype(np.float32)
     rays = wire.decode_rays(npy_bytes(array), "npy")
     assert len(rays) == 9
-    assert np.array_equal(rays.origins, array[:, :3]) and np.array_equal(rays.directions, array[:, 3:6])
+    assert np.array_equal(rays.origins, array[:, :3]) and np.array_equal(
+        rays.directions, array[:, 3:6]
+    )
     if columns == 8:
         assert np.array_equal(rays.tmin, array[:, 6]) and np.array_equal(rays.tmax, array[:, 7])
     else:
@@ -175,39 +203,81 @@ def test_npz_rays_with_one_tmax_for_the_batch():
 
 
 def test_json_rays_with_null_as_infinity():
-    body = json.dumps({"origins": [[0, 0, 0], [1, 1, 1]], "directions": [[0, 0, 1], [1, 0, 0]],
-                       "tmin": 0.5, "tmax": [2, None]}).encode()
+    body = json.dumps(
+        {
+            "origins": [[0, 0, 0], [1, 1, 1]],
+            "directions": [[0, 0, 1], [1, 0, 0]],
+            "tmin": 0.5,
+            "tmax": [2, None],
+        }
+    ).encode()
     rays = wire.decode_rays(body, "json")
     assert rays.origins.dtype == np.float32 and rays.tmin == 0.5
     assert rays.tmax.tolist() == [2.0, np.inf]
 
 
-@pytest.mark.parametrize("fmt, body", [
-    ("npy", npy_bytes(np.zeros((0, 6), np.float32))),
-    ("npz", npz_bytes(origins=np.zeros((0, 3), np.float32), directions=np.zeros((0, 3), np.float32))),
-    ("json", b'{"origins": [], "directions": []}'),
-])
+@pytest.mark.parametrize(
+    "fmt, body",
+    [
+        ("npy", npy_bytes(np.zeros((0, 6), np.float32))),
+        (
+            "npz",
+            npz_bytes(
+                origins=np.zeros((0, 3), np.float32), directions=np.zeros((0, 3), np.float32)
+            ),
+        ),
+        ("json", b'{"origins": [], "directions": []}'),
+    ],
+)
 def test_empty_batch_is_valid(fmt, body):
     rays = wire.decode_rays(body, fmt)
     assert len(rays) == 0 and rays.origins.shape == (0, 3) and rays.directions.shape == (0, 3)
 
 
-@pytest.mark.parametrize("fmt, body, error, message", [
-    ("npy", npy_bytes(np.zeros((4, 5), np.float32)), Invalid, r"\(N, 6\) or \(N, 8\), got \(4, 5\)"),
-    ("npy", npy_bytes(np.zeros((4, 6), np.float64)), Invalid, "float32, got <f8"),
-    ("npy", npy_bytes(np.zeros((4, 6), ">f4")), Invalid, "little-endian float32, got >f4"),
-    ("npz", npz_bytes(origins=np.zeros((2, 3), np.float32)), BadBody, "lacks 'directions'"),
-    ("npz", npz_bytes(origins=np.zeros((2, 3), np.float32), directions=np.ones((2, 3), np.float32),
-                mask=np.ones(2, np.uint32)), BadBody, "unknown keys 'mask'"),
-    ("npz", npz_bytes(origins=np.zeros((2, 3), np.float32), directions=np.ones((3, 3), np.float32)),
-     Invalid, "origins has 2 rays but directions has 3"),
-    ("npz", npz_bytes(origins=np.zeros((2, 3), np.float32), directions=np.ones((2, 3), np.float32),
-                tmax=np.ones(5, np.float32)), Invalid, "tmax has 5 values but there are 2 rays"),
-    ("json", b'{"origins": [[0, 0]], "directions": [[0, 0, 1]]}', Invalid, r"shape \(N, 3\)"),
-    ("json", b'{"origins": [[0, 0, "x"]], "directions": [[0, 0, 1]]}', Invalid, "numbers"),
-    ("json", b'[1, 2]', BadBody, "must be an object"),
-    ("json", b'{"origins": ', BadBody, "not valid JSON"),
-])
+@pytest.mark.parametrize(
+    "fmt, body, error, message",
+    [
+        (
+            "npy",
+            npy_bytes(np.zeros((4, 5), np.float32)),
+            Invalid,
+            r"\(N, 6\) or \(N, 8\), got \(4, 5\)",
+        ),
+        ("npy", npy_bytes(np.zeros((4, 6), np.float64)), Invalid, "float32, got <f8"),
+        ("npy", npy_bytes(np.zeros((4, 6), ">f4")), Invalid, "little-endian float32, got >f4"),
+        ("npz", npz_bytes(origins=np.zeros((2, 3), np.float32)), BadBody, "lacks 'directions'"),
+        (
+            "npz",
+            npz_bytes(
+                origins=np.zeros((2, 3), np.float32),
+                directions=np.ones((2, 3), np.float32),
+                mask=np.ones(2, np.uint32),
+            ),
+            BadBody,
+            "unknown keys 'mask'",
+        ),
+        (
+            "npz",
+            npz_bytes(origins=np.zeros((2, 3), np.float32), directions=np.ones((3, 3), np.float32)),
+            Invalid,
+            "origins has 2 rays but directions has 3",
+        ),
+        (
+            "npz",
+            npz_bytes(
+                origins=np.zeros((2, 3), np.float32),
+                directions=np.ones((2, 3), np.float32),
+                tmax=np.ones(5, np.float32),
+            ),
+            Invalid,
+            "tmax has 5 values but there are 2 rays",
+        ),
+        ("json", b'{"origins": [[0, 0]], "directions": [[0, 0, 1]]}', Invalid, r"shape \(N, 3\)"),
+        ("json", b'{"origins": [[0, 0, "x"]], "directions": [[0, 0, 1]]}', Invalid, "numbers"),
+        ("json", b"[1, 2]", BadBody, "must be an object"),
+        ("json", b'{"origins": ', BadBody, "not valid JSON"),
+    ],
+)
 def test_bad_ray_bodies(fmt, body, error, message):
     with pytest.raises(error, match=message):
         wire.decode_rays(body, fmt)
@@ -215,8 +285,13 @@ def test_bad_ray_bodies(fmt, body, error, message):
 
 @pytest.mark.parametrize("fmt", ["npy", "json"])
 def test_too_many_rays_is_413_naming_the_limit(fmt):
-    body = npy_bytes(rays6(11)) if fmt == "npy" else json.dumps(
-        {"origins": rays6(11)[:, :3].tolist(), "directions": rays6(11)[:, 3:].tolist()}).encode()
+    body = (
+        npy_bytes(rays6(11))
+        if fmt == "npy"
+        else json.dumps(
+            {"origins": rays6(11)[:, :3].tolist(), "directions": rays6(11)[:, 3:].tolist()}
+        ).encode()
+    )
     with pytest.raises(TooLarge, match="11 rays .* limit of 10 .*DACRT_MAX_RAYS_PER_REQUEST"):
         wire.decode_rays(body, fmt, max_rays=10)
 
@@ -233,8 +308,9 @@ def test_npz_mesh_with_uint32_faces_becomes_int32_without_copy():
 
 def test_json_mesh():
     vertices, faces = quad(0, 1, 0, 1, 2)
-    mesh = wire.decode_mesh(json.dumps({"vertices": vertices.tolist(), "faces": faces.tolist()}).encode(),
-                            "json")
+    mesh = wire.decode_mesh(
+        json.dumps({"vertices": vertices.tolist(), "faces": faces.tolist()}).encode(), "json"
+    )
     assert np.array_equal(mesh.vertices, vertices) and np.array_equal(mesh.faces, faces)
     assert mesh.vertices.dtype == np.float32 and mesh.faces.dtype == np.int32
 
@@ -251,8 +327,10 @@ def test_face_out_of_range_names_the_face_and_the_vertex_count():
     faces[1500] = [-1, 0, 0]
     with pytest.raises(Invalid) as caught:
         wire.decode_mesh(npz_bytes(vertices=vertices, faces=faces), "npz")
-    assert caught.value.detail == ("faces[1043] refers to vertex 90211, but there are 90000 "
-                                   "vertices; 2 of 2000 faces are out of range")
+    assert caught.value.detail == (
+        "faces[1043] refers to vertex 90211, but there are 90000 "
+        "vertices; 2 of 2000 faces are out of range"
+    )
 
 
 def test_non_finite_vertex_names_the_vertex():
@@ -263,12 +341,27 @@ def test_non_finite_vertex_names_the_vertex():
         wire.decode_mesh(npz_bytes(vertices=vertices, faces=faces), "npz")
 
 
-@pytest.mark.parametrize("arrays, message", [
-    ({"vertices": np.zeros((3, 3)), "faces": np.zeros((1, 3), np.int32)}, "vertices must be little-endian float32"),
-    ({"vertices": np.zeros((3, 3), np.float32), "faces": np.zeros((1, 3), np.int64)}, "faces must be little-endian int32 or uint32"),
-    ({"vertices": np.zeros((3, 2), np.float32), "faces": np.zeros((1, 3), np.int32)}, r"vertices must have shape \(N, 3\)"),
-    ({"vertices": np.zeros((3, 3), np.float32), "faces": np.zeros((3,), np.int32)}, r"faces must have shape \(F, 3\)"),
-])
+@pytest.mark.parametrize(
+    "arrays, message",
+    [
+        (
+            {"vertices": np.zeros((3, 3)), "faces": np.zeros((1, 3), np.int32)},
+            "vertices must be little-endian float32",
+        ),
+        (
+            {"vertices": np.zeros((3, 3), np.float32), "faces": np.zeros((1, 3), np.int64)},
+            "faces must be little-endian int32 or uint32",
+        ),
+        (
+            {"vertices": np.zeros((3, 2), np.float32), "faces": np.zeros((1, 3), np.int32)},
+            r"vertices must have shape \(N, 3\)",
+        ),
+        (
+            {"vertices": np.zeros((3, 3), np.float32), "faces": np.zeros((3,), np.int32)},
+            r"faces must have shape \(F, 3\)",
+        ),
+    ],
+)
 def test_wrong_dtype_or_shape_is_422(arrays, message):
     with pytest.raises(Invalid, match=message):
         wire.decode_mesh(npz_bytes(**arrays), "npz")
@@ -311,8 +404,10 @@ def test_mesh_files_are_read_and_merged(fmt):
     assert isinstance(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), trimesh.Trimesh)
 
 
-@pytest.mark.parametrize("fmt, body", [("obj", b"this is not an obj"), ("ply", b"garbage"),
-                                       ("glb", b"glTF-garbage"), ("stl", b"")])
+@pytest.mark.parametrize(
+    "fmt, body",
+    [("obj", b"this is not an obj"), ("ply", b"garbage"), ("glb", b"glTF-garbage"), ("stl", b"")],
+)
 def test_unreadable_mesh_file_is_400(fmt, body):
     with pytest.raises(BadBody, match=fmt.upper()):
         wire.decode_mesh(body, fmt)
@@ -324,24 +419,32 @@ def test_unreadable_mesh_file_is_400(fmt, body):
 @pytest.mark.parametrize("fmt", ["npy", "npz", "json"])
 def test_vertices_bodies(fmt):
     vertices = grid(2)[0]
-    body = {"npy": lambda: npy_bytes(vertices), "npz": lambda: npz_bytes(vertices=vertices),
-            "json": lambda: json.dumps({"vertices": vertices.tolist()}).encode()}[fmt]()
+    body = {
+        "npy": lambda: npy_bytes(vertices),
+        "npz": lambda: npz_bytes(vertices=vertices),
+        "json": lambda: json.dumps({"vertices": vertices.tolist()}).encode(),
+    }[fmt]()
     assert np.array_equal(wire.decode_vertices(body, fmt), vertices)
 
 
 def test_frame_keys_split_at_the_last_dot():
     v, f = quad(0, 1, 0, 1, 0)
-    frame = wire.decode_frame(npz_bytes(**{"car.body.vertices": v, "car.body.faces": f, "wheel.vertices": v}), "npz")
+    frame = wire.decode_frame(
+        npz_bytes(**{"car.body.vertices": v, "car.body.faces": f, "wheel.vertices": v}), "npz"
+    )
     assert set(frame) == {"car.body", "wheel"}
     assert np.array_equal(frame["car.body"][1], f) and frame["wheel"][1] is None
 
 
-@pytest.mark.parametrize("arrays, message", [
-    ({"car.faces": quad(0, 1, 0, 1, 0)[1]}, "car.faces but no car.vertices"),
-    ({"car.normals": np.zeros((1, 3), np.float32)}, "not MESH.vertices or MESH.faces"),
-    ({"vertices": np.zeros((1, 3), np.float32)}, "not MESH.vertices or MESH.faces"),
-    ({}, "no MESH.vertices"),
-])
+@pytest.mark.parametrize(
+    "arrays, message",
+    [
+        ({"car.faces": quad(0, 1, 0, 1, 0)[1]}, "car.faces but no car.vertices"),
+        ({"car.normals": np.zeros((1, 3), np.float32)}, "not MESH.vertices or MESH.faces"),
+        ({"vertices": np.zeros((1, 3), np.float32)}, "not MESH.vertices or MESH.faces"),
+        ({}, "no MESH.vertices"),
+    ],
+)
 def test_bad_frames_are_400(arrays, message):
     with pytest.raises(BadBody, match=message):
         wire.decode_frame(npz_bytes(**arrays), "npz")
@@ -350,7 +453,10 @@ def test_bad_frames_are_400(arrays, message):
 def test_frame_faces_checked_against_their_vertices():
     v, f = quad(0, 1, 0, 1, 0)
     with pytest.raises(Invalid, match=r"car.faces\[1\] refers to vertex 9, but there are 4"):
-        wire.decode_frame(npz_bytes(**{"car.vertices": v, "car.faces": f + np.int32([[0, 0, 0], [0, 0, 6]])}), "npz")
+        wire.decode_frame(
+            npz_bytes(**{"car.vertices": v, "car.faces": f + np.int32([[0, 0, 0], [0, 0, 6]])}),
+            "npz",
+        )
 
 
 def test_one_shot_body():
@@ -365,13 +471,21 @@ def test_one_shot_body():
 # ---- answers
 
 
-@pytest.mark.parametrize("accept, request_format, fmt", [
-    (None, "npy", "npz"), ("", "json", "json"), ("*/*", "npz", "npz"), ("*/*", "json", "json"),
-    ("application/*", "npy", "npz"), ("application/json", "npy", "json"),
-    ("application/x-npy", "json", "npy"), ("application/x-npz;q=0.5, application/json", "npy", "json"),
-    ("text/html, application/x-npz;q=0.9, */*;q=0.1", "json", "npz"),
-    ("application/json;q=0, */*", "npy", "npz"),
-])
+@pytest.mark.parametrize(
+    "accept, request_format, fmt",
+    [
+        (None, "npy", "npz"),
+        ("", "json", "json"),
+        ("*/*", "npz", "npz"),
+        ("*/*", "json", "json"),
+        ("application/*", "npy", "npz"),
+        ("application/json", "npy", "json"),
+        ("application/x-npy", "json", "npy"),
+        ("application/x-npz;q=0.5, application/json", "npy", "json"),
+        ("text/html, application/x-npz;q=0.9, */*;q=0.1", "json", "npz"),
+        ("application/json;q=0, */*", "npy", "npz"),
+    ],
+)
 def test_accept_negotiation(accept, request_format, fmt):
     assert wire.negotiate(accept, request_format) == fmt
 
@@ -386,7 +500,11 @@ def _answer(n: int = 6) -> dict[str, np.ndarray]:
     t = rng.uniform(0, 10, n).astype(np.float32)
     t[::3] = np.inf
     normal = rng.normal(size=(n, 3)).astype(np.float32)
-    return {"t": t, "mesh": np.where(np.isinf(t), -1, 2).astype(np.int32), "normal": normal[:, ::-1]}
+    return {
+        "t": t,
+        "mesh": np.where(np.isinf(t), -1, 2).astype(np.int32),
+        "normal": normal[:, ::-1],
+    }
 
 
 @pytest.mark.parametrize("n", [0, 1, 6])
@@ -396,8 +514,13 @@ def test_npz_answer_is_a_valid_zip_that_numpy_reads(n):
     parts = list(parts)
     body = b"".join(parts)
     assert media == wire.NPZ and body == wire.encode_npz(arrays) and len(body) == length
-    assert any(isinstance(p, memoryview) and np.shares_memory(np.frombuffer(p, np.uint8), arrays["t"])
-               for p in parts) or n == 0  # the answer arrays are sent from their own memory
+    assert (
+        any(
+            isinstance(p, memoryview) and np.shares_memory(np.frombuffer(p, np.uint8), arrays["t"])
+            for p in parts
+        )
+        or n == 0
+    )  # the answer arrays are sent from their own memory
     assert zipfile.ZipFile(io.BytesIO(body)).testzip() is None  # every CRC is right
     with np.load(io.BytesIO(body), allow_pickle=False) as got:
         assert list(got.keys()) == list(arrays)
@@ -426,7 +549,9 @@ def test_json_answer_round_trips_float32_with_null_for_inf():
 
 def test_npz_body_takes_each_crc_when_its_member_is_reached(monkeypatch):
     taken = []
-    monkeypatch.setattr(wire, "crc32", lambda data, value=0: taken.append(len(data)) or zlib.crc32(data, value))
+    monkeypatch.setattr(
+        wire, "crc32", lambda data, value=0: taken.append(len(data)) or zlib.crc32(data, value)
+    )
     arrays = _answer(1000)
     body = wire.NpzBody(arrays)
     assert taken == []  # the length is known without any CRC
@@ -439,7 +564,11 @@ def test_npz_body_takes_each_crc_when_its_member_is_reached(monkeypatch):
 
 
 def test_encode_answer_names_the_content_type_and_length():
-    assert wire.encode_answer({"occluded": np.array([True])}, "json") == ([b'{"occluded":[true]}'], 19, wire.JSON)
+    assert wire.encode_answer({"occluded": np.array([True])}, "json") == (
+        [b'{"occluded":[true]}'],
+        19,
+        wire.JSON,
+    )
     parts, length, media = wire.encode_answer({"occluded": np.array([True])}, "npy")
     assert media == wire.NPY and length == sum(map(len, parts)) == 129
 
@@ -447,16 +576,19 @@ def test_encode_answer_names_the_content_type_and_length():
 # ---- hostile .npy and .npz: a clear 4xx, at a cost bounded by the body limit
 
 
-@pytest.mark.parametrize("descr, shape, error, message", [
-    ("<f4", (-2, -3), BadBody, "negative length"),
-    ("<f4", (-1, -6), BadBody, "negative length"),
-    ("<f4", (2**32, 2**32), BadBody, "truncated"),
-    ("<f4", (2**62, 8), BadBody, "truncated"),
-    ("<f4", (2**64, 6), BadBody, "truncated"),
-    ("|V0", (3,), Invalid, "only plain numeric arrays"),
-    (("<f4", (6,)), (2,), Invalid, "only plain numeric arrays"),
-    ([("a", "<f4"), ("b", "<f4")], (2,), Invalid, "only plain numeric arrays"),
-])
+@pytest.mark.parametrize(
+    "descr, shape, error, message",
+    [
+        ("<f4", (-2, -3), BadBody, "negative length"),
+        ("<f4", (-1, -6), BadBody, "negative length"),
+        ("<f4", (2**32, 2**32), BadBody, "truncated"),
+        ("<f4", (2**62, 8), BadBody, "truncated"),
+        ("<f4", (2**64, 6), BadBody, "truncated"),
+        ("|V0", (3,), Invalid, "only plain numeric arrays"),
+        (("<f4", (6,)), (2,), Invalid, "only plain numeric arrays"),
+        ([("a", "<f4"), ("b", "<f4")], (2,), Invalid, "only plain numeric arrays"),
+    ],
+)
 def test_forged_npy_headers_are_4xx(descr, shape, error, message):
     with pytest.raises(error, match=message):
         wire.read_npy(hostile_bodies.npy_with_header(descr, shape, bytes(48)))
@@ -492,12 +624,15 @@ def test_an_honest_deflated_member_is_read_once_within_its_size():
     assert peak < (8 << 20) + (1 << 20)
 
 
-@pytest.mark.parametrize("build, error, message", [
-    (hostile_bodies.overlapping_zip, BadBody, "overlaps the member before it"),
-    (hostile_bodies.duplicate_zip, BadBody, "holds member 'origins' twice"),
-    (hostile_bodies.encrypted_zip, BadBody, "is encrypted"),
-    (hostile_bodies.bzip2_zip, BadBody, "compression method 12"),
-])
+@pytest.mark.parametrize(
+    "build, error, message",
+    [
+        (hostile_bodies.overlapping_zip, BadBody, "overlaps the member before it"),
+        (hostile_bodies.duplicate_zip, BadBody, "holds member 'origins' twice"),
+        (hostile_bodies.encrypted_zip, BadBody, "is encrypted"),
+        (hostile_bodies.bzip2_zip, BadBody, "compression method 12"),
+    ],
+)
 def test_malformed_zips_are_400(build, error, message):
     with pytest.raises(error, match=message):
         wire.read_npz(build(), max_bytes=1 << 20)
@@ -505,8 +640,13 @@ def test_malformed_zips_are_400(build, error, message):
 
 def test_a_truncated_or_corrupted_deflated_member_is_400():
     data = npy_bytes(np.zeros((4, 3), np.float32))
-    member = {"name": "origins.npy", "payload": hostile_bodies.deflate(data), "method": 8,
-              "size": len(data), "crc": zlib.crc32(data)}
+    member = {
+        "name": "origins.npy",
+        "payload": hostile_bodies.deflate(data),
+        "method": 8,
+        "size": len(data),
+        "crc": zlib.crc32(data),
+    }
     with pytest.raises(BadBody, match="CRC-32"):
         wire.read_npz(hostile_bodies.raw_zip([{**member, "crc": 1}]))
     with pytest.raises(BadBody, match="truncated"):
@@ -517,8 +657,9 @@ def test_a_truncated_or_corrupted_deflated_member_is_400():
 
 def test_too_many_members_is_400_before_zipfile_lists_them():
     data = npy_bytes(np.zeros(1, np.float32))
-    body = hostile_bodies.raw_zip([{"name": "a.npy", "payload": data}],
-                                  [{"member": 0, "name": f"a{i}"} for i in range(5000)])
+    body = hostile_bodies.raw_zip(
+        [{"name": "a.npy", "payload": data}], [{"member": 0, "name": f"a{i}"} for i in range(5000)]
+    )
     with pytest.raises(BadBody, match="5000 members"):
         wire.read_npz(body)
 
@@ -526,33 +667,51 @@ def test_too_many_members_is_400_before_zipfile_lists_them():
 # ---- hostile JSON: a clear 4xx, never a RecursionError or a silent conversion
 
 
-@pytest.mark.parametrize("body, error, message", [
-    (hostile_bodies.deep_json("origins", 100_000), BadBody, "nested too deeply"),
-    (hostile_bodies.deep_json("origins", 900), Invalid, "found a list nested too deeply"),
-    (b'{"origins": [[1' + b"0" * 400 + b', 0, 0]], "directions": [[0, 0, 1]]}', Invalid,
-     "int too large"),
-    (b'{"origins": [[1' + b"0" * 5000 + b', 0, 0]], "directions": [[0, 0, 1]]}', BadBody,
-     "4300 digits"),
-    (b'{"origins": [[0, 0, 0]], "directions": [[0, 0, 1]], "tmax": 1' + b"0" * 400 + b"}",
-     Invalid, "int too large"),
-    (b'{"origins": [["0.5", 0, 0]], "directions": [[0, 0, 1]]}', Invalid, "the string '0.5'"),
-    (b'{"origins": [[true, 0, 0]], "directions": [[0, 0, 1]]}', Invalid, "found true"),
-    (b'{"origins": [[0, 0, 0]], "directions": [[0, 0, 1]], "tmin": [false]}', Invalid,
-     "found false"),
-    (b'{"origins": [{"x": 0}], "directions": [[0, 0, 1]]}', Invalid, "found an object"),
-])
+@pytest.mark.parametrize(
+    "body, error, message",
+    [
+        (hostile_bodies.deep_json("origins", 100_000), BadBody, "nested too deeply"),
+        (hostile_bodies.deep_json("origins", 900), Invalid, "found a list nested too deeply"),
+        (
+            b'{"origins": [[1' + b"0" * 400 + b', 0, 0]], "directions": [[0, 0, 1]]}',
+            Invalid,
+            "int too large",
+        ),
+        (
+            b'{"origins": [[1' + b"0" * 5000 + b', 0, 0]], "directions": [[0, 0, 1]]}',
+            BadBody,
+            "4300 digits",
+        ),
+        (
+            b'{"origins": [[0, 0, 0]], "directions": [[0, 0, 1]], "tmax": 1' + b"0" * 400 + b"}",
+            Invalid,
+            "int too large",
+        ),
+        (b'{"origins": [["0.5", 0, 0]], "directions": [[0, 0, 1]]}', Invalid, "the string '0.5'"),
+        (b'{"origins": [[true, 0, 0]], "directions": [[0, 0, 1]]}', Invalid, "found true"),
+        (
+            b'{"origins": [[0, 0, 0]], "directions": [[0, 0, 1]], "tmin": [false]}',
+            Invalid,
+            "found false",
+        ),
+        (b'{"origins": [{"x": 0}], "directions": [[0, 0, 1]]}', Invalid, "found an object"),
+    ],
+)
 def test_hostile_json_rays_are_4xx(body, error, message):
     with pytest.raises(error, match=message):
         wire.decode_rays(body, "json")
 
 
-@pytest.mark.parametrize("faces, message", [
-    ("[[true, 1, 2]]", "faces must hold integers in nested lists, found true"),
-    ("[[0.0, 1, 2]]", "found the number 0.0"),
-    ('[["0", 1, 2]]', "the string '0'"),
-    ("[[1" + "0" * 400 + ", 1, 2]]", "faces must be integers"),
-])
-def test_json_faces_must_be_integers(faces, message):
+@pytest.mark.parametrize(
+    "faces, message",
+    [
+        ("[[true, 1, 2]]", "faces must be integers, found true"),
+        ("[[0.0, 1, 2]]", "found the number 0.0"),
+        ('[["0", 1, 2]]', "the string '0'"),
+        ("[[1" + "0" * 400 + ", 1, 2]]", "faces must be integers"),
+    ],
+)
+def test_json_faces_refuse_booleans_floats_strings_and_huge_integers(faces, message):
     body = b'{"vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "faces": ' + faces.encode() + b"}"
     with pytest.raises(Invalid, match=re.escape(message)):
         wire.decode_mesh(body, "json")
