@@ -60,22 +60,39 @@ def check_mesh(index, vertices, faces):
             raise ValueError(f"{label}: faces must be an integer array, got dtype {faces.dtype}")
     vertices = as_float_rows(vertices, f"{label}: vertices", check_finite=False)
     if not all_finite(vertices):
-        as_float_rows(vertices, f"{label}: vertices")  # names the first bad row
+        explain_bad_vertices(vertices, f"{label}: vertices")
     # Kernels are compiled for int32 and int64 faces; other integer types are converted once.
     faces = np.ascontiguousarray(
         faces, dtype=None if faces.dtype in (np.int32, np.int64) else np.int64
     )
-    n_vertices = len(vertices)
-    if not faces_in_range(faces, n_vertices):
-        out_of_range = ((faces < 0) | (faces >= n_vertices)).any(axis=1)
-        bad_rows = np.flatnonzero(out_of_range)
-        row = bad_rows[0]
-        bad_vertex = faces[row][(faces[row] < 0) | (faces[row] >= n_vertices)][0]
-        raise ValueError(
-            f"{label}: faces[{row}] refers to vertex {bad_vertex}, but there are {n_vertices} "
-            f"vertices ({len(bad_rows)} faces out of range)"
-        )
+    if not faces_in_range(faces, len(vertices)):
+        explain_bad_faces(faces, len(vertices), f"{label}: faces")
     return vertices, faces
+
+
+def explain_bad_vertices(vertices, name="vertices"):
+    """Raise ValueError naming the first non-finite row of ``vertices`` (V, 3) float and how many
+    there are (a slow path, for an array known to hold one); does nothing if all are finite."""
+    rows = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
+    if len(rows):
+        raise ValueError(
+            f"{name}[{rows[0]}] is not finite ({vertices[rows[0]].tolist()}); "
+            f"{rows.size} of {len(vertices)} vertices are not finite"
+        )
+
+
+def explain_bad_faces(faces, n_vertices, name="faces"):
+    """Raise ValueError naming the first row of ``faces`` (F, 3) integer with an index outside
+    [0, n_vertices), that index, and how many rows there are (a slow path, for an array known to
+    hold one); does nothing if every index is in range."""
+    rows = np.flatnonzero(((faces < 0) | (faces >= n_vertices)).any(axis=1))
+    if len(rows):
+        row = faces[rows[0]]
+        value = row[(row < 0) | (row >= n_vertices)][0]
+        raise ValueError(
+            f"{name}[{rows[0]}] refers to vertex {value}, but there are {n_vertices} "
+            f"vertices; {rows.size} of {len(faces)} faces are out of range"
+        )
 
 
 def check_rays(origins, directions, tmin, tmax):

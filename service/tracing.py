@@ -1,8 +1,8 @@
 """Queries: what can be asked of a scene, and how the dacrt engine answers it.
 
-The only module that calls the engine. It builds one ``dacrt.Scene`` per scene version (cached
-in the snapshot), maps the engine's mesh positions to the meshes' stable indices, and turns the
-engine's ``ValueError`` (bad rays, named by the engine) into a 422.
+The only module that runs the engine's queries. It builds one ``dacrt.Scene`` per scene version
+(cached in the snapshot), maps the engine's mesh positions to the meshes' stable indices, and
+turns the engine's ``ValueError`` (bad rays, named by the engine) into a 422.
 """
 
 from __future__ import annotations

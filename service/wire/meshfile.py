@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import BadBody, Invalid, TooLarge
+from ..errors import BadBody, Invalid, TooLarge
 
 Buffer = bytes | memoryview
 

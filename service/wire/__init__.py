@@ -1,0 +1,174 @@
+"""The wire format: how request bodies become arrays, and answers become bodies.
+
+This docstring is the spec of every body the service reads and writes; API.md is the contract it
+implements. Everything here is plain NumPy (mesh files are read by ``meshfile``), so the
+client uses the same code to write requests and read answers. One module per job: ``formats``
+(which format a body is in), ``body`` (buffering), ``npy``, ``npz_reader``, ``npz_writer`` and
+``zip_records`` (the files), ``meshfile`` (mesh files), ``arrays`` (dtype and shape rules),
+``decoders`` (request bodies) and ``answers`` (content negotiation and answer bodies).
+
+Body formats
+------------
+The format of a body is chosen by ``?format=`` if given, else by ``Content-Type``:
+
+=========  ==============================================  =========================================
+format     Content-Type                                    read with
+=========  ==============================================  =========================================
+``npy``    ``application/x-npy`` (or ``application/npy``)  a header parse, then ``np.frombuffer``
+``npz``    ``application/x-npz`` (``application/npz``,     ``zipfile``; stored members are viewed in
+           ``application/zip``)                            place, deflated ones decompressed once
+``json``   ``application/json``                            ``json.loads``
+``obj``    ``model/obj``                                   ``meshfile`` (NumPy)
+``ply``    ``application/ply`` (``model/ply``)             ``meshfile``: trimesh (binary or ASCII)
+``stl``    ``model/stl`` (``application/sla``)             ``meshfile``: trimesh (binary or ASCII)
+``glb``    ``model/gltf-binary``                           ``meshfile``: trimesh
+``off``    ``model/off`` (``application/off``)             ``meshfile`` (NumPy)
+=========  ==============================================  =========================================
+
+With no ``Content-Type`` or ``application/octet-stream`` the format is sniffed from the first bytes
+(``\\x93NUMPY`` npy, ``PK`` npz, ``glTF`` glb, ``ply`` ply, ``OFF`` off, ``{`` json); anything else
+is 415, as is a known format the endpoint does not read.
+
+Binary arrays must be little-endian with exactly the dtype below; a wrong dtype or shape is 422
+with the fix in the message (the binary path never converts behind the caller's back: that would
+be a hidden copy). ``allow_pickle`` is never on: an object array is 422 and is never unpickled.
+A ``.npy`` body whose data is shorter or longer than its header says, or whose shape has a
+negative length, is 400; a structured, subarray or void dtype is 422. An ``.npz`` whose members
+add up to more than ``max_bytes`` once decompressed is 413; its members must be stored or
+deflated, unencrypted, each named once, and must not overlap (400 otherwise), at most
+``MAX_NPZ_MEMBERS`` of them. A deflated member is inflated piece by piece and refused as soon as
+it passes its declared size, so no body costs more than the limit in memory.
+
+JSON values are read as JSON types: numbers where numbers are expected (a string such as
+``"0.5"`` or a boolean is 422), JSON nested too deeply for the parser or an integer of over 4300
+digits is 400.
+
+Rays (``decode_rays``; formats npy, npz, json)
+    npy  float32 (N, 6) ``[ox, oy, oz, dx, dy, dz]`` or (N, 8) ``[..., tmin, tmax]``.
+    npz  ``origins`` float32 (N, 3), ``directions`` float32 (N, 3); optional ``tmin``, ``tmax``
+         float32 of shape (N,) or () (one value for the batch). No other keys.
+    json ``{"origins": [[x, y, z], ...], "directions": [...], "tmin": number | [..] | null,
+         "tmax": number | [..] | null}``; a null field means the default, a null element +inf.
+    Defaults: tmin 0, tmax +inf. More than ``max_rays`` rays is 413. Values (finite, non-zero
+    directions, tmin <= tmax) are checked by the engine, which names the first bad ray.
+
+Meshes (``decode_mesh``; formats npz, json, obj, ply, stl, glb, off)
+    npz  ``vertices`` float32 (V, 3) and ``faces`` int32 or uint32 (F, 3). No other keys.
+    json ``{"vertices": [[x, y, z], ...], "faces": [[i, j, k], ...]}`` (faces must be integers).
+    A mesh file gives its geometry only, never decoding textures or materials; vertices and
+    winding are as in the file; all its objects are merged into one mesh with their scene
+    transforms applied; a file with no triangles is 400 (``meshfile`` states the rules). Every
+    vertex must be finite and every face index in ``[0, V)``: otherwise 422 naming the first bad
+    row (for OBJ and OFF, the line) and how many there are.
+
+Vertices (``decode_vertices``; formats npy, npz, json)
+    npy float32 (V, 3); npz key ``vertices``; json ``{"vertices": [[x, y, z], ...]}``.
+
+Frames (``decode_frame``; formats npz, json)
+    Keys ``MESH.vertices`` and optionally ``MESH.faces`` for any number of meshes (a mesh name may
+    itself contain dots: the suffix after the last dot is the array). JSON uses the same flat keys.
+
+One-shot trace (``decode_trace``; formats npz, json)
+    The keys of a mesh (``vertices``, ``faces``) and of rays (``origins``, ``directions``,
+    ``tmin``, ``tmax``) in one body.
+
+Answers (``negotiate`` and ``encode_answer``)
+    ``Accept`` picks ``application/x-npz``, ``application/x-npy`` or ``application/json`` (q-values
+    honoured); absent, ``*/*`` or ``application/*`` gives JSON for a JSON request and npz for any
+    other; naming none of these is 406.
+    npz  one uncompressed member per field (``t``, ``mesh``, ...); the body is sent as zip headers
+         around the answer arrays' own memory, never joined into one copy.
+    npy  a single field is a plain array; several fields are one structured array with a named
+         field each (``a["t"]``, ``a["normal"]`` of shape (N, 3)).
+    json ``{"t": [...], ...}``; float32 values in their shortest round-trip form, so
+         ``np.float32(json_value)`` gives back the binary answer bit for bit; inf (and nan) are
+         null.
+"""
+
+from .answers import encode_answer, encode_json, json_ready, negotiate, npy_parts
+from .arrays import (
+    MeshArrays,
+    Rays,
+    check_faces,
+    check_vertices,
+    float_array,
+    index_array,
+    mesh_arrays,
+    nulls_to_inf,
+)
+from .body import BodyBuffer
+from .decoders import (
+    check_keys,
+    decode_frame,
+    decode_mesh,
+    decode_rays,
+    decode_trace,
+    decode_vertices,
+    read_json,
+    read_mapping,
+)
+from .formats import (
+    ANSWER_FORMATS,
+    CONTENT_TYPES,
+    FRAME_FORMATS,
+    JSON,
+    MEDIA_TYPES,
+    MESH_FILE_FORMATS,
+    MESH_FORMATS,
+    NPY,
+    NPZ,
+    RAY_FORMATS,
+    TRACE_FORMATS,
+    VERTEX_FORMATS,
+    Buffer,
+    resolve_format,
+)
+from .npy import array_bytes, npy_header, read_npy
+from .npz_reader import MAX_NPZ_MEMBERS, read_npz
+from .npz_writer import NpzBody, npz_parts
+
+__all__ = [
+    "ANSWER_FORMATS",
+    "CONTENT_TYPES",
+    "FRAME_FORMATS",
+    "JSON",
+    "MAX_NPZ_MEMBERS",
+    "MEDIA_TYPES",
+    "MESH_FILE_FORMATS",
+    "MESH_FORMATS",
+    "NPY",
+    "NPZ",
+    "RAY_FORMATS",
+    "TRACE_FORMATS",
+    "VERTEX_FORMATS",
+    "BodyBuffer",
+    "Buffer",
+    "MeshArrays",
+    "NpzBody",
+    "Rays",
+    "array_bytes",
+    "check_faces",
+    "check_keys",
+    "check_vertices",
+    "decode_frame",
+    "decode_mesh",
+    "decode_rays",
+    "decode_trace",
+    "decode_vertices",
+    "encode_answer",
+    "encode_json",
+    "float_array",
+    "index_array",
+    "json_ready",
+    "mesh_arrays",
+    "negotiate",
+    "npy_header",
+    "npy_parts",
+    "npz_parts",
+    "nulls_to_inf",
+    "read_json",
+    "read_mapping",
+    "read_npy",
+    "read_npz",
+    "resolve_format",
+]

@@ -1,0 +1,95 @@
+"""Answers: the format an ``Accept`` header asks for, and the body of an answer in it."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+from ..errors import NotAcceptable
+from .formats import ANSWER_FORMATS, CONTENT_TYPES, JSON, NPY, NPZ, Buffer
+from .npy import array_bytes, npy_header
+from .npz_writer import NpzBody
+
+
+def negotiate(accept: str | None, request_format: str) -> str:
+    """The answer format for an ``Accept`` header: npz, npy or json (406 if none fits)."""
+    default = "json" if request_format == "json" else "npz"
+    if not accept or not accept.strip():
+        return default
+    ranked = []
+    for position, part in enumerate(accept.split(",")):
+        media, *params = [p.strip() for p in part.split(";")]
+        q = 1.0
+        for param in params:
+            name, _, value = param.partition("=")
+            if name.strip().lower() == "q":
+                try:
+                    q = float(value)
+                except ValueError:
+                    q = 0.0
+        if q > 0:
+            ranked.append((-q, position, media.lower()))
+    for _, _, media in sorted(ranked):
+        if media in ("*/*", "application/*"):
+            return default
+        fmt = CONTENT_TYPES.get(media)
+        if fmt in ANSWER_FORMATS:
+            return fmt
+    raise NotAcceptable(
+        f"Accept: {accept} names no answer format this service writes; use {NPZ}, {NPY} or {JSON}"
+    )
+
+
+def encode_answer(arrays: Mapping[str, np.ndarray], fmt: str) -> tuple[Iterable[Buffer], int, str]:
+    """(body as buffers to send in order, its length, Content-Type) of an answer: npz, npy or json.
+
+    The buffers of npy and npz bodies are mostly the answer arrays' own memory: nothing is copied.
+    An npz body takes each member's CRC as it is sent (``NpzBody``).
+    """
+    if fmt == "npz":
+        body = NpzBody(arrays)
+        return body, body.length, NPZ
+    if fmt == "npy":
+        parts, media = npy_parts(arrays), NPY
+    elif fmt == "json":
+        parts, media = [encode_json(arrays)], JSON
+    else:
+        raise ValueError(f"unknown answer format {fmt!r}")
+    return parts, sum(len(part) for part in parts), media
+
+
+def npy_parts(arrays: Mapping[str, np.ndarray]) -> list[Buffer]:
+    """One .npy: the array itself if there is one field, else a structured array of all of them."""
+    if len(arrays) == 1:
+        (array,) = arrays.values()
+        return [npy_header(array.dtype, array.shape), array_bytes(array)]
+    n = len(next(iter(arrays.values()))) if arrays else 0
+    records = np.empty(n, dtype=[(k, a.dtype, a.shape[1:]) for k, a in arrays.items()])
+    for key, array in arrays.items():
+        records[key] = array
+    return [npy_header(records.dtype, records.shape), array_bytes(records)]
+
+
+def encode_json(arrays: Mapping[str, np.ndarray]) -> bytes:
+    """``{"key": [...], ...}`` with float32 in shortest round-trip form and null for inf/nan."""
+    return json.dumps(
+        {key: json_ready(array) for key, array in arrays.items()},
+        separators=(",", ":"),
+        allow_nan=False,
+    ).encode()
+
+
+def json_ready(array: np.ndarray) -> Any:
+    """Nested lists for ``json.dumps``: shortest float32 repr, None where not finite."""
+    if array.dtype.kind != "f":
+        return array.tolist()
+    shortest = array.astype(str).astype(np.float64)  # '0.1' for float32(0.1), not 0.10000000149
+    finite = np.isfinite(array)
+    if finite.all():
+        return shortest.tolist()
+    values = shortest.astype(object)
+    values[~finite] = None
+    return values.tolist()
