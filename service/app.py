@@ -15,7 +15,7 @@ from fastapi import FastAPI
 from . import __version__, errors, tracing, wire
 from .deps import Readiness
 from .metrics import Metrics, MetricsMiddleware
-from .routes import ops, queries, scenes
+from .routes import meshes, ops, queries
 from .settings import Settings, load_settings_or_exit
 from .store import Store
 
@@ -42,7 +42,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings, app.state.store, app.state.metrics = settings, store, metrics
     app.state.readiness = Readiness()
     errors.install(app)
-    for module in (scenes, queries, ops):  # each router carries its full prefix (route templates
+    for module in (meshes, queries, ops):  # each router carries its full prefix (route templates
         app.include_router(module.router)  # in metrics) and the token check of its /v1 routes
     app.add_middleware(errors.CatchAll)  # inside the metrics, so that they count its 500s
     app.add_middleware(MetricsMiddleware, metrics=metrics)

@@ -130,7 +130,7 @@ def _snapshot_engine(snapshot: Snapshot) -> EngineScene:
 
 
 @dataclass(frozen=True)
-class Answer:
+class TraceResult:
     """The arrays of an answer, the scene version it was computed on, and what it cost."""
 
     arrays: dict[str, np.ndarray]
@@ -139,21 +139,23 @@ class Answer:
     seconds: float  #: engine build (if not cached) + trace
 
 
-def trace(snapshot: Snapshot, rays: Rays, options: Options) -> Answer:
+def trace(snapshot: Snapshot, rays: Rays, options: Options) -> TraceResult:
     """Answer a query on one scene version (the engine scene is built once per version)."""
     start = time.perf_counter()
     engine = snapshot.cached("dacrt", _snapshot_engine)
     return _run(engine, rays, options, snapshot.version, start)
 
 
-def trace_once(mesh: MeshArrays, rays: Rays, options: Options) -> Answer:
+def trace_once(mesh: MeshArrays, rays: Rays, options: Options) -> TraceResult:
     """Answer a query on a mesh sent with the rays (mesh index 0; version 0: no stored scene)."""
     start = time.perf_counter()
     engine = build_engine_scene([(0, mesh.vertices, mesh.faces)])
     return _run(engine, rays, options, 0, start)
 
 
-def _run(engine: EngineScene, rays: Rays, options: Options, version: int, start: float) -> Answer:
+def _run(
+    engine: EngineScene, rays: Rays, options: Options, version: int, start: float
+) -> TraceResult:
     kwargs = {"strategy": options.strategy, "threads": options.threads, "stats": options.stats}
     try:
         if options.query is Query.CLOSEST:
@@ -174,7 +176,7 @@ def _run(engine: EngineScene, rays: Rays, options: Options, version: int, start:
         raise Invalid(str(exc)) from None
     if stats is not None:
         stats = {**stats, "strategy": options.strategy}
-    return Answer(arrays, version, stats, time.perf_counter() - start)
+    return TraceResult(arrays, version, stats, time.perf_counter() - start)
 
 
 def warmup() -> float:

@@ -6,22 +6,21 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
-import scenes
+import sample_scenes
 
 
 @pytest.fixture(scope="session")
 def shared_scenes() -> Path:
     """Path of ``../shared/scenes`` beside the repository (it may be absent: ``load_shared`` skips
     then)."""
-    return scenes.SHARED_SCENES
+    return sample_scenes.SHARED_SCENES
 
 
 @pytest.fixture(scope="session")
 def load_shared():
     """``load_shared(name) -> (vertices, faces)``; skips the test when
     ``../shared/scenes/{name}.npz`` is absent."""
-    return scenes.load_shared
+    return sample_scenes.load_shared
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -12,9 +12,9 @@ import assertions as check
 import numpy as np
 import procedural as pg
 import pytest
+import sample_scenes
 
 import dacrt
-import scenes
 
 embreex = pytest.importorskip("embreex")
 import oracle_embree  # noqa: E402  (needs embreex)
@@ -24,9 +24,9 @@ MIN_AGREEMENT = 0.999
 
 @pytest.mark.parametrize("scene_name", ["soup", "sphere", "tilted_grid", "multi"])
 def test_procedural_closest_matches_embree(scene_name):
-    meshes = scenes.SCENES[scene_name](50)
+    meshes = sample_scenes.SCENES[scene_name](50)
     vertices, faces, offsets = pg.concat(meshes)
-    origins, directions = scenes.mixed_rays(meshes, 50, n=3000)
+    origins, directions = sample_scenes.mixed_rays(meshes, 50, n=3000)
     hits = dacrt.Scene(meshes).closest(origins, directions)
     oracle = oracle_embree.EmbreeOracle(meshes).closest(origins, directions)
     check.check_against_embree(

@@ -11,9 +11,9 @@ import numpy as np
 import procedural as pg
 import pytest
 import reference
+import sample_scenes
 
 import dacrt
-import scenes
 from dacrt.geometry import cull_distance, intersect_box
 
 SEEDS = (0, 1)
@@ -30,11 +30,11 @@ def build(meshes):
 
 
 @pytest.mark.parametrize("seed", SEEDS)
-@pytest.mark.parametrize("scene_name", sorted(scenes.SCENES))
+@pytest.mark.parametrize("scene_name", sorted(sample_scenes.SCENES))
 def test_closest_matches_reference(scene_name, seed):
-    meshes = scenes.SCENES[scene_name](seed)
+    meshes = sample_scenes.SCENES[scene_name](seed)
     scene, vertices, faces, offsets = build(meshes)
-    origins, directions = scenes.mixed_rays(meshes, seed)
+    origins, directions = sample_scenes.mixed_rays(meshes, seed)
     hits = scene.closest(origins, directions)
     check.check_layout(hits, len(origins))
     check.check_geometry(hits, vertices, faces, origins, directions, offsets)
@@ -43,18 +43,18 @@ def test_closest_matches_reference(scene_name, seed):
     )
 
 
-@pytest.mark.parametrize("scene_name", sorted(scenes.SCENES))
+@pytest.mark.parametrize("scene_name", sorted(sample_scenes.SCENES))
 def test_occluded_matches_reference_and_closest(scene_name):
-    meshes = scenes.SCENES[scene_name](7)
+    meshes = sample_scenes.SCENES[scene_name](7)
     scene, vertices, faces, _ = build(meshes)
-    origins, directions = scenes.mixed_rays(meshes, 7)
+    origins, directions = sample_scenes.mixed_rays(meshes, 7)
     occ = scene.occluded(origins, directions)
     check.check_occluded_against_reference(occ, vertices, faces, origins, directions)
     np.testing.assert_array_equal(occ, np.isfinite(scene.closest(origins, directions).t))
 
 
 def test_rays_from_inside_sphere_match_reference():
-    meshes = scenes.sphere(3)
+    meshes = sample_scenes.sphere(3)
     scene, vertices, faces, _ = build(meshes)
     r_in = pg.inner_radius(vertices, faces)
     origins, directions = pg.rays_from_inside((0, 0, 0), 0.9 * r_in, 1500, np.random.default_rng(3))
@@ -90,9 +90,9 @@ def _ranges(kind, first_t, rng):
 @pytest.mark.parametrize("kind", ["scalar", "scalar_tmin", "scalar_tmax", "per_ray"])
 @pytest.mark.parametrize("scene_name", ["soup", "multi"])
 def test_ray_ranges_honoured(scene_name, kind):
-    meshes = scenes.SCENES[scene_name](11)
+    meshes = sample_scenes.SCENES[scene_name](11)
     scene, vertices, faces, offsets = build(meshes)
-    origins, directions = scenes.mixed_rays(meshes, 11)
+    origins, directions = sample_scenes.mixed_rays(meshes, 11)
     first = reference.closest(vertices, faces, origins, directions)
     tmin, tmax = _ranges(kind, first.t, np.random.default_rng(11))
     hits = scene.closest(origins, directions, tmin, tmax)
@@ -133,9 +133,9 @@ def test_per_ray_range_skips_first_hit():
 def test_range_ends_are_inclusive_and_exact(scene_name, strategy):
     """With tmax, or tmin, set to the ray's own closest t (float32), that very hit is still found;
     with tmax one float below it, nothing is."""
-    meshes = scenes.SCENES[scene_name](17)
+    meshes = sample_scenes.SCENES[scene_name](17)
     scene = dacrt.Scene(meshes)
-    origins, directions = scenes.mixed_rays(meshes, 17)
+    origins, directions = sample_scenes.mixed_rays(meshes, 17)
     first = scene.closest(origins, directions, strategy=strategy)
     hit = first.prim >= 0
     o, d, t = origins[hit], directions[hit], first.t[hit]
@@ -157,9 +157,9 @@ def test_range_ends_are_inclusive_and_exact(scene_name, strategy):
 
 @pytest.mark.parametrize("length", [1e-12, 1e-3, 0.5, 3.7, 250.0, 1e12])
 def test_t_scales_inversely_with_direction_length(length):
-    meshes = scenes.soup(5)
+    meshes = sample_scenes.soup(5)
     scene, vertices, faces, _ = build(meshes)
-    origins, directions = scenes.mixed_rays(meshes, 5)
+    origins, directions = sample_scenes.mixed_rays(meshes, 5)
     unit = scene.closest(origins, directions)
     scaled_dirs = (directions.astype(np.float64) * length).astype(np.float32)
     scaled = scene.closest(origins, scaled_dirs)
@@ -186,9 +186,9 @@ def test_t_scales_inversely_with_direction_length(length):
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("scene_name", ["soup", "sphere", "tilted_grid"])
 def test_shuffling_triangles_changes_no_t(scene_name, seed):
-    ((vertices, faces),) = scenes.SCENES[scene_name](seed)
+    ((vertices, faces),) = sample_scenes.SCENES[scene_name](seed)
     rng = np.random.default_rng(seed)
-    origins, directions = scenes.mixed_rays([(vertices, faces)], seed)
+    origins, directions = sample_scenes.mixed_rays([(vertices, faces)], seed)
     base = dacrt.Scene([(vertices, faces)]).closest(origins, directions)
     order = rng.permutation(len(faces))
     # Also renumber the vertices: a triangle's coordinates, and so its t, stay the same.
@@ -204,8 +204,8 @@ def test_shuffling_triangles_changes_no_t(scene_name, seed):
 
 
 def test_rotating_face_corners_keeps_t_and_maps_barycentrics():
-    ((vertices, faces),) = scenes.soup(4)
-    origins, directions = scenes.mixed_rays([(vertices, faces)], 4)
+    ((vertices, faces),) = sample_scenes.soup(4)
+    origins, directions = sample_scenes.mixed_rays([(vertices, faces)], 4)
     base = dacrt.Scene([(vertices, faces)]).closest(origins, directions)
     rot = dacrt.Scene([(vertices, faces[:, [1, 2, 0]])]).closest(origins, directions)
     same = (base.prim >= 0) & (rot.prim == base.prim)
@@ -218,8 +218,8 @@ def test_rotating_face_corners_keeps_t_and_maps_barycentrics():
 
 
 def test_float64_and_int64_inputs_give_the_same_answers():
-    meshes = scenes.multi(2)
-    origins, directions = scenes.mixed_rays(meshes, 2)
+    meshes = sample_scenes.multi(2)
+    origins, directions = sample_scenes.mixed_rays(meshes, 2)
     tmin = np.full(len(origins), 0.01, np.float32)
     tmax = np.full(len(origins), 5.0, np.float32)
     a = dacrt.Scene(meshes).closest(origins, directions, tmin, tmax)
@@ -235,16 +235,16 @@ def test_float64_and_int64_inputs_give_the_same_answers():
 
 @pytest.mark.parametrize("dtype", [np.int16, np.uint16, np.uint32, np.uint64])
 def test_other_integer_face_dtypes_give_the_same_answers(dtype):
-    meshes = scenes.soup(3)
-    origins, directions = scenes.mixed_rays(meshes, 3)
+    meshes = sample_scenes.soup(3)
+    origins, directions = sample_scenes.mixed_rays(meshes, 3)
     a = dacrt.Scene(meshes).closest(origins, directions)
     b = dacrt.Scene([(v, f.astype(dtype)) for v, f in meshes]).closest(origins, directions)
     check.assert_bitwise_equal(a, b, f"faces as {np.dtype(dtype)}")
 
 
 def test_non_contiguous_inputs_give_the_same_answers():
-    meshes = scenes.soup(6)
-    origins, directions = scenes.mixed_rays(meshes, 6)
+    meshes = sample_scenes.soup(6)
+    origins, directions = sample_scenes.mixed_rays(meshes, 6)
     a = dacrt.Scene(meshes).closest(origins, directions)
     ((v, f),) = meshes
     v_strided = np.zeros((len(v), 6), np.float32)
@@ -256,13 +256,13 @@ def test_non_contiguous_inputs_give_the_same_answers():
     check.assert_bitwise_equal(a, b, "strided / Fortran-ordered inputs")
 
 
-@pytest.mark.parametrize("scene_name", sorted(scenes.SCENES))
+@pytest.mark.parametrize("scene_name", sorted(sample_scenes.SCENES))
 def test_small_and_large_batches_give_the_same_answers(scene_name):
     """A batch with at least as many rays as triangles looks normals up per triangle, a
     smaller one computes each hit's: the same rays answer alike in either, bit for bit."""
-    meshes = scenes.SCENES[scene_name](3)
+    meshes = sample_scenes.SCENES[scene_name](3)
     scene, vertices, faces, offsets = build(meshes)
-    origins, directions = scenes.mixed_rays(meshes, 3)
+    origins, directions = sample_scenes.mixed_rays(meshes, 3)
     assert len(origins) >= scene.n_triangles > 10
     whole = scene.closest(origins, directions)
     small = scene.n_triangles - 1
@@ -283,8 +283,8 @@ def test_small_and_large_batches_give_the_same_answers(scene_name):
 
 
 def test_inputs_are_not_modified():
-    meshes = scenes.multi(8)
-    origins, directions = scenes.mixed_rays(meshes, 8)
+    meshes = sample_scenes.multi(8)
+    origins, directions = sample_scenes.mixed_rays(meshes, 8)
     tmin = np.zeros(len(origins), np.float32)
     tmax = np.full(len(origins), np.inf, np.float32)
     copies = [a.copy() for m in meshes for a in m] + [
@@ -308,7 +308,7 @@ def test_inputs_are_not_modified():
 
 
 def test_scene_attributes():
-    meshes = scenes.multi(9)
+    meshes = sample_scenes.multi(9)
     # An unreferenced vertex far away must not count in the bounds.
     v0, f0 = meshes[0]
     meshes[0] = (np.concatenate([v0, np.float32([[100.0, 100.0, 100.0]])]), f0)
@@ -427,7 +427,7 @@ def test_origin_on_the_triangle_hits_at_t_zero():
 
 @pytest.mark.parametrize("query", ["closest", "occluded"])
 def test_zero_rays_give_typed_empty_arrays(query):
-    scene = dacrt.Scene(scenes.soup(0))
+    scene = dacrt.Scene(sample_scenes.soup(0))
     empty = np.zeros((0, 3), np.float32)
     if query == "closest":
         hits = scene.closest(empty, empty)
@@ -461,7 +461,7 @@ def test_scene_without_triangles_misses_everything(kind):
 
 
 def test_rays_pointing_away_all_miss():
-    meshes = scenes.multi(13)
+    meshes = sample_scenes.multi(13)
     scene, vertices, _, _ = build(meshes)
     lo, hi = pg.bounds(vertices)
     center = (lo + hi) / 2

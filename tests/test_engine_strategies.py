@@ -10,9 +10,9 @@ import assertions as check
 import numpy as np
 import procedural as pg
 import pytest
+import sample_scenes
 
 import dacrt
-import scenes
 
 
 def _grid_vertex_rays():
@@ -24,7 +24,7 @@ def _grid_vertex_rays():
 
 
 def _inside_sphere():
-    ((v, f),) = scenes.sphere(40)
+    ((v, f),) = sample_scenes.sphere(40)
     o, d = pg.rays_from_inside(
         (0, 0, 0), 0.9 * pg.inner_radius(v, f), 3000, np.random.default_rng(40)
     )
@@ -32,23 +32,23 @@ def _inside_sphere():
 
 
 def _soup_with_ranges():
-    meshes = scenes.soup(41)
-    o, d = scenes.mixed_rays(meshes, 41, n=3000)
+    meshes = sample_scenes.soup(41)
+    o, d = sample_scenes.mixed_rays(meshes, 41, n=3000)
     rng = np.random.default_rng(41)
     tmin = rng.uniform(0.0, 0.5, len(o)).astype(np.float32)
     return meshes, o, d, tmin, (tmin + rng.uniform(0.0, 1.5, len(o))).astype(np.float32)
 
 
 def _multi():
-    meshes = scenes.multi(42)
-    return meshes, *scenes.mixed_rays(meshes, 42, n=3000), None, None
+    meshes = sample_scenes.multi(42)
+    return meshes, *sample_scenes.mixed_rays(meshes, 42, n=3000), None, None
 
 
 def _duplicates():
     """A soup with every triangle twice (in both meshes too): every hit is a tie."""
-    ((v, f),) = scenes.soup(43)
+    ((v, f),) = sample_scenes.soup(43)
     meshes = [(v, np.concatenate([f, f[::-1]])), (v, f)]
-    return meshes, *scenes.mixed_rays(meshes, 43, n=2000), None, None
+    return meshes, *sample_scenes.mixed_rays(meshes, 43, n=2000), None, None
 
 
 def _stacked(n_copies=64, n_rays=3000):
@@ -67,7 +67,7 @@ def _stacked(n_copies=64, n_rays=3000):
 
 def _many_rays():
     """40,000 rays from inside a sphere: enough for the engine to split the batch across threads."""
-    ((v, f),) = scenes.sphere(44)
+    ((v, f),) = sample_scenes.sphere(44)
     o, d = pg.rays_from_inside(
         (0, 0, 0), 0.9 * pg.inner_radius(v, f), 40_000, np.random.default_rng(44)
     )
@@ -75,21 +75,21 @@ def _many_rays():
 
 
 def _pinwheel():
-    meshes = scenes.pinwheel(45)
-    return meshes, *scenes.mixed_rays(meshes, 45, n=2000), None, None
+    meshes = sample_scenes.pinwheel(45)
+    return meshes, *sample_scenes.mixed_rays(meshes, 45, n=2000), None, None
 
 
 def _camera_in_soup():
     """A pinhole camera's rays, all from one point (the partitions then leave the origin rows
     in place), into a soup of triangles: enough rays to split the batch and sample nodes."""
-    meshes = scenes.soup(48)
+    meshes = sample_scenes.soup(48)
     o, d = pg.camera_rays(pg.bounds(*meshes[0]), 200, 150)
     return meshes, o, d, None, None
 
 
 def _parallel_in_soup():
     """Parallel rays (one direction, origins on a plane) into a soup of triangles."""
-    meshes = scenes.soup(49)
+    meshes = sample_scenes.soup(49)
     rng = np.random.default_rng(49)
     o = np.column_stack([rng.uniform(-0.2, 1.2, (30_000, 2)), np.full(30_000, -1.0)])
     d = np.tile([0.3, 0.2, 1.0], (30_000, 1))
@@ -97,7 +97,7 @@ def _parallel_in_soup():
 
 
 def _teapot_camera():
-    v, f = scenes.load_shared("teapot")
+    v, f = sample_scenes.load_shared("teapot")
     o, d = pg.camera_rays(pg.bounds(v, f), 64, 48)
     return [(v, f)], o, d, None, None
 

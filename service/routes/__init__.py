@@ -1,2 +1,2 @@
-"""HTTP routes, a few lines each: ``scenes`` (meshes and scenes), ``queries`` (ray batches),
+"""HTTP routes, a few lines each: ``meshes`` (meshes and their scenes), ``queries`` (ray batches),
 ``ops`` (health, metrics, capabilities)."""

@@ -1,4 +1,4 @@
-"""Scenes and meshes: upload, deform, frame, inspect, delete."""
+"""Meshes and the scenes that hold them: upload, deform, frame, inspect, delete."""
 
 from __future__ import annotations
 
