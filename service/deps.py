@@ -1,11 +1,12 @@
-"""Request plumbing shared by the routes: app state, the bearer token, bounded body reading."""
+"""Request plumbing shared by the routes: what a handler uses (settings, store, metrics,
+readiness) as ``Annotated`` dependencies, the bearer token, bounded body reading."""
 
 from __future__ import annotations
 
 import difflib
 import secrets
-from dataclasses import dataclass, field
-from typing import Annotated, Any
+from dataclasses import dataclass
+from typing import Annotated
 
 from fastapi import Depends, Request
 from fastapi.routing import APIRoute
@@ -15,7 +16,7 @@ from .errors import Invalid, TooLarge, Unauthorized
 from .metrics import Metrics
 from .settings import Settings
 from .store import Store
-from .wire import BodyBuffer
+from .wire.body import BodyBuffer
 
 
 @dataclass
@@ -26,19 +27,29 @@ class Readiness:
     status: str = "starting"
     seconds: float | None = None
     error: str | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
-def settings_of(request: Request) -> Settings:
+def get_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def store_of(request: Request) -> Store:
+def get_store(request: Request) -> Store:
     return request.app.state.store
 
 
-def metrics_of(request: Request) -> Metrics:
+def get_metrics(request: Request) -> Metrics:
     return request.app.state.metrics
+
+
+def get_readiness(request: Request) -> Readiness:
+    return request.app.state.readiness
+
+
+#: What a handler uses, in its signature (tests may override the ``get_*`` functions).
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+StoreDep = Annotated[Store, Depends(get_store)]
+MetricsDep = Annotated[Metrics, Depends(get_metrics)]
+ReadinessDep = Annotated[Readiness, Depends(get_readiness)]
 
 
 #: Declares the bearer scheme in the OpenAPI document; ``require_token`` words the refusals.
@@ -46,10 +57,11 @@ bearer = HTTPBearer(auto_error=False, description="the server's DACRT_TOKEN, whe
 
 
 def require_token(
-    request: Request, credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
+    settings: SettingsDep,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
 ) -> None:
     """Dependency of every /v1 route: 401 unless the configured bearer token is presented."""
-    token = settings_of(request).token
+    token = settings.token
     if token is None:
         return
     if credentials is None or not credentials.credentials.strip():
@@ -87,10 +99,9 @@ def query_parameters(route: APIRoute) -> tuple[str, ...]:
     return tuple(names)
 
 
-async def read_body(request: Request) -> memoryview:
+async def read_body(request: Request, limit: int) -> memoryview:
     """The whole body (a read-only ``wire.BodyBuffer``), refused (413) as soon as it is known to
-    exceed DACRT_MAX_BODY_BYTES."""
-    limit = settings_of(request).max_body_bytes
+    exceed ``limit``, DACRT_MAX_BODY_BYTES."""
     declared = request.headers.get("content-length")
     expected = int(declared) if declared is not None and declared.isdigit() else None
     if expected is not None and expected > limit:

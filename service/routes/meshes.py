@@ -8,7 +8,7 @@ from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request, Response
 
 from .. import openapi, wire
-from ..deps import read_body, reject_unknown_query, require_token, settings_of, store_of
+from ..deps import SettingsDep, StoreDep, read_body, reject_unknown_query, require_token
 from ..errors import Invalid
 from ..params import FrameFormat, Mask, MeshFormat, MeshName, SceneName, VertexFormat
 from ..store import check_name
@@ -46,6 +46,8 @@ async def put_mesh(
     mesh: MeshName,
     request: Request,
     response: Response,
+    settings: SettingsDep,
+    store: StoreDep,
     format: MeshFormat = None,
     mask: Mask = None,
 ) -> dict:
@@ -53,7 +55,7 @@ async def put_mesh(
     check_name("scene", scene), check_name("mesh", mesh)
     if mask is not None:
         raise Invalid("?mask= (visibility masks) is not supported by this server yet")
-    body = await read_body(request)
+    body = await read_body(request, settings.max_body_bytes)
     fmt = wire.resolve_format(
         request.headers.get("content-type"),
         format,
@@ -61,22 +63,25 @@ async def put_mesh(
         body,
         "PUT /v1/scenes/{scene}/meshes/{mesh}",
     )
-    arrays = await run_sync(
-        partial(wire.decode_mesh, body, fmt, settings_of(request).max_body_bytes)
-    )
-    stored, created = await run_sync(store_of(request).put_mesh, scene, mesh, arrays)
+    arrays = await run_sync(partial(wire.decode_mesh, body, fmt, settings.max_body_bytes))
+    stored, created = await run_sync(store.put_mesh, scene, mesh, arrays)
     response.status_code = 201 if created else 200
     return stored.info(scene)
 
 
 @router.put("/{scene}/meshes/{mesh}/vertices", openapi_extra=VERTICES_BODY, responses=CHANGE_ERRORS)
 async def put_vertices(
-    scene: SceneName, mesh: MeshName, request: Request, format: VertexFormat = None
+    scene: SceneName,
+    mesh: MeshName,
+    request: Request,
+    settings: SettingsDep,
+    store: StoreDep,
+    format: VertexFormat = None,
 ) -> dict:
     """New vertex positions for a mesh, same count (409 otherwise); faces are kept."""
     check_name("scene", scene), check_name("mesh", mesh)
-    store_of(request).snapshot(scene).mesh(mesh)  # 404 before reading the body
-    body = await read_body(request)
+    store.snapshot(scene).mesh(mesh)  # 404 before reading the body
+    body = await read_body(request, settings.max_body_bytes)
     fmt = wire.resolve_format(
         request.headers.get("content-type"),
         format,
@@ -84,18 +89,22 @@ async def put_vertices(
         body,
         "PUT /v1/scenes/{scene}/meshes/{mesh}/vertices",
     )
-    vertices = await run_sync(
-        partial(wire.decode_vertices, body, fmt, settings_of(request).max_body_bytes)
-    )
-    stored = await run_sync(store_of(request).update_vertices, scene, mesh, vertices)
+    vertices = await run_sync(partial(wire.decode_vertices, body, fmt, settings.max_body_bytes))
+    stored = await run_sync(store.update_vertices, scene, mesh, vertices)
     return stored.info(scene)
 
 
 @router.post("/{scene}/frame", openapi_extra=FRAME_BODY, responses=CHANGE_ERRORS)
-async def post_frame(scene: SceneName, request: Request, format: FrameFormat = None) -> dict:
+async def post_frame(
+    scene: SceneName,
+    request: Request,
+    settings: SettingsDep,
+    store: StoreDep,
+    format: FrameFormat = None,
+) -> dict:
     """Change several meshes in one version, atomically."""
     check_name("scene", scene)
-    body = await read_body(request)
+    body = await read_body(request, settings.max_body_bytes)
     fmt = wire.resolve_format(
         request.headers.get("content-type"),
         format,
@@ -103,37 +112,35 @@ async def post_frame(scene: SceneName, request: Request, format: FrameFormat = N
         body,
         "POST /v1/scenes/{scene}/frame",
     )
-    frame = await run_sync(
-        partial(wire.decode_frame, body, fmt, settings_of(request).max_body_bytes)
-    )
-    snapshot = await run_sync(store_of(request).apply_frame, scene, frame)
+    frame = await run_sync(partial(wire.decode_frame, body, fmt, settings.max_body_bytes))
+    snapshot = await run_sync(store.apply_frame, scene, frame)
     return snapshot.info()
 
 
 @router.get("", responses=openapi.errors(401, 422))
-async def list_scenes(request: Request) -> dict:
-    return {"scenes": [s.info() for s in store_of(request).snapshots()]}
+async def list_scenes(store: StoreDep) -> dict:
+    return {"scenes": [s.info() for s in store.snapshots()]}
 
 
 @router.get("/{scene}", responses=READ_ERRORS)
-async def get_scene(scene: SceneName, request: Request) -> dict:
-    return store_of(request).snapshot(check_name("scene", scene)).info()
+async def get_scene(scene: SceneName, store: StoreDep) -> dict:
+    return store.snapshot(check_name("scene", scene)).info()
 
 
 @router.get("/{scene}/meshes/{mesh}", responses=READ_ERRORS)
-async def get_mesh(scene: SceneName, mesh: MeshName, request: Request) -> dict:
+async def get_mesh(scene: SceneName, mesh: MeshName, store: StoreDep) -> dict:
     check_name("scene", scene), check_name("mesh", mesh)
-    return store_of(request).snapshot(scene).mesh(mesh).info(scene)
+    return store.snapshot(scene).mesh(mesh).info(scene)
 
 
 @router.delete("/{scene}", status_code=204, responses=READ_ERRORS)
-async def delete_scene(scene: SceneName, request: Request) -> Response:
-    store_of(request).delete_scene(check_name("scene", scene))
+async def delete_scene(scene: SceneName, store: StoreDep) -> Response:
+    store.delete_scene(check_name("scene", scene))
     return Response(status_code=204)
 
 
 @router.delete("/{scene}/meshes/{mesh}", status_code=204, responses=READ_ERRORS)
-async def delete_mesh(scene: SceneName, mesh: MeshName, request: Request) -> Response:
+async def delete_mesh(scene: SceneName, mesh: MeshName, store: StoreDep) -> Response:
     check_name("scene", scene), check_name("mesh", mesh)
-    store_of(request).delete_mesh(scene, mesh)
+    store.delete_mesh(scene, mesh)
     return Response(status_code=204)

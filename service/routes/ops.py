@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Request, Response
+from fastapi import APIRouter, Depends, Response
 from fastapi.responses import JSONResponse, PlainTextResponse
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from .. import __version__, openapi, tracing, wire
-from ..deps import metrics_of, reject_unknown_query, require_token, settings_of, store_of
+from ..deps import (
+    MetricsDep,
+    ReadinessDep,
+    SettingsDep,
+    StoreDep,
+    reject_unknown_query,
+    require_token,
+)
 
 router = APIRouter(tags=["operations"])
 unauthenticated = [Depends(reject_unknown_query)]
@@ -18,17 +25,16 @@ unauthenticated = [Depends(reject_unknown_query)]
     dependencies=unauthenticated,
     responses={503: {"description": "the engine is compiling (starting) or failed to (error)"}},
 )
-async def health(request: Request) -> JSONResponse:
+async def health(ready: ReadinessDep, store: StoreDep) -> JSONResponse:
     # one string, so that the OpenAPI description stays one line
     (
         """200 ``{"status": "ok", ...}`` once the engine is compiled; """
         """503 ``starting``/``error`` before."""
     )
-    ready = request.app.state.readiness
     body = {
         "status": ready.status,
         "service": __version__,
-        "scenes": len(store_of(request).snapshots()),
+        "scenes": len(store.snapshots()),
     }
     if ready.seconds is not None:
         body["warmup_seconds"] = round(ready.seconds, 3)
@@ -43,8 +49,8 @@ async def health(request: Request) -> JSONResponse:
     response_class=PlainTextResponse,
     responses={200: {"description": "Prometheus text format"}},
 )
-async def metrics(request: Request) -> Response:
-    return Response(generate_latest(metrics_of(request).registry), media_type=CONTENT_TYPE_LATEST)
+async def metrics(metrics: MetricsDep) -> Response:
+    return Response(generate_latest(metrics.registry), media_type=CONTENT_TYPE_LATEST)
 
 
 @router.get(
@@ -52,13 +58,12 @@ async def metrics(request: Request) -> Response:
     dependencies=[Depends(require_token), Depends(reject_unknown_query)],
     responses=openapi.errors(401, 422),
 )
-async def capabilities(request: Request) -> dict:
+async def capabilities(settings: SettingsDep) -> dict:
     """Formats, fields, strategies and the limits in force."""
 
     def media(formats):
         return [wire.MEDIA_TYPES[f] for f in formats]
 
-    settings = settings_of(request)
     return {
         "api": "v1",
         "queries": [q.value for q in tracing.Query] + ["trace"],

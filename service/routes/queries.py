@@ -8,10 +8,19 @@ from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request
 
 from .. import openapi, tracing, wire
-from ..deps import metrics_of, read_body, reject_unknown_query, require_token, settings_of, store_of
+from ..deps import (
+    MetricsDep,
+    SettingsDep,
+    StoreDep,
+    read_body,
+    reject_unknown_query,
+    require_token,
+)
+from ..metrics import Metrics
 from ..params import Cull, Fields, QueryKind, RayFormat, SceneName, Stats, Strategy, TraceFormat
 from ..responses import BuffersResponse
-from ..store import check_name
+from ..settings import Settings
+from ..store import Store, check_name
 from ..timing import ServerTiming
 from ..tracing import Query
 
@@ -40,6 +49,9 @@ QUERY_ERRORS = openapi.errors(400, 401, 404, 406, 408, 413, 415, 422)
 async def closest(
     scene: SceneName,
     request: Request,
+    settings: SettingsDep,
+    store: StoreDep,
+    metrics: MetricsDep,
     fields: Fields = None,
     strategy: Strategy = None,
     stats: Stats = False,
@@ -47,10 +59,8 @@ async def closest(
     format: RayFormat = None,
 ):
     """The nearest hit of each ray."""
-    options = tracing.make_options(
-        Query.CLOSEST, fields, strategy, stats, settings_of(request).threads, cull
-    )
-    return await answer(request, options, scene, format)
+    options = tracing.make_options(Query.CLOSEST, fields, strategy, stats, settings.threads, cull)
+    return await answer(request, settings, store, metrics, options, scene, format)
 
 
 @router.post(
@@ -62,6 +72,9 @@ async def closest(
 async def occluded(
     scene: SceneName,
     request: Request,
+    settings: SettingsDep,
+    store: StoreDep,
+    metrics: MetricsDep,
     fields: Fields = None,
     strategy: Strategy = None,
     stats: Stats = False,
@@ -69,10 +82,8 @@ async def occluded(
     format: RayFormat = None,
 ):
     """Whether each ray hits anything in [tmin, tmax]."""
-    options = tracing.make_options(
-        Query.OCCLUDED, fields, strategy, stats, settings_of(request).threads, cull
-    )
-    return await answer(request, options, scene, format)
+    options = tracing.make_options(Query.OCCLUDED, fields, strategy, stats, settings.threads, cull)
+    return await answer(request, settings, store, metrics, options, scene, format)
 
 
 @router.post(
@@ -83,6 +94,8 @@ async def occluded(
 )
 async def trace(
     request: Request,
+    settings: SettingsDep,
+    metrics: MetricsDep,
     query: QueryKind = "closest",
     fields: Fields = None,
     strategy: Strategy = None,
@@ -91,21 +104,26 @@ async def trace(
     format: TraceFormat = None,
 ):
     """A stateless one-shot: the mesh comes with the rays (answers carry X-Scene-Version: 0)."""
-    options = tracing.make_options(
-        query, fields, strategy, stats, settings_of(request).threads, cull
-    )
-    return await answer(request, options, None, format)
+    options = tracing.make_options(query, fields, strategy, stats, settings.threads, cull)
+    return await answer(request, settings, None, metrics, options, None, format)
 
 
 async def answer(
-    request: Request, options: tracing.Options, scene: str | None, format: str | None
+    request: Request,
+    settings: Settings,
+    store: Store | None,
+    metrics: Metrics,
+    options: tracing.Options,
+    scene: str | None,
+    format: str | None,
 ) -> BuffersResponse:
-    """Read, decode, trace and encode one batch; the last three off the event loop."""
-    settings, store, timing = settings_of(request), store_of(request), ServerTiming()
+    """Read, decode, trace and encode one batch on ``scene`` of ``store`` (or a one-shot /trace
+    when ``scene`` is None); the last three off the event loop."""
+    timing = ServerTiming()
     if scene is not None:
         store.snapshot(check_name("scene", scene))  # 404 before reading the body
     with timing("receive"):
-        body = await read_body(request)
+        body = await read_body(request, settings.max_body_bytes)
     fmt = wire.resolve_format(
         request.headers.get("content-type"),
         format,
@@ -133,7 +151,7 @@ async def answer(
         return result, len(rays), content, length, media
 
     result, n_rays, content, length, media = await run_sync(work)
-    metrics_of(request).traced(options.query.value, n_rays, result.seconds)
+    metrics.traced(options.query.value, n_rays, result.seconds)
     headers = {"X-Scene-Version": str(result.version), "Server-Timing": timing.header()}
     if result.stats is not None:
         headers["X-Trace-Stats"] = json.dumps(result.stats, separators=(",", ":"))

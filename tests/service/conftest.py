@@ -1,4 +1,5 @@
-"""Fixtures of the service tests: real servers (``python -m service``), clients, and small meshes.
+"""Fixtures of the service tests: the app in process (``app_client``, ``app_api``: most tests),
+real servers (``python -m service``) and their clients, and small meshes.
 
 Three servers start together once per session (Numba's first compile in a server takes about a
 minute; later starts load the cache): ``server`` with default settings, ``secure_server`` with a
@@ -12,12 +13,14 @@ import re
 import uuid
 
 import httpx
+import in_process
 import numpy as np
 import pytest
 from server_process import ServerProcess
 from service_helpers import HOSTILE_BODY_LIMIT, REPO, SECURE_LIMITS, TOKEN
 
 from service.client import Client
+from service.settings import Settings
 
 
 @pytest.fixture(scope="session")
@@ -30,6 +33,22 @@ def teapot() -> tuple[np.ndarray, np.ndarray]:
 def scene_name(request) -> str:
     """A scene name no other test uses."""
     return re.sub(r"[^A-Za-z0-9_.-]", "-", request.node.name)[:40] + "-" + uuid.uuid4().hex[:8]
+
+
+# ---- the app in process
+
+
+@pytest.fixture(scope="session")
+def app_client():
+    """An httpx client of one in-process app with default settings (no token, no demo)."""
+    with in_process.serve(Settings(token=None, load_demo=False)) as client:
+        yield client
+
+
+@pytest.fixture
+def app_api(app_client):
+    """``service.client.Client`` over the in-process app."""
+    return Client(http=app_client)
 
 
 # ---- servers

@@ -1,5 +1,7 @@
-"""The service end to end: a real uvicorn process driven through service.client (and raw httpx
-where the wire itself is under test). Answers are compared with a plain-NumPy brute force."""
+"""The service through service.client (and raw httpx where the wire itself is under test): in
+process (``app_api``, ``app_client``), and end to end on a real uvicorn process (``client``,
+``http``) for warm-up, chunked bodies, streamed answers and one reference check. Answers are
+compared with a plain-NumPy brute force."""
 
 from __future__ import annotations
 
@@ -18,7 +20,14 @@ CLOSEST_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")
 
 
 @pytest.fixture
-def teapot_scene(client, scene_name, teapot):
+def teapot_scene(app_api, scene_name, teapot):
+    app_api.put_mesh(scene_name, "teapot", *teapot)
+    return scene_name
+
+
+@pytest.fixture
+def server_teapot_scene(client, scene_name, teapot):
+    """``teapot_scene`` on the real server."""
     client.put_mesh(scene_name, "teapot", *teapot)
     return scene_name
 
@@ -37,8 +46,8 @@ def test_health_is_ok_once_warm(client):
     assert health["status"] == "ok" and health["warmup_seconds"] >= 0
 
 
-def test_capabilities_list_formats_fields_strategies_and_limits(client):
-    caps = client.capabilities()
+def test_capabilities_list_formats_fields_strategies_and_limits(app_api):
+    caps = app_api.capabilities()
     assert caps["fields"]["closest"] == list(CLOSEST_FIELDS) and caps["fields"]["occluded"] == [
         "occluded"
     ]
@@ -49,9 +58,9 @@ def test_capabilities_list_formats_fields_strategies_and_limits(client):
     assert caps["limits"]["max_rays_per_request"] == 16 * 2**20 and caps["auth"] is False
 
 
-def test_metrics_count_requests_rays_and_memory(client, http, teapot_scene):
-    client.closest(teapot_scene, *down_rays(np.zeros((7, 2))))
-    text = http.get("/metrics").text
+def test_metrics_count_requests_rays_and_memory(app_api, app_client, teapot_scene):
+    app_api.closest(teapot_scene, *down_rays(np.zeros((7, 2))))
+    text = app_client.get("/metrics").text
     assert (
         'dacrt_requests_total{method="POST",route="/v1/scenes/{scene}/closest",status="200"}'
         in text
@@ -71,11 +80,11 @@ def test_metrics_count_requests_rays_and_memory(client, http, teapot_scene):
 # ---- meshes and scenes
 
 
-def test_put_mesh_is_201_then_200_with_mesh_info(http, scene_name):
+def test_put_mesh_is_201_then_200_with_mesh_info(app_client, scene_name):
     vertices, faces = quad(-1, 2, 0, 1, 3)
     body = npz_bytes(vertices=vertices, faces=faces)
-    first = http.put(f"/v1/scenes/{scene_name}/meshes/floor", content=body, headers=NPZ)
-    again = http.put(f"/v1/scenes/{scene_name}/meshes/floor", content=body, headers=NPZ)
+    first = app_client.put(f"/v1/scenes/{scene_name}/meshes/floor", content=body, headers=NPZ)
+    again = app_client.put(f"/v1/scenes/{scene_name}/meshes/floor", content=body, headers=NPZ)
     assert (first.status_code, again.status_code) == (201, 200)
     assert first.json() == {
         "scene": scene_name,
@@ -89,74 +98,74 @@ def test_put_mesh_is_201_then_200_with_mesh_info(http, scene_name):
     assert again.json()["version"] == 2 and again.json()["index"] == 0
 
 
-def test_json_mesh_body(http, scene_name):
+def test_json_mesh_body(app_client, scene_name):
     vertices, faces = quad(0, 1, 0, 1, 0)
-    response = http.put(
+    response = app_client.put(
         f"/v1/scenes/{scene_name}/meshes/m",
         json={"vertices": vertices.tolist(), "faces": faces.tolist()},
     )
     assert response.status_code == 201 and response.json()["triangles"] == 2
 
 
-def test_scene_info_and_list(client, scene_name):
-    client.put_mesh(scene_name, "a", *quad(0, 1, 0, 1, 0))
-    client.put_mesh(scene_name, "b", *grid(2, z=5))
-    info = client.scene(scene_name)
+def test_scene_info_and_list(app_api, scene_name):
+    app_api.put_mesh(scene_name, "a", *quad(0, 1, 0, 1, 0))
+    app_api.put_mesh(scene_name, "b", *grid(2, z=5))
+    info = app_api.scene(scene_name)
     assert info["version"] == 2 and info["triangles"] == 10
     assert info["bounds"] == [[0, 0, 0], [1, 1, 5]]
     assert [(m["mesh"], m["index"], m["version"]) for m in info["meshes"]] == [
         ("a", 0, 1),
         ("b", 1, 2),
     ]
-    assert info in client.scenes()
-    assert client.http.get(f"/v1/scenes/{scene_name}/meshes/b").json() == info["meshes"][1]
+    assert info in app_api.scenes()
+    assert app_api.http.get(f"/v1/scenes/{scene_name}/meshes/b").json() == info["meshes"][1]
 
 
-def test_delete_mesh_and_scene(client, scene_name):
-    client.put_mesh(scene_name, "a", *quad(0, 1, 0, 1, 0))
-    client.put_mesh(scene_name, "b", *quad(0, 1, 0, 1, 1))
-    client.delete_mesh(scene_name, "a")
-    assert [m["mesh"] for m in client.scene(scene_name)["meshes"]] == ["b"]
-    client.delete(scene_name)
+def test_delete_mesh_and_scene(app_api, scene_name):
+    app_api.put_mesh(scene_name, "a", *quad(0, 1, 0, 1, 0))
+    app_api.put_mesh(scene_name, "b", *quad(0, 1, 0, 1, 1))
+    app_api.delete_mesh(scene_name, "a")
+    assert [m["mesh"] for m in app_api.scene(scene_name)["meshes"]] == ["b"]
+    app_api.delete(scene_name)
     with pytest.raises(APIError) as caught:
-        client.scene(scene_name)
+        app_api.scene(scene_name)
     assert caught.value.status == 404
-    assert all(s["scene"] != scene_name for s in client.scenes())
+    assert all(s["scene"] != scene_name for s in app_api.scenes())
 
 
-def test_update_vertices_moves_the_mesh_and_keeps_faces(client, scene_name):
-    client.put_mesh(scene_name, "m", *quad(0, 1, 0, 1, 0))
-    info = client.update_vertices(scene_name, "m", quad(0, 1, 0, 1, 4)[0])
+def test_update_vertices_moves_the_mesh_and_keeps_faces(app_api, scene_name):
+    app_api.put_mesh(scene_name, "m", *quad(0, 1, 0, 1, 0))
+    info = app_api.update_vertices(scene_name, "m", quad(0, 1, 0, 1, 4)[0])
     assert info["version"] == 2 and info["triangles"] == 2 and info["bounds"][0][2] == 4
-    hits = client.closest(scene_name, *down_rays([[0.5, 0.5]]))
+    hits = app_api.closest(scene_name, *down_rays([[0.5, 0.5]]))
     assert hits.t.tolist() == [6.0] and hits.version == 2
 
 
-def test_json_vertices_update(http, client, scene_name):
-    client.put_mesh(scene_name, "m", *quad(0, 1, 0, 1, 0))
-    response = http.put(
+def test_json_vertices_update(app_client, app_api, scene_name):
+    app_api.put_mesh(scene_name, "m", *quad(0, 1, 0, 1, 0))
+    response = app_client.put(
         f"/v1/scenes/{scene_name}/meshes/m/vertices",
         json={"vertices": quad(0, 1, 0, 1, 2)[0].tolist()},
     )
     assert response.status_code == 200 and response.json()["bounds"][1][2] == 2
 
 
-def test_frame_moves_and_adds_meshes_in_one_version(client, scene_name):
-    client.put_mesh(scene_name, "a", *quad(0, 1, 0, 1, 0))
-    info = client.frame(scene_name, {"a": quad(0, 1, 0, 1, 2)[0], "b.part": quad(1, 2, 0, 1, 3)})
+def test_frame_moves_and_adds_meshes_in_one_version(app_api, scene_name):
+    app_api.put_mesh(scene_name, "a", *quad(0, 1, 0, 1, 0))
+    info = app_api.frame(scene_name, {"a": quad(0, 1, 0, 1, 2)[0], "b.part": quad(1, 2, 0, 1, 3)})
     assert info["version"] == 2 and [m["mesh"] for m in info["meshes"]] == ["a", "b.part"]
-    hits = client.closest(scene_name, *down_rays([[0.5, 0.5], [1.5, 0.5]]))
+    hits = app_api.closest(scene_name, *down_rays([[0.5, 0.5], [1.5, 0.5]]))
     assert hits.t.tolist() == [8.0, 7.0] and hits.mesh.tolist() == [0, 1]
 
 
 # ---- queries
 
 
-def test_closest_matches_the_reference(client, teapot_scene, teapot):
+def test_closest_matches_the_reference(client, server_teapot_scene, teapot):
     vertices, faces = teapot
     origins, directions = rays_at(vertices, faces, 400, seed=1)
     directions[::4] *= -1  # a quarter point away: mostly misses
-    hits = client.closest(teapot_scene, origins, directions)
+    hits = client.closest(server_teapot_scene, origins, directions)
     t, prim = reference_closest(vertices, faces, origins, directions)
     assert np.isfinite(t).sum() > 250
     np.testing.assert_allclose(hits.t, t, rtol=1e-4)
@@ -177,68 +186,72 @@ def test_closest_matches_the_reference(client, teapot_scene, teapot):
 
 
 def test_chunked_ray_body_without_content_length_gets_the_same_answer(
-    http, client, teapot_scene, teapot
+    http, client, server_teapot_scene, teapot
 ):
     origins, directions = rays_at(*teapot, 3000, seed=4)
     body = npy_bytes(np.hstack([origins, directions]).astype(np.float32))
     pieces = (body[i : i + 4096] for i in range(0, len(body), 4096))  # a generator: sent chunked
     response = http.post(
-        f"/v1/scenes/{teapot_scene}/closest", content=pieces, headers={**NPY, "Accept": wire.NPZ}
+        f"/v1/scenes/{server_teapot_scene}/closest",
+        content=pieces,
+        headers={**NPY, "Accept": wire.NPZ},
     )
     assert response.status_code == 200 and "content-length" not in response.request.headers
     chunked = np.load(io.BytesIO(response.content))
-    expected = client.closest(teapot_scene, origins, directions)
+    expected = client.closest(server_teapot_scene, origins, directions)
     assert np.isfinite(expected.t).sum() > 1000
     assert np.array_equal(chunked["t"], expected.t) and np.array_equal(
         chunked["prim"], expected.prim
     )
 
 
-def test_query_errors_raise_api_error_with_the_servers_message(client, teapot_scene, scene_name):
+def test_query_errors_raise_api_error_with_the_servers_message(app_api, teapot_scene, scene_name):
     origins, directions = down_rays(np.full((3, 2), 0.5))
     with pytest.raises(APIError) as missing:
-        client.closest(scene_name + "-missing", origins, directions)
+        app_api.closest(scene_name + "-missing", origins, directions)
     assert missing.value.status == 404 and "missing" in missing.value.detail
     directions[1] = np.nan
     with pytest.raises(APIError) as bad:
-        client.occluded(teapot_scene, origins, directions)
+        app_api.occluded(teapot_scene, origins, directions)
     assert bad.value.status == 422 and "directions[1]" in bad.value.detail
 
 
-def test_occluded_equals_closest_within_tmax(client, teapot_scene, teapot):
+def test_occluded_equals_closest_within_tmax(app_api, teapot_scene, teapot):
     origins, directions = rays_at(*teapot, 300, seed=2)
     tmax = np.random.default_rng(3).uniform(0.5, 1.5, 300).astype(np.float32)
-    hits = client.closest(teapot_scene, origins, directions)
-    occluded = client.occluded(teapot_scene, origins, directions, tmax=tmax)
+    hits = app_api.closest(teapot_scene, origins, directions)
+    occluded = app_api.occluded(teapot_scene, origins, directions, tmax=tmax)
     assert occluded.occluded.dtype == bool
     assert np.array_equal(occluded.occluded, hits.t <= tmax)
 
 
-def test_tmin_and_tmax_bound_the_hits(client, scene_name):
-    client.put_mesh(scene_name, "near", *quad(0, 1, 0, 1, 5))
-    client.put_mesh(scene_name, "far", *quad(0, 1, 0, 1, 1))
+def test_tmin_and_tmax_bound_the_hits(app_api, scene_name):
+    app_api.put_mesh(scene_name, "near", *quad(0, 1, 0, 1, 5))
+    app_api.put_mesh(scene_name, "far", *quad(0, 1, 0, 1, 1))
     origins, directions = down_rays(np.full((3, 2), 0.5))
-    hits = client.closest(scene_name, origins, directions, tmin=[0, 6, 0], tmax=[np.inf, np.inf, 4])
+    hits = app_api.closest(
+        scene_name, origins, directions, tmin=[0, 6, 0], tmax=[np.inf, np.inf, 4]
+    )
     assert hits.t.tolist() == [5, 9, np.inf] and hits.mesh.tolist() == [0, 1, -1]
 
 
-def test_fields_limit_the_answer(client, teapot_scene):
-    hits = client.closest(teapot_scene, *down_rays([[0, 0]], z=10), fields="t,prim")
+def test_fields_limit_the_answer(app_api, teapot_scene):
+    hits = app_api.closest(teapot_scene, *down_rays([[0, 0]], z=10), fields="t,prim")
     assert list(hits) == ["t", "prim"]
 
 
-def test_every_strategy_gives_the_same_answer(client, teapot_scene, teapot):
+def test_every_strategy_gives_the_same_answer(app_api, teapot_scene, teapot):
     origins, directions = rays_at(*teapot, 300, seed=4)
     answers = [
-        client.closest(teapot_scene, origins, directions, strategy=s)
-        for s in client.capabilities()["strategies"]
+        app_api.closest(teapot_scene, origins, directions, strategy=s)
+        for s in app_api.capabilities()["strategies"]
     ]
     for other in answers[1:]:
         assert_same_answer(answers[0], other)
 
 
-def test_stats_header_has_the_engine_counters(client, teapot_scene, teapot):
-    hits = client.closest(teapot_scene, *rays_at(*teapot, 100), stats=True)
+def test_stats_header_has_the_engine_counters(app_api, teapot_scene, teapot):
+    hits = app_api.closest(teapot_scene, *rays_at(*teapot, 100), stats=True)
     for key in (
         "rays",
         "triangles",
@@ -250,14 +263,14 @@ def test_stats_header_has_the_engine_counters(client, teapot_scene, teapot):
     ):
         assert isinstance(hits.stats[key], int), key
     assert hits.stats["rays"] == 100 and hits.stats["triangles"] == 6320
-    occluded = client.occluded(teapot_scene, *rays_at(*teapot, 100), stats=True)
+    occluded = app_api.occluded(teapot_scene, *rays_at(*teapot, 100), stats=True)
     assert occluded.stats["rays"] == 100
-    assert client.closest(teapot_scene, *rays_at(*teapot, 5)).stats is None
+    assert app_api.closest(teapot_scene, *rays_at(*teapot, 5)).stats is None
 
 
 @pytest.mark.parametrize("query", ["closest", "occluded"])
-def test_every_query_answer_has_version_and_server_timing(http, teapot_scene, query):
-    response = http.post(
+def test_every_query_answer_has_version_and_server_timing(app_client, teapot_scene, query):
+    response = app_client.post(
         f"/v1/scenes/{teapot_scene}/{query}",
         headers=NPY,
         content=npy_bytes(np.hstack(down_rays([[0, 0]])).astype(np.float32)),
@@ -267,96 +280,96 @@ def test_every_query_answer_has_version_and_server_timing(http, teapot_scene, qu
     assert all(f"{name};dur=" in timing for name in ("decode", "trace", "encode"))
 
 
-def test_json_binary_and_npy_answers_are_equal(client, teapot_scene, teapot):
+def test_json_binary_and_npy_answers_are_equal(app_api, teapot_scene, teapot):
     origins, directions = rays_at(*teapot, 200, seed=5)
     directions[::3] *= -1
-    npz = client.closest(teapot_scene, origins, directions)
+    npz = app_api.closest(teapot_scene, origins, directions)
     for answer in ("json", "npy"):
-        assert_same_answer(npz, client.closest(teapot_scene, origins, directions, answer=answer))
-    single = client.closest(teapot_scene, origins, directions, answer="npy", fields="t")
+        assert_same_answer(npz, app_api.closest(teapot_scene, origins, directions, answer=answer))
+    single = app_api.closest(teapot_scene, origins, directions, answer="npy", fields="t")
     assert np.array_equal(single.t, npz.t)
-    occluded = client.occluded(teapot_scene, origins, directions)
-    assert_same_answer(occluded, client.occluded(teapot_scene, origins, directions, answer="json"))
-    assert_same_answer(occluded, client.occluded(teapot_scene, origins, directions, answer="npy"))
+    occluded = app_api.occluded(teapot_scene, origins, directions)
+    assert_same_answer(occluded, app_api.occluded(teapot_scene, origins, directions, answer="json"))
+    assert_same_answer(occluded, app_api.occluded(teapot_scene, origins, directions, answer="npy"))
 
 
-def test_json_request_gets_json_with_null_for_misses(http, client, teapot_scene, teapot):
+def test_json_request_gets_json_with_null_for_misses(app_client, app_api, teapot_scene, teapot):
     origins, directions = rays_at(*teapot, 50, seed=6)
     directions[::2] *= -1
     body = {"origins": origins.tolist(), "directions": directions.tolist(), "tmax": None}
-    response = http.post(f"/v1/scenes/{teapot_scene}/closest", json=body)
+    response = app_client.post(f"/v1/scenes/{teapot_scene}/closest", json=body)
     assert response.headers["content-type"] == "application/json"
     document = response.json()
-    binary = client.closest(teapot_scene, origins, directions)
+    binary = app_api.closest(teapot_scene, origins, directions)
     t = np.array([np.inf if x is None else x for x in document["t"]], np.float32)
     assert None in document["t"] and np.array_equal(t, binary.t)
     assert document["mesh"] == binary.mesh.tolist()
     assert np.array_equal(np.array(document["normal"], np.float32), binary.normal)
 
 
-def test_npz_answer_is_a_zip_whose_every_crc_is_right(http, client, teapot_scene, teapot):
+def test_npz_answer_is_a_zip_whose_every_crc_is_right(http, client, server_teapot_scene, teapot):
     """The server takes each member's CRC-32 as it sends the answer (wire.NpzBody)."""
     origins, directions = rays_at(*teapot, 300, seed=11)
     body = npy_bytes(np.hstack([origins, directions]).astype(np.float32))
-    response = http.post(f"/v1/scenes/{teapot_scene}/closest", content=body, headers=NPY)
+    response = http.post(f"/v1/scenes/{server_teapot_scene}/closest", content=body, headers=NPY)
     assert int(response.headers["content-length"]) == len(response.content)
     archive = zipfile.ZipFile(io.BytesIO(response.content))
     assert archive.testzip() is None and archive.namelist() == [
         f"{key}.npy" for key in CLOSEST_FIELDS
     ]
-    expected = client.closest(teapot_scene, origins, directions)
+    expected = client.closest(server_teapot_scene, origins, directions)
     assert np.isfinite(expected.t).all()  # every ray hits the teapot
     with np.load(io.BytesIO(response.content)) as got:
         for key in CLOSEST_FIELDS:
             assert np.array_equal(got[key], expected[key]), key
 
 
-def test_npz_ray_body_equals_npy_ray_body(http, client, teapot_scene, teapot):
+def test_npz_ray_body_equals_npy_ray_body(app_client, app_api, teapot_scene, teapot):
     origins, directions = rays_at(*teapot, 50, seed=7)
     tmax = np.float32(2.0)
     body = npz_bytes(True, origins=origins, directions=directions, tmax=tmax)
-    response = http.post(f"/v1/scenes/{teapot_scene}/closest", content=body, headers=NPZ)
+    response = app_client.post(f"/v1/scenes/{teapot_scene}/closest", content=body, headers=NPZ)
     with np.load(io.BytesIO(response.content)) as got:
         assert np.array_equal(
-            got["t"], client.closest(teapot_scene, origins, directions, tmax=tmax).t
+            got["t"], app_api.closest(teapot_scene, origins, directions, tmax=tmax).t
         )
 
 
 @pytest.mark.parametrize(
     "query, key, shape", [("closest", "normal", (0, 3)), ("occluded", "occluded", (0,))]
 )
-def test_empty_batch_answers_empty_arrays(client, teapot_scene, query, key, shape):
-    answer = client.query(teapot_scene, query, np.zeros((0, 3)), np.zeros((0, 3)))
+def test_empty_batch_answers_empty_arrays(app_api, teapot_scene, query, key, shape):
+    answer = app_api.query(teapot_scene, query, np.zeros((0, 3)), np.zeros((0, 3)))
     assert answer[key].shape == shape
     assert (
-        client.query(teapot_scene, query, np.zeros((0, 3)), np.zeros((0, 3)), answer="json")[
+        app_api.query(teapot_scene, query, np.zeros((0, 3)), np.zeros((0, 3)), answer="json")[
             key
         ].shape
         == shape
     )
 
 
-def test_scene_without_triangles_answers_misses(client, scene_name):
-    client.put_mesh(scene_name, "empty", np.zeros((0, 3)), np.zeros((0, 3)))
-    hits = client.closest(scene_name, *down_rays(np.zeros((4, 2))))
+def test_scene_without_triangles_answers_misses(app_api, scene_name):
+    app_api.put_mesh(scene_name, "empty", np.zeros((0, 3)), np.zeros((0, 3)))
+    hits = app_api.closest(scene_name, *down_rays(np.zeros((4, 2))))
     assert np.isinf(hits.t).all() and (hits.mesh == -1).all() and (hits.prim == -1).all()
-    assert not client.occluded(scene_name, *down_rays(np.zeros((4, 2)))).occluded.any()
-    client.delete_mesh(scene_name, "empty")
-    assert np.isinf(client.closest(scene_name, *down_rays(np.zeros((2, 2)))).t).all()
+    assert not app_api.occluded(scene_name, *down_rays(np.zeros((4, 2)))).occluded.any()
+    app_api.delete_mesh(scene_name, "empty")
+    assert np.isinf(app_api.closest(scene_name, *down_rays(np.zeros((2, 2)))).t).all()
 
 
-def test_hits_report_each_mesh_by_its_stable_index(client, scene_name):
+def test_hits_report_each_mesh_by_its_stable_index(app_api, scene_name):
     for i, name in enumerate(["a", "b", "c"]):
-        client.put_mesh(scene_name, name, *quad(i, i + 1, 0, 1, 0))
-    client.delete_mesh(scene_name, "b")
-    client.put_mesh(scene_name, "d", *quad(1, 2, 0, 1, 0))  # where b was: gets a new index, 3
-    client.put_mesh(scene_name, "e", np.zeros((0, 3)), np.zeros((0, 3)))  # no triangles: index 4
-    client.put_mesh(scene_name, "f", *quad(3, 4, 0, 1, 0))
-    hits = client.closest(
+        app_api.put_mesh(scene_name, name, *quad(i, i + 1, 0, 1, 0))
+    app_api.delete_mesh(scene_name, "b")
+    app_api.put_mesh(scene_name, "d", *quad(1, 2, 0, 1, 0))  # where b was: gets a new index, 3
+    app_api.put_mesh(scene_name, "e", np.zeros((0, 3)), np.zeros((0, 3)))  # no triangles: index 4
+    app_api.put_mesh(scene_name, "f", *quad(3, 4, 0, 1, 0))
+    hits = app_api.closest(
         scene_name, *down_rays([[0.5, 0.5], [1.5, 0.5], [2.5, 0.5], [3.5, 0.5], [9, 9]])
     )
     assert hits.mesh.tolist() == [0, 3, 2, 5, -1]
-    assert {m["mesh"]: m["index"] for m in client.scene(scene_name)["meshes"]} == {
+    assert {m["mesh"]: m["index"] for m in app_api.scene(scene_name)["meshes"]} == {
         "a": 0,
         "c": 2,
         "d": 3,
@@ -365,30 +378,30 @@ def test_hits_report_each_mesh_by_its_stable_index(client, scene_name):
     }
 
 
-def test_prim_is_the_row_in_its_own_mesh(client, scene_name):
-    client.put_mesh(scene_name, "first", *grid(4, z=0))
-    client.put_mesh(scene_name, "second", *quad(0, 1, 0, 1, 3))
-    hits = client.closest(scene_name, *down_rays([[0.25, 0.75]]))
+def test_prim_is_the_row_in_its_own_mesh(app_api, scene_name):
+    app_api.put_mesh(scene_name, "first", *grid(4, z=0))
+    app_api.put_mesh(scene_name, "second", *quad(0, 1, 0, 1, 3))
+    hits = app_api.closest(scene_name, *down_rays([[0.25, 0.75]]))
     assert (hits.mesh[0], hits.prim[0]) == (1, 1)  # the second triangle of the quad
 
 
 # ---- one-shot
 
 
-def test_one_shot_trace_equals_a_stored_scene(client, teapot_scene, teapot):
+def test_one_shot_trace_equals_a_stored_scene(app_api, teapot_scene, teapot):
     origins, directions = rays_at(*teapot, 200, seed=8)
-    stored = client.closest(teapot_scene, origins, directions)
-    once = client.trace(*teapot, origins, directions)
+    stored = app_api.closest(teapot_scene, origins, directions)
+    once = app_api.trace(*teapot, origins, directions)
     assert once.version == 0
     assert_same_answer(stored, once)
-    occluded = client.trace(*teapot, origins, directions, tmax=0.5, query="occluded")
+    occluded = app_api.trace(*teapot, origins, directions, tmax=0.5, query="occluded")
     assert np.array_equal(occluded.occluded, stored.t <= 0.5)
 
 
-def test_one_shot_trace_with_json(http):
+def test_one_shot_trace_with_json(app_client):
     vertices, faces = quad(0, 1, 0, 1, 0)
     origins, directions = down_rays([[0.5, 0.5], [5, 5]])
-    response = http.post(
+    response = app_client.post(
         "/v1/trace?query=closest&fields=t,mesh",
         json={
             "vertices": vertices.tolist(),
@@ -430,9 +443,9 @@ def _mesh_file(fmt: str) -> tuple[bytes, int, np.ndarray]:
         ("off", "model/off"),
     ],
 )
-def test_mesh_files_by_content_type(http, client, scene_name, fmt, content_type):
+def test_mesh_files_by_content_type(app_client, app_api, scene_name, fmt, content_type):
     body, n_faces, bounds = _mesh_file(fmt)
-    response = http.put(
+    response = app_client.put(
         f"/v1/scenes/{scene_name}/meshes/things",
         content=body,
         headers={"Content-Type": content_type},
@@ -441,14 +454,14 @@ def test_mesh_files_by_content_type(http, client, scene_name, fmt, content_type)
     info = response.json()
     assert info["triangles"] == n_faces
     np.testing.assert_allclose(info["bounds"], bounds, atol=1e-5)
-    hits = client.closest(scene_name, [[0, 0, 10], [4, 0, 10]], [[0, 0, -1], [0, 0, -1]])
+    hits = app_api.closest(scene_name, [[0, 0, 10], [4, 0, 10]], [[0, 0, -1], [0, 0, -1]])
     assert hits.t[0] == 9 and 9 <= hits.t[1] < 9.2  # the box's top, then the ball's
 
 
 @pytest.mark.parametrize("fmt", ["obj", "ply", "stl", "glb", "off"])
-def test_mesh_files_by_format_parameter(http, client, scene_name, tmp_path, fmt):
+def test_mesh_files_by_format_parameter(app_client, app_api, scene_name, tmp_path, fmt):
     body, n_faces, _ = _mesh_file(fmt)
-    response = http.put(
+    response = app_client.put(
         f"/v1/scenes/{scene_name}/meshes/raw",
         content=body,
         params={"format": fmt},
@@ -457,4 +470,4 @@ def test_mesh_files_by_format_parameter(http, client, scene_name, tmp_path, fmt)
     assert response.status_code == 201 and response.json()["triangles"] == n_faces
     path = tmp_path / f"things.{fmt}"
     path.write_bytes(body)
-    assert client.put_mesh(scene_name, "from-file", file=path)["triangles"] == n_faces
+    assert app_api.put_mesh(scene_name, "from-file", file=path)["triangles"] == n_faces

@@ -18,8 +18,8 @@ RAYS = np.hstack(down_rays([[0.5, 0.5], [0.2, 0.7]])).astype(np.float32)
 
 
 @pytest.fixture
-def quad_scene(client, scene_name):
-    client.put_mesh(scene_name, "m", *quad(0, 1, 0, 1, 0))
+def quad_scene(app_api, scene_name):
+    app_api.put_mesh(scene_name, "m", *quad(0, 1, 0, 1, 0))
     return scene_name
 
 
@@ -32,12 +32,12 @@ def detail(response: httpx.Response, status: int) -> str:
     return body["detail"]
 
 
-def state(client: Client, scene: str) -> dict:
+def state(app_api: Client, scene: str) -> dict:
     """What a rejected request must leave unchanged: scene info (version, meshes, bounds) and
     the answer of a query."""
     return {
-        "info": client.scene(scene),
-        "t": client.closest(scene, *down_rays([[0.5, 0.5], [0.9, 0.1]])).t.tolist(),
+        "info": app_api.scene(scene),
+        "t": app_api.closest(scene, *down_rays([[0.5, 0.5], [0.9, 0.1]])).t.tolist(),
     }
 
 
@@ -74,13 +74,16 @@ def state(client: Client, scene: str) -> dict:
         ("frame", npz_bytes(**{"m.normals": RAYS}), NPZ, "not MESH.vertices or MESH.faces"),
     ],
 )
-def test_unparseable_bodies_are_400(http, client, quad_scene, path, body, headers, message):
-    before = state(client, quad_scene)
+def test_unparseable_bodies_are_400(app_client, app_api, quad_scene, path, body, headers, message):
+    before = state(app_api, quad_scene)
     method = "PUT" if path.startswith("meshes") else "POST"
     assert message in detail(
-        http.request(method, f"/v1/scenes/{quad_scene}/{path}", content=body, headers=headers), 400
+        app_client.request(
+            method, f"/v1/scenes/{quad_scene}/{path}", content=body, headers=headers
+        ),
+        400,
     )
-    assert state(client, quad_scene) == before
+    assert state(app_api, quad_scene) == before
 
 
 # ---- 401: token configured
@@ -144,27 +147,29 @@ def test_the_right_token_works_and_health_and_metrics_are_open(secure_server, sc
         ("GET", "/v1/nowhere", "Not Found"),
     ],
 )
-def test_unknown_things_are_404(http, quad_scene, method, path, message):
+def test_unknown_things_are_404(app_client, quad_scene, method, path, message):
     url = path.format(scene=quad_scene, missing=quad_scene + "-missing")
-    assert message in detail(http.request(method, url, content=npy_bytes(RAYS), headers=NPY), 404)
+    assert message in detail(
+        app_client.request(method, url, content=npy_bytes(RAYS), headers=NPY), 404
+    )
 
 
-def test_frame_moving_an_unknown_mesh_is_404_and_changes_nothing(http, client, quad_scene):
-    before = state(client, quad_scene)
+def test_frame_moving_an_unknown_mesh_is_404_and_changes_nothing(app_client, app_api, quad_scene):
+    before = state(app_api, quad_scene)
     body = npz_bytes(
         **{"m.vertices": quad(0, 1, 0, 1, 3)[0], "ghost.vertices": quad(0, 1, 0, 1, 3)[0]}
     )
     assert "no mesh 'ghost'" in detail(
-        http.post(f"/v1/scenes/{quad_scene}/frame", content=body, headers=NPZ), 404
+        app_client.post(f"/v1/scenes/{quad_scene}/frame", content=body, headers=NPZ), 404
     )
-    assert state(client, quad_scene) == before
+    assert state(app_api, quad_scene) == before
 
 
 # ---- 406, 409
 
 
-def test_unacceptable_accept_is_406(http, quad_scene):
-    response = http.post(
+def test_unacceptable_accept_is_406(app_client, quad_scene):
+    response = app_client.post(
         f"/v1/scenes/{quad_scene}/closest",
         content=npy_bytes(RAYS),
         headers={**NPY, "Accept": "text/csv"},
@@ -173,22 +178,22 @@ def test_unacceptable_accept_is_406(http, quad_scene):
 
 
 @pytest.mark.parametrize("route", ["vertices", "frame"])
-def test_vertex_count_change_is_409_and_changes_nothing(http, client, quad_scene, route):
-    client.put_mesh(quad_scene, "other", *quad(5, 6, 0, 1, 0))
-    before = state(client, quad_scene)
+def test_vertex_count_change_is_409_and_changes_nothing(app_client, app_api, quad_scene, route):
+    app_api.put_mesh(quad_scene, "other", *quad(5, 6, 0, 1, 0))
+    before = state(app_api, quad_scene)
     nine = grid(2, z=1)[0]
     if route == "vertices":
-        response = http.put(
+        response = app_client.put(
             f"/v1/scenes/{quad_scene}/meshes/m/vertices", content=npy_bytes(nine), headers=NPY
         )
     else:  # the first mesh of the frame is fine: it must not be applied either
-        response = http.post(
+        response = app_client.post(
             f"/v1/scenes/{quad_scene}/frame",
             headers=NPZ,
             content=npz_bytes(**{"other.vertices": quad(5, 6, 0, 1, 2)[0], "m.vertices": nine}),
         )
     assert "has 4 vertices but the update has 9" in detail(response, 409)
-    assert state(client, quad_scene) == before
+    assert state(app_api, quad_scene) == before
 
 
 # ---- 413: limits (on the secure server: 64 KiB bodies, 1000 rays, 1000 triangles, 40000 bytes)
@@ -260,10 +265,10 @@ def test_total_scene_memory_over_the_limit_is_413(limited, scene_name):
         ("frame", NPY, {}),
     ],
 )
-def test_unsupported_content_type_is_415(http, client, quad_scene, path, headers, params):
-    before = state(client, quad_scene)
+def test_unsupported_content_type_is_415(app_client, app_api, quad_scene, path, headers, params):
+    before = state(app_api, quad_scene)
     method = "PUT" if path.startswith("meshes") else "POST"
-    response = http.request(
+    response = app_client.request(
         method,
         f"/v1/scenes/{quad_scene}/{path}",
         content=npy_bytes(RAYS),
@@ -271,7 +276,7 @@ def test_unsupported_content_type_is_415(http, client, quad_scene, path, headers
         params=params,
     )
     assert "use one of" in detail(response, 415)
-    assert state(client, quad_scene) == before
+    assert state(app_api, quad_scene) == before
 
 
 # ---- 422: well-formed, invalid values
@@ -336,14 +341,19 @@ def _nan_vertex() -> bytes:
         ),
     ],
 )
-def test_invalid_values_are_422_and_change_nothing(http, client, quad_scene, path, body, message):
-    before = state(client, quad_scene)
+def test_invalid_values_are_422_and_change_nothing(
+    app_client, app_api, quad_scene, path, body, message
+):
+    before = state(app_api, quad_scene)
     method = "PUT" if path.startswith("meshes") else "POST"
     headers = NPY if body.startswith(b"\x93NUMPY") else NPZ
     assert message in detail(
-        http.request(method, f"/v1/scenes/{quad_scene}/{path}", content=body, headers=headers), 422
+        app_client.request(
+            method, f"/v1/scenes/{quad_scene}/{path}", content=body, headers=headers
+        ),
+        422,
     )
-    assert state(client, quad_scene) == before
+    assert state(app_api, quad_scene) == before
 
 
 # ---- mesh files: malformed or hostile files are 400, 413 or 422 and change nothing
@@ -351,20 +361,20 @@ def test_invalid_values_are_422_and_change_nothing(http, client, quad_scene, pat
 
 @pytest.mark.parametrize("body, headers, status, message", BAD_MESH_FILES)
 def test_bad_mesh_files_are_4xx_and_change_nothing(
-    http, client, quad_scene, body, headers, status, message
+    app_client, app_api, quad_scene, body, headers, status, message
 ):
-    before = state(client, quad_scene)
-    response = http.put(f"/v1/scenes/{quad_scene}/meshes/m", content=body, headers=headers)
+    before = state(app_api, quad_scene)
+    response = app_client.put(f"/v1/scenes/{quad_scene}/meshes/m", content=body, headers=headers)
     assert message in detail(response, status)
-    assert state(client, quad_scene) == before
+    assert state(app_api, quad_scene) == before
 
 
-def test_glb_textures_are_not_decoded_and_the_mesh_is_stored(http, scene_name):
+def test_glb_textures_are_not_decoded_and_the_mesh_is_stored(app_client, scene_name):
     image = png(8000, 8000)  # 192 MB decoded
     body = triangle_glb(images=[image, image])
-    response = http.put(f"/v1/scenes/{scene_name}/meshes/m", content=body, headers=GLB)
+    response = app_client.put(f"/v1/scenes/{scene_name}/meshes/m", content=body, headers=GLB)
     assert response.status_code == 201 and response.json()["triangles"] == 1
-    http.delete(f"/v1/scenes/{scene_name}")
+    app_client.delete(f"/v1/scenes/{scene_name}")
 
 
 @pytest.mark.parametrize(
@@ -377,21 +387,21 @@ def test_glb_textures_are_not_decoded_and_the_mesh_is_stored(http, scene_name):
         ("DELETE", "/v1/scenes/a%3Ab"),
     ],
 )
-def test_bad_names_are_422(http, quad_scene, method, url):
-    response = http.request(
+def test_bad_names_are_422(app_client, quad_scene, method, url):
+    response = app_client.request(
         method, url.format(scene=quad_scene), content=npy_bytes(RAYS), headers=NPY
     )
     assert "1-64 characters of A-Z a-z 0-9 _ - ." in detail(response, 422)
 
 
-def test_bad_name_on_upload_is_422(http, scene_name):
-    response = http.put(
+def test_bad_name_on_upload_is_422(app_client, scene_name):
+    response = app_client.put(
         f"/v1/scenes/{scene_name}/meshes/caf%C3%A9",
         headers=NPZ,
         content=npz_bytes(vertices=quad(0, 1, 0, 1, 0)[0], faces=quad(0, 1, 0, 1, 0)[1]),
     )
     assert "mesh name 'café'" in detail(response, 422)
-    assert http.get(f"/v1/scenes/{scene_name}").status_code == 404
+    assert app_client.get(f"/v1/scenes/{scene_name}").status_code == 404
 
 
 def _bad_rays(kind: str, rows=(3, 8), n: int = 10) -> np.ndarray:
@@ -414,9 +424,11 @@ def _bad_rays(kind: str, rows=(3, 8), n: int = 10) -> np.ndarray:
     "kind", ["nan-origin", "inf-direction", "zero-direction", "tmin-over-tmax"]
 )
 @pytest.mark.parametrize("query", ["closest", "occluded"])
-def test_bad_rays_are_422_naming_the_first_one_and_the_count(http, quad_scene, kind, query):
+def test_bad_rays_are_422_naming_the_first_one_and_the_count(app_client, quad_scene, kind, query):
     body = npy_bytes(_bad_rays(kind))
-    message = detail(http.post(f"/v1/scenes/{quad_scene}/{query}", content=body, headers=NPY), 422)
+    message = detail(
+        app_client.post(f"/v1/scenes/{quad_scene}/{query}", content=body, headers=NPY), 422
+    )
     assert re.search(r"\b3\b", message) and re.search(r"\b2\b", message), message
 
 
@@ -430,16 +442,16 @@ def test_bad_rays_are_422_naming_the_first_one_and_the_count(http, quad_scene, k
         ({"cull": "back"}, "cull=back is not supported by this server yet"),
     ],
 )
-def test_bad_options_are_422(http, quad_scene, params, message):
-    response = http.post(
+def test_bad_options_are_422(app_client, quad_scene, params, message):
+    response = app_client.post(
         f"/v1/scenes/{quad_scene}/closest", content=npy_bytes(RAYS), headers=NPY, params=params
     )
     assert message in detail(response, 422)
 
 
-def test_masks_are_refused_rather_than_ignored(http, scene_name):
+def test_masks_are_refused_rather_than_ignored(app_client, scene_name):
     vertices, faces = quad(0, 1, 0, 1, 0)
-    response = http.put(
+    response = app_client.put(
         f"/v1/scenes/{scene_name}/meshes/m?mask=0x1",
         headers=NPZ,
         content=npz_bytes(vertices=vertices, faces=faces),
@@ -447,18 +459,18 @@ def test_masks_are_refused_rather_than_ignored(http, scene_name):
     assert "not supported by this server yet" in detail(response, 422)
 
 
-def test_bad_one_shot_query_kind_is_422(http):
+def test_bad_one_shot_query_kind_is_422(app_client):
     vertices, faces = quad(0, 1, 0, 1, 0)
     body = npz_bytes(
         vertices=vertices, faces=faces, origins=RAYS[:, :3].copy(), directions=RAYS[:, 3:].copy()
     )
     assert "unknown query 'hitz'" in detail(
-        http.post("/v1/trace?query=hitz", content=body, headers=NPZ), 422
+        app_client.post("/v1/trace?query=hitz", content=body, headers=NPZ), 422
     )
 
 
-def test_client_raises_api_error_with_the_detail(client):
+def test_client_raises_api_error_with_the_detail(app_api):
     with pytest.raises(APIError) as caught:
-        client.scene("does-not-exist")
+        app_api.scene("does-not-exist")
     assert caught.value.status == 404 and "no scene 'does-not-exist'" in caught.value.detail
     assert json.loads(caught.value.response.text) == {"detail": caught.value.detail}
