@@ -3,51 +3,25 @@
 ``load_settings`` refuses a DACRT_* variable that names no setting (a typo would silently keep
 the default) and names the variable of a bad value, in one line.
 
-Byte sizes accept plain integers or a unit: ``64MiB``, ``4GiB``, ``500MB``, ``10k``.
+Byte sizes are pydantic's ``ByteSize``: plain integers or a unit, ``64MiB``, ``4GiB``, ``500MB``
+(``k``, ``kb``, ``MB``, ... are powers of 1000; ``KiB``, ``MiB``, ... of 1024). Counts are positive
+integers (``16_000_000`` reads as 16000000).
 """
 
 from __future__ import annotations
 
 import difflib
 import os
-import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import BeforeValidator, Field, SecretStr, ValidationError, field_validator
+from pydantic import ByteSize, Field, PositiveInt, SecretStr, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 KiB, MiB, GiB = 2**10, 2**20, 2**30
-_UNITS = {
-    "": 1,
-    "b": 1,
-    "k": KiB,
-    "kb": 1000,
-    "kib": KiB,
-    "m": MiB,
-    "mb": 1000**2,
-    "mib": MiB,
-    "g": GiB,
-    "gb": 1000**3,
-    "gib": GiB,
-    "t": 2**40,
-    "tb": 1000**4,
-    "tib": 2**40,
-}
 
-
-def parse_size(value: object) -> object:
-    """``"512MiB"`` -> 536870912; integers and anything else pass through to pydantic."""
-    if isinstance(value, str):
-        match = re.fullmatch(r"\s*([0-9_]+)\s*([A-Za-z]*)\s*", value)
-        if match and match.group(2).lower() in _UNITS:
-            return int(match.group(1)) * _UNITS[match.group(2).lower()]
-    return value
-
-
-ByteSize = Annotated[int, BeforeValidator(parse_size), Field(gt=0)]
-Count = Annotated[int, BeforeValidator(parse_size), Field(gt=0)]
+Bytes = Annotated[ByteSize, Field(gt=0)]
 Seconds = Annotated[float, Field(gt=0)]
 
 PREFIX = "DACRT_"
@@ -67,24 +41,20 @@ class Settings(BaseSettings):
 
     host: str = "127.0.0.1"  #: bind address of ``python -m service``
     port: int = Field(8000, ge=0, le=65535)  #: port of ``python -m service``
-    token: SecretStr | None = (
-        None  #: when set, every /v1 request needs ``Authorization: Bearer <token>``
-    )
-    max_body_bytes: ByteSize = (
-        512 * MiB
-    )  #: largest request body (also the largest decompressed .npz)
-    max_rays_per_request: Count = 16 * MiB  #: most rays in one query
-    max_triangles_per_scene: Count = 32 * MiB  #: most triangles in one scene
-    max_scene_bytes: ByteSize = 4 * GiB  #: total bytes of vertices and faces over all scenes
+    #: when set, every /v1 request needs ``Authorization: Bearer <token>``
+    token: SecretStr | None = None
+    max_body_bytes: Bytes = 512 * MiB  #: largest request body (also the largest decompressed .npz)
+    max_rays_per_request: PositiveInt = 16 * MiB  #: most rays in one query
+    max_triangles_per_scene: PositiveInt = 32 * MiB  #: most triangles in one scene
+    max_scene_bytes: Bytes = 4 * GiB  #: total bytes of vertices and faces over all scenes
     threads: int | None = Field(None, gt=0)  #: engine threads per query (None: every core)
-    demo_scene: Path | None = (
-        None  #: .npz (vertices, faces) for the demo scene; None: scenes/teapot.npz
-    )
+    #: .npz (vertices, faces) for the demo scene; None: scenes/teapot.npz
+    demo_scene: Path | None = None
     demo_name: str = "demo"  #: name of the demo scene
     load_demo: bool = False  #: load the demo scene at start (``python -m service`` turns it on)
     header_timeout: Seconds = 10  #: seconds a connection has to send a request's headers
     body_timeout: Seconds = 600  #: seconds a request has to send its whole body
-    max_connections: Count = 100  #: open connections; more are answered 503
+    max_connections: PositiveInt = 100  #: open connections; more are answered 503
 
     @field_validator("token", mode="before")
     @classmethod

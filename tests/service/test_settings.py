@@ -18,7 +18,6 @@ from service.settings import (
     check_names,
     load_settings,
     load_settings_or_exit,
-    parse_size,
 )
 
 
@@ -62,7 +61,8 @@ def test_empty_token_means_no_token(monkeypatch):
     "text, value",
     [
         ("10", 10),
-        ("10k", 10240),
+        ("10k", 10_000),  # pydantic's ByteSize: k is 1000, KiB 1024
+        ("10KiB", 10240),
         ("2 MiB", 2 * MiB),
         ("1GB", 10**9),
         ("4GiB", 4 * 2**30),
@@ -70,7 +70,7 @@ def test_empty_token_means_no_token(monkeypatch):
     ],
 )
 def test_sizes_take_units(text, value):
-    assert parse_size(text) == value
+    assert Settings(max_body_bytes=text).max_body_bytes == value
 
 
 @pytest.mark.parametrize(
