@@ -10,7 +10,7 @@ all fields (24 B per ray in as .npy (N, 6), 32 B per ray out):
                     ``wire.BodyBuffer`` and sends a preallocated answer in 4 MB parts; the client
                     sends 1 MiB views and reads the answer into a ``BodyBuffer``, as
                     ``service.client`` does, over httpx's own transport (httpcore, h11)
-  ... on http.client  the same through ``service.transport.StdlibTransport``, the client's
+  ... on urllib3     the same through ``service.transport.PooledTransport``, the client's
 The service cannot be cheaper than the last line; ``bench.http_overhead`` measures what it adds.
 """
 
@@ -33,7 +33,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 # E402: the repo root must be on sys.path (above) before the service package is imported
-from service.transport import StdlibTransport  # noqa: E402
+from service.transport import PooledTransport  # noqa: E402
 from service.wire import BodyBuffer  # noqa: E402
 
 RAY_BYTES, ANSWER_BYTES = 24, 32
@@ -136,11 +136,11 @@ def time_uvicorn(n_rays: int, repeat: int) -> dict[str, list[float]]:
     view = memoryview(rays).cast("B")
     parts = [view[i : i + (1 << 20)] for i in range(0, len(view), 1 << 20)]
     headers = {"content-length": str(len(view)), "content-type": "application/x-npy"}
-    seconds: dict[str, list[float]] = {"httpx": [], "http.client": []}
+    seconds: dict[str, list[float]] = {"httpx": [], "urllib3": []}
     url = f"http://127.0.0.1:{port}"
     clients = {
         "httpx": httpx.Client(base_url=url, timeout=60),
-        "http.client": httpx.Client(base_url=url, timeout=60, transport=StdlibTransport()),
+        "urllib3": httpx.Client(base_url=url, timeout=60, transport=PooledTransport()),
     }
     try:
         for _ in range(200):
@@ -178,14 +178,14 @@ def main() -> None:
         tcp += time_tcp(n_in, n_out, -(-args.repeat // 3))
         seconds = time_uvicorn(args.rays, -(-args.repeat // 3))
         httpx_own += seconds["httpx"]
-        stdlib += seconds["http.client"]
+        stdlib += seconds["urllib3"]
     print(
         f"{args.rays} rays: {n_in / 1e6:.0f} MB in, {n_out / 1e6:.0f} MB out; "
         f"medians of {len(tcp)}; {os.cpu_count()} cores"
     )
     print(f"plain TCP                          {1000 * statistics.median(tcp):7.1f} ms")
     print(f"uvicorn + httpx (httpx transport)  {1000 * statistics.median(httpx_own):7.1f} ms")
-    print(f"uvicorn + httpx on http.client     {1000 * statistics.median(stdlib):7.1f} ms")
+    print(f"uvicorn + httpx on urllib3         {1000 * statistics.median(stdlib):7.1f} ms")
 
 
 if __name__ == "__main__":

@@ -8,8 +8,8 @@
 
 Binary by default (.npy rays in, .npz answers out); arrays are converted to the wire dtypes
 (float32, int32) here, so any float or int arrays may be passed. Errors raise ``APIError`` with
-the HTTP status and the server's message. Requests go through httpx on the standard library's
-``http.client`` (``transport.StdlibTransport``), which reads big answers at half httpx's own cost.
+the HTTP status and the server's message. Requests go through httpx on urllib3's
+connection pool (``transport.PooledTransport``), which reads big answers at half httpx's own cost.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 
 from . import wire
 from .timing import parse_server_timing
-from .transport import StdlibTransport
+from .transport import PooledTransport
 
 #: dtype of every answer key, for answers read from JSON.
 ANSWER_DTYPES = {
@@ -128,9 +128,9 @@ class Client:
         http: httpx.Client | None = None,
     ) -> None:
         headers = {"Authorization": f"Bearer {token}"} if token else {}
-        # The stdlib transport reads big answers at about half httpx's own cost (transport.py).
+        # urllib3 reads big answers at about half httpx's own cost (transport.py)
         self.http = http or httpx.Client(
-            base_url=base_url, timeout=timeout, transport=StdlibTransport()
+            base_url=base_url, timeout=timeout, transport=PooledTransport()
         )
         self.http.headers.update(headers)
 

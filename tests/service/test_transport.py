@@ -1,4 +1,4 @@
-"""The client's httpx transport on http.client (service/transport.py): connection reuse, stale
+"""The client's httpx transport on urllib3 (service/transport.py): connection reuse, stale
 keep-alive connections, chunked uploads, errors as httpx exceptions, threads sharing one client.
 Against the real uvicorn server, and against tiny socket servers for what uvicorn will not do
 on demand (close an idle connection, never answer)."""
@@ -16,7 +16,7 @@ from service_helpers import TOKEN, down_rays, grid, quad
 
 from service import wire
 from service.client import APIError, Client
-from service.transport import StdlibTransport
+from service.transport import PooledTransport
 
 
 def joined(parts) -> bytes:
@@ -25,8 +25,9 @@ def joined(parts) -> bytes:
 
 def idle_connections(client: Client) -> list:
     transport = client.http._transport
-    assert isinstance(transport, StdlibTransport)
-    return [c for connections in transport._idle.values() for c in connections]
+    assert isinstance(transport, PooledTransport)
+    pools = [transport.pool.pools[key] for key in transport.pool.pools.keys()]
+    return [c for pool in pools for c in list(pool.pool.queue) if c is not None and c.sock]
 
 
 def test_one_connection_carries_consecutive_requests(client, scene_name):
@@ -125,7 +126,7 @@ class OneShotServer:
                     connection.close()
 
     def client(self, timeout: float) -> httpx.Client:
-        return httpx.Client(base_url=self.url, transport=StdlibTransport(), timeout=timeout)
+        return httpx.Client(base_url=self.url, transport=PooledTransport(), timeout=timeout)
 
     def __enter__(self) -> OneShotServer:
         return self
@@ -164,7 +165,7 @@ def test_a_closed_port_is_a_connect_error():
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]  # nothing listens once the probe is closed
     with (
-        httpx.Client(transport=StdlibTransport(), timeout=5) as http,
+        httpx.Client(transport=PooledTransport(), timeout=5) as http,
         pytest.raises(httpx.ConnectError),
     ):
         http.get(f"http://127.0.0.1:{port}/")
