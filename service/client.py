@@ -128,7 +128,7 @@ class Client:
         http: httpx.Client | None = None,
     ) -> None:
         headers = {"Authorization": f"Bearer {token}"} if token else {}
-        # urllib3 reads big answers at about half httpx's own cost (transport.py)
+        # urllib3 reads big answers more cheaply than httpx's own transport (transport.py)
         self.http = http or httpx.Client(
             base_url=base_url, timeout=timeout, transport=PooledTransport()
         )

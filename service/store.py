@@ -46,9 +46,7 @@ def referenced_bounds(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         return np.zeros((2, 3), np.float32)
     used = np.zeros(len(vertices), dtype=bool)
     used[faces.ravel()] = True
-    # Column by column, over the referenced rows in place: numpy reduces an (N, 3) array along
-    # its rows three values at a time, and gathering the referenced rows copies them (Sponza's
-    # 154K vertices: 8.6 ms for the bounds, now 1.4 ms).
+    # column by column, masked in place: a row-wise reduction of (N, 3) and a gather both cost more
     columns = np.ascontiguousarray(vertices.T)
     return np.stack(
         [

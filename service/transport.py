@@ -2,8 +2,8 @@
 
 httpx's own transport (httpcore and h11) reads a response in small pieces and copies each on its
 way out; urllib3 reads the socket through ``http.client`` in the 1 MiB pieces handed over, which
-halves the client's cost of a big answer (docs/benchmarks.md, HTTP). Only the exchange on the
-socket changes: requests, responses, content decoding, redirects, timeouts and errors stay httpx's.
+costs the client less for a big answer. Only the exchange on the socket changes: requests,
+responses, content decoding, redirects, timeouts and errors stay httpx's.
 
 HTTP/1.1 over TCP or TLS; urllib3 pools keep-alive connections per origin, one request at a time
 each, and drops those the server has closed, so a client may be shared between threads. Proxies

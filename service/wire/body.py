@@ -9,10 +9,9 @@ class BodyBuffer:
     """A body filled chunk by chunk into one read-only NumPy buffer (server requests and client
     answers alike).
 
-    For big bodies NumPy asks the kernel for huge pages, so filling a 24 MB body costs a dozen
-    page faults instead of the six thousand of joining its chunks into one ``bytes``: about 9 ms
-    of a 1M-ray request on each side (docs/benchmarks.md, HTTP). The expected size (Content-Length)
-    is allocated up front; its pages cost nothing until written.
+    For big bodies NumPy asks the kernel for huge pages, so filling one costs far fewer page
+    faults than joining its chunks into one ``bytes``. The expected size (Content-Length) is
+    allocated up front; its pages cost nothing until written.
     """
 
     def __init__(self, expected: int | None = None) -> None:

@@ -69,7 +69,7 @@ def read_npy(buf: bytes | memoryview, name: str = "body", structured: bool = Fal
 def _npy_header(header: bytes) -> tuple[tuple[int, ...], bool, np.dtype]:
     """(shape, Fortran order, dtype) of a whole .npy header, magic string included.
 
-    numpy evaluates the header as a Python literal (30 us); batches of one size repeat the same
+    numpy evaluates the header as a Python literal, and batches of one size repeat the same
     header, so each is parsed once."""
     stream = io.BytesIO(header)
     if np.lib.format.read_magic(stream) == (1, 0):

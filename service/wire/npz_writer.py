@@ -11,7 +11,7 @@ from .formats import Buffer
 from .npy import array_bytes, npy_header
 from .zip_records import CentralDirectoryHeader, EndOfCentralDirectory, LocalFileHeader
 
-try:  # ISA-L's CRC-32 is about 10x zlib's; the .npz answer's CRCs are most of its encode time
+try:  # ISA-L's CRC-32 is much faster than zlib's, and the CRCs are most of an answer's encoding
     from isal.isal_zlib import crc32
 except ImportError:  # pragma: no cover - isal is a dependency, but the wire format works without it
     from zlib import crc32
