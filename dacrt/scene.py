@@ -2,7 +2,8 @@
 
 This is the only module that checks and converts input. A Scene keeps its triangles and what is
 O(F) and cheap to derive from them (gathered vertices, boxes); every query partitions rays and
-triangles from scratch and keeps nothing afterwards.
+triangles from scratch and keeps nothing afterwards. How a batch is cut into chunks and spread
+over threads is ``chunks``.
 """
 
 import functools
