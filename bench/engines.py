@@ -15,9 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.embree import Embree
 from bench.rays import CLOSEST, RaySet
-
-EMPTY3 = np.zeros((0, 3), dtype=np.float32)
 
 
 @dataclass
@@ -90,11 +89,11 @@ class DacrtEngine:
 
 
 class EmbreeEngine:
-    """Embree through embreex: ``run`` traces one ray at a time on one thread.
+    """Embree through embreex (``bench.embree``): ``run`` traces one ray at a time on one thread.
 
-    The scene is built from (F, 3, 3) float32 triangles (``TriangleMesh(scene, vertices)``);
-    gathering them from (V, F) is part of the build. Embree's BVH build (on commit) uses its own
-    thread pool on every core; embreex gives no way to limit it.
+    The scene is built from (F, 3, 3) float32 triangles; gathering them from (V, F) is part of the
+    build. Embree's BVH build (on commit) uses its own thread pool on every core; embreex gives
+    no way to limit it.
     """
 
     family = "embree"
@@ -102,35 +101,23 @@ class EmbreeEngine:
     threads = 1
 
     def __init__(self):
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
-
-        self._scene_cls = rtcore_scene.EmbreeScene
-        self._mesh_cls = TriangleMesh
+        import embreex  # noqa: F401  (raises here when embreex is missing)
 
     def build(self, vertices, faces):
-        scene = self._scene_cls()
-        triangles = np.ascontiguousarray(vertices[faces], dtype=np.float32)
-        self._mesh_cls(scene, triangles)
-        return scene
+        return Embree([(vertices, faces)])
 
     def commit(self, handle):
-        handle.run(EMPTY3, EMPTY3)  # embreex commits the scene on its first run
+        handle.commit()
 
     def convert(self, rays: RaySet):
-        # run() writes the hit distances into dists, so each trace gets its own copy
-        return rays.origins, rays.directions, np.float32(min(rays.tmax, 1e37))
+        return rays.origins, rays.directions, rays.tmax
 
     def trace(self, handle, payload, rays: RaySet, stats: bool = False) -> TraceResult:
         origins, directions, tmax = payload
-        dists = np.full(len(origins), tmax, dtype=np.float32)
         if rays.query == CLOSEST:
-            out = handle.run(origins, directions, dists=dists, output=1)
-            prim = out["primID"]
-            t = np.where(prim >= 0, out["tfar"], np.float32(np.inf)).astype(np.float32)
+            t, prim = handle.closest_t(origins, directions, tmax)
             return TraceResult(CLOSEST, t=t, prim=prim)
-        ids = handle.run(origins, directions, dists=dists, query="OCCLUDED")
-        return TraceResult(rays.query, occluded=ids != -1)
+        return TraceResult(rays.query, occluded=handle.occluded(origins, directions, tmax=tmax))
 
 
 class Open3DEngine:

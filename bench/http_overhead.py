@@ -24,6 +24,7 @@ With ``--frame``, also the per-frame loop of a dynamic scene, side by side in th
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import platform
 import socket
@@ -40,6 +41,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 import dacrt  # noqa: E402
+from bench.embree import Embree  # noqa: E402
 from service.client import Client  # noqa: E402
 
 
@@ -229,13 +231,9 @@ def main() -> None:
 
 def time_frames(client, vertices, faces, origins, directions, rays, args):
     """Per-frame loops, alternating: every frame the mesh moves, so nothing can be reused."""
-    try:
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
-    except ImportError:
-        rtcore_scene = None
+    with_embree = importlib.util.find_spec("embreex") is not None
     seconds = {"http frame": [], "dacrt frame": []}
-    if rtcore_scene is not None:
+    if with_embree:
         seconds["embree frame"] = []
     for frame in range(args.repeat):
         moved = vertices + np.float32(1e-3 * (frame + 1))
@@ -246,11 +244,9 @@ def time_frames(client, vertices, faces, origins, directions, rays, args):
         start = time.perf_counter()
         dacrt.Scene([(moved, faces)]).closest(origins, directions)
         seconds["dacrt frame"].append(time.perf_counter() - start)
-        if rtcore_scene is not None:
+        if with_embree:
             start = time.perf_counter()
-            embree = rtcore_scene.EmbreeScene()
-            TriangleMesh(embree, moved[faces])
-            embree.run(origins, directions, output=1)
+            Embree([(moved, faces)]).closest_t(origins, directions)
             seconds["embree frame"].append(time.perf_counter() - start)
     return seconds
 

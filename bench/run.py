@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import rays as R
+from bench.embree import Embree
 from bench.engines import add_engine_arguments, available_engines
 from bench.measure import (
     agreement,
@@ -118,15 +119,11 @@ def reference_tracer(vertices, faces):
     so every engine is timed on the same rays.
     """
     try:
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
-
-        scene = rtcore_scene.EmbreeScene()
-        TriangleMesh(scene, np.ascontiguousarray(vertices[faces], dtype=np.float32))
+        scene = Embree([(vertices, faces)])
 
         def trace(o, d):
-            out = scene.run(o, d, output=1)
-            return np.where(out["primID"] >= 0, out["tfar"], np.inf), out["Ng"]
+            hits = scene.closest(o, d)
+            return hits.t, hits.normal
 
         return "embree", trace
     except ImportError:

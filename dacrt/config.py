@@ -12,34 +12,22 @@ import numba
 jit = numba.njit(cache=True, nogil=True, boundscheck=False, error_model="numpy")
 inline = numba.njit(cache=True, nogil=True, boundscheck=False, error_model="numpy", inline="always")
 
-# Binned splits: 16 bins (Nabata et al. 2013, Sec. 5: 32). Most binned nodes hold few
-# triangles, and each pays per bin (clearing, sweeping, costing, and 100 sample rays against
-# every candidate in sampled nodes). 1M rays, sampling, one thread, against 32 bins side by
-# side, answers identical: Sponza 1.01-1.07x (every kind), Sibenik, conference and dragon
-# 1.00-1.07x; 8, 12 or 24 bins, or 16 only in nodes of at most 64-2,048 triangles, no better.
+# Binned splits: 16 bins (Nabata et al. 2013, Sec. 5: 32): most binned nodes hold few triangles,
+# and each pays per bin.
 N_BINS = 16
 # Ray sampling: 100 sample rays (the paper's count), only when more than 5,000 rays are active
-# (the paper: 1,000). Below that, a node's sample box tests cost more than the better split
-# saves: with 32 bins (6,200 tests a node), 1M rays, closest hits, from 5,000 against 1,000, side
-# by side: Sibenik 1024² primary rays 112.2 -> 109.1 ms at one thread (sah 140.9: 1.26x ->
-# 1.29x), 60.9 -> 59.1 at two; primary, diffuse and random rays 0.99-1.04x (Sibenik, Sponza, 1
-# and 2 threads); 7,000 and 10,000 about the same, 3,000 less, 20,000 and 50,000 less again.
-# With 16 bins (3,000 tests a node), from 2,500, 3,500 or 7,000: 0.96-1.03x, within the noise.
+# (the paper: 1,000): below that, a node's sample box tests cost more than the better split saves.
 N_SAMPLE_RAYS = 100
 MIN_RAYS_TO_SAMPLE = 5000
 # ... and for occlusion rays only above 10,000: a ray that stops at its first hit does less work
-# below a node than the sampled cost counts. 1M rays, from 10,000 against 1,000: ao 1.02-1.05x,
-# shadow 0.99-1.03x (Sibenik, Sponza, 1 and 2 threads); from 5,000 or 30,000 less; from 100,000
-# shadow rays 0.96-0.99x.
+# below a node than the sampled cost counts.
 MIN_OCCLUSION_RAYS_TO_SAMPLE = 10000
-# Fewer, evenly strided over the active rays, choose the split axis (it needs three means, not
-# every candidate's counts): Sibenik 1024² primary rays 139 against 141 ms with all 100 (two runs).
+# Fewer sample rays choose the split axis: it needs three means, not every candidate's counts.
 AXIS_SAMPLE_RAYS = 32
 # Afra's rule: use the cost function only when rays / triangles exceeds this, else split in the
 # middle.
 RAYS_PER_TRIANGLE_FOR_COST = 1.5
-# Leaves: brute force once either side is this small (4 triangles measured best on Sibenik
-# primary rays: 1.92 -> 2.11 Mrays/s against 8, one thread).
+# Leaves: brute force once either side is this small.
 LEAF_TRIANGLES = 4
 LEAF_RAYS = 8
 # Ray-space hierarchy termination R*G < C_r*R + C_g*G.
@@ -54,8 +42,8 @@ RAYSPACE_KEPT_TO_GIVE_UP = 0.8
 # ... at any depth when the rays' origins spread over more than this fraction of the scene
 # (secondary and random rays): each hand-off re-partitions the triangles, so hand off early.
 RAYSPACE_ORIGIN_SPREAD_TO_GIVE_UP = 0.1
-# Cost of a ray-box test over a ray-triangle test (C_bv / C_tri of Eq. 5), as measured here:
-# about 4 ns for a vectorised filter step against 15 ns for a watertight triangle test.
+# Cost of a ray-box test over a ray-triangle test (C_bv / C_tri of Eq. 5), as measured here: a
+# vectorised filter step against a watertight triangle test.
 BOX_TO_TRIANGLE_COST = 0.25
 # Deepest node; below it a node is brute-forced (keeps the explicit stack small and bounded).
 MAX_DEPTH = 64

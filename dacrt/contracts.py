@@ -1,4 +1,5 @@
-"""Array contracts shared by the engine: dtypes, the miss marker, strategies, the result type."""
+"""Array contracts shared by the engine: dtypes, the miss marker, strategies, float32 constants,
+the stats layout and the result type."""
 
 from dataclasses import dataclass
 
@@ -9,7 +10,15 @@ INDEX = np.int32
 MISS = -1
 
 STRATEGIES = ("sampling", "sah", "middle", "rayspace")
-STRATEGY_CODES = {"middle": 0, "sah": 1, "sampling": 2, "rayspace": 3}
+# The kernels' codes of the strategies.
+MIDDLE, SAH, SAMPLING, RAYSPACE = range(4)
+STRATEGY_CODES = {"middle": MIDDLE, "sah": SAH, "sampling": SAMPLING, "rayspace": RAYSPACE}
+
+# float32 scalars for the kernels: a float64 constant would turn float32 arithmetic into float64.
+INF32 = FLOAT(np.inf)
+NEG_INF32 = FLOAT(-np.inf)
+NAN32 = FLOAT(np.nan)
+ONE32 = FLOAT(1.0)
 
 # Query modes understood by the kernels.
 MODE_CLOSEST = 0

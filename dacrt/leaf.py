@@ -3,7 +3,7 @@
 import numpy as np
 
 from .config import inline
-from .contracts import MODE_OCCLUDED
+from .contracts import MODE_OCCLUDED, NAN32, NEG_INF32
 from .geometry import intersect_triangle, pick, watertight_setup, woop_edges, woop_miss
 from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN, ORIGIN_QUAD, TMIN, field, set_field
 
@@ -12,20 +12,15 @@ NO_HIT = np.iinfo(np.int32).max
 # Triangles a leaf gathers at a time into float64 rows (see intersect_leaf).
 LEAF_BLOCK = 64
 # Lanes of the vectorised loops (8 float64 with AVX-512): a block of triangles is padded to a
-# multiple of this, because the loop's scalar remainder costs about 8 ns a test against 1-2 ns.
+# multiple of this, because the loop's scalar remainder costs several times a vectorised test.
 LANES = 8
 # Rows 2-8 of a block of rays' scratch (``block_rows``): its rays' ox, oy, oz, dx, dy, dz and
-# tmin, copied from the records once and read by the loop of each of the leaf's triangles.
-# Reading the records' quads in that loop instead (shuffles for every triangle) made the leaves
-# 1.25-1.41x slower (Sibenik, 1M primary, ao and shadow rays).
+# tmin, copied from the records once and read by the loop of each of the leaf's triangles, which
+# then needs no shuffles to read the records' quads.
 RAY_ROWS = 7
-# A leaf of fewer than 8 triangles goes by rays from this many rays (LEAF_BLOCK before the
-# block copied its rays' fields to rows): 1M rays, one thread, side by side, answers identical:
-# closest hits 1.02-1.05x (Sibenik, Sponza: primary, diffuse, random), occlusion 0.99-1.00x;
-# from 8, 24 or 32 rays about the same.
+# A leaf of fewer than 8 triangles goes by rays from this many rays: a block of rays copied to
+# rows pays for itself from there.
 BY_RAYS_MIN_RAYS = 16
-_NAN32 = np.float32(np.nan)
-_NEG_INF32 = np.float32(-np.inf)
 
 
 @inline
@@ -50,7 +45,7 @@ def woop_hit(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz):
     e0, e1, e2, det, noise, scaled_t = woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
     inv_det = 1.0 / det
     t = np.float32(scaled_t * inv_det)
-    return _NAN32 if woop_miss(e0, e1, e2, det, noise) else t, e1 * inv_det, e2 * inv_det
+    return NAN32 if woop_miss(e0, e1, e2, det, noise) else t, e1 * inv_det, e2 * inv_det
 
 
 @inline
@@ -138,7 +133,7 @@ def update_block(mode, n, tri_verts, tri, t_block, tri_block, block_rows):
         best = t_block[i]
         # A miss is NaN and fails every comparison; ties go to the lower triangle.
         take = (t >= tmin_row[i]) & ((t < best) | ((t == best) & (tri32 < tri_block[i])))
-        t_block[i] = (_NEG_INF32 if mode == MODE_OCCLUDED else t) if take else best
+        t_block[i] = (NEG_INF32 if mode == MODE_OCCLUDED else t) if take else best
         tri_block[i] = tri32 if take else tri_block[i]
         u_row[i] = np.float32(u) if take else u_row[i]
         v_row[i] = np.float32(v) if take else v_row[i]
@@ -227,10 +222,8 @@ def intersect_leaf_by_rays(
 ):
     """intersect_leaf for few triangles: blocks of LEAF_BLOCK rays, each against every
     triangle in one vectorised loop that keeps the block's best (t, triangle, u, v); then
-    the rays whose best changed take it. Recomputing u, v with the scalar test after each
-    better hit instead (one per ray on primary rays) cost about 10 ns each: Sibenik 1024²
-    primary rays, one thread, 123.5 -> 119.0 ms (sah 151.7 -> 144.3); not gathering each
-    ray's best triangle before the loop, 118.4 -> 114.5 (sah 145.1 -> 140.2)."""
+    the rays whose best changed take it. The loop keeps u and v with t, so no better hit needs
+    the scalar test again, and starts with no triangle, so no ray's best is gathered first."""
     n_tests = 0
     for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, ray_hi - block_lo)

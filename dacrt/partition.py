@@ -7,15 +7,13 @@ the caller owns the scratch arrays. Triangle bounds are rows [x0, y0, z0, x1, y1
 import numpy as np
 
 from .config import inline
+from .contracts import ONE32
 from .geometry import cull_distance, intersect_box
 from .rays import DIRECTION_QUAD, ORIGIN_QUAD, quad_view, swap_rays
 
 _BIN_SHRINK = 1.0 - 1e-6
-# Records per block of partition_by_mask. 128 since swaps move quads (64 before): 1M rays, one
-# thread, side by side, answers identical: Sibenik 1.01-1.04x, Sponza 1.00-1.03x (primary,
-# shadow, ao, diffuse, random rays); 32 was 0.94-0.96x, 256 like 128.
+# Records per block of partition_by_mask: the fastest of 32-256 measured (docs/benchmarks.md).
 PARTITION_BLOCK = 128
-_ONE32 = np.float32(1.0)
 
 
 @inline
@@ -45,9 +43,8 @@ def bin_scale(c_min, c_max, n_bins):
 def centroid_bounds(tri_ids, lo, hi, tri_bounds, out):
     """Box of the triangles' centroids into ``out`` (6,).
 
-    Running bounds in locals: ``out`` is float32 like ``tri_bounds``, so LLVM could not keep it
-    in registers (2.5x slower). Rounded once at the end, which gives what rounding each update
-    would (rounding is monotonic)."""
+    Running bounds in locals, since LLVM cannot keep a float32 ``out`` in registers. Rounded
+    once at the end, which gives what rounding each update would (rounding is monotonic)."""
     x0 = y0 = z0 = np.inf
     x1 = y1 = z1 = -np.inf
     for tri_id in tri_ids[lo:hi]:
@@ -249,10 +246,9 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_origin=False):
 
     A branch-free loop over the records' quads: LLVM vectorises it. The loop runs over views
     that start at ``lo`` with an index from 0: Numba wraps negative indices, and an index LLVM
-    cannot prove non-negative turns every load into a gather (3.4x slower).
+    cannot prove non-negative turns every load into a gather.
     With ``fixed_origin`` (every record starts at one point) the origin is read once: the slab
-    distances to the box planes are then the same for every ray (Sibenik 1024² primary rays,
-    one thread: 1.5 % faster)."""
+    distances to the box planes are then the same for every ray."""
     x0 = box[0]
     y0 = box[1]
     z0 = box[2]
@@ -272,9 +268,9 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_origin=False):
                 ox0,
                 oy0,
                 oz0,
-                _ONE32 / q1[4 * i],
-                _ONE32 / q1[4 * i + 1],
-                _ONE32 / q1[4 * i + 2],
+                ONE32 / q1[4 * i],
+                ONE32 / q1[4 * i + 1],
+                ONE32 / q1[4 * i + 2],
                 t0,
                 cull_distance(q1[4 * i + 3]),
                 x0,
@@ -292,9 +288,9 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_origin=False):
             q0[4 * i],
             q0[4 * i + 1],
             q0[4 * i + 2],
-            _ONE32 / q1[4 * i],
-            _ONE32 / q1[4 * i + 1],
-            _ONE32 / q1[4 * i + 2],
+            ONE32 / q1[4 * i],
+            ONE32 / q1[4 * i + 1],
+            ONE32 / q1[4 * i + 2],
             q0[4 * i + 3],
             cull_distance(q1[4 * i + 3]),
             x0,
@@ -315,10 +311,8 @@ def filter_rays(rays, ray_ids, lo, hi, box, hit_mask, offsets, fixed_origin):
     ``fixed_origin``: every record has the same origin quad (see ``swap_rays``).
 
     Going to the front, the hits outside the first k records move; going to the back, those
-    in the first n - k. Counting both (two vectorised passes over the mask) and taking the
-    smaller: Sibenik 1024² primary rays, one thread, sah 173.6 -> 163.0 ms, sampling 136.8 ->
-    132.6. The count is a pass of its own: kept in the box-test loop, it stopped that loop
-    from vectorising (sah 182 ms)."""
+    in the first n - k: both are counted (two vectorised passes over the mask) and the smaller
+    taken. The count is a pass of its own, so that the box-test loop vectorises."""
     mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_origin)
     n_hits = count_true(hit_mask, lo, hi)
     swaps_to_front = n_hits - count_true(hit_mask, lo, lo + n_hits)
@@ -355,10 +349,9 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, fixed
 
     BlockQuicksort (Edelkamp & Weiss 2016): a block of PARTITION_BLOCK records from each end
     records the offsets of its misplaced records without a branch, then the pairs are swapped
-    in a loop of known length. The plain loop (a branch per record) mispredicted about every
-    other record when rays split unpredictably; this made the partition of random rays 1.7x
-    faster. What is left in the middle (at most two blocks) goes the plain way. ``mask`` is
-    left stale for the records swapped before that."""
+    in a loop of known length, so rays that split unpredictably cost no mispredictions. What is
+    left in the middle (at most two blocks) goes the plain way. ``mask`` is left stale for the
+    records swapped before that."""
     records = quad_view(rays)[:, lo:hi]
     ids = ray_ids[lo:hi]
     keep = mask[lo:hi]
@@ -416,8 +409,7 @@ def partition_by_mask(rays, ray_ids, lo, hi, mask, offsets, to_back=False, fixed
 def partition_plain(records, ids, keep, left, right, to_back, fixed_origin):
     """partition_by_mask of records ``left:right`` of views, one branch per record.
 
-    Unsigned indices: Numba does not wrap those, which saves two instructions on every access
-    (about 10% of this loop)."""
+    Unsigned indices: Numba does not wrap those, which saves two instructions on every access."""
     one = np.uint64(1)
     i = np.uint64(left)
     j = np.uint64(right)

@@ -13,12 +13,9 @@ ray has hit (which culls it from every later box). The ray's id travels in a par
 array. 32 bytes per ray; 1/d is recomputed where needed, which costs less than moving it.
 
 A swap moves each quad as one 16-byte value (a complex128 view of the rows, ``quad_view``):
-partitions touch two places per record, not the eight rows of the structure of arrays this
-replaced. Loops over a range of records read a quad's lanes at 4 i + lane with constant lanes,
-which LLVM vectorises with shuffles (a lane chosen at run time makes it gather). Against the
-eight rows, 1M rays, one thread, answers identical: the box-test mask about a third slower, the
-partition a fifth (camera rays) to a third (others) faster; whole traces 1.03-1.05x on primary
-rays and 1.06-1.13x on shadow, ao, diffuse and random rays (Sibenik, Sponza, 1 and 2 threads).
+partitions touch two places per record, where a row per field would be eight. Loops over a range
+of records read a quad's lanes at 4 i + lane with constant lanes, which LLVM vectorises with
+shuffles (a lane chosen at run time makes it gather).
 """
 
 import numpy as np
@@ -32,14 +29,13 @@ ORIGIN = 0
 TMIN = 3
 DIRECTION = 4
 BEST_T = 7
-# Rays per block of pack_rays (32 measured best of 16-256 with the earlier row layout).
+# Rays per block of pack_rays: the fastest of 16-256 measured (docs/benchmarks.md).
 PACK_BLOCK = 32
 # Records per block of uniform_origin's check.
 UNIFORM_CHECK_BLOCK = 256
 # Rows are padded to a whole number of 4 KiB plus a few cache lines. Rows of exactly a power of
 # two put a record's quads at the same low 12 address bits and in the same cache set; a swap's
-# loads then wait on the stores before them (measured with eight rows of 1 MiB, 262,144-ray
-# chunks: Sibenik 1024² primary rays, one thread, sah 188 -> 178 ms, sampling 148 -> 142).
+# loads then wait on the stores before them.
 ROW_ALIGN = 1024
 ROW_SKEW = 16
 
@@ -74,15 +70,13 @@ def pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
     batch; returns whether all those rays are valid: finite origin and direction, a non-zero
     direction, finite tmin, tmin <= tmax (tmax may be +inf).
 
-    Checking here, in each chunk's thread, instead of in a pass of its own before the trace
-    reads the batch once, on every thread: 1M rays, two threads, 2.3 ms less on the calling
-    thread (docs/benchmark-history.md). The checks accumulate without a branch; only a bad
-    batch pays for finding which ray is bad (``validation.explain_bad_rays``).
+    Checking here, in each chunk's thread, rather than in a pass of its own, reads the batch
+    once, on every thread. The checks accumulate without a branch; only a bad batch pays for
+    finding which ray is bad (``validation.explain_bad_rays``).
 
     PACK_BLOCK records at a time are built in a small buffer, then copied to the rows as one
-    run of floats per quad, and checked in a loop of their own (which vectorises). Writing
-    each field straight into the rows cost more: 1M rays, 3.2-3.7 against 3.2 ms from two
-    (N, 3) arrays, 3.5-4.7 against 3.2-3.5 from the two halves of one (N, 6) array."""
+    run of floats per quad (cheaper than writing each field straight into the rows), and
+    checked in a loop of their own (which vectorises)."""
     block = np.empty((2, PACK_BLOCK, 4), np.float32)
     block0 = block[ORIGIN_QUAD].reshape(4 * PACK_BLOCK)
     block1 = block[DIRECTION_QUAD].reshape(4 * PACK_BLOCK)

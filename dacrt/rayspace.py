@@ -23,6 +23,7 @@ from .config import (
 )
 from .contracts import (
     MODE_OCCLUDED,
+    SAMPLING,
     STAT_BOX_TESTS,
     STAT_LEAVES,
     STAT_MAX_DEPTH,
@@ -33,7 +34,7 @@ from .geometry import cull_distance, pick
 from .leaf import intersect_leaf, leaf_scratch
 from .partition import partition_by_mask, partition_scratch, triangle_bounds
 from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN_QUAD, field, quad_view, swap_rays
-from .traversal import SAMPLING, trace_object_split
+from .traversal import trace_object_split
 
 # Frustum rows: origin min (3), origin max (3), u min/max, v min/max, distance min/max.
 _O_MIN = 0
@@ -192,11 +193,18 @@ def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, toleran
     return i
 
 
+@inline
+def compare_scratch():
+    """Scratch for partition_rays: two float32 rows of COMPARE_BLOCK lanes."""
+    return np.empty((2, COMPARE_BLOCK), np.float32)
+
+
 @jit
-def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, fixed_origin):
+def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, lanes, fixed_origin):
     """Move rays whose coordinate ``dim`` (0-2: origin x, y, z; 3, 4: slopes u, v of the
     direction against the dominant ``axis``) is below ``split`` to the front; returns the index
-    of the first other ray. ``below`` is scratch, one entry per ray.
+    of the first other ray. ``below`` is scratch, one entry per ray; ``offsets`` is
+    ``partition_scratch()``, ``lanes`` is ``compare_scratch()``.
 
     The coordinates are compared first, COMPARE_BLOCK rays at a time: their lanes are copied out
     of the quads (``lane_into``), then compared in a vectorised loop. A slope is compared as
@@ -205,8 +213,8 @@ def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, fixe
     quad = rays[ORIGIN_QUAD if dim < 3 else DIRECTION_QUAD, 4 * lo : 4 * hi]
     mask = below[lo:hi]
     n = hi - lo
-    values = np.empty(COMPARE_BLOCK, np.float32)
-    scale = np.empty(COMPARE_BLOCK, np.float32)
+    values = lanes[0]
+    scale = lanes[1]
     split32 = np.float32(split)
     slope = (axis + 1 if dim == 3 else axis + 2) % 3
     for b in range(0, n, COMPARE_BLOCK):
@@ -229,7 +237,7 @@ def partition_rays(rays, ray_ids, lo, hi, axis, dim, split, below, offsets, fixe
 def lane_into(block, m, lane, out):
     """out[:m] = lane ``lane`` (0-2) of the first m quads of ``block``. One loop per lane, so
     that the lane is a constant: a lane chosen inside the loop, or two lanes read in one loop,
-    made LLVM gather or give up (2-4x slower)."""
+    makes LLVM gather or give up."""
     if lane == 0:
         for i in range(m):
             out[i] = block[4 * i]
@@ -320,6 +328,7 @@ def trace_ray_space(
     frustum = np.empty(_FRUSTUM_SIZE)
     node_box = np.empty(6, np.float32)
     offsets = partition_scratch()
+    lanes = compare_scratch()
     corners, t_block, tri_block, block_rows = leaf_scratch()
     keep = np.empty(n_tris_all, np.bool_)
     bounds = np.empty((6, n_tris_all), np.float32)  # exact copies of the boxes
@@ -413,6 +422,7 @@ def trace_ray_space(
                         split,
                         hit_mask,
                         offsets,
+                        lanes,
                         fixed_origin,
                     )
                     stop = not ray_lo < ray_mid < ray_hi

@@ -25,7 +25,11 @@ from .config import (
     jit,
 )
 from .contracts import (
+    INF32,
+    MIDDLE,
     MODE_OCCLUDED,
+    ONE32,
+    SAMPLING,
     STAT_BOX_TESTS,
     STAT_LEAVES,
     STAT_MAX_DEPTH,
@@ -52,12 +56,6 @@ from .partition import (
 )
 from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, field
 
-MIDDLE = 0
-SAH = 1
-SAMPLING = 2
-
-_INF32 = np.float32(np.inf)
-_ONE32 = np.float32(1.0)
 # Split candidates (N_BINS - 1) padded to whole 16-float vectors, for sample_rays.
 PADDED_CANDIDATES = (N_BINS - 1 + 15) // 16 * 16
 
@@ -238,13 +236,11 @@ def trace_object_split(
             n_samples = min(N_SAMPLE_RAYS, n_rays)
             if mode == MODE_OCCLUDED:
                 # Any hit ends a ray, and a ray that is done is culled from the other side:
-                # first the side more sample rays reach. Against the side most of them enter
-                # first (the paper's order), 1M rays: Sibenik shadow rays 1.56x on one thread,
-                # 1.19-1.22x on two; Sibenik ao and Sponza shadow and ao 1.00-1.04x.
+                # first the side more sample rays reach.
                 left_first = hits_left[split] >= hits_right[split]
             else:
                 # Only rays reaching both sides care which is first: their majority direction
-                # along the axis (measured better than their entry distances on closest hits).
+                # along the axis.
                 votes = forward_left[split]
                 left_first = votes > 0 or (votes == 0 and first_ray_left)
             # Eq. (5)-(6): skip filtering a child that most sample rays reach anyway.
@@ -295,14 +291,13 @@ def sample_rays(
     """Algorithm 2 of Nabata et al.: test sample rays against both sides of every candidate.
 
     Per candidate j: how many sample rays hit the left and right boxes, and of those that hit
-    both, how many more go up ``axis`` (left to right) than down. (The paper also counts which
-    side each ray enters first; neither traversal order uses that any more.) Samples are evenly
-    strided over the active rays. The inner loop runs over the candidates, whose boxes are
-    copied to ``candidate_boxes`` (12, PADDED_CANDIDATES) by coordinate and padded with empty
-    boxes (which every ray misses): it vectorises with no remainder, 1.5x faster than looping
-    over the samples. The three counts go to the rows of ``sample_counts`` (3,
-    PADDED_CANDIDATES), in that order; a candidate with an empty side
-    counts nothing. Returns the box tests counted (those of real candidates)."""
+    both, how many more go up ``axis`` (left to right) than down. Samples are evenly strided
+    over the active rays. The inner loop runs over the candidates, whose boxes are copied to
+    ``candidate_boxes`` (12, PADDED_CANDIDATES) float32 by coordinate and padded with empty
+    boxes (which every ray misses), so that it vectorises with no remainder. The three counts
+    go to the rows of ``sample_counts`` (3, PADDED_CANDIDATES) int32, in that order; a
+    candidate with an empty side counts nothing. Returns the box tests counted (those of real
+    candidates)."""
     n_rays = ray_hi - ray_lo
     n_samples = min(N_SAMPLE_RAYS, n_rays)
     n_tests = 0
@@ -310,10 +305,10 @@ def sample_rays(
         real = j < left_count.shape[0] and left_count[j] > 0 and right_count[j] > 0
         n_tests += 2 * n_samples if real else 0
         for a in range(3):
-            candidate_boxes[a, j] = left_box[j, a] if real else _INF32
-            candidate_boxes[a + 3, j] = left_box[j, a + 3] if real else -_INF32
-            candidate_boxes[a + 6, j] = right_box[j, a] if real else _INF32
-            candidate_boxes[a + 9, j] = right_box[j, a + 3] if real else -_INF32
+            candidate_boxes[a, j] = left_box[j, a] if real else INF32
+            candidate_boxes[a + 3, j] = left_box[j, a + 3] if real else -INF32
+            candidate_boxes[a + 6, j] = right_box[j, a] if real else INF32
+            candidate_boxes[a + 9, j] = right_box[j, a + 3] if real else -INF32
     sample_counts[:, :] = 0
     lx0, ly0, lz0, lx1, ly1, lz1 = (
         candidate_boxes[0],
@@ -337,9 +332,9 @@ def sample_rays(
         ox = field(rays, ORIGIN, r)
         oy = field(rays, ORIGIN + 1, r)
         oz = field(rays, ORIGIN + 2, r)
-        ix = _ONE32 / field(rays, DIRECTION, r)
-        iy = _ONE32 / field(rays, DIRECTION + 1, r)
-        iz = _ONE32 / field(rays, DIRECTION + 2, r)
+        ix = ONE32 / field(rays, DIRECTION, r)
+        iy = ONE32 / field(rays, DIRECTION + 1, r)
+        iz = ONE32 / field(rays, DIRECTION + 2, r)
         t_lo = field(rays, TMIN, r)
         t_hi = cull_distance(field(rays, BEST_T, r))
         # 1/d has the sign of d, also for a zero component (+-inf).
@@ -368,9 +363,8 @@ def sampled_axis(rays, ray_lo, ray_hi, c_box):
     Rays that run along an axis cross both halves of a split on it, which then divides them
     poorly; the longest axis alone (what ``sah`` bins) ignores that. The mean of the two rather
     than the apparent extent alone, because a split along the rays still lets the nearer half's
-    hits cull the farther half's rays. Sibenik 1024² primary rays, one thread: 153.5 -> 143.4 ms
-    (the apparent extent alone: 140.3 ms where this rule took 137.1). Closest hits only: it made
-    shadow rays 1.5-2 % slower."""
+    hits cull the farther half's rays. Closest hits only: occlusion rays stop at their first hit,
+    and the longest axis serves them better."""
     n_rays = ray_hi - ray_lo
     n_samples = min(AXIS_SAMPLE_RAYS, n_rays)
     sin_x = 0.0

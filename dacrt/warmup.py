@@ -4,8 +4,9 @@ import time
 
 import numpy as np
 
+from .chunks import MIN_RAYS_PER_THREAD
 from .contracts import STRATEGIES
-from .scene import DENSITY_GRID, Scene, centre_counts, origin_weights, slab_ids
+from .scene import Scene
 
 
 def warmup():
@@ -24,10 +25,11 @@ def warmup():
     rays = np.hstack([origins, directions])
     rays.flags.writeable = False
     scene.closest(rays[:, :3], rays[:, 3:], threads=1)
-    # Incoherent batches on several threads are cut into slabs of origins, at weighted
-    # quantiles of a strided sample of them (writable, or read-only as from a server's body).
-    slab_ids(np.ascontiguousarray(origins[:, 0]), np.zeros(1, np.float32), 0)
-    counts = centre_counts(scene._tri_bounds, scene._box, DENSITY_GRID)
-    for sample in (origins[::2], rays[::2, :3]):
-        origin_weights(sample, counts, scene._box, DENSITY_GRID)
+    # Incoherent batches on two threads are cut into slabs of origins (writable arrays, and the
+    # read-only columns of a server's body).
+    n_rays = 2 * MIN_RAYS_PER_THREAD
+    scattered = np.random.default_rng(0).uniform(-1.0, 2.0, (n_rays, 6)).astype(np.float32)
+    scene.closest(scattered[:, :3].copy(), scattered[:, 3:].copy(), threads=2)
+    scattered.flags.writeable = False
+    scene.closest(scattered[:, :3], scattered[:, 3:], threads=2)
     return time.perf_counter() - start

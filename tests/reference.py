@@ -1,4 +1,5 @@
-"""Brute-force ray-triangle queries in plain numpy: the independent reference for the engine tests.
+"""Brute-force ray-triangle queries in plain numpy: the one independent reference of the engine and
+service tests.
 
 Imports nothing from ``dacrt``. Every ray is tested against every triangle with Möller–Trumbore
 in float64, in blocks of rays x triangles so that memory stays bounded (about 2000 rays x 5000

@@ -15,9 +15,9 @@ import pytest
 import sample_scenes
 
 import dacrt
+from bench.embree import Embree
 
 embreex = pytest.importorskip("embreex")
-import oracle_embree  # noqa: E402  (needs embreex)
 
 MIN_AGREEMENT = 0.999
 
@@ -28,7 +28,7 @@ def test_procedural_closest_matches_embree(scene_name):
     vertices, faces, offsets = pg.concat(meshes)
     origins, directions = sample_scenes.mixed_rays(meshes, 50, n=3000)
     hits = dacrt.Scene(meshes).closest(origins, directions)
-    oracle = oracle_embree.EmbreeOracle(meshes).closest(origins, directions)
+    oracle = Embree(meshes).closest(origins, directions)
     check.check_against_embree(
         hits,
         oracle,
@@ -64,7 +64,7 @@ def shared_setup(load_shared):
             o1, d1 = pg.random_rays(box, 3000, np.random.default_rng(60), margin=0.0)
             o2, d2 = pg.camera_rays(box, 64, 48, inside=inside)
             rays = np.concatenate([o1, o2]), np.concatenate([d1, d2])
-            cache[name] = (v, f, dacrt.Scene([(v, f)]), oracle_embree.EmbreeOracle([(v, f)]), rays)
+            cache[name] = (v, f, dacrt.Scene([(v, f)]), Embree([(v, f)]), rays)
         return cache[name]
 
     return get

@@ -246,10 +246,11 @@ def test_stats_count_every_ray_across_threads(threads, default_answers):
 def test_chunks_cover_every_ray_once_as_slabs_or_in_input_order():
     """Incoherent batches go to threads as slabs of origins unless their input order is already
     coherent; either way every ray is in exactly one chunk, and chunks are balanced."""
-    from dacrt.scene import Scene, chunk_ids
+    from dacrt.chunks import chunk_ids, plan_chunks
+    from dacrt.scene import Scene
 
     def chunks_of(origins, keep_order):
-        plan = scene._chunk_plan(origins, 3, keep_order)
+        plan = plan_chunks(origins, 3, keep_order, scene._box, lambda: scene._centre_counts)
         return [chunk_ids(plan, len(origins), 3, k) for k in range(3)]
 
     n = 50_000
@@ -275,7 +276,8 @@ def test_slabs_hold_fewer_rays_where_the_triangles_are_dense():
     """Slab cuts weigh each ray by the triangles around its origin: with 20,000 small triangles
     in x < 0 and 40 in x > 0, the slab of x < 0 holds fewer rays; every ray is still in exactly
     one slab, and the slabs are ordered along x."""
-    from dacrt.scene import Scene, chunk_ids
+    from dacrt.chunks import chunk_ids, plan_chunks
+    from dacrt.scene import Scene
 
     rng = np.random.default_rng(47)
     n = 60_000
@@ -289,7 +291,7 @@ def test_slabs_hold_fewer_rays_where_the_triangles_are_dense():
     )
     corners = np.repeat(centres, 3, axis=0) + rng.uniform(-0.01, 0.01, (3 * len(centres), 3))
     scene = Scene([(corners.astype(np.float32), np.arange(3 * len(centres)).reshape(-1, 3))])
-    plan = scene._chunk_plan(origins, 2, keep_order=False)
+    plan = plan_chunks(origins, 2, False, scene._box, lambda: scene._centre_counts)
     dense, sparse = (chunk_ids(plan, n, 2, k) for k in range(2))
     assert np.array_equal(np.sort(np.concatenate([dense, sparse])), np.arange(n))
     assert origins[dense, 0].max() <= origins[sparse, 0].min()
@@ -311,10 +313,10 @@ def test_stacked_triangles_tie_to_the_lowest_index(strategy, threads):
 def test_warmup_compiles_what_an_incoherent_two_thread_query_needs():
     """After dacrt.warmup(), slab cutting compiles nothing more, for plain arrays and for the
     read-only column views a server decodes from a body."""
-    from dacrt import scene as engine_scene
+    from dacrt import chunks
 
     dacrt.warmup()
-    kernels = (engine_scene.centre_counts, engine_scene.origin_weights, engine_scene.slab_ids)
+    kernels = (chunks.centre_counts, chunks.origin_weights, chunks.slab_ids)
     before = [len(kernel.signatures) for kernel in kernels]
     rays = np.random.default_rng(48).uniform(-1, 1, (40_000, 6)).astype(np.float32)
     rays.flags.writeable = False

@@ -6,20 +6,11 @@ import numpy as np
 import pytest
 from service_helpers import SHARED_SCENES, rays_at
 
-embree_scene = pytest.importorskip("embreex.rtcore_scene")
-mesh_construction = pytest.importorskip("embreex.mesh_construction")
+from bench.embree import Embree
+
+pytest.importorskip("embreex")
 
 SCENES = ["bunny", "sibenik"]
-
-
-def embree_closest(vertices, faces, origins, directions):
-    scene = embree_scene.EmbreeScene()
-    mesh_construction.TriangleMesh(scene, vertices[faces])
-    result = scene.run(origins, directions, output=1)
-    hit = result["geomID"] >= 0
-    return np.where(hit, result["tfar"], np.inf).astype(np.float32), np.where(
-        hit, result["primID"], -1
-    )
 
 
 def random_rays(vertices, n, seed):
@@ -48,7 +39,7 @@ def test_closest_agrees_with_embree(client, scene_name, name):
     directions = np.concatenate([aimed[1], random[1]])
 
     ours = client.closest(scene_name, origins, directions)
-    t, prim = embree_closest(vertices, faces, origins, directions)
+    t, prim = Embree([(vertices, faces)]).closest_t(origins, directions)
 
     both = np.isfinite(ours.t) & np.isfinite(t)
     assert np.mean(np.isfinite(ours.t) == np.isfinite(t)) > 0.999  # grazing edges may differ

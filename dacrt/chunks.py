@@ -1,0 +1,188 @@
+"""Thread scheduling: how a batch is cut into chunks of rays, and the threads that trace them.
+
+Rays from about one point (a camera, a point light) go in contiguous chunks in input order.
+Other rays go as one chunk per thread: contiguous runs when the input order is already coherent
+(rays from an image's hit points), else slabs of origins along the axis where they spread most,
+cut so that each slab holds about the same work. Answers do not depend on the chunks.
+"""
+
+import functools
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from .config import inline, jit
+from .contracts import INDEX
+
+N_CORES = os.cpu_count() or 1
+# Below this many rays a single thread is quicker than splitting the triangles' work twice.
+MIN_RAYS_PER_THREAD = 16384
+# Origins within this fraction of the scene's size count as one point.
+COHERENT_ORIGIN_SPREAD = 0.1
+# Rays from one point go in chunks of at most this many: a chunk's records stay in cache.
+COHERENT_CHUNK_RAYS = 262144
+# On one thread a chunk's records have the cache to themselves, so chunks may be larger ...
+COHERENT_CHUNK_RAYS_ONE_THREAD = 524288
+# ... and take this many rays a triangle: each chunk repeats the work on the triangles.
+COHERENT_RAYS_PER_TRIANGLE = 2
+# With several threads, at least this many chunks each: bands of an image differ in cost.
+COHERENT_CHUNKS_PER_THREAD = 3
+# Input order counts as coherent when consecutive origins are closer than this fraction of the
+# distance between origins far apart in the batch (sampled).
+ORDERED_NEIGHBOUR_DISTANCE = 0.5
+# Rays sampled for that test and to place the slabs' boundaries.
+CHUNK_SAMPLE_RAYS = 4096
+# A sample ray weighs sqrt(1 + the triangle centres in its origin's cell of a DENSITY_GRID^3 grid
+# over the scene): a ray that starts among many triangles costs more.
+DENSITY_GRID = 16
+
+
+@inline
+def grid_index(value, lo, extent, n):
+    """The cell holding ``value`` along one axis of n cells over [lo, lo + extent], clamped."""
+    k = int((value - lo) / extent * n) if extent > 0 else 0
+    return min(max(k, 0), n - 1)
+
+
+@jit
+def centre_counts(tri_bounds, box, n):
+    """How many triangles have their box's centre in each cell of an n^3 grid over ``box``.
+
+    tri_bounds : (F, 6) float32; box : (6,) float32. Returns (n^3,) int64."""
+    counts = np.zeros(n * n * n, np.int64)
+    for row in range(tri_bounds.shape[0]):
+        cell = 0
+        for a in range(3):
+            centre = 0.5 * (tri_bounds[row, a] + tri_bounds[row, a + 3])
+            cell = cell * n + grid_index(centre, box[a], box[a + 3] - box[a], n)
+        counts[cell] += 1
+    return counts
+
+
+@jit
+def origin_weights(points, counts, box, n):
+    """sqrt(1 + the count of each point's cell); points outside ``box`` weigh 1.
+
+    points : (m, 3) float32; counts : (n^3,) int64 (``centre_counts``). Returns (m,) float64."""
+    weights = np.ones(points.shape[0])
+    for i in range(points.shape[0]):
+        cell = 0
+        inside = True
+        for a in range(3):
+            extent = box[a + 3] - box[a]
+            offset = points[i, a] - box[a]
+            if extent <= 0 or not 0 <= offset <= extent:  # NaN too: a bad ray, named later
+                inside = False
+                break
+            cell = cell * n + grid_index(points[i, a], box[a], extent, n)
+        if inside:
+            weights[i] = np.sqrt(1.0 + counts[cell])
+    return weights
+
+
+@inline
+def slab_of(value, cuts):
+    """The slab holding ``value``: how many of the sorted ``cuts`` are at or below it (slab k:
+    cuts[k-1] <= value < cuts[k]; NaN falls in slab 0)."""
+    k = 0
+    for c in range(len(cuts)):
+        k += 1 if value >= cuts[c] else 0
+    return k
+
+
+@jit
+def slab_ids(values, cuts, k):
+    """The ids (int32, increasing) of the values in slab k, gathered by the thread that traces
+    the slab: a counting pass, then a compaction with no branch on the values (they fall on
+    either side of a cut at random)."""
+    n = 0
+    for i in range(len(values)):
+        n += 1 if slab_of(values[i], cuts) == k else 0
+    ids = np.empty(n + 1, np.int32)  # the compaction writes once past the last id
+    j = 0
+    for i in range(len(values)):
+        ids[j] = i
+        j += 1 if slab_of(values[i], cuts) == k else 0
+    return ids[:n]
+
+
+@functools.cache
+def _pool(n_workers):
+    """A thread pool of n_workers, kept for later queries with the same thread count."""
+    return ThreadPoolExecutor(max_workers=n_workers, thread_name_prefix="dacrt")
+
+
+def map_on_threads(fn, n_items, n_workers):
+    """[fn(0), ..., fn(n_items - 1)], on n_workers threads (a queue: each takes the next item
+    when done with one), or in this thread for one."""
+    if n_workers == 1:
+        return [fn(k) for k in range(n_items)]
+    return list(_pool(n_workers).map(fn, range(n_items)))
+
+
+def from_one_point(origins, box):
+    """Whether the rays (a sample of up to 1024) start within COHERENT_ORIGIN_SPREAD of the
+    size of ``box`` (6,) of each other."""
+    sample = origins[:: max(1, len(origins) // 1024)]
+    spread = float(np.max(sample.max(axis=0) - sample.min(axis=0)))
+    size = float(np.max(box[3:] - box[:3]))
+    return spread <= COHERENT_ORIGIN_SPREAD * size
+
+
+def count_chunks(n_rays, n_triangles, threads, coherent):
+    """How many chunks to cut a batch of n_rays into, for ``threads`` threads; ``coherent``:
+    the rays start from about one point (``from_one_point``)."""
+    n_chunks = max(1, min(threads, n_rays // MIN_RAYS_PER_THREAD))
+    if not coherent:
+        return n_chunks
+    chunk_rays = COHERENT_CHUNK_RAYS
+    if threads == 1:
+        chunk_rays = min(
+            COHERENT_CHUNK_RAYS_ONE_THREAD,
+            max(chunk_rays, COHERENT_RAYS_PER_TRIANGLE * n_triangles),
+        )
+    n_chunks = max(n_chunks, -(-n_rays // chunk_rays))
+    if threads > 1:
+        n_chunks = max(
+            n_chunks,
+            min(threads * COHERENT_CHUNKS_PER_THREAD, n_rays // MIN_RAYS_PER_THREAD),
+        )
+    return n_chunks
+
+
+def plan_chunks(origins, n_chunks, keep_order, box, density):
+    """How the batch is cut into chunks (``chunk_ids``): None for contiguous runs in input
+    order, else (values, cuts): slab k holds the rays whose values fall in it.
+
+    origins : (n, 3) float32; box : (6,) float32, the scene's; density : a function of no
+    arguments returning the scene's ``centre_counts`` over DENSITY_GRID (called only when slabs
+    are cut). In input order when ``keep_order`` or when that order is already coherent
+    (consecutive origins much closer than origins far apart in the batch). Otherwise slabs of
+    about equal work along the axis where the origins spread most, cut at weighted quantiles of
+    a sample: a slab's rays start near each other, so the chunks repeat less of each other's
+    work."""
+    step = max(1, len(origins) // CHUNK_SAMPLE_RAYS)
+    if keep_order or n_chunks == 1 or step == 1:
+        return None
+    sample = origins[::step]
+    near = np.linalg.norm(origins[1::step] - origins[:-1:step], axis=1)  # input neighbours
+    far = np.linalg.norm(sample - sample[::-1], axis=1)
+    if np.mean(near) < ORDERED_NEIGHBOUR_DISTANCE * np.mean(far):
+        return None
+    axis = int(np.argmax(sample.max(axis=0) - sample.min(axis=0)))
+    weights = origin_weights(sample, density(), box, DENSITY_GRID)
+    order = np.argsort(sample[:, axis], kind="stable")
+    cumulative = np.cumsum(weights[order])
+    at = np.searchsorted(cumulative, np.arange(1, n_chunks) / n_chunks * cumulative[-1])
+    cuts = sample[order[np.minimum(at, len(order) - 1)], axis].astype(origins.dtype)
+    return np.ascontiguousarray(origins[:, axis]), cuts  # one signature for slab_ids
+
+
+def chunk_ids(plan, n_rays, n_chunks, k):
+    """The ray ids (int32, increasing) of chunk k of n_chunks, as ``plan_chunks`` cut the
+    batch."""
+    if plan is None:
+        return np.arange(k * n_rays // n_chunks, (k + 1) * n_rays // n_chunks, dtype=INDEX)
+    values, cuts = plan
+    return slab_ids(values, cuts, k)

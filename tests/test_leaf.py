@@ -1,0 +1,130 @@
+"""dacrt.leaf against brute force: a leaf's answer for each ray is the smallest (t, triangle) over
+its triangles of the scalar watertight test, ties to the lower triangle, and agrees with the
+numpy reference. Both loop orders (few triangles: by rays; else by triangles) are exercised."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import reference
+
+from dacrt.contracts import MODE_CLOSEST, MODE_OCCLUDED
+from dacrt.geometry import intersect_triangle, watertight_setup
+from dacrt.leaf import NO_HIT, intersect_leaf, leaf_scratch
+from dacrt.rays import BEST_T, new_records, pack_rays
+
+
+def leaf_scene(seed, n_tris, n_rays):
+    """Triangles (n_tris, 9) float32 with every one also present as a later duplicate row (exact
+    ties), and rays aimed at them from around, with tmin and tmax that cut some hits off."""
+    rng = np.random.default_rng(seed)
+    n_unique = max(1, n_tris // 2)
+    corners = rng.uniform(-1, 1, (n_unique, 3, 3)).astype(np.float32)
+    rows = np.concatenate([np.arange(n_unique), rng.integers(0, n_unique, n_tris - n_unique)])
+    tri_verts = np.ascontiguousarray(corners[rows].reshape(n_tris, 9))
+    aim = corners[rng.integers(0, n_unique, n_rays)]
+    targets = (aim * rng.dirichlet([1, 1, 1], n_rays)[:, :, None]).sum(axis=1)
+    targets += rng.normal(scale=0.1, size=(n_rays, 3))
+    origins = rng.uniform(-3, 3, (n_rays, 3)).astype(np.float32)
+    directions = (targets - origins).astype(np.float32)
+    tmin = rng.uniform(0.0, 0.3, n_rays).astype(np.float32)
+    tmax = np.where(rng.random(n_rays) < 0.7, np.inf, rng.uniform(0.5, 1.5, n_rays))
+    return tri_verts, origins, directions, tmin, tmax.astype(np.float32), rng
+
+
+def run_leaf(mode, tri_verts, origins, directions, tmin, tmax, tri_ids):
+    """intersect_leaf over every ray and ``tri_ids``; returns best_t, best_tri, u, v by ray."""
+    n = len(origins)
+    ray_ids = np.arange(n, dtype=np.int32)
+    rays = new_records(n)
+    assert pack_rays(origins, directions, tmin, tmax, ray_ids, rays)
+    best_tri = np.full(n, NO_HIT, np.int32)
+    hit_u = np.zeros(n, np.float32)
+    hit_v = np.zeros(n, np.float32)
+    corners, t_block, tri_block, block_rows = leaf_scratch()
+    n_tests = intersect_leaf(
+        mode,
+        tri_verts,
+        rays,
+        ray_ids,
+        0,
+        n,
+        tri_ids,
+        0,
+        len(tri_ids),
+        best_tri,
+        hit_u,
+        hit_v,
+        corners,
+        t_block,
+        tri_block,
+        block_rows,
+    )
+    # Closest hits test every pair; an occlusion ray skips the blocks after its first hit.
+    assert n_tests == n * len(tri_ids) if mode == MODE_CLOSEST else n_tests <= n * len(tri_ids)
+    best_t = rays[BEST_T >> 2, 3 : 4 * n : 4].copy()
+    return best_t, best_tri, hit_u, hit_v
+
+
+def brute_force(tri_verts, origins, directions, tmin, tmax):
+    """Per ray: (t, triangle, u, v) minimising (float32 t, triangle) over every triangle's scalar
+    watertight test within [tmin, tmax]; (tmax, NO_HIT, 0, 0) when none."""
+    n = len(origins)
+    best = [(tmax[i], NO_HIT, np.float32(0), np.float32(0)) for i in range(n)]
+    for i in range(n):
+        kx, ky, kz, sx, sy, sz = watertight_setup(*directions[i])
+        ok = [np.float64(origins[i, k]) for k in (kx, ky, kz)]
+        for tri in range(len(tri_verts)):
+            hit, t, u, v = intersect_triangle(tri_verts, tri, *ok, kx, ky, kz, sx, sy, sz)
+            t = np.float32(t)
+            if hit and tmin[i] <= t and (t, tri) < best[i][:2]:
+                best[i] = (t, tri, np.float32(u), np.float32(v))
+    return [np.array(column) for column in zip(*best)]
+
+
+# (triangles, rays): by rays (fewer than 8 triangles, 16 rays or more), by triangles otherwise,
+# and blocks of 64 with a remainder either way.
+SHAPES = [(3, 40), (7, 16), (7, 15), (8, 40), (70, 5), (2, 150), (130, 20)]
+
+
+@pytest.mark.parametrize("n_tris,n_rays", SHAPES)
+@pytest.mark.parametrize("seed", [0, 1])
+def test_closest_leaf_equals_brute_force_ties_to_the_lower_triangle(seed, n_tris, n_rays):
+    tri_verts, o, d, tmin, tmax, rng = leaf_scene(seed, n_tris, n_rays)
+    tri_ids = rng.permutation(n_tris).astype(np.int32)  # the order of tests changes nothing
+    best_t, best_tri, u, v = run_leaf(MODE_CLOSEST, tri_verts, o, d, tmin, tmax, tri_ids)
+    want_t, want_tri, want_u, want_v = brute_force(tri_verts, o, d, tmin, tmax)
+    assert (want_tri != NO_HIT).sum() >= n_rays // 4, "vacuous: few rays hit"
+    np.testing.assert_array_equal(best_tri, want_tri)
+    np.testing.assert_array_equal(best_t, want_t)
+    hit = want_tri != NO_HIT
+    np.testing.assert_array_equal(u[hit], want_u[hit])
+    np.testing.assert_array_equal(v[hit], want_v[hit])
+    assert (u[~hit] == 0).all() and (v[~hit] == 0).all()
+
+
+@pytest.mark.parametrize("n_tris,n_rays", SHAPES)
+def test_closest_leaf_agrees_with_the_numpy_reference(n_tris, n_rays):
+    tri_verts, o, d, tmin, tmax, rng = leaf_scene(2, n_tris, n_rays)
+    tri_ids = rng.permutation(n_tris).astype(np.int32)
+    best_t, best_tri, _, _ = run_leaf(MODE_CLOSEST, tri_verts, o, d, tmin, tmax, tri_ids)
+    vertices, faces = tri_verts.reshape(-1, 3), np.arange(3 * n_tris).reshape(-1, 3)
+    bracket = reference.closest_bracket(vertices, faces, o, d, tmin, tmax, eps=1e-4)
+    hit = best_tri != NO_HIT
+    assert hit[bracket.inner.hit].all(), "the leaf misses rays that hit well inside"
+    assert bracket.outer.hit[hit].all(), "the leaf hits rays that miss by a margin"
+    clear = bracket.inner.hit & (bracket.outer_second_t > bracket.outer.t * (1 + 1e-4))
+    np.testing.assert_allclose(best_t[clear], bracket.exact.t[clear], rtol=1e-5)
+
+
+@pytest.mark.parametrize("n_tris,n_rays", SHAPES)
+def test_occluded_leaf_finds_a_hit_exactly_when_closest_does(n_tris, n_rays):
+    tri_verts, o, d, tmin, tmax, rng = leaf_scene(3, n_tris, n_rays)
+    tri_ids = rng.permutation(n_tris).astype(np.int32)
+    closest_t, closest_tri, _, _ = run_leaf(MODE_CLOSEST, tri_verts, o, d, tmin, tmax, tri_ids)
+    best_t, best_tri, _, _ = run_leaf(MODE_OCCLUDED, tri_verts, o, d, tmin, tmax, tri_ids)
+    blocked = closest_tri != NO_HIT
+    assert blocked.any()
+    np.testing.assert_array_equal(best_tri != NO_HIT, blocked)
+    assert (best_t[blocked] == -np.inf).all(), "an occlusion ray that hit is not done"
+    np.testing.assert_array_equal(best_t[~blocked], tmax[~blocked])
