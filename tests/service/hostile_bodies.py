@@ -6,15 +6,17 @@ Shared by the in-process wire tests and the corpus run against a real server.
 from __future__ import annotations
 
 import functools
-import struct
 import zlib
 
 import numpy as np
 from service_helpers import npy_bytes
 
-_LOCAL = struct.Struct("<4s2B4HL2L2H")
-_CENTRAL = struct.Struct("<4s4B4HL2L5H2L")
-_END = struct.Struct("<4s4H2LH")
+from service.wire.zip_records import (
+    CentralDirectoryHeader,
+    EndOfCentralDirectory,
+    LocalFileHeader,
+)
+
 STORED, DEFLATED, BZIP2 = 0, 8, 12
 ENCRYPTED = 0x1
 
@@ -38,55 +40,37 @@ def raw_zip(members: list[dict], directory: list[dict] | None = None) -> bytes:
     for m in members:
         name = m["name"].encode()
         offsets.append(len(body))
-        body += (
-            _LOCAL.pack(
-                b"PK\x03\x04",
-                20,
-                0,
-                m.get("flags", 0),
-                m.get("method", STORED),
-                0,
-                33,
-                m.get("crc", zlib.crc32(m["payload"])),
-                len(m["payload"]),
-                m.get("size", len(m["payload"])),
-                len(name),
-                0,
-            )
-            + name
-            + m["payload"]
+        header = LocalFileHeader(
+            flags=m.get("flags", 0),
+            compression=m.get("method", STORED),
+            crc32=m.get("crc", zlib.crc32(m["payload"])),
+            compressed_size=len(m["payload"]),
+            uncompressed_size=m.get("size", len(m["payload"])),
+            name_length=len(name),
         )
+        body += header.pack() + name + m["payload"]
     entries = directory if directory is not None else [{"member": i} for i in range(len(members))]
     central = b""
     for entry in entries:
         m = members[entry["member"]]
         name = entry.get("name", m["name"]).encode()
-        central += (
-            _CENTRAL.pack(
-                b"PK\x01\x02",
-                20,
-                0,
-                20,
-                0,
-                m.get("flags", 0),
-                m.get("method", STORED),
-                0,
-                33,
-                m.get("crc", zlib.crc32(m["payload"])),
-                len(m["payload"]),
-                m.get("size", len(m["payload"])),
-                len(name),
-                0,
-                0,
-                0,
-                0,
-                0,
-                offsets[entry["member"]],
-            )
-            + name
+        record = CentralDirectoryHeader(
+            flags=m.get("flags", 0),
+            compression=m.get("method", STORED),
+            crc32=m.get("crc", zlib.crc32(m["payload"])),
+            compressed_size=len(m["payload"]),
+            uncompressed_size=m.get("size", len(m["payload"])),
+            name_length=len(name),
+            local_header_offset=offsets[entry["member"]],
         )
-    end = _END.pack(b"PK\x05\x06", 0, 0, len(entries), len(entries), len(central), len(body), 0)
-    return body + central + end
+        central += record.pack() + name
+    end = EndOfCentralDirectory(
+        entries_on_disk=len(entries),
+        entries_total=len(entries),
+        directory_size=len(central),
+        directory_offset=len(body),
+    )
+    return body + central + end.pack()
 
 
 def raw_deflater():
