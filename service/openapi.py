@@ -71,6 +71,7 @@ ERROR_STATUSES = {
     413: "over a configured limit",
     415: "unsupported Content-Type",
     422: "invalid values or parameters",
+    503: "the engine is still compiling (Retry-After says when to try again)",
 }
 
 
