@@ -44,6 +44,15 @@ TEMPORARY = ".tmp"
 FORMAT = 1  #: the manifest format this module writes and reads
 
 
+@dataclass(frozen=True)
+class ArrayFile:
+    """One array's file, as its manifest names it."""
+
+    name: str
+    shape: tuple[int, ...]
+    crc32: int
+
+
 class CorruptScene(Exception):
     """A scene's files cannot be read back as the manifest describes them."""
 
@@ -89,7 +98,7 @@ class DataDir:
         self.scenes.mkdir(parents=True, exist_ok=True)
         sync_folder(self.root)
         #: scene -> mesh name -> (vertices file, faces file) of the current version
-        self._files: dict[str, dict[str, tuple[str, str]]] = {}
+        self._files: dict[str, dict[str, tuple[ArrayFile, ArrayFile]]] = {}
         self._current: dict[str, Snapshot] = {}  #: the snapshot each scene's files hold
 
     # ---- writing
@@ -99,16 +108,19 @@ class DataDir:
         folder = self._folder(snapshot.scene)
         old = self._current.get(snapshot.scene)
         old_files = self._files.get(snapshot.scene, {})
-        files: dict[str, tuple[str, str]] = {}
+        files: dict[str, tuple[ArrayFile, ArrayFile]] = {}
         for name, mesh in snapshot.meshes.items():
             before = old.meshes.get(name) if old is not None else None
             kept = old_files.get(name)
-            vertices_file, faces_file = kept if kept and before is not None else ("", "")
-            if before is None or before.vertices is not mesh.vertices:
-                vertices_file = self._write_array(folder, mesh, "vertices", snapshot.version)
-            if before is None or before.faces is not mesh.faces:
-                faces_file = self._write_array(folder, mesh, "faces", snapshot.version)
-            files[name] = (vertices_file, faces_file)
+            if before is None or kept is None:
+                vertices_file = faces_file = None
+            else:
+                vertices_file = kept[0] if before.vertices is mesh.vertices else None
+                faces_file = kept[1] if before.faces is mesh.faces else None
+            files[name] = (
+                vertices_file or self._write_array(folder, mesh, "vertices", snapshot.version),
+                faces_file or self._write_array(folder, mesh, "faces", snapshot.version),
+            )
         sync_folder(folder)  # the arrays' names are durable before a manifest names them
         self._write_manifest(folder, snapshot.version, self._manifest(snapshot, files))
         self._forget(folder, old_files, files, old, snapshot.version)
@@ -131,16 +143,16 @@ class DataDir:
         return folder
 
     @staticmethod
-    def _write_array(folder: Path, mesh: Mesh, kind: str, version: int) -> str:
+    def _write_array(folder: Path, mesh: Mesh, kind: str, version: int) -> ArrayFile:
         name = f"{mesh.index}.{version}.{kind}.npy"
         array = getattr(mesh, kind)
         write_file(folder / name, lambda file: np.save(file, array, allow_pickle=False))
-        return name
+        return ArrayFile(name, array.shape, checksum(array))
 
     @staticmethod
-    def _manifest(snapshot: Snapshot, files: dict[str, tuple[str, str]]) -> dict[str, Any]:
-        def array(file: str, values: np.ndarray) -> dict[str, Any]:
-            return {"file": file, "shape": list(values.shape), "crc32": checksum(values)}
+    def _manifest(snapshot: Snapshot, files: dict[str, tuple[ArrayFile, ArrayFile]]) -> dict:
+        def array(file: ArrayFile) -> dict[str, Any]:
+            return {"file": file.name, "shape": list(file.shape), "crc32": file.crc32}
 
         return {
             "format": FORMAT,
@@ -152,8 +164,8 @@ class DataDir:
                     "name": mesh.name,
                     "index": mesh.index,
                     "version": mesh.version,
-                    "vertices": array(files[mesh.name][0], mesh.vertices),
-                    "faces": array(files[mesh.name][1], mesh.faces),
+                    "vertices": array(files[mesh.name][0]),
+                    "faces": array(files[mesh.name][1]),
                 }
                 for mesh in snapshot.meshes.values()
             ],
@@ -168,8 +180,8 @@ class DataDir:
     @staticmethod
     def _forget(folder: Path, old_files, new_files, old: Snapshot | None, version: int) -> None:
         """Remove what the new manifest no longer names (a crash here leaves only orphans)."""
-        kept = {name for pair in new_files.values() for name in pair}
-        for name in {name for pair in old_files.values() for name in pair} - kept:
+        kept = {file.name for pair in new_files.values() for file in pair}
+        for name in {file.name for pair in old_files.values() for file in pair} - kept:
             (folder / name).unlink(missing_ok=True)
         if old is not None and old.version != version:
             (folder / f"scene.{old.version}.json").unlink(missing_ok=True)
@@ -205,7 +217,7 @@ class DataDir:
 
     def _read_scene(
         self, folder: Path, path: Path, version: int
-    ) -> tuple[Snapshot | None, dict[str, tuple[str, str]]]:
+    ) -> tuple[Snapshot | None, dict[str, tuple[ArrayFile, ArrayFile]]]:
         try:
             record = json.loads(path.read_bytes())
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -226,7 +238,10 @@ class DataDir:
                 bounds = referenced_bounds(vertices, faces)
                 name, index, changed = item["name"], item["index"], item["version"]
                 meshes[name] = Mesh(name, index, vertices, faces, bounds, changed)
-                files[name] = (item["vertices"]["file"], item["faces"]["file"])
+                files[name] = (
+                    ArrayFile(item["vertices"]["file"], vertices.shape, item["vertices"]["crc32"]),
+                    ArrayFile(item["faces"]["file"], faces.shape, item["faces"]["crc32"]),
+                )
             next_index = record["next_index"]
         except (KeyError, TypeError) as exc:
             raise CorruptScene(f"{path.name} lacks {exc}") from None
@@ -254,9 +269,9 @@ class DataDir:
         return array
 
     @staticmethod
-    def _clean(folder: Path, manifest: Path, files: dict[str, tuple[str, str]]) -> None:
+    def _clean(folder: Path, manifest: Path, files: dict[str, tuple[ArrayFile, ArrayFile]]) -> None:
         """Remove what a crash left: temporary files, older manifests, arrays nobody names."""
-        kept = {manifest.name} | {name for pair in files.values() for name in pair}
+        kept = {manifest.name} | {file.name for pair in files.values() for file in pair}
         for path in folder.iterdir():
             if path.name not in kept and (
                 path.name.endswith(TEMPORARY)
