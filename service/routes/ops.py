@@ -45,7 +45,12 @@ async def start_page() -> HTMLResponse:
 @router.get(
     "/health",
     dependencies=unauthenticated,
-    responses={503: {"description": "the engine is compiling (starting) or failed to (error)"}},
+    responses={
+        200: openapi.json_answer("every kernel a request reaches is compiled", openapi.HEALTH),
+        503: openapi.json_answer(
+            "the kernels are compiling (starting) or failed to (error)", openapi.HEALTH
+        ),
+    },
 )
 async def health(ready: ReadinessDep, store: StoreDep) -> JSONResponse:
     # one string, so that the OpenAPI description stays one line
