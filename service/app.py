@@ -36,7 +36,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     then a bad or unknown DACRT_* variable ends the process with one line)."""
     settings = settings or load_settings_or_exit()
     configure_logging(settings.log_level)
-    journal = DataDir(settings.data_dir) if settings.data_dir is not None else None
+    journal = open_data_dir(settings)
     store = Store(settings.max_triangles_per_scene, settings.max_scene_bytes, journal)
     metrics = Metrics(lambda: store.nbytes, lambda: len(store.snapshots()))
 
@@ -83,6 +83,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(errors.CatchAll)  # inside the metrics, so that they count its 500s
     app.add_middleware(MetricsMiddleware, metrics=metrics)
     return app
+
+
+def open_data_dir(settings: Settings) -> DataDir | None:
+    """The data folder of DACRT_DATA_DIR (created if needed); an unusable one ends the process
+    with one line."""
+    if settings.data_dir is None:
+        return None
+    try:
+        return DataDir(settings.data_dir.expanduser())
+    except OSError as exc:
+        raise SystemExit(
+            f"dacrt-service: DACRT_DATA_DIR={str(settings.data_dir)!r}: {exc}"
+        ) from None
 
 
 def warm_up(readiness: Readiness, threads: int | None = None) -> None:

@@ -10,6 +10,7 @@ each group of kernels with the time it took.
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import logging
 import threading
@@ -123,7 +124,8 @@ def warm_up_meshes() -> Store:
 
 
 def warm_up_queries(store: Store, threads: int | None) -> None:
-    """closest and occluded with every strategy on rays of every format, and the one-shot trace."""
+    """closest and occluded with every strategy, culling mode and with and without statistics on
+    rays of every format, and the one-shot trace."""
     origins, directions, tmin, tmax = RAYS[:, 0:3], RAYS[:, 3:6], RAYS[:, 6], RAYS[:, 7]
     ray_bodies = {
         "npy": [npy(RAYS[:, :6]), npy(RAYS)],
@@ -137,10 +139,13 @@ def warm_up_queries(store: Store, threads: int | None) -> None:
     for fmt, bodies in ray_bodies.items():
         for data in bodies:
             rays = wire.decode_rays(data, fmt)
-            for query in tracing.Query:
-                for strategy in tracing.strategies():
-                    options = tracing.make_options(query, strategy=strategy, threads=threads)
-                    encode(tracing.trace(snapshot, rays, options).arrays)
+            for query, strategy, cull, stats in itertools.product(
+                tracing.Query, tracing.strategies(), tracing.CULL_MODES, (False, True)
+            ):
+                options = tracing.make_options(
+                    query, strategy=strategy, stats=stats, threads=threads, cull=cull
+                )
+                encode(tracing.trace(snapshot, rays, options).arrays)
     trace_bodies = {
         "npz": npz(vertices=VERTICES, faces=FACES, origins=origins, directions=directions),
         "json": as_json(vertices=VERTICES, faces=FACES, origins=origins, directions=directions),

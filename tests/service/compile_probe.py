@@ -55,6 +55,14 @@ def first_requests(http) -> None:
             sent.append(http.post(f"/v1/scenes/p/{query}", content=body, headers=NPY))
         sent.append(http.post(f"/v1/scenes/p/{query}", json=rays_json))
         sent.append(http.post(f"/v1/trace?query={query}", json={**mesh, **rays_json}))
+    from dacrt.chunks import MIN_RAYS_PER_THREAD  # batches this big run on several threads
+
+    scattered = np.random.default_rng(0).uniform(-1, 2, (4 * MIN_RAYS_PER_THREAD, 8))
+    scattered[:, 6:] = [0, 10]
+    for columns in (6, 8):
+        body = npy_bytes(scattered[:, :columns].astype(np.float32))
+        sent.append(http.post("/v1/scenes/p/closest", content=body, headers=NPY))
+    sent.append(http.post("/v1/scenes/p/closest?stats=true", content=npy_bytes(rays), headers=NPY))
     for accept in ("application/x-npy", "application/json"):
         sent.append(
             http.post(
