@@ -1,24 +1,32 @@
 # The ray-casting service with its demo scene: docker build -t dacrt . && docker run -p 8000:8000 dacrt
+# Scenes survive a restart with a volume: docker run -p 8000:8000 -v dacrt-data:/data dacrt
 FROM python:3.11-slim
 
+# Numba's compiled kernels go to DACRT_CACHE_DIR. Numba keys them by the CPU it compiled for:
+# the warm-up below compiles for the build machine's CPU, and a container started on a different
+# CPU (another model or instruction set) compiles again at its first start (1-3 minutes, /health
+# says "starting" meanwhile) into the container's own copy of the folder. Build the image where it
+# runs, or mount a volume on /home/app/.cache/dacrt to keep a compile across containers.
 ENV PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
     PIP_NO_CACHE_DIR=1 \
-    NUMBA_CACHE_DIR=/home/app/.cache/numba \
+    DACRT_CACHE_DIR=/home/app/.cache/dacrt \
+    DACRT_DATA_DIR=/data \
     DACRT_LOAD_DEMO=true
 
-RUN useradd --create-home --uid 10001 app
+RUN useradd --create-home --uid 10001 app && mkdir /data && chown app /data
 WORKDIR /app
 COPY pyproject.toml README.md ./
 COPY dacrt ./dacrt
 COPY service ./service
-COPY scenes ./scenes
 RUN pip install . && rm -rf build *.egg-info
 
 USER app
-# Compile the engine's kernels into Numba's cache now, so that the container is ready in seconds.
-RUN python -c "import dacrt; print('warm-up', round(dacrt.warmup(), 1), 's')"
+# Compile every kernel a request reaches into the cache now, so that the container is ready in
+# seconds (on this CPU). From /app, as the server runs: Numba also keys its cache by source path.
+RUN python -c "from service.warmup import warm_up; print('warm-up', round(warm_up(), 1), 's')"
 
+VOLUME /data
 EXPOSE 8000
 HEALTHCHECK --interval=15s --timeout=5s --start-period=180s --retries=3 \
     CMD ["python", "-c", "import sys, urllib.request; sys.exit(urllib.request.urlopen('http://127.0.0.1:8000/health', timeout=4).status != 200)"]

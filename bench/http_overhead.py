@@ -105,7 +105,7 @@ def cpu_model() -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("scene", nargs="?", default=str(REPO / "scenes" / "teapot.npz"))
+    parser.add_argument("scene", nargs="?", default=str(REPO / "service" / "data" / "teapot.npz"))
     parser.add_argument("--rays", type=int, default=1_000_000)
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--fields", default=None, help="e.g. t,mesh,prim (default: all)")

@@ -7,68 +7,137 @@ import logging
 import threading
 import time
 from contextlib import asynccontextmanager
+from importlib.util import find_spec
 from pathlib import Path
 
 import numpy as np
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import HTMLResponse
+from fastapi.staticfiles import StaticFiles
 
-from . import __version__, errors, tracing, wire
-from .deps import Readiness
+from . import CACHE_DIR, __version__, errors, openapi, warmup, wire
+from .deps import Readiness, require_ready
+from .logs import configure_logging
 from .metrics import Metrics, MetricsMiddleware
+from .persistence import DataDir
 from .routes import meshes, ops, queries
 from .settings import Settings, load_settings_or_exit
 from .store import Store
 
 log = logging.getLogger("service")
 
+#: Swagger UI's files, from the swagger-ui-py package (found, not imported): /docs needs no network.
+SWAGGER_UI = Path(find_spec("swagger_ui").submodule_search_locations[0]) / "static"
+
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """A new app with its own store, metrics and settings (from the environment if not given:
     then a bad or unknown DACRT_* variable ends the process with one line)."""
     settings = settings or load_settings_or_exit()
-    store = Store(settings.max_triangles_per_scene, settings.max_scene_bytes)
+    configure_logging(settings.log_level)
+    journal = open_data_dir(settings)
+    store = Store(settings.max_triangles_per_scene, settings.max_scene_bytes, journal)
     metrics = Metrics(lambda: store.nbytes, lambda: len(store.snapshots()))
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        if journal is not None:
+            restore(store, journal)
         if settings.load_demo:
             load_demo(store, settings)
         threading.Thread(
-            target=warm_up, args=(app.state.readiness,), name="dacrt-warmup", daemon=True
+            target=warm_up,
+            args=(app.state.readiness, settings.threads),
+            name="dacrt-warmup",
+            daemon=True,
         ).start()
         yield
 
-    app = FastAPI(title="dacrt ray-casting service", version=__version__, lifespan=lifespan)
+    app = FastAPI(
+        title="dacrt ray-casting service",
+        version=__version__,
+        lifespan=lifespan,
+        docs_url=None,  # served below from local files
+    )
     app.state.settings, app.state.store, app.state.metrics = settings, store, metrics
     app.state.readiness = Readiness()
     errors.install(app)
-    for module in (meshes, queries, ops):  # each router carries its full prefix (route templates
-        app.include_router(module.router)  # in metrics) and the token check of its /v1 routes
+    for module in (meshes, queries):  # each router carries its full prefix (route templates
+        app.include_router(  # in metrics) and the token check of its /v1 routes
+            module.router, dependencies=[Depends(require_ready)], responses=openapi.errors(503)
+        )
+    app.include_router(ops.router)
+    app.mount("/static/swagger-ui", StaticFiles(directory=str(SWAGGER_UI)), name="swagger-ui")
+
+    @app.get("/docs", include_in_schema=False)
+    async def docs() -> HTMLResponse:
+        return get_swagger_ui_html(
+            openapi_url=app.openapi_url,
+            title=f"{app.title} - Swagger UI",
+            swagger_js_url="/static/swagger-ui/swagger-ui-bundle.js",
+            swagger_css_url="/static/swagger-ui/swagger-ui.css",
+            swagger_favicon_url="/static/swagger-ui/favicon-32x32.png",
+        )
+
     app.add_middleware(errors.CatchAll)  # inside the metrics, so that they count its 500s
     app.add_middleware(MetricsMiddleware, metrics=metrics)
     return app
 
 
-def warm_up(readiness: Readiness) -> None:
-    """Compile the engine's kernels (a minute the first time, then from Numba's cache)."""
-    start = time.perf_counter()
+def open_data_dir(settings: Settings) -> DataDir | None:
+    """The data folder of DACRT_DATA_DIR (created if needed); an unusable one ends the process
+    with one line."""
+    if settings.data_dir is None:
+        return None
     try:
-        tracing.warmup()
+        return DataDir(settings.data_dir.expanduser())
+    except OSError as exc:
+        raise SystemExit(
+            f"dacrt-service: DACRT_DATA_DIR={str(settings.data_dir)!r}: {exc}"
+        ) from None
+
+
+def warm_up(readiness: Readiness, threads: int | None = None) -> None:
+    """Compile every kernel a request can reach (1-3 minutes the first time, then seconds from
+    Numba's cache)."""
+    log.info("warm-up: compiled kernels are cached in %s", CACHE_DIR)
+    try:
+        seconds = warmup.warm_up(threads)
     except Exception as exc:  # report through /health rather than die in a thread
         log.exception("engine warm-up failed")
         readiness.error, readiness.status = f"{type(exc).__name__}: {exc}", "error"
         return
-    readiness.seconds, readiness.status = time.perf_counter() - start, "ok"
+    readiness.seconds, readiness.status = seconds, "ok"
     log.info("engine ready after %.1f s", readiness.seconds)
 
 
+def restore(store: Store, journal: DataDir) -> None:
+    """Serve the scenes saved in the data folder, at their versions."""
+    start = time.perf_counter()
+    restored = journal.restore()
+    store.restore(restored.snapshots, restored.last_versions)
+    log.info(
+        "data: restored %d scenes (%d triangles) from %s in %.1f s",
+        len(restored.snapshots),
+        sum(s.n_triangles for s in restored.snapshots),
+        journal.root,
+        time.perf_counter() - start,
+    )
+
+
 def load_demo(store: Store, settings: Settings) -> None:
-    """Put the demo scene's mesh (named after its file) into scene ``settings.demo_name``."""
-    path = settings.demo_path()
-    if path is None:
-        log.warning("no demo scene found (looked for scenes/teapot.npz); set DACRT_DEMO_SCENE")
+    """Put the demo scene's mesh (named after its file) into scene ``settings.demo_name``,
+    unless that scene was restored from the data folder."""
+    try:
+        path = settings.demo_path()
+    except FileNotFoundError as exc:
+        log.warning("no demo scene: %s; set DACRT_DEMO_SCENE to an .npz", exc)
         return
-    with np.load(Path(path), allow_pickle=False) as archive:
+    if settings.demo_name in {s.scene for s in store.snapshots()}:
+        log.info("demo scene %r: kept as restored from the data folder", settings.demo_name)
+        return
+    with np.load(path, allow_pickle=False) as archive:
         arrays = wire.mesh_arrays(archive["vertices"], archive["faces"])
-    store.put_mesh(settings.demo_name, Path(path).stem, arrays)
+    store.put_mesh(settings.demo_name, path.stem, arrays)
     log.info("demo scene %r: %s (%d triangles)", settings.demo_name, path, len(arrays.faces))

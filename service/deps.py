@@ -12,7 +12,7 @@ from fastapi import Depends, Request
 from fastapi.routing import APIRoute
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from .errors import Invalid, TooLarge, Unauthorized
+from .errors import Invalid, NotReady, TooLarge, Unauthorized
 from .metrics import Metrics
 from .settings import Settings
 from .store import Store
@@ -21,8 +21,8 @@ from .wire.body import BodyBuffer
 
 @dataclass
 class Readiness:
-    """Engine warm-up state: ``starting`` until ``dacrt.warmup()`` returns, then ``ok`` (or
-    ``error``)."""
+    """Warm-up state: ``starting`` until every kernel a request reaches is compiled
+    (``service.warmup``), then ``ok`` (or ``error``)."""
 
     status: str = "starting"
     seconds: float | None = None
@@ -50,6 +50,15 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 StoreDep = Annotated[Store, Depends(get_store)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
 ReadinessDep = Annotated[Readiness, Depends(get_readiness)]
+
+
+def require_ready(ready: ReadinessDep) -> None:
+    """Dependency of the scene and query routes: 503 with Retry-After while the kernels compile,
+    rather than a request that waits minutes for the compiler."""
+    if ready.status == "starting":
+        raise NotReady("the engine is compiling its kernels (GET /health says when it is ready)")
+    if ready.status == "error":
+        raise NotReady(f"the engine failed to compile: {ready.error}; see the server's log")
 
 
 #: Declares the bearer scheme in the OpenAPI document; ``require_token`` words the refusals.

@@ -16,6 +16,8 @@ log = logging.getLogger("service")
 class ServiceError(Exception):
     """A request the service refuses; ``detail`` is the message the client reads."""
 
+    headers: dict[str, str] | None = None  #: sent with the answer
+
     def __init__(self, detail: str) -> None:
         super().__init__(detail)
         self.detail = detail
@@ -27,6 +29,8 @@ class BadBody(ServiceError):
 
 class Unauthorized(ServiceError):
     """A token is configured and the request lacks it or has a wrong one."""
+
+    headers = {"WWW-Authenticate": "Bearer"}
 
 
 class NotFound(ServiceError):
@@ -59,6 +63,10 @@ class Invalid(ServiceError):
 
 class NotReady(ServiceError):
     """The engine is not compiled yet."""
+
+    headers = {
+        "Retry-After": "5"
+    }  #: seconds; the first compile takes minutes, a cached one seconds
 
 
 class TooManyConnections(ServiceError):
@@ -101,8 +109,7 @@ def install(app) -> None:
     from starlette.requests import ClientDisconnect
 
     async def on_service_error(request, exc: ServiceError):
-        headers = {"WWW-Authenticate": "Bearer"} if isinstance(exc, Unauthorized) else None
-        return JSONResponse({"detail": exc.detail}, status_code=status_of(exc), headers=headers)
+        return JSONResponse({"detail": exc.detail}, status_code=status_of(exc), headers=exc.headers)
 
     async def on_http_error(request, exc: HTTPException):
         return JSONResponse(

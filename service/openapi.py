@@ -60,6 +60,32 @@ ERROR = {
     "properties": {"detail": {"type": "string", "description": "what is wrong, for a person"}},
 }
 
+_BOUNDS = {"type": "array", "items": _POINTS["items"], "minItems": 2, "maxItems": 2}
+MESH_INFO = {
+    "type": "object",
+    "required": ["scene", "mesh", "index", "vertices", "triangles", "bounds", "version"],
+    "properties": {
+        "scene": {"type": "string"},
+        "mesh": {"type": "string"},
+        "index": {"type": "integer", "description": "the mesh's number in hit results"},
+        "vertices": {"type": "integer"},
+        "triangles": {"type": "integer"},
+        "bounds": {**_BOUNDS, "description": "[[min x, y, z], [max x, y, z]]"},
+        "version": {"type": "integer", "description": "scene version of the mesh's last change"},
+    },
+}
+HEALTH = {
+    "type": "object",
+    "required": ["status", "service", "scenes"],
+    "properties": {
+        "status": {"type": "string", "enum": ["starting", "ok", "error"]},
+        "service": {"type": "string", "description": "the service's version"},
+        "scenes": {"type": "integer"},
+        "warmup_seconds": {"type": "number"},
+        "detail": {"type": "string", "description": "why the warm-up failed"},
+    },
+}
+
 #: The error statuses a route may answer besides its own, with when (API.md's table).
 ERROR_STATUSES = {
     400: "the body cannot be parsed",
@@ -71,6 +97,7 @@ ERROR_STATUSES = {
     413: "over a configured limit",
     415: "unsupported Content-Type",
     422: "invalid values or parameters",
+    503: "the engine is still compiling (Retry-After says when to try again)",
 }
 
 
@@ -94,6 +121,11 @@ def errors(*statuses: int) -> dict[int | str, dict[str, Any]]:
         }
         for status in statuses
     }
+
+
+def json_answer(description: str, schema: dict[str, Any]) -> dict[str, Any]:
+    """A ``responses`` entry of a JSON answer with ``schema``."""
+    return {"description": description, "content": {"application/json": {"schema": schema}}}
 
 
 def answers(description: str) -> dict[int | str, dict[str, Any]]:

@@ -14,7 +14,7 @@ import difflib
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import ByteSize, Field, PositiveInt, SecretStr, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -26,12 +26,9 @@ Seconds = Annotated[float, Field(gt=0)]
 
 PREFIX = "DACRT_"
 
-#: Where the demo scene is looked for when ``demo_scene`` is not set: the working directory,
-#: then the source checkout this package was imported from.
-DEMO_CANDIDATES = (
-    Path("scenes") / "teapot.npz",
-    Path(__file__).resolve().parent.parent / "scenes" / "teapot.npz",
-)
+#: The demo scene shipped inside the package (package data).
+PACKAGED_DEMO = Path(__file__).resolve().parent / "data" / "teapot.npz"
+LOG_LEVELS = ("critical", "error", "warning", "info", "debug")
 
 
 class Settings(BaseSettings):
@@ -48,24 +45,40 @@ class Settings(BaseSettings):
     max_triangles_per_scene: PositiveInt = 32 * MiB  #: most triangles in one scene
     max_scene_bytes: Bytes = 4 * GiB  #: total bytes of vertices and faces over all scenes
     threads: int | None = Field(None, gt=0)  #: engine threads per query (None: every core)
-    #: .npz (vertices, faces) for the demo scene; None: scenes/teapot.npz
+    #: .npz (vertices, faces) for the demo scene; None: the teapot shipped with the package
     demo_scene: Path | None = None
     demo_name: str = "demo"  #: name of the demo scene
     load_demo: bool = False  #: load the demo scene at start (``python -m service`` turns it on)
     header_timeout: Seconds = 10  #: seconds a connection has to send a request's headers
     body_timeout: Seconds = 600  #: seconds a request has to send its whole body
     max_connections: PositiveInt = 100  #: open connections; more are answered 503
+    #: folder where every scene change is made durable before it is acknowledged; None: memory only
+    data_dir: Path | None = None
+    #: file holding the bearer token (instead of DACRT_TOKEN); read by ``load_settings``
+    token_file: Path | None = None
+    #: Numba's compiled kernels (read by ``service.cache`` before the engine is imported)
+    cache_dir: Path | None = None
+    log_level: Literal[LOG_LEVELS] = "info"  #: the service's and uvicorn's log level
 
     @field_validator("token", mode="before")
     @classmethod
     def _empty_token_is_none(cls, value: object) -> object:
         return None if value in ("", None) else value
 
-    def demo_path(self) -> Path | None:
-        """The demo scene file to load, or None if no candidate exists."""
-        if self.demo_scene is not None:
-            return self.demo_scene
-        return next((p for p in DEMO_CANDIDATES if p.is_file()), None)
+    @field_validator("log_level", mode="before")
+    @classmethod
+    def _lower_case_level(cls, value: object) -> object:
+        return value.lower() if isinstance(value, str) else value
+
+    def demo_path(self) -> Path:
+        """The demo scene file to load: DACRT_DEMO_SCENE (relative to the working directory) or
+        the packaged teapot; FileNotFoundError saying where it looked."""
+        path = PACKAGED_DEMO if self.demo_scene is None else self.demo_scene.expanduser()
+        resolved = path.resolve()
+        if not resolved.is_file():
+            where = "DACRT_DEMO_SCENE" if self.demo_scene is not None else "the package data"
+            raise FileNotFoundError(f"no demo scene at {resolved} (from {where})")
+        return resolved
 
     def limits(self) -> dict[str, int]:
         """The limits in force, as shown by /v1/capabilities."""
@@ -115,9 +128,25 @@ def load_settings(**overrides: object) -> Settings:
     """Settings from the environment (and ``overrides``), or SettingsError naming the variable."""
     check_names(os.environ)
     try:
-        return Settings(**overrides)
+        settings = Settings(**overrides)
     except ValidationError as error:
         raise SettingsError(describe(error)) from None
+    if settings.token_file is None:
+        return settings
+    if settings.token is not None:
+        raise SettingsError("set DACRT_TOKEN or DACRT_TOKEN_FILE, not both")
+    return settings.model_copy(update={"token": read_token(settings.token_file)})
+
+
+def read_token(path: Path) -> SecretStr:
+    """The token in ``path`` (surrounding whitespace removed); SettingsError if unusable."""
+    try:
+        token = path.expanduser().read_text().strip()
+    except (OSError, UnicodeDecodeError) as error:
+        raise SettingsError(f"DACRT_TOKEN_FILE={str(path)!r}: cannot read it ({error})") from None
+    if not token:
+        raise SettingsError(f"DACRT_TOKEN_FILE={str(path)!r} is empty")
+    return SecretStr(token)
 
 
 def load_settings_or_exit(**overrides: object) -> Settings:

@@ -4,6 +4,7 @@ A scene's whole state is one frozen ``Snapshot``; a change builds a new snapshot
 lock and swaps it in with one assignment, so a reader that took a snapshot keeps one consistent
 version however many changes follow. Arrays are owned by the store and read-only. Every change
 checks the limits and the request first and swaps last: a rejected change leaves nothing behind.
+With a journal (``persistence.DataDir``), a version is durable before it is swapped in.
 """
 
 from __future__ import annotations
@@ -13,12 +14,15 @@ import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .errors import Conflict, Invalid, NotFound, TooLarge
 from .wire import MeshArrays, json_ready
+
+if TYPE_CHECKING:
+    from .persistence import DataDir
 
 NAME = re.compile(r"[A-Za-z0-9_.\-]{1,64}")
 
@@ -150,9 +154,12 @@ class Snapshot:
 class Store:
     """All scenes of the service, with the limits on their size."""
 
-    def __init__(self, max_triangles_per_scene: int, max_scene_bytes: int) -> None:
+    def __init__(
+        self, max_triangles_per_scene: int, max_scene_bytes: int, journal: DataDir | None = None
+    ) -> None:
         self.max_triangles_per_scene = max_triangles_per_scene
         self.max_scene_bytes = max_scene_bytes
+        self.journal = journal  #: where each version is made durable before it is served
         self._scenes: dict[str, Snapshot] = {}
         self._last_version: dict[str, int] = {}  # kept after a delete: versions never go back
         self._nbytes = 0
@@ -222,9 +229,21 @@ class Store:
                     meshes[name] = self._moved(old.mesh(name), vertices, scene)
             return self._commit(scene, old, meshes)
 
+    def restore(self, snapshots: list[Snapshot], last_versions: Mapping[str, int]) -> None:
+        """Serve ``snapshots`` (read back from the journal) and continue after ``last_versions``
+        (limits are not checked: the scenes were accepted when they were made)."""
+        with self._lock:
+            for snapshot in snapshots:
+                self._nbytes += snapshot.nbytes - self._scenes.get(snapshot.scene, snapshot).nbytes
+                self._scenes[snapshot.scene] = snapshot
+            for scene, version in last_versions.items():
+                self._last_version[scene] = max(version, self._last_version.get(scene, 0))
+
     def delete_scene(self, scene: str) -> None:
         with self._lock:
             old = self.snapshot(scene)
+            if self.journal is not None:
+                self.journal.delete(scene, self._last_version[scene])
             del self._scenes[scene]
             self._nbytes -= old.nbytes
 
@@ -251,7 +270,7 @@ class Store:
         self, scene: str, old: Snapshot | None, changes: Mapping[str, Mesh | None]
     ) -> Snapshot:
         """Check limits, then swap in the next version with ``changes`` (None deletes a mesh)."""
-        version = (old.version if old else self._last_version.get(scene, 0)) + 1
+        version = self._last_version.get(scene, 0) + 1
         meshes = dict(old.meshes) if old else {}
         next_index = old.next_index if old else 0
         for name, mesh in changes.items():
@@ -276,6 +295,9 @@ class Store:
                 f"scenes would hold {nbytes} bytes of vertices and faces, over the limit "
                 f"of {self.max_scene_bytes} bytes (DACRT_MAX_SCENE_BYTES)"
             )
+        if self.journal is not None:
+            self._last_version[scene] = version  # a failed write still uses up its version
+            self.journal.write(snapshot)
         self._scenes[scene] = snapshot
         self._last_version[scene] = version
         self._nbytes = nbytes

@@ -39,7 +39,11 @@ READ_ERRORS = openapi.errors(401, 404, 422)
     "/{scene}/meshes/{mesh}",
     openapi_extra=MESH_BODY,
     status_code=200,
-    responses={201: {"description": "a new mesh: its info"}, **CHANGE_ERRORS},
+    responses={
+        200: openapi.json_answer("a replaced mesh: its info", openapi.MESH_INFO),
+        201: openapi.json_answer("a new mesh: its info", openapi.MESH_INFO),
+        **CHANGE_ERRORS,
+    },
 )
 async def put_mesh(
     scene: SceneName,

@@ -1,10 +1,12 @@
-"""Operations: /health, /metrics (no token), /v1/capabilities."""
+"""Operations: the start page /, /health, /metrics (no token), /v1/capabilities."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Response
-from fastapi.responses import JSONResponse, PlainTextResponse
+from fastapi.responses import HTMLResponse, JSONResponse, PlainTextResponse
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+
+from dacrt.chunks import N_CORES
 
 from .. import __version__, openapi, tracing, wire
 from ..deps import (
@@ -19,11 +21,36 @@ from ..deps import (
 router = APIRouter(tags=["operations"])
 unauthenticated = [Depends(reject_unknown_query)]
 
+START_PAGE = f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>dacrt {__version__}</title></head>
+<body><h1>dacrt ray-casting service {__version__}</h1>
+<p>Scenes of triangle meshes, queried with batches of rays over HTTP.</p>
+<ul><li><a href="/docs">/docs</a>: the API, to read and try (OpenAPI at
+<a href="/openapi.json">/openapi.json</a>)</li>
+<li><a href="/health">/health</a>: readiness</li>
+<li><a href="/metrics">/metrics</a>: Prometheus metrics</li></ul></body></html>
+"""
+
+
+@router.get(
+    "/",
+    dependencies=unauthenticated,
+    response_class=HTMLResponse,
+    responses={200: {"description": "a page linking to /docs", "content": {"text/html": {}}}},
+)
+async def start_page() -> HTMLResponse:
+    return HTMLResponse(START_PAGE)
+
 
 @router.get(
     "/health",
     dependencies=unauthenticated,
-    responses={503: {"description": "the engine is compiling (starting) or failed to (error)"}},
+    responses={
+        200: openapi.json_answer("every kernel a request reaches is compiled", openapi.HEALTH),
+        503: openapi.json_answer(
+            "the kernels are compiling (starting) or failed to (error)", openapi.HEALTH
+        ),
+    },
 )
 async def health(ready: ReadinessDep, store: StoreDep) -> JSONResponse:
     # one string, so that the OpenAPI description stays one line
@@ -47,7 +74,12 @@ async def health(ready: ReadinessDep, store: StoreDep) -> JSONResponse:
     "/metrics",
     dependencies=unauthenticated,
     response_class=PlainTextResponse,
-    responses={200: {"description": "Prometheus text format"}},
+    responses={
+        200: {
+            "description": "Prometheus text format",
+            "content": {"text/plain": {"schema": {"type": "string"}}},
+        }
+    },
 )
 async def metrics(metrics: MetricsDep) -> Response:
     return Response(generate_latest(metrics.registry), media_type=CONTENT_TYPE_LATEST)
@@ -81,5 +113,5 @@ async def capabilities(settings: SettingsDep) -> dict:
         },
         "limits": settings.limits(),
         "auth": settings.token is not None,
-        "threads": settings.threads,
+        "threads": settings.threads or N_CORES,
     }

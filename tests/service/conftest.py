@@ -25,7 +25,7 @@ from service.settings import Settings
 
 @pytest.fixture(scope="session")
 def teapot() -> tuple[np.ndarray, np.ndarray]:
-    with np.load(REPO / "scenes" / "teapot.npz") as archive:
+    with np.load(REPO / "service" / "data" / "teapot.npz") as archive:
         return archive["vertices"], archive["faces"]
 
 

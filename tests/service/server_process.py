@@ -17,10 +17,10 @@ STARTUP_SECONDS = 180
 
 
 class ServerProcess:
-    """``python -m service`` (what users run) on a free loopback port, without the demo scene
-    unless ``env`` asks for it."""
+    """``python -m service`` (what users run; or ``python -m COMMAND...``, where ``{port}`` stands
+    for the port) on a free loopback port, without the demo scene unless ``env`` asks for it."""
 
-    def __init__(self, env: dict[str, str]) -> None:
+    def __init__(self, env: dict[str, str], command: list[str] | None = None) -> None:
         with socket.socket() as probe:
             probe.bind(("127.0.0.1", 0))
             self.port = probe.getsockname()[1]
@@ -35,7 +35,11 @@ class ServerProcess:
             "DACRT_LOAD_DEMO": "false",
         }
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "service"],
+            [
+                sys.executable,
+                "-m",
+                *(part.format(port=self.port) for part in command or ["service"]),
+            ],
             cwd=REPO,
             env={**inherited, "PYTHONPATH": pythonpath, **where, **env},
             stdout=self.log,
@@ -60,6 +64,11 @@ class ServerProcess:
                 pass
             time.sleep(0.25)
         pytest.fail(f"server not ready after {STARTUP_SECONDS} s:\n{self.output()}")
+
+    def kill(self) -> None:
+        """SIGKILL: the server gets no chance to finish anything."""
+        self.process.kill()
+        self.process.wait()
 
     def stop(self) -> None:
         self.process.terminate()

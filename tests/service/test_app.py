@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+import os
+import re
+
 import anyio
 import httpx
 import pytest
+from server_process import ServerProcess
+from service_helpers import quad
 
 from service import app as app_module
 from service.app import create_app, load_demo, warm_up
 from service.settings import Settings
 from service.store import Store
+from service.wire import MeshArrays
 
 
 def plain() -> Settings:
@@ -30,18 +36,18 @@ def test_health_is_503_starting_until_warm_up_returns(monkeypatch):
     app = create_app(plain())
     response = get(app, "/health")
     assert response.status_code == 503 and response.json()["status"] == "starting"
-    monkeypatch.setattr(app_module.tracing, "warmup", lambda: 0.0)
+    monkeypatch.setattr(app_module.warmup, "warm_up", lambda threads: 0.0)
     warm_up(app.state.readiness)
     response = get(app, "/health")
     assert response.status_code == 200 and response.json()["status"] == "ok"
 
 
 def test_failed_warm_up_is_reported_by_health(monkeypatch, caplog):
-    def broken():
+    def broken(threads):
         raise RuntimeError("no compiler")
 
     app = create_app(plain())
-    monkeypatch.setattr(app_module.tracing, "warmup", broken)
+    monkeypatch.setattr(app_module.warmup, "warm_up", broken)
     warm_up(app.state.readiness)
     body = get(app, "/health").json()
     assert body["status"] == "error" and "no compiler" in body["detail"]
@@ -56,5 +62,54 @@ def test_demo_scene_is_loaded_from_scenes():
 
 @pytest.mark.parametrize("path, status", [("/nowhere", 404), ("/v1/scenes/x", 404)])
 def test_errors_are_json_detail_strings(path, status):
-    response = get(create_app(plain()), path)
+    app = create_app(plain())
+    app.state.readiness.status = "ok"
+    response = get(app, path)
     assert response.status_code == status and isinstance(response.json()["detail"], str)
+
+
+def test_a_restored_demo_scene_is_kept(tmp_path):
+    store = Store(2**30, 2**40)
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    store.put_mesh("demo", "mine", MeshArrays(vertices, faces))
+    load_demo(store, Settings(load_demo=True))
+    assert list(store.snapshot("demo").meshes) == ["mine"]
+
+
+def test_the_start_page_links_to_the_docs():
+    response = get(create_app(plain()), "/")
+    assert response.status_code == 200 and response.headers["content-type"].startswith("text/html")
+    assert 'href="/docs"' in response.text
+
+
+def test_docs_are_served_without_the_network():
+    app = create_app(plain())
+    page = get(app, "/docs").text
+    assets = re.findall(r"(?:src|href)=['\"]([^'\"]+)['\"]", page)
+    assert assets and all(url.startswith("/static/") for url in assets), assets
+    for url in assets:
+        response = get(app, url)
+        assert response.status_code == 200 and len(response.content) > 100, url
+
+
+def test_capabilities_show_the_thread_count():
+    app = create_app(plain())
+    assert get(app, "/v1/capabilities").json()["threads"] == os.cpu_count()
+    app = create_app(Settings(token=None, load_demo=False, threads=3))
+    assert get(app, "/v1/capabilities").json()["threads"] == 3
+
+
+def test_the_factory_logs_as_python_m_service_does():
+    """Under ``uvicorn --factory`` only uvicorn's loggers have handlers of their own."""
+    server = ServerProcess(
+        {"DACRT_LOAD_DEMO": "true"},
+        command=["uvicorn", "service.app:create_app", "--factory", "--port", "{port}"],
+    )
+    try:
+        server.wait_ready()
+        output = server.output()
+    finally:
+        server.stop()
+    assert "INFO:     service: demo scene 'demo'" in output
+    assert "INFO:     service: engine ready after" in output
+    assert "INFO:     service: warm-up: compiling the engine's kernels" in output

@@ -6,11 +6,15 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from pathlib import Path
 
+import httpx
 import pytest
 from pydantic import ValidationError
+from server_process import ServerProcess
 from service_helpers import REPO
 
+import service
 from service.settings import (
     MiB,
     Settings,
@@ -87,10 +91,18 @@ def test_bad_values_are_refused(field, value):
         Settings(**{field: value})
 
 
-def test_demo_scene_is_found_in_the_checkout(monkeypatch, tmp_path):
+def test_demo_scene_is_package_data(monkeypatch, tmp_path):
     monkeypatch.delenv("DACRT_DEMO_SCENE", raising=False)
-    monkeypatch.chdir(tmp_path)  # not in the working directory: found next to the package
-    assert Settings().demo_path().name == "teapot.npz"
+    monkeypatch.chdir(tmp_path)  # whatever the working directory: found in the package
+    assert Settings().demo_path() == Path(service.__file__).parent / "data" / "teapot.npz"
+
+
+def test_a_relative_demo_scene_is_resolved_and_a_missing_one_says_where(monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.npz").write_bytes(b"")
+    assert Settings(demo_scene="mine.npz").demo_path() == tmp_path / "mine.npz"
+    with pytest.raises(FileNotFoundError, match=f"no demo scene at {tmp_path / 'nope.npz'}"):
+        Settings(demo_scene="nope.npz").demo_path()
 
 
 @pytest.fixture
@@ -183,3 +195,62 @@ def test_the_server_refuses_to_start(launcher, variable, value, message):
     assert done.returncode != 0
     assert output.splitlines() == [output] and "Traceback" not in output
     assert output.startswith("dacrt-service: " + message), output
+
+
+def test_the_token_can_come_from_a_file(environ, tmp_path):
+    (tmp_path / "token").write_text("s3cret\n")
+    environ(DACRT_TOKEN_FILE=str(tmp_path / "token"))
+    assert load_settings().token.get_secret_value() == "s3cret"
+    environ(DACRT_TOKEN="other")
+    with pytest.raises(SettingsError, match="not both"):
+        load_settings()
+
+
+@pytest.mark.parametrize("content", [None, "  \n"], ids=["missing", "empty"])
+def test_an_unusable_token_file_is_refused(environ, tmp_path, content):
+    if content is not None:
+        (tmp_path / "token").write_text(content)
+    environ(DACRT_TOKEN_FILE=str(tmp_path / "token"))
+    with pytest.raises(SettingsError, match="DACRT_TOKEN_FILE="):
+        load_settings()
+
+
+def test_help_lists_every_option_and_starts_nothing():
+    done = subprocess.run(
+        [sys.executable, "-m", "service", "--help"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0 and done.stdout.startswith("usage: dacrt-service")
+    for option in ("--host", "--port", "--data-dir", "--token-file", "--threads", "--log-level"):
+        assert option in done.stdout
+
+
+def test_options_of_the_command_line_set_the_server(tmp_path):
+    (tmp_path / "token").write_text("from-a-file")
+    options = ["--data-dir", str(tmp_path / "data"), "--token-file", str(tmp_path / "token")]
+    server = ServerProcess(
+        {"DACRT_LOG_LEVEL": "info"},
+        command=[
+            "service",
+            "--port",
+            "{port}",
+            "--log-level",
+            "warning",
+            "--threads",
+            "1",
+            *options,
+        ],
+    )
+    try:
+        url = server.wait_ready()
+        assert httpx.get(f"{url}/v1/scenes").status_code == 401
+        headers = {"Authorization": "Bearer from-a-file"}
+        capabilities = httpx.get(f"{url}/v1/capabilities", headers=headers).json()
+        assert capabilities["threads"] == 1
+        assert (tmp_path / "data" / "scenes").is_dir()
+        assert "INFO:     service:" not in server.output()
+    finally:
+        server.stop()

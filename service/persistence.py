@@ -1,0 +1,281 @@
+"""Durable scenes: every committed scene version written to DACRT_DATA_DIR before it is
+acknowledged, and read back on start.
+
+Layout, one folder per scene (scene names are safe file names)::
+
+    DATA_DIR/scenes/SCENE/scene.VERSION.json         the manifest: the commit point of a version
+    DATA_DIR/scenes/SCENE/INDEX.VERSION.vertices.npy (V, 3) float32, written at VERSION
+    DATA_DIR/scenes/SCENE/INDEX.VERSION.faces.npy    (F, 3) int32, written at VERSION
+
+Every file is written to ``NAME.tmp``, fsynced, renamed to ``NAME``, and its folder fsynced. A
+version's arrays are durable before its manifest is written, so a manifest only names complete
+files; a change writes only the arrays it changes (a vertices update: one ``.npy`` and the
+manifest, never the faces). The newest manifest's number is the scene's last version, even when
+its content cannot be read, so versions are never reused; a deleted scene keeps a manifest
+``{"deleted": true}`` for that reason. A manifest names each array's shape and CRC-32: a
+truncated or corrupted file is reported in the log and its scene skipped, never loaded.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+try:
+    from isal.isal_zlib import crc32
+except ImportError:  # pragma: no cover - isal is a dependency; zlib gives the same checksums
+    from zlib import crc32
+
+from .store import Mesh, Snapshot, referenced_bounds
+
+log = logging.getLogger("service")
+
+MANIFEST = re.compile(r"scene\.([0-9]+)\.json")
+TEMPORARY = ".tmp"
+FORMAT = 1  #: the manifest format this module writes and reads
+
+
+@dataclass(frozen=True)
+class ArrayFile:
+    """One array's file, as its manifest names it."""
+
+    name: str
+    shape: tuple[int, ...]
+    crc32: int
+
+
+class CorruptScene(Exception):
+    """A scene's files cannot be read back as the manifest describes them."""
+
+
+@dataclass(frozen=True)
+class Restored:
+    """What a data folder holds: the scenes to serve and every scene's last version."""
+
+    snapshots: list[Snapshot]
+    last_versions: dict[str, int]
+
+
+def write_file(path: Path, write) -> None:
+    """``write(file)`` into ``path`` atomically: a temporary file, fsync, rename (the folder is
+    fsynced by the caller, once for all the files of a change)."""
+    temporary = path.with_name(path.name + TEMPORARY)
+    with open(temporary, "wb") as file:
+        write(file)
+        file.flush()
+        os.fsync(file.fileno())
+    os.replace(temporary, path)
+
+
+def sync_folder(folder: Path) -> None:
+    """Make the folder's entries (new names, renames) durable."""
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def checksum(array: np.ndarray) -> int:
+    return crc32(memoryview(np.ascontiguousarray(array)).cast("B"))
+
+
+class DataDir:
+    """The scenes' files under ``root``. Changes are called by the store under its lock."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+        self.scenes = self.root / "scenes"
+        self.scenes.mkdir(parents=True, exist_ok=True)
+        sync_folder(self.root)
+        #: scene -> mesh name -> (vertices file, faces file) of the current version
+        self._files: dict[str, dict[str, tuple[ArrayFile, ArrayFile]]] = {}
+        self._current: dict[str, Snapshot] = {}  #: the snapshot each scene's files hold
+
+    # ---- writing
+
+    def write(self, snapshot: Snapshot) -> None:
+        """Make ``snapshot`` durable: its new arrays, then its manifest (the commit point)."""
+        folder = self._folder(snapshot.scene)
+        old = self._current.get(snapshot.scene)
+        old_files = self._files.get(snapshot.scene, {})
+        files: dict[str, tuple[ArrayFile, ArrayFile]] = {}
+        for name, mesh in snapshot.meshes.items():
+            before = old.meshes.get(name) if old is not None else None
+            kept = old_files.get(name)
+            if before is None or kept is None:
+                vertices_file = faces_file = None
+            else:
+                vertices_file = kept[0] if before.vertices is mesh.vertices else None
+                faces_file = kept[1] if before.faces is mesh.faces else None
+            files[name] = (
+                vertices_file or self._write_array(folder, mesh, "vertices", snapshot.version),
+                faces_file or self._write_array(folder, mesh, "faces", snapshot.version),
+            )
+        sync_folder(folder)  # the arrays' names are durable before a manifest names them
+        self._write_manifest(folder, snapshot.version, self._manifest(snapshot, files))
+        self._forget(folder, old_files, files, old, snapshot.version)
+        self._files[snapshot.scene], self._current[snapshot.scene] = files, snapshot
+
+    def delete(self, scene: str, version: int) -> None:
+        """Mark ``scene`` deleted at ``version`` (its last), then remove its arrays."""
+        folder = self._folder(scene)
+        record = {"format": FORMAT, "scene": scene, "version": version, "deleted": True}
+        self._write_manifest(folder, version, record)
+        old_files = self._files.pop(scene, {})
+        old = self._current.pop(scene, None)
+        self._forget(folder, old_files, {}, old, version)
+
+    def _folder(self, scene: str) -> Path:
+        folder = self.scenes / scene
+        if not folder.is_dir():
+            folder.mkdir()
+            sync_folder(self.scenes)
+        return folder
+
+    @staticmethod
+    def _write_array(folder: Path, mesh: Mesh, kind: str, version: int) -> ArrayFile:
+        name = f"{mesh.index}.{version}.{kind}.npy"
+        array = getattr(mesh, kind)
+        write_file(folder / name, lambda file: np.save(file, array, allow_pickle=False))
+        return ArrayFile(name, array.shape, checksum(array))
+
+    @staticmethod
+    def _manifest(snapshot: Snapshot, files: dict[str, tuple[ArrayFile, ArrayFile]]) -> dict:
+        def array(file: ArrayFile) -> dict[str, Any]:
+            return {"file": file.name, "shape": list(file.shape), "crc32": file.crc32}
+
+        return {
+            "format": FORMAT,
+            "scene": snapshot.scene,
+            "version": snapshot.version,
+            "next_index": snapshot.next_index,
+            "meshes": [
+                {
+                    "name": mesh.name,
+                    "index": mesh.index,
+                    "version": mesh.version,
+                    "vertices": array(files[mesh.name][0]),
+                    "faces": array(files[mesh.name][1]),
+                }
+                for mesh in snapshot.meshes.values()
+            ],
+        }
+
+    @staticmethod
+    def _write_manifest(folder: Path, version: int, record: dict[str, Any]) -> None:
+        text = json.dumps(record, separators=(",", ":")).encode()
+        write_file(folder / f"scene.{version}.json", lambda file: file.write(text))
+        sync_folder(folder)
+
+    @staticmethod
+    def _forget(folder: Path, old_files, new_files, old: Snapshot | None, version: int) -> None:
+        """Remove what the new manifest no longer names (a crash here leaves only orphans)."""
+        kept = {file.name for pair in new_files.values() for file in pair}
+        for name in {file.name for pair in old_files.values() for file in pair} - kept:
+            (folder / name).unlink(missing_ok=True)
+        if old is not None and old.version != version:
+            (folder / f"scene.{old.version}.json").unlink(missing_ok=True)
+
+    # ---- reading
+
+    def restore(self) -> Restored:
+        """Every scene's newest version; a scene whose files are damaged is logged and skipped."""
+        snapshots, last_versions = [], {}
+        for folder in sorted(p for p in self.scenes.iterdir() if p.is_dir()):
+            manifests = sorted(self._manifests(folder), reverse=True)
+            if not manifests:
+                continue
+            version, path = manifests[0]
+            last_versions[folder.name] = version
+            try:
+                snapshot, files = self._read_scene(folder, path, version)
+            except (CorruptScene, OSError, ValueError) as exc:
+                log.error("data: skipped scene %r (version %d): %s", folder.name, version, exc)
+                continue
+            self._clean(folder, path, files)
+            if snapshot is not None:
+                snapshots.append(snapshot)
+                self._files[folder.name], self._current[folder.name] = files, snapshot
+        return Restored(snapshots, last_versions)
+
+    @staticmethod
+    def _manifests(folder: Path) -> Iterator[tuple[int, Path]]:
+        for path in folder.iterdir():
+            match = MANIFEST.fullmatch(path.name)
+            if match:
+                yield int(match.group(1)), path
+
+    def _read_scene(
+        self, folder: Path, path: Path, version: int
+    ) -> tuple[Snapshot | None, dict[str, tuple[ArrayFile, ArrayFile]]]:
+        try:
+            record = json.loads(path.read_bytes())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise CorruptScene(f"{path.name} is not JSON ({exc})") from None
+        if not isinstance(record, dict) or record.get("format") != FORMAT:
+            raise CorruptScene(f"{path.name} is not a manifest of format {FORMAT}")
+        if record.get("version") != version or record.get("scene") != folder.name:
+            raise CorruptScene(f"{path.name} names another scene or version")
+        if record.get("deleted"):
+            return None, {}
+        try:
+            meshes, files = {}, {}
+            for item in record["meshes"]:
+                vertices = self._read_array(folder, item["vertices"], np.float32)
+                faces = self._read_array(folder, item["faces"], np.int32)
+                if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+                    raise CorruptScene(f"{item['faces']['file']} has indices out of range")
+                bounds = referenced_bounds(vertices, faces)
+                name, index, changed = item["name"], item["index"], item["version"]
+                meshes[name] = Mesh(name, index, vertices, faces, bounds, changed)
+                files[name] = (
+                    ArrayFile(item["vertices"]["file"], vertices.shape, item["vertices"]["crc32"]),
+                    ArrayFile(item["faces"]["file"], faces.shape, item["faces"]["crc32"]),
+                )
+            next_index = record["next_index"]
+        except (KeyError, TypeError) as exc:
+            raise CorruptScene(f"{path.name} lacks {exc}") from None
+        meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))
+        return Snapshot(folder.name, version, MappingProxyType(meshes), next_index), files
+
+    @staticmethod
+    def _read_array(folder: Path, item: dict[str, Any], dtype: type) -> np.ndarray:
+        path = folder / item["file"]
+        if path.parent != folder:
+            raise CorruptScene(f"{item['file']!r} is not a file of the scene")
+        try:
+            array = np.load(path, allow_pickle=False)
+        except (OSError, ValueError, EOFError) as exc:
+            raise CorruptScene(f"{path.name} cannot be read as .npy ({exc})") from None
+        if array.dtype != dtype or list(array.shape) != item["shape"]:
+            raise CorruptScene(
+                f"{path.name} holds {array.dtype} {array.shape}, not {np.dtype(dtype)} "
+                f"{tuple(item['shape'])}"
+            )
+        if checksum(array) != item["crc32"]:
+            raise CorruptScene(f"{path.name} fails its CRC-32 check")
+        array = np.ascontiguousarray(array)
+        array.setflags(write=False)
+        return array
+
+    @staticmethod
+    def _clean(folder: Path, manifest: Path, files: dict[str, tuple[ArrayFile, ArrayFile]]) -> None:
+        """Remove what a crash left: temporary files, older manifests, arrays nobody names."""
+        kept = {manifest.name} | {file.name for pair in files.values() for file in pair}
+        for path in folder.iterdir():
+            if path.name not in kept and (
+                path.name.endswith(TEMPORARY)
+                or path.name.endswith(".npy")
+                or MANIFEST.fullmatch(path.name)
+            ):
+                path.unlink(missing_ok=True)

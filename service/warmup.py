@@ -1,0 +1,165 @@
+"""The service's warm-up: compile every kernel a request can reach before /health says ok.
+
+``dacrt.warmup`` compiles the engine's queries for the arrays it makes itself; a request's arrays
+come from a body (read-only views, strided columns, JSON lists), which are other Numba
+signatures. So the warm-up then sends tiny bodies of every format through the functions the
+routes call (``wire`` decoders, a private ``Store``, ``tracing``, the answer encoders), and logs
+each group of kernels with the time it took.
+"""
+
+from __future__ import annotations
+
+import io
+import itertools
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+import numpy as np
+
+from . import tracing, wire
+from .store import Store
+
+log = logging.getLogger("service")
+
+#: Seconds between "still compiling" lines while one group compiles.
+PROGRESS_SECONDS = 15.0
+
+VERTICES = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
+FACES = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+RAYS = np.array(
+    [[0.25, 0.5, 1, 0, 0, -1, 0, 10], [5, 5, 1, 0, 0, -1, 0, 10]], np.float32
+)  #: a hit and a miss, with tmin and tmax
+
+
+@contextmanager
+def step(group: str) -> Iterator[None]:
+    """Log ``group``'s start, a line every PROGRESS_SECONDS while it runs, and its time."""
+    start, done = time.perf_counter(), threading.Event()
+
+    def report() -> None:
+        while not done.wait(PROGRESS_SECONDS):
+            log.info("warm-up: still compiling %s (%.0f s)", group, time.perf_counter() - start)
+
+    log.info("warm-up: compiling %s", group)
+    threading.Thread(target=report, name="dacrt-warmup-progress", daemon=True).start()
+    try:
+        yield
+    finally:
+        done.set()
+    log.info("warm-up: %s ready after %.1f s", group, time.perf_counter() - start)
+
+
+def warm_up(threads: int | None = None) -> float:
+    """Compile (or load from Numba's cache) every kernel; answers the seconds taken."""
+    start = time.perf_counter()
+    with step("the engine's kernels (dacrt.warmup)"):
+        tracing.warmup()
+    with step("mesh uploads, vertex updates and frames"):
+        store = warm_up_meshes()
+    with step("queries on every ray format"):
+        warm_up_queries(store, threads)
+    return time.perf_counter() - start
+
+
+def body(data: bytes) -> memoryview:
+    """A read-only body, as a request's."""
+    return memoryview(data).toreadonly()
+
+
+def npy(array: np.ndarray) -> memoryview:
+    out = io.BytesIO()
+    np.save(out, array, allow_pickle=False)
+    return body(out.getvalue())
+
+
+def npz(**arrays: np.ndarray) -> memoryview:
+    out = io.BytesIO()
+    np.savez(out, **arrays)
+    return body(out.getvalue())
+
+
+def as_json(**values: object) -> memoryview:
+    listed = {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in values.items()}
+    return body(json.dumps(listed).encode())
+
+
+def mesh_files() -> dict[str, bytes]:
+    """The quad as every mesh file format the service reads."""
+    import trimesh  # slow to import, as in ``wire.meshfile``
+
+    quad = trimesh.Trimesh(VERTICES, FACES, process=False)
+    files = {fmt: quad.export(file_type=fmt) for fmt in ("ply", "stl", "glb")}
+    files["obj"] = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n"
+    files["off"] = b"OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n"
+    return {fmt: data if isinstance(data, bytes) else data.encode() for fmt, data in files.items()}
+
+
+def warm_up_meshes() -> Store:
+    """Every mesh body format into a private store, a vertex update of each format and a frame."""
+    store = Store(2**20, 2**30)
+    bodies = {
+        "npz": npz(vertices=VERTICES, faces=FACES),
+        "json": as_json(vertices=VERTICES, faces=FACES),
+    }
+    bodies.update({fmt: body(data) for fmt, data in mesh_files().items()})
+    for fmt, data in bodies.items():
+        store.put_mesh("warm-up", fmt, wire.decode_mesh(data, fmt))
+    moved = VERTICES + np.float32(0.5)
+    vertex_bodies = {"npy": npy(moved), "npz": npz(vertices=moved), "json": as_json(vertices=moved)}
+    for fmt, data in vertex_bodies.items():
+        store.update_vertices("warm-up", "npz", wire.decode_vertices(data, fmt))
+    frames = {
+        "npz": npz(**{"npz.vertices": VERTICES, "new.vertices": VERTICES, "new.faces": FACES}),
+        "json": as_json(
+            **{"json.vertices": VERTICES, "new.vertices": VERTICES, "new.faces": FACES}
+        ),
+    }
+    for fmt, data in frames.items():
+        store.apply_frame("warm-up", wire.decode_frame(data, fmt))
+    return store
+
+
+def warm_up_queries(store: Store, threads: int | None) -> None:
+    """closest and occluded with every strategy, culling mode and with and without statistics on
+    rays of every format, and the one-shot trace."""
+    origins, directions, tmin, tmax = RAYS[:, 0:3], RAYS[:, 3:6], RAYS[:, 6], RAYS[:, 7]
+    ray_bodies = {
+        "npy": [npy(RAYS[:, :6]), npy(RAYS)],
+        "npz": [npz(origins=origins, directions=directions, tmin=tmin, tmax=tmax)],
+        "json": [
+            as_json(origins=origins, directions=directions),
+            as_json(origins=origins, directions=directions, tmin=0.0, tmax=tmax),
+        ],
+    }
+    snapshot = store.snapshot("warm-up")
+    for fmt, bodies in ray_bodies.items():
+        for data in bodies:
+            rays = wire.decode_rays(data, fmt)
+            for query, strategy, cull, stats in itertools.product(
+                tracing.Query, tracing.strategies(), tracing.CULL_MODES, (False, True)
+            ):
+                options = tracing.make_options(
+                    query, strategy=strategy, stats=stats, threads=threads, cull=cull
+                )
+                encode(tracing.trace(snapshot, rays, options).arrays)
+    trace_bodies = {
+        "npz": npz(vertices=VERTICES, faces=FACES, origins=origins, directions=directions),
+        "json": as_json(vertices=VERTICES, faces=FACES, origins=origins, directions=directions),
+    }
+    for fmt, data in trace_bodies.items():
+        mesh, rays = wire.decode_trace(data, fmt)
+        for query in tracing.Query:
+            options = tracing.make_options(query, threads=threads)
+            encode(tracing.trace_once(mesh, rays, options).arrays)
+
+
+def encode(arrays: dict[str, np.ndarray], consume: Callable[[object], object] = bytes) -> None:
+    """Each answer format, sent nowhere."""
+    for fmt in wire.ANSWER_FORMATS:
+        parts, _, _ = wire.encode_answer(arrays, fmt)
+        for part in parts:
+            consume(part)

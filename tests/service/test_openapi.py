@@ -1,0 +1,79 @@
+"""The OpenAPI document describes what the service reads and answers: bodies with their media
+types, answers, errors as ``{"detail": str}``, names, choices and the bearer scheme."""
+
+from __future__ import annotations
+
+import pytest
+
+from service import wire
+from service.app import create_app
+from service.settings import Settings
+
+DOCUMENT = create_app(Settings(token=None, load_demo=False)).openapi()
+OPERATIONS = [
+    (method.upper(), path, operation)
+    for path, methods in DOCUMENT["paths"].items()
+    for method, operation in methods.items()
+]
+BODIES = {
+    ("PUT", "/v1/scenes/{scene}/meshes/{mesh}"): wire.MESH_FORMATS,
+    ("PUT", "/v1/scenes/{scene}/meshes/{mesh}/vertices"): wire.VERTEX_FORMATS,
+    ("POST", "/v1/scenes/{scene}/frame"): wire.FRAME_FORMATS,
+    ("POST", "/v1/scenes/{scene}/closest"): wire.RAY_FORMATS,
+    ("POST", "/v1/scenes/{scene}/occluded"): wire.RAY_FORMATS,
+    ("POST", "/v1/trace"): wire.TRACE_FORMATS,
+}
+
+
+@pytest.mark.parametrize("method, path", list(BODIES))
+def test_each_body_is_declared_with_its_media_types(method, path):
+    body = DOCUMENT["paths"][path][method.lower()]["requestBody"]
+    assert body["required"] is True
+    assert set(body["content"]) == {wire.MEDIA_TYPES[fmt] for fmt in BODIES[method, path]}
+
+
+def test_no_other_operation_takes_a_body():
+    taking = {(m, p) for m, p, op in OPERATIONS if "requestBody" in op}
+    assert taking == set(BODIES)
+
+
+def test_every_error_is_a_detail_string():
+    for method, path, operation in OPERATIONS:
+        for status, response in operation["responses"].items():
+            if int(status) >= 400 and path != "/health":
+                schema = response["content"]["application/json"]["schema"]
+                assert schema["properties"] == {
+                    "detail": {"type": "string", "description": "what is wrong, for a person"}
+                }, (method, path, status)
+    assert "HTTPValidationError" not in DOCUMENT.get("components", {}).get("schemas", {})
+
+
+def test_scene_and_query_routes_declare_503_and_the_bearer_scheme():
+    for method, path, operation in OPERATIONS:
+        if path.startswith("/v1/scenes") or path == "/v1/trace":
+            assert "503" in operation["responses"], (method, path)
+        if path.startswith("/v1"):
+            assert operation["security"] == [{"HTTPBearer": []}], (method, path)
+    scheme = DOCUMENT["components"]["securitySchemes"]["HTTPBearer"]
+    assert scheme["type"] == "http" and scheme["scheme"] == "bearer"
+
+
+def test_answers_have_their_media_types():
+    mesh = DOCUMENT["paths"]["/v1/scenes/{scene}/meshes/{mesh}"]["put"]["responses"]
+    assert "version" in mesh["201"]["content"]["application/json"]["schema"]["properties"]
+    closest = DOCUMENT["paths"]["/v1/scenes/{scene}/closest"]["post"]["responses"]["200"]
+    assert set(closest["content"]) == {wire.MEDIA_TYPES[f] for f in wire.ANSWER_FORMATS}
+    metrics = DOCUMENT["paths"]["/metrics"]["get"]["responses"]["200"]
+    assert list(metrics["content"]) == ["text/plain"]
+
+
+def test_names_have_their_pattern_and_choices_their_enums():
+    put = DOCUMENT["paths"]["/v1/scenes/{scene}/meshes/{mesh}"]["put"]
+    names = {p["name"]: p for p in put["parameters"]}
+    for name in ("scene", "mesh"):
+        assert names[name]["schema"]["pattern"] == "^[A-Za-z0-9_.\\-]{1,64}$"
+    closest = DOCUMENT["paths"]["/v1/scenes/{scene}/closest"]["post"]
+    for parameter in closest["parameters"]:
+        assert parameter.get("description"), parameter["name"]
+    enums = {p["name"]: p["schema"] for p in closest["parameters"]}
+    assert "sampling" in str(enums["strategy"]) and "npy" in str(enums["format"])
