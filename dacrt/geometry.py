@@ -7,6 +7,7 @@ import numpy as np
 
 from .config import CULL_MARGIN, SLAB_GROWTH, inline
 from .contracts import INF32
+from .query import CULL_BACK, CULL_FRONT
 
 # float32 constants keep the box test in float32, so loops over rays vectorise.
 _GROWTH32 = np.float32(SLAB_GROWTH - 1.0)
@@ -158,3 +159,16 @@ def triangle_normal(tri_verts, row):
     e2y = np.float64(tri_verts[row, 7]) - np.float64(tri_verts[row, 1])
     e2z = np.float64(tri_verts[row, 8]) - np.float64(tri_verts[row, 2])
     return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+
+
+@inline
+def culled_side(flags):
+    """The sign of det (``woop_edges``) of the faces a query culls, or 0 for none: det < 0 for
+    a back face, whose normal (p1 - p0) x (p2 - p0) points along the ray (``watertight_setup``
+    keeps the winding), so a face is culled where det * culled_side > 0. The same det decides
+    the hit, so a culled face is culled over all of it, edges included."""
+    if flags & CULL_BACK:
+        return -1.0
+    if flags & CULL_FRONT:
+        return 1.0
+    return 0.0
