@@ -162,6 +162,24 @@ def triangle_normal(tri_verts, row):
 
 
 @inline
+def culled(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz, cull_side):
+    """Whether the query culls triangle ``tri`` for this ray (arguments as for
+    ``intersect_triangle``): det * cull_side > 0, det from the same arithmetic that decides the
+    hit, so the same bits."""
+    ax = np.float64(tri_verts[tri, kx]) - okx
+    ay = np.float64(tri_verts[tri, ky]) - oky
+    az = np.float64(tri_verts[tri, kz]) - okz
+    bx = np.float64(tri_verts[tri, 3 + kx]) - okx
+    by = np.float64(tri_verts[tri, 3 + ky]) - oky
+    bz = np.float64(tri_verts[tri, 3 + kz]) - okz
+    cx = np.float64(tri_verts[tri, 6 + kx]) - okx
+    cy = np.float64(tri_verts[tri, 6 + ky]) - oky
+    cz = np.float64(tri_verts[tri, 6 + kz]) - okz
+    _, _, _, det, _, _ = woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
+    return det * cull_side > 0.0
+
+
+@inline
 def culled_side(flags):
     """The sign of det (``woop_edges``) of the faces a query culls, or 0 for none: det < 0 for
     a back face, whose normal (p1 - p0) x (p2 - p0) points along the ray (``watertight_setup``

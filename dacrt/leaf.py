@@ -5,6 +5,7 @@ import numpy as np
 from .config import inline
 from .contracts import NAN32, NEG_INF32
 from .geometry import (
+    culled,
     culled_side,
     intersect_triangle,
     pick,
@@ -12,9 +13,11 @@ from .geometry import (
     woop_edges,
     woop_miss,
 )
-from .query import ALL_MASKS, ANY_HIT, MASKED
+from .query import ANY_HIT, CULL_BACK, CULL_FRONT, MASKED
 from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN, ORIGIN_QUAD, TMIN, field, set_field
 
+# The flags a leaf over rays does not test.
+FILTERS = CULL_BACK | CULL_FRONT | MASKED
 # best_tri of a ray with no hit yet: larger than any triangle, so the tie rule needs no branch.
 NO_HIT = np.iinfo(np.int32).max
 # Triangles a leaf gathers at a time into float64 rows (see intersect_leaf).
@@ -34,33 +37,30 @@ BY_RAYS_MIN_RAYS = 16
 @inline
 def leaf_scratch():
     """Scratch for intersect_leaf, one tuple: a block's corners (9 rows of LEAF_BLOCK) and
-    distances; for a block of rays, their best triangles, ``block_rows`` (u and v, then the
-    rays' fields: RAY_ROWS) and their masks (uint32). Zeros, so padding lanes that were never
-    written compute on ordinary numbers."""
+    distances; for a block of rays, their best triangles and ``block_rows`` (u and v, then the
+    rays' fields: RAY_ROWS). Zeros, so padding lanes that were never written compute on
+    ordinary numbers."""
     return (
         np.zeros(9 * LEAF_BLOCK, np.float64),
         np.zeros(LEAF_BLOCK, np.float32),
         np.zeros(LEAF_BLOCK, np.int32),
         np.zeros((2 + RAY_ROWS, LEAF_BLOCK), np.float32),
-        np.zeros(LEAF_BLOCK, np.uint32),
     )
 
 
 @inline
-def woop_hit(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz, cull_side):
+def woop_hit(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz):
     """(t, u, v) of ``intersect_triangle`` from the corners relative to the ray origin, in the
-    ray's axis order: t in float32, NaN for a miss or a culled face (``culled_side``); u, v
-    from the same 1/det, as it computes them. Selects only, so loops vectorise; a caller that
-    uses t alone pays for t alone."""
+    ray's axis order: t in float32, NaN for a miss; u, v from the same 1/det, as it computes
+    them. Selects only, so loops vectorise; a caller that uses t alone pays for t alone."""
     e0, e1, e2, det, noise, scaled_t = woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
     inv_det = 1.0 / det
     t = np.float32(scaled_t * inv_det)
-    miss = woop_miss(e0, e1, e2, det, noise) | (det * cull_side > 0.0)
-    return NAN32 if miss else t, e1 * inv_det, e2 * inv_det
+    return NAN32 if woop_miss(e0, e1, e2, det, noise) else t, e1 * inv_det, e2 * inv_det
 
 
 @inline
-def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, cull_side, t_block):
+def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_block):
     """t_block[k] = the hit distance (``woop_hit``) of one ray to triangle k of a gathered block.
 
     ``corners`` holds coordinate c of the block's triangle k at [c * LEAF_BLOCK + k]: the rows
@@ -89,28 +89,15 @@ def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, cull_side
             sx,
             sy,
             sz,
-            cull_side,
         )
 
 
 @inline
-def update_block(
-    any_hit,
-    cull_side,
-    n,
-    tri_verts,
-    tri,
-    tri_mask,
-    t_block,
-    tri_block,
-    block_rows,
-    block_masks,
-):
+def update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows):
     """Test the block's n rays (rows 2-8 of ``block_rows``) against one triangle and keep, per
     ray, the better of its hit and the block's best so far (``t_block``, ``tri_block``, rows 0-1
     of ``block_rows``): the leaf of many rays and few triangles, one vectorised loop
-    (``watertight_setup`` and ``pick`` are selects). A ray whose mask (``block_masks``) shares
-    no bit with ``tri_mask`` does not see the triangle.
+    (``watertight_setup`` and ``pick`` are selects).
     u and v come from ``woop_hit``, the same arithmetic as the scalar ``intersect_triangle``:
     the same bits."""
     p0x = np.float64(tri_verts[tri, 0])
@@ -153,12 +140,10 @@ def update_block(
             sx,
             sy,
             sz,
-            cull_side,
         )
         best = t_block[i]
         # A miss is NaN and fails every comparison; ties go to the lower triangle.
         take = (t >= tmin_row[i]) & ((t < best) | ((t == best) & (tri32 < tri_block[i])))
-        take = take & ((block_masks[i] & tri_mask) != 0)
         t_block[i] = (NEG_INF32 if any_hit else t) if take else best
         tri_block[i] = tri32 if take else tri_block[i]
         u_row[i] = np.float32(u) if take else u_row[i]
@@ -179,7 +164,10 @@ def intersect_leaf(
 
     The tests run as vectorised loops, over triangles (a few rays) or over rays (a few
     triangles, at least BY_RAYS_MIN_RAYS rays); the order of tests changes no answer."""
-    if tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS:
+    # Culling and masks are tested by triangles only, outside the vectorised loops: a test in
+    # those loops slows every query.
+    by_rays = tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS
+    if by_rays and (flags & FILTERS) == 0:
         return intersect_leaf_by_rays(
             flags,
             tri_verts,
@@ -206,11 +194,9 @@ def intersect_leaf_by_rays(
     triangle in one vectorised loop that keeps the block's best (t, triangle, u, v); then
     the rays whose best changed take it. The loop keeps u and v with t, so no better hit needs
     the scalar test again, and starts with no triangle, so no ray's best is gathered first."""
-    _, t_block, tri_block, block_rows, block_masks = scratch
+    _, t_block, tri_block, block_rows = scratch
     best_tri = arrays.best_tri
     any_hit = (flags & ANY_HIT) != 0
-    cull_side = culled_side(flags)
-    masked = (flags & MASKED) != 0
     n_tests = 0
     for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, ray_hi - block_lo)
@@ -226,23 +212,10 @@ def intersect_leaf_by_rays(
             block_rows[8, i] = q0[4 * i + 3]
             t_block[i] = q1[4 * i + 3]
             tri_block[i] = NO_HIT
-            block_masks[i] = arrays.ray_masks[ray_ids[block_lo + i]] if masked else ALL_MASKS
         for k in range(tri_lo, tri_hi):
             n_tests += n
             tri = tri_ids[k]
-            tri_mask = arrays.tri_masks[tri] if masked else ALL_MASKS
-            update_block(
-                any_hit,
-                cull_side,
-                n,
-                tri_verts,
-                tri,
-                tri_mask,
-                t_block,
-                tri_block,
-                block_rows,
-                block_masks,
-            )
+            update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows)
         for i in range(n):
             r = block_lo + i
             ray = ray_ids[r]
@@ -265,7 +238,7 @@ def intersect_leaf_by_triangles(
     """intersect_leaf for few rays: triangles go in blocks of LEAF_BLOCK, copied to float64
     rows (``corners``), so each ray's tests over a block run as one vectorised loop; the
     winner's u, v then come from the scalar test, which is the same arithmetic."""
-    corners, t_block, _, _, _ = scratch
+    corners, t_block, _, _ = scratch
     best_tri = arrays.best_tri
     any_hit = (flags & ANY_HIT) != 0
     cull_side = culled_side(flags)
@@ -303,7 +276,6 @@ def intersect_leaf_by_triangles(
                 sx,
                 sy,
                 sz,
-                cull_side,
                 t_block,
             )
             ray = ray_ids[r]
@@ -316,6 +288,22 @@ def intersect_leaf_by_triangles(
             for k in range(n):
                 t = t_block[k]
                 if t >= t_lo and (t < best or (t == best and tri_ids[block_lo + k] < winner_tri)):
+                    # Only a hit that would win is checked for culling: few are.
+                    if cull_side != 0.0 and culled(
+                        tri_verts,
+                        tri_ids[block_lo + k],
+                        okx,
+                        oky,
+                        okz,
+                        kx,
+                        ky,
+                        kz,
+                        sx,
+                        sy,
+                        sz,
+                        cull_side,
+                    ):
+                        continue
                     best = t
                     winner = k
                     winner_tri = tri_ids[block_lo + k]

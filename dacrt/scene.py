@@ -66,7 +66,8 @@ class Scene:
         self.n_meshes = len(checked)
         self.masks = check_masks(
             ALL_MASKS if masks is None else masks, self.n_meshes, "masks", "mesh"
-        )
+        ).copy()
+        self.masks.flags.writeable = False  # _row_masks is derived from it once
         self.mesh_offsets = np.zeros(self.n_meshes + 1, np.int64)
         self.mesh_offsets[1:] = np.cumsum(counts)
         self.n_triangles = int(self.mesh_offsets[-1])
