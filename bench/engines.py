@@ -75,7 +75,7 @@ class DacrtEngine:
                 stats=stats,
             )
             return TraceResult(CLOSEST, t=hits.t, prim=hits.prim, stats=hits.stats)
-        out = handle.occluded(
+        occlusion = handle.occluded(
             origins,
             directions,
             tmin=None,
@@ -84,8 +84,7 @@ class DacrtEngine:
             threads=self.threads,
             stats=stats,
         )
-        occ, st = out if stats else (out, None)
-        return TraceResult(rays.query, occluded=np.asarray(occ), stats=st)
+        return TraceResult(rays.query, occluded=occlusion.occluded, stats=occlusion.stats)
 
 
 class EmbreeEngine:

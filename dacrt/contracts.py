@@ -1,5 +1,5 @@
 """Array contracts shared by the engine: dtypes, the miss marker, strategies, float32 constants,
-the stats layout and the result type."""
+the stats layout and the answer types."""
 
 from dataclasses import dataclass
 
@@ -19,10 +19,6 @@ INF32 = FLOAT(np.inf)
 NEG_INF32 = FLOAT(-np.inf)
 NAN32 = FLOAT(np.nan)
 ONE32 = FLOAT(1.0)
-
-# Query modes understood by the kernels.
-MODE_CLOSEST = 0
-MODE_OCCLUDED = 1
 
 # Order of the counters in a kernel's stats array. ray_box_tests counts every ray-box test,
 # sample_box_tests the part of them that ray sampling made (Algorithm 2 of Nabata et al.).
@@ -73,3 +69,18 @@ class Hits:
 
     def __len__(self):
         return len(self.t)
+
+
+@dataclass
+class Occlusion:
+    """Whether each ray is blocked.
+
+    occluded : (n,) bool, true where the ray hits something with tmin <= t <= tmax
+    stats : dict of counters when asked for, else None
+    """
+
+    occluded: np.ndarray
+    stats: dict | None = None
+
+    def __len__(self):
+        return len(self.occluded)

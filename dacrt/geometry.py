@@ -7,6 +7,7 @@ import numpy as np
 
 from .config import CULL_MARGIN, SLAB_GROWTH, inline
 from .contracts import INF32
+from .query import CULL_BACK, CULL_FRONT
 
 # float32 constants keep the box test in float32, so loops over rays vectorise.
 _GROWTH32 = np.float32(SLAB_GROWTH - 1.0)
@@ -158,3 +159,34 @@ def triangle_normal(tri_verts, row):
     e2y = np.float64(tri_verts[row, 7]) - np.float64(tri_verts[row, 1])
     e2z = np.float64(tri_verts[row, 8]) - np.float64(tri_verts[row, 2])
     return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+
+
+@inline
+def culled(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz, cull_side):
+    """Whether the query culls triangle ``tri`` for this ray (arguments as for
+    ``intersect_triangle``): det * cull_side > 0, det from the same arithmetic that decides the
+    hit, so the same bits."""
+    ax = np.float64(tri_verts[tri, kx]) - okx
+    ay = np.float64(tri_verts[tri, ky]) - oky
+    az = np.float64(tri_verts[tri, kz]) - okz
+    bx = np.float64(tri_verts[tri, 3 + kx]) - okx
+    by = np.float64(tri_verts[tri, 3 + ky]) - oky
+    bz = np.float64(tri_verts[tri, 3 + kz]) - okz
+    cx = np.float64(tri_verts[tri, 6 + kx]) - okx
+    cy = np.float64(tri_verts[tri, 6 + ky]) - oky
+    cz = np.float64(tri_verts[tri, 6 + kz]) - okz
+    _, _, _, det, _, _ = woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
+    return det * cull_side > 0.0
+
+
+@inline
+def culled_side(flags):
+    """The sign of det (``woop_edges``) of the faces a query culls, or 0 for none: det < 0 for
+    a back face, whose normal (p1 - p0) x (p2 - p0) points along the ray (``watertight_setup``
+    keeps the winding), so a face is culled where det * culled_side > 0. The same det decides
+    the hit, so a culled face is culled over all of it, edges included."""
+    if flags & CULL_BACK:
+        return -1.0
+    if flags & CULL_FRONT:
+        return 1.0
+    return 0.0

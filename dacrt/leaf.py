@@ -3,10 +3,21 @@
 import numpy as np
 
 from .config import inline
-from .contracts import MODE_OCCLUDED, NAN32, NEG_INF32
-from .geometry import intersect_triangle, pick, watertight_setup, woop_edges, woop_miss
+from .contracts import NAN32, NEG_INF32
+from .geometry import (
+    culled,
+    culled_side,
+    intersect_triangle,
+    pick,
+    watertight_setup,
+    woop_edges,
+    woop_miss,
+)
+from .query import ANY_HIT, CULL_BACK, CULL_FRONT, MASKED
 from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN, ORIGIN_QUAD, TMIN, field, set_field
 
+# The flags a leaf over rays does not test.
+FILTERS = CULL_BACK | CULL_FRONT | MASKED
 # best_tri of a ray with no hit yet: larger than any triangle, so the tie rule needs no branch.
 NO_HIT = np.iinfo(np.int32).max
 # Triangles a leaf gathers at a time into float64 rows (see intersect_leaf).
@@ -25,10 +36,10 @@ BY_RAYS_MIN_RAYS = 16
 
 @inline
 def leaf_scratch():
-    """Scratch for intersect_leaf: a block's corners (9 rows of LEAF_BLOCK) and distances;
-    for a block of rays, their best triangles and ``block_rows`` (u and v, then the rays'
-    fields: RAY_ROWS). Zeros, so padding lanes that were never written compute on ordinary
-    numbers."""
+    """Scratch for intersect_leaf, one tuple: a block's corners (9 rows of LEAF_BLOCK) and
+    distances; for a block of rays, their best triangles and ``block_rows`` (u and v, then the
+    rays' fields: RAY_ROWS). Zeros, so padding lanes that were never written compute on
+    ordinary numbers."""
     return (
         np.zeros(9 * LEAF_BLOCK, np.float64),
         np.zeros(LEAF_BLOCK, np.float32),
@@ -82,7 +93,7 @@ def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_block):
 
 
 @inline
-def update_block(mode, n, tri_verts, tri, t_block, tri_block, block_rows):
+def update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows):
     """Test the block's n rays (rows 2-8 of ``block_rows``) against one triangle and keep, per
     ray, the better of its hit and the block's best so far (``t_block``, ``tri_block``, rows 0-1
     of ``block_rows``): the leaf of many rays and few triangles, one vectorised loop
@@ -133,7 +144,7 @@ def update_block(mode, n, tri_verts, tri, t_block, tri_block, block_rows):
         best = t_block[i]
         # A miss is NaN and fails every comparison; ties go to the lower triangle.
         take = (t >= tmin_row[i]) & ((t < best) | ((t == best) & (tri32 < tri_block[i])))
-        t_block[i] = (NEG_INF32 if mode == MODE_OCCLUDED else t) if take else best
+        t_block[i] = (NEG_INF32 if any_hit else t) if take else best
         tri_block[i] = tri32 if take else tri_block[i]
         u_row[i] = np.float32(u) if take else u_row[i]
         v_row[i] = np.float32(v) if take else v_row[i]
@@ -141,34 +152,24 @@ def update_block(mode, n, tri_verts, tri, t_block, tri_block, block_rows):
 
 @inline
 def intersect_leaf(
-    mode,
-    tri_verts,
-    rays,
-    ray_ids,
-    ray_lo,
-    ray_hi,
-    tri_ids,
-    tri_lo,
-    tri_hi,
-    best_tri,
-    hit_u,
-    hit_v,
-    corners,
-    t_block,
-    tri_block,
-    block_rows,
+    flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
 ):
     """Test rays ``ray_lo:ray_hi`` against triangles ``tri_ids[tri_lo:tri_hi]``.
 
     Keeps, per ray, the hit with the smallest (t, triangle index) in [tmin, best_t]; best_t
-    lives in the ray record, the rest in arrays indexed by ray id. In occlusion mode a ray
-    stops at its first hit and its best_t becomes -inf. Returns the ray-triangle tests made.
+    lives in the ray record, the rest in ``arrays`` (``QueryArrays``) indexed by ray id. With
+    ANY_HIT in ``flags`` a ray stops at its first hit and its best_t becomes -inf; culled faces
+    and triangles a ray's mask does not see never hit (CULL_BACK, CULL_FRONT, MASKED).
+    ``scratch`` is ``leaf_scratch()``. Returns the ray-triangle tests made.
 
     The tests run as vectorised loops, over triangles (a few rays) or over rays (a few
     triangles, at least BY_RAYS_MIN_RAYS rays); the order of tests changes no answer."""
-    if tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS:
+    # Culling and masks are tested by triangles only, outside the vectorised loops: a test in
+    # those loops slows every query.
+    by_rays = tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS
+    if by_rays and (flags & FILTERS) == 0:
         return intersect_leaf_by_rays(
-            mode,
+            flags,
             tri_verts,
             rays,
             ray_ids,
@@ -177,53 +178,25 @@ def intersect_leaf(
             tri_ids,
             tri_lo,
             tri_hi,
-            best_tri,
-            hit_u,
-            hit_v,
-            t_block,
-            tri_block,
-            block_rows,
+            arrays,
+            scratch,
         )
     return intersect_leaf_by_triangles(
-        mode,
-        tri_verts,
-        rays,
-        ray_ids,
-        ray_lo,
-        ray_hi,
-        tri_ids,
-        tri_lo,
-        tri_hi,
-        best_tri,
-        hit_u,
-        hit_v,
-        corners,
-        t_block,
+        flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
     )
 
 
 @inline
 def intersect_leaf_by_rays(
-    mode,
-    tri_verts,
-    rays,
-    ray_ids,
-    ray_lo,
-    ray_hi,
-    tri_ids,
-    tri_lo,
-    tri_hi,
-    best_tri,
-    hit_u,
-    hit_v,
-    t_block,
-    tri_block,
-    block_rows,
+    flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
 ):
     """intersect_leaf for few triangles: blocks of LEAF_BLOCK rays, each against every
     triangle in one vectorised loop that keeps the block's best (t, triangle, u, v); then
     the rays whose best changed take it. The loop keeps u and v with t, so no better hit needs
     the scalar test again, and starts with no triangle, so no ray's best is gathered first."""
+    _, t_block, tri_block, block_rows = scratch
+    best_tri = arrays.best_tri
+    any_hit = (flags & ANY_HIT) != 0
     n_tests = 0
     for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, ray_hi - block_lo)
@@ -241,7 +214,8 @@ def intersect_leaf_by_rays(
             tri_block[i] = NO_HIT
         for k in range(tri_lo, tri_hi):
             n_tests += n
-            update_block(mode, n, tri_verts, tri_ids[k], t_block, tri_block, block_rows)
+            tri = tri_ids[k]
+            update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows)
         for i in range(n):
             r = block_lo + i
             ray = ray_ids[r]
@@ -252,31 +226,23 @@ def intersect_leaf_by_rays(
                 continue
             set_field(rays, BEST_T, r, t_block[i])
             best_tri[ray] = tri
-            hit_u[ray] = block_rows[0, i]
-            hit_v[ray] = block_rows[1, i]
+            arrays.hit_u[ray] = block_rows[0, i]
+            arrays.hit_v[ray] = block_rows[1, i]
     return n_tests
 
 
 @inline
 def intersect_leaf_by_triangles(
-    mode,
-    tri_verts,
-    rays,
-    ray_ids,
-    ray_lo,
-    ray_hi,
-    tri_ids,
-    tri_lo,
-    tri_hi,
-    best_tri,
-    hit_u,
-    hit_v,
-    corners,
-    t_block,
+    flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
 ):
     """intersect_leaf for few rays: triangles go in blocks of LEAF_BLOCK, copied to float64
     rows (``corners``), so each ray's tests over a block run as one vectorised loop; the
     winner's u, v then come from the scalar test, which is the same arithmetic."""
+    corners, t_block, _, _ = scratch
+    best_tri = arrays.best_tri
+    any_hit = (flags & ANY_HIT) != 0
+    cull_side = culled_side(flags)
+    masked = (flags & MASKED) != 0
     n_tests = 0
     for block_lo in range(tri_lo, tri_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, tri_hi - block_lo)
@@ -312,27 +278,55 @@ def intersect_leaf_by_triangles(
                 sz,
                 t_block,
             )
+            ray = ray_ids[r]
+            if masked:
+                hide_unseen(arrays, ray, tri_ids, block_lo, n, t_block)
             # Ranges and ties are decided on the float32 t that is reported.
             t_lo = field(rays, TMIN, r)
-            ray = ray_ids[r]
             winner = -1
             winner_tri = best_tri[ray]
             for k in range(n):
                 t = t_block[k]
                 if t >= t_lo and (t < best or (t == best and tri_ids[block_lo + k] < winner_tri)):
+                    # Only a hit that would win is checked for culling: few are.
+                    if cull_side != 0.0 and culled(
+                        tri_verts,
+                        tri_ids[block_lo + k],
+                        okx,
+                        oky,
+                        okz,
+                        kx,
+                        ky,
+                        kz,
+                        sx,
+                        sy,
+                        sz,
+                        cull_side,
+                    ):
+                        continue
                     best = t
                     winner = k
                     winner_tri = tri_ids[block_lo + k]
-                    if mode == MODE_OCCLUDED:
+                    if any_hit:
                         break
             if winner >= 0:
                 _, _, u, v = intersect_triangle(
                     tri_verts, winner_tri, okx, oky, okz, kx, ky, kz, sx, sy, sz
                 )
                 best_tri[ray] = winner_tri
-                hit_u[ray] = u
-                hit_v[ray] = v
-                if mode == MODE_OCCLUDED:
+                arrays.hit_u[ray] = u
+                arrays.hit_v[ray] = v
+                if any_hit:
                     best = -np.inf
             set_field(rays, BEST_T, r, best)
     return n_tests
+
+
+@inline
+def hide_unseen(arrays, ray, tri_ids, block_lo, n, t_block):
+    """Turn into misses (NaN) the distances of a block's triangles that ray ``ray``'s mask does
+    not see."""
+    ray_mask = arrays.ray_masks[ray]
+    for k in range(n):
+        seen = (arrays.tri_masks[tri_ids[block_lo + k]] & ray_mask) != 0
+        t_block[k] = t_block[k] if seen else NAN32

@@ -22,7 +22,6 @@ from .config import (
     jit,
 )
 from .contracts import (
-    MODE_OCCLUDED,
     SAMPLING,
     STAT_BOX_TESTS,
     STAT_LEAVES,
@@ -33,6 +32,7 @@ from .contracts import (
 from .geometry import cull_distance, pick
 from .leaf import intersect_leaf, leaf_scratch
 from .partition import partition_by_mask, partition_scratch, triangle_bounds
+from .query import ANY_HIT, FIXED_ORIGIN
 from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN_QUAD, field, quad_view, swap_rays
 from .traversal import trace_object_split
 
@@ -265,29 +265,17 @@ def drop_finished_rays(rays, ray_ids, lo, hi, fixed_origin):
 
 
 @jit
-def trace_ray_space(
-    mode,
-    tri_verts,
-    tri_bounds,
-    scene_box,
-    rays,
-    ray_ids,
-    tri_ids,
-    best_tri,
-    hit_u,
-    hit_v,
-    hit_mask,
-    tri_bins,
-    stats,
-    fixed_origin,
-):
+def trace_ray_space(flags, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_ids, arrays):
     """Trace the ray records ``rays`` against triangles ``tri_ids`` (both permuted in place).
 
+    ``flags`` and ``arrays`` (``QueryArrays``) are the query's, as for ``trace_object_split``.
     A node the termination rule makes a leaf but that still holds many triangles (incoherent
     rays the frustum cannot cull for) goes to the object-split driver, with ray sampling,
-    instead of a brute force over all of them; ``tri_bins`` (uint8, one per triangle) is that
-    driver's scratch. ``fixed_origin``: every record has the same origin quad
-    (``uniform_origin``)."""
+    instead of a brute force over all of them."""
+    hit_mask = arrays.hit_mask
+    stats = arrays.stats
+    any_hit = (flags & ANY_HIT) != 0
+    fixed_origin = (flags & FIXED_ORIGIN) != 0
     n_rays_all = ray_ids.shape[0]
     n_tris_all = tri_ids.shape[0]
     scene_size = 0.0
@@ -329,7 +317,7 @@ def trace_ray_space(
     node_box = np.empty(6, np.float32)
     offsets = partition_scratch()
     lanes = compare_scratch()
-    corners, t_block, tri_block, block_rows = leaf_scratch()
+    leaf = leaf_scratch()
     keep = np.empty(n_tris_all, np.bool_)
     bounds = np.empty((6, n_tris_all), np.float32)  # exact copies of the boxes
     for g in range(6):
@@ -353,7 +341,7 @@ def trace_ray_space(
             stats[STAT_NODES] += 1
             if depth > stats[STAT_MAX_DEPTH]:
                 stats[STAT_MAX_DEPTH] = depth
-            if mode == MODE_OCCLUDED:
+            if any_hit:
                 ray_hi = drop_finished_rays(rays, ray_ids, ray_lo, ray_hi, fixed_origin)
             n_rays = ray_hi - ray_lo
             if n_rays == 0 or tri_hi == tri_lo:
@@ -432,7 +420,7 @@ def trace_ray_space(
                     triangle_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, node_box)
                     trace_object_split(
                         SAMPLING,
-                        mode,
+                        flags,
                         tri_verts,
                         tri_bounds,
                         node_box,
@@ -443,18 +431,12 @@ def trace_ray_space(
                         tri_ids,
                         tri_lo,
                         tri_hi,
-                        best_tri,
-                        hit_u,
-                        hit_v,
-                        hit_mask,
-                        tri_bins,
-                        stats,
-                        fixed_origin,
+                        arrays,
                     )
                 else:
                     stats[STAT_LEAVES] += 1
                     stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
-                        mode,
+                        flags,
                         tri_verts,
                         rays,
                         ray_ids,
@@ -463,13 +445,8 @@ def trace_ray_space(
                         tri_ids,
                         tri_lo,
                         tri_hi,
-                        best_tri,
-                        hit_u,
-                        hit_v,
-                        corners,
-                        t_block,
-                        tri_block,
-                        block_rows,
+                        arrays,
+                        leaf,
                     )
                 continue
             for half in range(2):

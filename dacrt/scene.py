@@ -24,22 +24,24 @@ from .chunks import (
 from .contracts import (
     FLOAT,
     INDEX,
-    MODE_CLOSEST,
-    MODE_OCCLUDED,
     RAYSPACE,
     STAT_NAMES,
     STAT_RAYS,
     STAT_TRIANGLES,
     STRATEGY_CODES,
     Hits,
+    Occlusion,
 )
 from .leaf import NO_HIT
+from .query import ALL_MASKS, ANY_HIT, CULL_FLAGS, FIXED_ORIGIN, MASKED, QueryArrays
 from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
 from .rayspace import trace_ray_space
 from .results import finish_closest, unit_normals
 from .traversal import trace_object_split
 from .triangles import gather_triangles, triangle_boxes
 from .validation import (
+    check_cull,
+    check_masks,
     check_mesh,
     check_rays,
     check_strategy,
@@ -53,13 +55,19 @@ class Scene:
 
     meshes : sequence of (vertices (V, 3) float, faces (F, 3) int) pairs; hits report a mesh by
         its position in this sequence and a triangle by its row in that mesh's faces.
+    masks : None (every mesh all ones), an integer, or (n_meshes,) uint32: each mesh's mask; a
+        ray sees a mesh only where ray mask & mesh mask != 0 (``mask=`` of the queries).
     """
 
-    def __init__(self, meshes):
+    def __init__(self, meshes, masks=None):
         meshes = list(meshes)
         checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in enumerate(meshes)]
         counts = [len(faces) for _, faces in checked]
         self.n_meshes = len(checked)
+        self.masks = check_masks(
+            ALL_MASKS if masks is None else masks, self.n_meshes, "masks", "mesh"
+        ).copy()
+        self.masks.flags.writeable = False  # _row_masks is derived from it once
         self.mesh_offsets = np.zeros(self.n_meshes + 1, np.int64)
         self.mesh_offsets[1:] = np.cumsum(counts)
         self.n_triangles = int(self.mesh_offsets[-1])
@@ -89,7 +97,7 @@ class Scene:
         """Bytes held by the scene's arrays, with those derived on demand once they exist."""
         derived = [
             self.__dict__[name]
-            for name in ("_unit_normals", "_centre_counts")
+            for name in ("_unit_normals", "_centre_counts", "_row_masks")
             if name in self.__dict__
         ]
         return int(
@@ -114,7 +122,15 @@ class Scene:
         unit_normals(self._tri_verts, normals)
         return normals
 
+    @functools.cached_property
+    def _row_masks(self):
+        """Each kernel row's mesh mask (uint32, 4 bytes a triangle), for batches whose rays
+        carry different masks: derived once per scene, on its first such query."""
+        counts = np.diff(self.mesh_offsets)
+        return np.ascontiguousarray(np.repeat(self.masks, counts)[self._tri_global])
+
     _no_normals = np.empty((0, 3), FLOAT)
+    _no_masks = np.empty(0, np.uint32)
 
     def __repr__(self):
         return f"Scene({self.n_meshes} meshes, {self.n_triangles} triangles)"
@@ -126,6 +142,8 @@ class Scene:
         tmin=None,
         tmax=None,
         *,
+        cull="none",
+        mask=None,
         strategy="sampling",
         threads=None,
         stats=False,
@@ -134,12 +152,16 @@ class Scene:
 
         origins, directions : (n, 3) float; directions need not be unit, t is in their units
         tmin, tmax : None, a number, or (n,) float (defaults 0 and +inf)
+        cull : "none", "back" (faces whose normal (p1-p0)x(p2-p0) points along the ray never
+            hit) or "front" (faces whose normal points against it never hit)
+        mask : None (all ones), an integer, or (n,) uint32: a ray sees a mesh only where its
+            mask & the mesh's mask != 0
         strategy : one of ``dacrt.STRATEGIES``; all give the same answers
         threads : None for every core, or a positive int
         Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
         """
         t, best_tri, u, v, counters = self._trace(
-            MODE_CLOSEST, origins, directions, tmin, tmax, strategy, threads
+            0, origins, directions, tmin, tmax, cull, mask, strategy, threads
         )
         n = len(t)
         mesh = np.empty(n, INDEX)  # every element is written by finish_closest
@@ -176,26 +198,46 @@ class Scene:
         tmin=None,
         tmax=None,
         *,
+        cull="none",
+        mask=None,
         strategy="sampling",
         threads=None,
         stats=False,
     ):
         """Whether each ray hits anything with tmin <= t <= tmax (it stops at its first hit).
 
-        Same arguments as ``closest``. Returns (n,) bool, or (occluded, stats dict) when
-        ``stats`` is true."""
+        Same arguments as ``closest``. Returns ``Occlusion``."""
         _, best_tri, _, _, counters = self._trace(
-            MODE_OCCLUDED, origins, directions, tmin, tmax, strategy, threads
+            ANY_HIT, origins, directions, tmin, tmax, cull, mask, strategy, threads
         )
-        occluded = best_tri != NO_HIT
-        return (occluded, counters) if stats else occluded
+        return Occlusion(best_tri != NO_HIT, counters if stats else None)
 
-    def _trace(self, mode, origins, directions, tmin, tmax, strategy, threads):
-        """Run the kernels; returns best_t, best_tri (kernel rows), u, v and the counters."""
+    def _visible_rows(self, ray_masks):
+        """How a batch's masks are traced: (flags, tri_ids, tri_masks). A batch whose rays
+        share one mask (or carry none) sees a fixed set of meshes: tri_ids (int32) holds their
+        kernel rows, or is None for every row, and the kernels check no mask. Otherwise the
+        MASKED flag and every row's mesh mask (``_row_masks``)."""
+        uniform = ray_masks is None or not len(ray_masks) or (ray_masks == ray_masks[0]).all()
+        if not uniform:
+            return MASKED, None, self._row_masks
+        ray_mask = ALL_MASKS if ray_masks is None or not len(ray_masks) else ray_masks[0]
+        seen = (self.masks & ray_mask) != 0
+        if seen.all():
+            return 0, None, self._no_masks
+        return 0, np.flatnonzero(self._row_masks & ray_mask).astype(INDEX), self._no_masks
+
+    def _trace(self, flags, origins, directions, tmin, tmax, cull, mask, strategy, threads):
+        """Run the kernels with ``flags`` (``dacrt.query``) and the query's options; returns
+        best_t, best_tri (kernel rows), u, v and the counters."""
         strategy = check_strategy(strategy)
         threads = check_threads(threads, N_CORES)
+        flags |= CULL_FLAGS[check_cull(cull)]
         origins, directions, tmin, tmax = check_rays(origins, directions, tmin, tmax)
         n_rays = len(origins)
+        ray_masks = None if mask is None else check_masks(mask, n_rays, "mask", "ray")
+        mask_flags, visible_rows, tri_masks = self._visible_rows(ray_masks)
+        flags |= mask_flags
+        ray_masks = ray_masks if mask_flags else self._no_masks
         best_t = tmax.copy()  # the records' best_t, scattered back after the trace
         best_tri = np.full(n_rays, NO_HIT, INDEX)
         hit_u = np.zeros(n_rays, FLOAT)
@@ -203,7 +245,7 @@ class Scene:
         counters = dict.fromkeys(STAT_NAMES, 0)
         counters["rays"] = n_rays
         counters["triangles"] = self.n_triangles
-        n_live = len(self._tri_verts)
+        n_live = len(self._tri_verts) if visible_rows is None else len(visible_rows)
         if n_rays == 0 or n_live == 0:
             explain_bad_rays(origins, directions, tmin, tmax)  # no kernel will check them
             return best_t, best_tri, hit_u, hit_v, counters
@@ -224,32 +266,36 @@ class Scene:
             rays = new_records(len(ray_ids))
             if not pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
                 return None  # a bad ray: no kernel traces this chunk
-            fixed_origin = uniform_origin(rays, len(ray_ids))
-            tri_ids = np.arange(n_live, dtype=INDEX)
+            chunk_flags = flags | (FIXED_ORIGIN if uniform_origin(rays, len(ray_ids)) else 0)
+            tri_ids = (
+                np.arange(n_live, dtype=INDEX) if visible_rows is None else visible_rows.copy()
+            )
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
-            hit_mask = np.empty(len(ray_ids), np.bool_)
-            tri_bins = np.empty(n_live, np.uint8)
+            arrays = QueryArrays(
+                best_tri,
+                hit_u,
+                hit_v,
+                ray_masks,
+                tri_masks,
+                np.empty(len(ray_ids), np.bool_),
+                np.empty(n_live, np.uint8),
+                chunk_stats,
+            )
             if ray_space:
                 trace_ray_space(
-                    mode,
+                    chunk_flags,
                     self._tri_verts,
                     self._tri_bounds,
                     self._box,
                     rays,
                     ray_ids,
                     tri_ids,
-                    best_tri,
-                    hit_u,
-                    hit_v,
-                    hit_mask,
-                    tri_bins,
-                    chunk_stats,
-                    fixed_origin,
+                    arrays,
                 )
             else:
                 trace_object_split(
                     code,
-                    mode,
+                    chunk_flags,
                     self._tri_verts,
                     self._tri_bounds,
                     self._box,
@@ -260,13 +306,7 @@ class Scene:
                     tri_ids,
                     0,
                     n_live,
-                    best_tri,
-                    hit_u,
-                    hit_v,
-                    hit_mask,
-                    tri_bins,
-                    chunk_stats,
-                    fixed_origin,
+                    arrays,
                 )
             unpack_best_t(rays, ray_ids, best_t)
             return chunk_stats

@@ -27,7 +27,6 @@ from .config import (
 from .contracts import (
     INF32,
     MIDDLE,
-    MODE_OCCLUDED,
     ONE32,
     SAMPLING,
     STAT_BOX_TESTS,
@@ -54,6 +53,7 @@ from .partition import (
     sweep_bins,
     triangle_bounds,
 )
+from .query import ANY_HIT, FIXED_ORIGIN
 from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, field
 
 # Split candidates (N_BINS - 1) padded to whole 16-float vectors, for sample_rays.
@@ -63,7 +63,7 @@ PADDED_CANDIDATES = (N_BINS - 1 + 15) // 16 * 16
 @jit
 def trace_object_split(
     strategy,
-    mode,
+    flags,
     tri_verts,
     tri_bounds,
     root_box,
@@ -74,21 +74,19 @@ def trace_object_split(
     tri_ids,
     tri_lo,
     tri_hi,
-    best_tri,
-    hit_u,
-    hit_v,
-    hit_mask,
-    tri_bins,
-    stats,
-    fixed_origin,
+    arrays,
 ):
     """Trace ray records ``ray_lo:ray_hi`` against triangles ``tri_ids[tri_lo:tri_hi]``, whose
     box is ``root_box`` (both ranges are permuted in place).
 
-    best_t stays in the records; best_tri, hit_u, hit_v are indexed by ray id (``ray_ids``);
-    ``hit_mask`` is scratch with one entry per record, ``tri_bins`` (uint8) one per position of
-    ``tri_ids`` (each triangle's bin, from binning to partition); counters go to ``stats``;
-    ``fixed_origin``: every record has the same origin quad (``uniform_origin``)."""
+    ``flags`` is the query's flags word (``dacrt.query``); best_t stays in the records, the
+    rest of each ray's answer goes to ``arrays`` (``QueryArrays``) by ray id (``ray_ids``),
+    with the scratch and the counters."""
+    hit_mask = arrays.hit_mask
+    tri_bins = arrays.tri_bins
+    stats = arrays.stats
+    any_hit = (flags & ANY_HIT) != 0
+    fixed_origin = (flags & FIXED_ORIGIN) != 0
     n_stack = MAX_DEPTH + 2
     stack_tri = np.empty((n_stack, 2), np.int64)
     stack_ray = np.empty((n_stack, 2), np.int64)
@@ -111,11 +109,9 @@ def trace_object_split(
     c_box = np.empty(6, np.float32)
     box_a = np.empty(6, np.float32)
     box_b = np.empty(6, np.float32)
-    corners, t_block, tri_block, block_rows = leaf_scratch()
+    leaf = leaf_scratch()
     offsets = partition_scratch()
-    min_rays_to_sample = (
-        MIN_OCCLUSION_RAYS_TO_SAMPLE if mode == MODE_OCCLUDED else MIN_RAYS_TO_SAMPLE
-    )
+    min_rays_to_sample = MIN_OCCLUSION_RAYS_TO_SAMPLE if any_hit else MIN_RAYS_TO_SAMPLE
 
     stack_tri[0, 0] = tri_lo
     stack_tri[0, 1] = tri_hi
@@ -150,7 +146,7 @@ def trace_object_split(
         if n_tris <= LEAF_TRIANGLES or n_rays <= LEAF_RAYS or depth >= MAX_DEPTH:
             stats[STAT_LEAVES] += 1
             stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
-                mode,
+                flags,
                 tri_verts,
                 rays,
                 ray_ids,
@@ -159,13 +155,8 @@ def trace_object_split(
                 tri_ids,
                 tri_lo,
                 tri_hi,
-                best_tri,
-                hit_u,
-                hit_v,
-                corners,
-                t_block,
-                tri_block,
-                block_rows,
+                arrays,
+                leaf,
             )
             continue
 
@@ -177,7 +168,7 @@ def trace_object_split(
         if strategy != MIDDLE and n_rays > RAYS_PER_TRIANGLE_FOR_COST * n_tris:
             sample_node = strategy == SAMPLING and n_rays > min_rays_to_sample
             centroid_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, c_box)
-            if sample_node and mode != MODE_OCCLUDED:
+            if sample_node and not any_hit:
                 axis, extent = sampled_axis(rays, ray_lo, ray_hi, c_box)
             else:
                 axis, extent = longest_axis(c_box)
@@ -234,7 +225,7 @@ def trace_object_split(
         first_ray_left = field(rays, DIRECTION + axis, ray_lo) >= 0
         if sampled:
             n_samples = min(N_SAMPLE_RAYS, n_rays)
-            if mode == MODE_OCCLUDED:
+            if any_hit:
                 # Any hit ends a ray, and a ray that is done is culled from the other side:
                 # first the side more sample rays reach.
                 left_first = hits_left[split] >= hits_right[split]

@@ -6,6 +6,7 @@ named here (``explain_bad_rays``) before any answer is returned."""
 import numpy as np
 
 from .contracts import FLOAT, STRATEGIES
+from .query import CULL_MODES
 from .triangles import all_finite, faces_in_range
 
 
@@ -148,3 +149,31 @@ def check_threads(threads, n_cores):
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
         raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
     return int(threads)
+
+
+def check_cull(cull):
+    if cull not in CULL_MODES:
+        raise ValueError(f"unknown cull {cull!r}; use one of {', '.join(CULL_MODES)}")
+    return cull
+
+
+def check_masks(masks, n, name, what):
+    """A mask per item as a uint32 (n,) array: ``masks`` an integer scalar (every item) or (n,)
+    integer array with values in [0, 2**32); ``what`` names the items in the error."""
+    masks = np.asarray(masks)
+    if masks.dtype.kind not in "iu":
+        raise ValueError(f"{name} must be an integer (uint32) array, got dtype {masks.dtype}")
+    if masks.ndim == 0:
+        masks = np.full(n, masks)
+    if masks.shape != (n,):
+        raise ValueError(
+            f"{name} must be a scalar or have shape ({n},), one per {what}, got {masks.shape}"
+        )
+    if masks.dtype != np.uint32:
+        _first_bad(
+            (masks < 0) | (masks > 0xFFFFFFFF),
+            name,
+            "is outside the uint32 range [0, 2**32)",
+            "out of range",
+        )
+    return np.ascontiguousarray(masks, dtype=np.uint32)

@@ -321,16 +321,18 @@ class Client:
         fields: Any = None,
         strategy: str | None = None,
         stats: bool = False,
+        cull: str = "none",
         answer: str = "npz",
     ) -> Answer:
         """A query on a stored scene. ``origins`` may be a whole (N, 6|8) ray array when
-        ``directions`` is None. ``answer`` is npz, npy or json (the format the server writes)."""
+        ``directions`` is None. ``cull`` is none, back or front. ``answer`` is npz, npy or json
+        (the format the server writes)."""
         rays = rays_array(origins, directions, tmin, tmax)
         return self._query(
             f"/v1/scenes/{scene}/{query}",
             {"rays": rays},
             "npy",
-            params=_params(fields, strategy, stats),
+            params=_params(fields, strategy, stats, cull),
             headers={"Accept": wire.MEDIA_TYPES[answer]},
         )
 
@@ -347,6 +349,7 @@ class Client:
         fields: Any = None,
         strategy: str | None = None,
         stats: bool = False,
+        cull: str = "none",
         answer: str = "npz",
     ) -> Answer:
         """A one-shot query on a mesh sent with the rays (nothing is stored)."""
@@ -360,7 +363,7 @@ class Client:
             arrays["tmin"] = np.asarray(tmin, dtype="<f4")
         if tmax is not None:
             arrays["tmax"] = np.asarray(tmax, dtype="<f4")
-        params = {"query": query, **_params(fields, strategy, stats)}
+        params = {"query": query, **_params(fields, strategy, stats, cull)}
         return self._query(
             "/v1/trace", arrays, "npz", params=params, headers={"Accept": wire.MEDIA_TYPES[answer]}
         )
@@ -374,7 +377,7 @@ def _slices(parts: list, size: int = 1 << 20) -> list[memoryview]:
     ]
 
 
-def _params(fields: Any, strategy: str | None, stats: bool) -> dict[str, str]:
+def _params(fields: Any, strategy: str | None, stats: bool, cull: str) -> dict[str, str]:
     params = {}
     if fields is not None:
         params["fields"] = fields if isinstance(fields, str) else ",".join(fields)
@@ -382,6 +385,8 @@ def _params(fields: Any, strategy: str | None, stats: bool) -> dict[str, str]:
         params["strategy"] = strategy
     if stats:
         params["stats"] = "true"
+    if cull != "none":
+        params["cull"] = cull
     return params
 
 

@@ -41,8 +41,8 @@ def strategies() -> tuple[str, ...]:
     return tuple(dacrt.STRATEGIES)
 
 
-#: Face culling modes answered so far (API.md also has back and front).
-CULL_MODES = ("none",)
+#: Face culling modes: the engine's (none, back, front).
+CULL_MODES = tuple(dacrt.CULL_MODES)
 
 
 @dataclass(frozen=True)
@@ -89,10 +89,7 @@ def make_options(
     elif strategy not in strategies():
         raise Invalid(f"unknown strategy {strategy!r}; choose from {', '.join(strategies())}")
     if cull not in CULL_MODES:
-        raise Invalid(
-            f"cull={cull} is not supported by this server yet; it answers "
-            f"cull={' or '.join(CULL_MODES)} only"
-        )
+        raise Invalid(f"unknown cull {cull!r}; choose from {', '.join(CULL_MODES)}")
     return Options(query, chosen, strategy, stats, threads, cull)
 
 
@@ -156,7 +153,12 @@ def trace_once(mesh: MeshArrays, rays: Rays, options: Options) -> TraceResult:
 def _run(
     engine: EngineScene, rays: Rays, options: Options, version: int, start: float
 ) -> TraceResult:
-    kwargs = {"strategy": options.strategy, "threads": options.threads, "stats": options.stats}
+    kwargs = {
+        "cull": options.cull,
+        "strategy": options.strategy,
+        "threads": options.threads,
+        "stats": options.stats,
+    }
     try:
         if options.query is Query.CLOSEST:
             hits = engine.scene.closest(
@@ -167,11 +169,11 @@ def _run(
             if "mesh" in arrays:
                 arrays["mesh"] = engine.map_mesh(arrays["mesh"])
         else:
-            result = engine.scene.occluded(
+            occlusion = engine.scene.occluded(
                 rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs
             )
-            occluded, stats = result if options.stats else (result, None)
-            arrays = {"occluded": occluded}
+            stats = occlusion.stats
+            arrays = {"occluded": occlusion.occluded}
     except ValueError as exc:  # the engine names the first bad ray and how many there are
         raise Invalid(str(exc)) from None
     if stats is not None:

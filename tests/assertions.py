@@ -170,6 +170,7 @@ def check_against_reference(
     min_hits=1,
     min_clear=0.9,
     eps=1e-4,
+    **filters,
 ):
     """Compare an engine closest-hit result with the brute-force reference (see module docstring).
 
@@ -186,6 +187,7 @@ def check_against_reference(
       The reference must hit at least this many rays (guards against a vacuous test).
     min_clear : float
       At least this fraction of the reference's hits must be clear (prim compared exactly).
+    filters : ``cull``, ``ray_masks``, ``face_masks`` of the reference (faces a ray ignores).
 
     Returns
     -------
@@ -193,7 +195,9 @@ def check_against_reference(
     """
     n = len(origins)
     offsets = np.array([0, len(faces)]) if mesh_offsets is None else np.asarray(mesh_offsets)
-    br = reference.closest_bracket(vertices, faces, origins, directions, tmin, tmax, eps=eps)
+    br = reference.closest_bracket(
+        vertices, faces, origins, directions, tmin, tmax, eps=eps, **filters
+    )
     ex, inner, outer = br.exact, br.inner, br.outer
     assert ex.hit.sum() >= min_hits, (
         f"vacuous test: the reference hits only {ex.hit.sum()} of {n} rays"
@@ -283,11 +287,13 @@ def check_against_reference(
 
 
 def check_occluded_against_reference(
-    occ, vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=1e-4
+    occ, vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=1e-4, **filters
 ):
     """Engine ``occluded`` within the reference's shrunk and widened verdicts (grazing rays
-    excepted)."""
-    br = reference.closest_bracket(vertices, faces, origins, directions, tmin, tmax, eps=eps)
+    excepted); ``filters`` as for ``check_against_reference``."""
+    br = reference.closest_bracket(
+        vertices, faces, origins, directions, tmin, tmax, eps=eps, **filters
+    )
     d = np.asarray(directions, dtype=np.float64)
     cos_inner = incidence_cos(vertices, faces, br.inner.prim, d)
     assert occ.dtype == np.bool_ and occ.shape == (len(origins),), (

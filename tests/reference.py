@@ -10,7 +10,11 @@ triangles take a second or two). Conventions follow the engine contract (docs/en
 - ``t`` is ``inf`` and ``prim`` is ``-1`` on a miss (``u = v = 0`` there);
 - ``hit = (1 - u - v) * p0 + u * p1 + v * p2``;
 - degenerate (zero-area) triangles never hit;
-- ties in ``t`` go to the lowest face index.
+- ties in ``t`` go to the lowest face index;
+- ``cull="back"`` drops faces whose normal ``(p1-p0) x (p2-p0)`` points along the ray
+  (``dot > 0``), ``cull="front"`` those whose normal points against it;
+- with ``ray_masks`` (n,) and ``face_masks`` (f,) uint32 a ray sees a face only where
+  ``ray_mask & face_mask != 0`` (a mesh's mask repeated over its faces).
 
 Float64 Möller–Trumbore is not watertight: a ray exactly through a shared edge or vertex may
 miss here. Tests that need a robust verdict use ``eps`` (a slack on the barycentric range and the
@@ -186,11 +190,23 @@ def _widen(bound, eps):
     return np.where(np.isfinite(bound), bound + eps * np.abs(bound), bound)
 
 
-def _scan(vertices, faces, origins, directions, tmin, tmax, eps_list):
+def _scan(
+    vertices,
+    faces,
+    origins,
+    directions,
+    tmin,
+    tmax,
+    eps_list,
+    cull="none",
+    ray_masks=None,
+    face_masks=None,
+):
     """Every ray against every face; for each slack in ``eps_list``: best t, best face, second t.
 
     Returns a list of ``(t, prim, second_t)`` triples of (n,) arrays, one per slack.
     """
+    assert cull in ("none", "back", "front"), cull
     origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     n_rays = len(origins)
@@ -198,6 +214,13 @@ def _scan(vertices, faces, origins, directions, tmin, tmax, eps_list):
     n_tris = len(p0)
     valid_tri = np.any(np.cross(e1, e2) != 0.0, axis=1)
     lo, hi = ray_ranges(n_rays, tmin, tmax)
+    all_ones = np.uint32(0xFFFFFFFF)
+    ray_masks = np.broadcast_to(
+        np.asarray(all_ones if ray_masks is None else ray_masks, np.uint32), (n_rays,)
+    )
+    face_masks = np.broadcast_to(
+        np.asarray(all_ones if face_masks is None else face_masks, np.uint32), (n_tris,)
+    )
 
     results = [
         (np.full(n_rays, np.inf), np.full(n_rays, -1, dtype=np.int64), np.full(n_rays, np.inf))
@@ -215,6 +238,7 @@ def _scan(vertices, faces, origins, directions, tmin, tmax, eps_list):
         bx, by, bz = (e1[None, k0:k1, c] for c in range(3))
         cx, cy, cz = (e2[None, k0:k1, c] for c in range(3))
         tri_ok = valid_tri[None, k0:k1]
+        tri_masks = face_masks[None, k0:k1]
         for r0 in range(0, n_rays, ray_block):
             r1 = min(n_rays, r0 + ray_block)
             ox, oy, oz = (origins[r0:r1, c, None] for c in range(3))
@@ -234,7 +258,12 @@ def _scan(vertices, faces, origins, directions, tmin, tmax, eps_list):
                 u = (sx * px + sy * py + sz * pz) * inv
                 v = (dx * qx + dy * qy + dz * qz) * inv
                 t = (cx * qx + cy * qy + cz * qz) * inv
-                base = tri_ok & (det != 0.0)
+                base = tri_ok & (det != 0.0) & ((ray_masks[r0:r1, None] & tri_masks) != 0)
+                # det = e1 . (d x e2) = -d . n: negative for a back face.
+                if cull == "back":
+                    base &= det > 0.0
+                elif cull == "front":
+                    base &= det < 0.0
                 rlo, rhi = lo[r0:r1, None], hi[r0:r1, None]
                 for (best_t, best_prim, second_t), eps in zip(results, eps_list):
                     ok = (
@@ -276,7 +305,19 @@ def _hits(vertices, faces, origins, directions, t, prim) -> Hits:
     return Hits(t=t, prim=prim, u=u, v=v)
 
 
-def closest(vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=0.0) -> Hits:
+def closest(
+    vertices,
+    faces,
+    origins,
+    directions,
+    tmin=None,
+    tmax=None,
+    *,
+    eps=0.0,
+    cull="none",
+    ray_masks=None,
+    face_masks=None,
+) -> Hits:
     """Closest hit of each ray, by brute force.
 
     Parameters
@@ -291,17 +332,35 @@ def closest(vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=0
     eps : float
       Slack: accept ``u, v >= -eps``, ``u + v <= 1 + eps`` and ``t`` within ``[tmin, tmax]``
       widened by ``eps`` times their magnitude. Negative shrinks. 0 is the plain test.
+    cull : "none", "back" or "front"
+      Faces that never hit: back faces (normal along the ray) or front faces.
+    ray_masks : None, int or (n,) uint32; face_masks : None, int or (f,) uint32
+      A ray sees a face only where ``ray_mask & face_mask != 0`` (default all ones).
 
     Returns
     -------
     hits : Hits
       ``t`` (n,) float64, ``prim`` (n,) int64, ``u``, ``v`` (n,) float64.
     """
-    ((t, prim, _),) = _scan(vertices, faces, origins, directions, tmin, tmax, [eps])
+    ((t, prim, _),) = _scan(
+        vertices, faces, origins, directions, tmin, tmax, [eps], cull, ray_masks, face_masks
+    )
     return _hits(vertices, faces, origins, directions, t, prim)
 
 
-def occluded(vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=0.0) -> np.ndarray:
+def occluded(
+    vertices,
+    faces,
+    origins,
+    directions,
+    tmin=None,
+    tmax=None,
+    *,
+    eps=0.0,
+    cull="none",
+    ray_masks=None,
+    face_masks=None,
+) -> np.ndarray:
     """Whether each ray hits anything with ``tmin <= t <= tmax``, by brute force.
 
     Parameters are those of :func:`closest`.
@@ -310,12 +369,24 @@ def occluded(vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=
     -------
     occluded : (n,) bool
     """
-    ((t, _, _),) = _scan(vertices, faces, origins, directions, tmin, tmax, [eps])
+    ((t, _, _),) = _scan(
+        vertices, faces, origins, directions, tmin, tmax, [eps], cull, ray_masks, face_masks
+    )
     return np.isfinite(t)
 
 
 def closest_bracket(
-    vertices, faces, origins, directions, tmin=None, tmax=None, *, eps=1e-4
+    vertices,
+    faces,
+    origins,
+    directions,
+    tmin=None,
+    tmax=None,
+    *,
+    eps=1e-4,
+    cull="none",
+    ray_masks=None,
+    face_masks=None,
 ) -> Bracket:
     """Closest hits under shrunk (``-eps``), exact and widened (``+eps``) acceptance, in one pass.
 
@@ -325,6 +396,17 @@ def closest_bracket(
     -------
     bracket : Bracket
     """
-    scans = _scan(vertices, faces, origins, directions, tmin, tmax, [0.0, -eps, eps])
+    scans = _scan(
+        vertices,
+        faces,
+        origins,
+        directions,
+        tmin,
+        tmax,
+        [0.0, -eps, eps],
+        cull,
+        ray_masks,
+        face_masks,
+    )
     exact, inner, outer = (_hits(vertices, faces, origins, directions, t, p) for t, p, _ in scans)
     return Bracket(exact=exact, inner=inner, outer=outer, outer_second_t=scans[2][2])

@@ -89,7 +89,7 @@ def test_shared_scene_occluded_matches_embree(name, inside, shared_setup):
     rng = np.random.default_rng(61)
     diag = float(np.linalg.norm(np.ptp(pg.bounds(v, f), axis=0)))
     tmax = rng.uniform(0.0, 0.5 * diag, len(origins)).astype(np.float32)
-    occ = scene.occluded(origins, directions, tmax=tmax)
+    occ = scene.occluded(origins, directions, tmax=tmax).occluded
     expected = oracle.occluded(origins, directions, tmax=tmax)
     agree = np.mean(occ == expected)
     assert agree >= MIN_AGREEMENT, f"occluded agrees with Embree on {agree:.5f} of rays"

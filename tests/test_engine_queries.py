@@ -48,7 +48,7 @@ def test_occluded_matches_reference_and_closest(scene_name):
     meshes = sample_scenes.SCENES[scene_name](7)
     scene, vertices, faces, _ = build(meshes)
     origins, directions = sample_scenes.mixed_rays(meshes, 7)
-    occ = scene.occluded(origins, directions)
+    occ = scene.occluded(origins, directions).occluded
     check.check_occluded_against_reference(occ, vertices, faces, origins, directions)
     np.testing.assert_array_equal(occ, np.isfinite(scene.closest(origins, directions).t))
 
@@ -104,7 +104,7 @@ def test_ray_ranges_honoured(scene_name, kind):
     check.check_against_reference(
         hits, vertices, faces, origins, directions, tmin, tmax, mesh_offsets=offsets, min_hits=100
     )
-    occ = scene.occluded(origins, directions, tmin, tmax)
+    occ = scene.occluded(origins, directions, tmin, tmax).occluded
     np.testing.assert_array_equal(
         occ, np.isfinite(hits.t), err_msg="occluded != isfinite(closest.t)"
     )
@@ -124,7 +124,7 @@ def test_per_ray_range_skips_first_hit():
     np.testing.assert_array_equal(hits.prim, [0, 1, -1, 0])
     np.testing.assert_allclose(hits.t, [1.0, 2.0, np.inf, 1.0], rtol=1e-6)
     np.testing.assert_array_equal(
-        scene.occluded(origins, directions, tmin, tmax), [True, True, False, True]
+        scene.occluded(origins, directions, tmin, tmax).occluded, [True, True, False, True]
     )
 
 
@@ -148,8 +148,8 @@ def test_range_ends_are_inclusive_and_exact(scene_name, strategy):
         again = scene.closest(o, d, tmin, tmax, strategy=strategy)
         np.testing.assert_array_equal(again.t, t, err_msg=what)
         np.testing.assert_array_equal(again.prim, first.prim[hit], err_msg=what)
-        assert scene.occluded(o, d, tmin, tmax, strategy=strategy).all(), what
-    assert not scene.occluded(o, d, None, below, strategy=strategy).any(), (
+        assert scene.occluded(o, d, tmin, tmax, strategy=strategy).occluded.all(), what
+    assert not scene.occluded(o, d, None, below, strategy=strategy).occluded.any(), (
         "tmax just below the closest t"
     )
     assert np.all(np.isinf(scene.closest(o, d, None, below, strategy=strategy).t))
@@ -173,7 +173,7 @@ def test_t_scales_inversely_with_direction_length(length):
     # The range is in the same units as t.
     tmax = 0.5 * np.where(np.isfinite(unit.t), unit.t, 1.0) / length
     np.testing.assert_array_equal(
-        scene.occluded(origins, scaled_dirs, tmax=tmax),
+        scene.occluded(origins, scaled_dirs, tmax=tmax).occluded,
         np.isfinite(scene.closest(origins, scaled_dirs, tmax=tmax).t),
     )
 
@@ -421,8 +421,8 @@ def test_origin_on_the_triangle_hits_at_t_zero():
     hits = scene.closest(origins, directions)
     np.testing.assert_array_equal(hits.prim, [0, 0])
     np.testing.assert_array_equal(np.abs(hits.t), [0.0, 0.0])
-    assert scene.occluded(origins, directions, 0.0, 0.0).all()
-    assert not scene.occluded(origins, directions, 1e-6, np.inf).any()
+    assert scene.occluded(origins, directions, 0.0, 0.0).occluded.all()
+    assert not scene.occluded(origins, directions, 1e-6, np.inf).occluded.any()
 
 
 @pytest.mark.parametrize("query", ["closest", "occluded"])
@@ -438,9 +438,10 @@ def test_zero_rays_give_typed_empty_arrays(query):
         check.check_layout(hits, 0)
         assert hits.stats["rays"] == 0
     else:
-        occ = scene.occluded(empty, empty)
+        occ = scene.occluded(empty, empty).occluded
         assert occ.dtype == np.bool_ and occ.shape == (0,)
-        occ, stats = scene.occluded(empty, empty, stats=True)
+        answer = scene.occluded(empty, empty, stats=True)
+        occ, stats = answer.occluded, answer.stats
         assert occ.dtype == np.bool_ and occ.shape == (0,) and stats["rays"] == 0
 
 
@@ -457,7 +458,7 @@ def test_scene_without_triangles_misses_everything(kind):
         hits = scene.closest(origins, directions, strategy=strategy)
         check.check_layout(hits, 100)
         assert np.all(hits.prim == -1)
-        assert not np.any(scene.occluded(origins, directions, strategy=strategy))
+        assert not np.any(scene.occluded(origins, directions, strategy=strategy).occluded)
 
 
 def test_rays_pointing_away_all_miss():
@@ -470,7 +471,7 @@ def test_rays_pointing_away_all_miss():
     hits = scene.closest(origins, d.astype(np.float32))
     check.check_layout(hits, 500)
     assert np.all(hits.prim == -1)
-    assert not np.any(scene.occluded(origins, d.astype(np.float32)))
+    assert not np.any(scene.occluded(origins, d.astype(np.float32)).occluded)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -497,7 +498,7 @@ def test_degenerate_triangles_never_hit(seed):
         assert np.all(hits.prim == -1), (
             f"{strategy}: degenerate triangles hit: {np.flatnonzero(hits.prim >= 0)[:5]}"
         )
-        assert not np.any(scene.occluded(origins, directions, strategy=strategy)), strategy
+        assert not np.any(scene.occluded(origins, directions, strategy=strategy).occluded), strategy
 
 
 def test_degenerate_triangles_mixed_in_are_never_the_hit():
@@ -572,7 +573,7 @@ def test_conference_sliver_is_not_hit(strategy):
     assert hits.prim[0] == -1, (
         f"false hit: prim {hits.prim[0]}, t {hits.t[0]}, u {hits.u[0]}, v {hits.v[0]}"
     )
-    assert not scene.occluded(*CONFERENCE_RAY, strategy=strategy)[0]
+    assert not scene.occluded(*CONFERENCE_RAY, strategy=strategy).occluded[0]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -639,9 +640,8 @@ def test_stats_counters(stats_scene, strategy, threads):
         )
     if strategy == "sah":
         assert stats["sampled_nodes"] == 0
-    occ, occ_stats = scene.occluded(
-        origins, directions, strategy=strategy, threads=threads, stats=True
-    )
+    answer = scene.occluded(origins, directions, strategy=strategy, threads=threads, stats=True)
+    occ, occ_stats = answer.occluded, answer.stats
     _check_stats(occ_stats, len(origins))
     np.testing.assert_array_equal(occ, hits.prim >= 0)
     assert occ_stats["ray_triangle_tests"] > 0
@@ -671,7 +671,8 @@ def test_occlusion_stops_at_the_first_hit(strategy):
     directions = np.column_stack([rng.uniform(-0.02, 0.02, (n, 2)), np.ones(n)]).astype(np.float32)
     scene = dacrt.Scene([(verts, faces)])
     hits = scene.closest(origins, directions, strategy=strategy, stats=True)
-    occ, occ_stats = scene.occluded(origins, directions, strategy=strategy, stats=True)
+    answer = scene.occluded(origins, directions, strategy=strategy, stats=True)
+    occ, occ_stats = answer.occluded, answer.stats
     assert occ.all() and (hits.prim < len(f)).all(), "every ray should hit the first layer"
     assert occ_stats["ray_triangle_tests"] <= 1.25 * hits.stats["ray_triangle_tests"], (
         f"occlusion made {occ_stats['ray_triangle_tests']} triangle tests, closest hits "
@@ -682,5 +683,6 @@ def test_occlusion_stops_at_the_first_hit(strategy):
 def test_stats_absent_unless_asked(stats_scene):
     scene, origins, directions = stats_scene
     assert scene.closest(origins[:10], directions[:10]).stats is None
-    occ = scene.occluded(origins[:10], directions[:10])
-    assert isinstance(occ, np.ndarray) and occ.dtype == np.bool_
+    answer = scene.occluded(origins[:10], directions[:10])
+    assert isinstance(answer, dacrt.Occlusion) and answer.stats is None
+    assert isinstance(answer.occluded, np.ndarray) and answer.occluded.dtype == np.bool_

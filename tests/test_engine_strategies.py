@@ -130,7 +130,7 @@ def default_answers():
                 scene,
                 (o, d, tmin, tmax),
                 scene.closest(o, d, tmin, tmax),
-                scene.occluded(o, d, tmin, tmax),
+                scene.occluded(o, d, tmin, tmax).occluded,
             )
         return cache[name]
 
@@ -145,7 +145,7 @@ def test_strategy_and_threads_match_default(case, strategy, threads, default_ans
     assert np.any(closest.prim >= 0), "vacuous: no hits"
     hits = scene.closest(o, d, tmin, tmax, strategy=strategy, threads=threads)
     check.assert_bitwise_equal(hits, closest, f"{strategy}, threads={threads} vs default")
-    occ = scene.occluded(o, d, tmin, tmax, strategy=strategy, threads=threads)
+    occ = scene.occluded(o, d, tmin, tmax, strategy=strategy, threads=threads).occluded
     np.testing.assert_array_equal(occ, occluded, err_msg=f"occluded: {strategy}, threads={threads}")
     np.testing.assert_array_equal(
         occ, np.isfinite(closest.t), err_msg="occluded != isfinite(closest.t)"
@@ -157,7 +157,8 @@ def test_stats_do_not_change_answers(strategy, default_answers):
     scene, (o, d, tmin, tmax), closest, occluded = default_answers("multi")
     hits = scene.closest(o, d, tmin, tmax, strategy=strategy, stats=True)
     check.assert_bitwise_equal(hits, closest, f"{strategy} with stats")
-    occ, _ = scene.occluded(o, d, tmin, tmax, strategy=strategy, stats=True)
+    answer = scene.occluded(o, d, tmin, tmax, strategy=strategy, stats=True)
+    occ, _ = answer.occluded, answer.stats
     np.testing.assert_array_equal(occ, occluded)
 
 
@@ -230,7 +231,9 @@ def test_shared_rows_answer_as_when_rows_differ(case, strategy, default_answers)
             **{k: getattr(mixed, k)[: len(o)] for k in ("t", "mesh", "prim", "u", "v", "normal")}
         )
         check.assert_bitwise_equal(head, closest, f"{strategy}, threads={threads}")
-        occ = scene.occluded(o_mixed, d_mixed, tmin_mixed, strategy=strategy, threads=threads)
+        occ = scene.occluded(
+            o_mixed, d_mixed, tmin_mixed, strategy=strategy, threads=threads
+        ).occluded
         np.testing.assert_array_equal(occ[: len(o)], occluded)
 
 

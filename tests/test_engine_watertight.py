@@ -58,9 +58,11 @@ def test_rays_through_grid_vertices_and_edges_all_hit(
     )
     # Every ray reaches its target at t = 0.5 (exactly so, up to float32, on the flat grid).
     np.testing.assert_allclose(hits.t, 0.5, rtol={"tilted": 1e-4, "far": 1e-2}.get(plane, 1e-5))
-    assert scene.occluded(origins, directions, strategy=strategy).all()
+    assert scene.occluded(origins, directions, strategy=strategy).occluded.all()
     # Tighter ranges around the target still see it.
-    assert scene.occluded(origins, directions, tmin=0.49, tmax=0.51, strategy=strategy).all()
+    assert scene.occluded(
+        origins, directions, tmin=0.49, tmax=0.51, strategy=strategy
+    ).occluded.all()
 
 
 def _closed_mesh(kind, seed):
@@ -90,7 +92,7 @@ def test_rays_from_inside_closed_perturbed_sphere_all_hit(kind, strategy):
     points = origins + hits.t[:, None].astype(np.float64) * directions
     inside = np.linalg.norm(points - center, axis=1) < r_in * (1 - 1e-5)
     assert not inside.any(), f"hit points inside the inscribed ball: {np.flatnonzero(inside)[:5]}"
-    assert scene.occluded(origins, directions, strategy=strategy).all()
+    assert scene.occluded(origins, directions, strategy=strategy).occluded.all()
 
 
 @pytest.mark.parametrize("strategy", dacrt.STRATEGIES)

@@ -8,10 +8,14 @@ import numpy as np
 import pytest
 import reference
 
-from dacrt.contracts import MODE_CLOSEST, MODE_OCCLUDED
+from dacrt.contracts import STAT_NAMES
 from dacrt.geometry import intersect_triangle, watertight_setup
 from dacrt.leaf import NO_HIT, intersect_leaf, leaf_scratch
+from dacrt.query import ANY_HIT, QueryArrays
 from dacrt.rays import BEST_T, new_records, pack_rays
+
+MODE_CLOSEST = 0
+MODE_OCCLUDED = ANY_HIT
 
 
 def leaf_scene(seed, n_tris, n_rays):
@@ -41,24 +45,19 @@ def run_leaf(mode, tri_verts, origins, directions, tmin, tmax, tri_ids):
     best_tri = np.full(n, NO_HIT, np.int32)
     hit_u = np.zeros(n, np.float32)
     hit_v = np.zeros(n, np.float32)
-    corners, t_block, tri_block, block_rows = leaf_scratch()
-    n_tests = intersect_leaf(
-        mode,
-        tri_verts,
-        rays,
-        ray_ids,
-        0,
-        n,
-        tri_ids,
-        0,
-        len(tri_ids),
+    no_masks = np.empty(0, np.uint32)
+    arrays = QueryArrays(
         best_tri,
         hit_u,
         hit_v,
-        corners,
-        t_block,
-        tri_block,
-        block_rows,
+        no_masks,
+        no_masks,
+        np.empty(n, np.bool_),
+        np.empty(len(tri_verts), np.uint8),
+        np.zeros(len(STAT_NAMES), np.int64),
+    )
+    n_tests = intersect_leaf(
+        mode, tri_verts, rays, ray_ids, 0, n, tri_ids, 0, len(tri_ids), arrays, leaf_scratch()
     )
     # Closest hits test every pair; an occlusion ray skips the blocks after its first hit.
     assert n_tests == n * len(tri_ids) if mode == MODE_CLOSEST else n_tests <= n * len(tri_ids)

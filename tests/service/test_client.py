@@ -13,6 +13,7 @@ import pytest
 import reference
 from service_helpers import NPY, NPZ, down_rays, grid, npy_bytes, npz_bytes, quad, rays_at
 
+import dacrt
 from service import wire
 from service.client import Answer, APIError
 
@@ -224,6 +225,23 @@ def test_occluded_equals_closest_within_tmax(app_api, teapot_scene, teapot):
     occluded = app_api.occluded(teapot_scene, origins, directions, tmax=tmax)
     assert occluded.occluded.dtype == bool
     assert np.array_equal(occluded.occluded, hits.t <= tmax)
+
+
+@pytest.mark.parametrize("cull", ["back", "front"])
+def test_cull_is_the_engines(app_api, teapot_scene, teapot, cull):
+    """?cull= on closest, occluded and the one-shot trace answers as the engine does."""
+    origins, directions = rays_at(*teapot, 300, seed=4)
+    engine = dacrt.Scene([teapot])
+    expected = engine.closest(origins, directions, cull=cull)
+    assert (expected.prim >= 0).sum() > 50, "vacuous: few hits"
+    hits = app_api.closest(teapot_scene, origins, directions, cull=cull)
+    assert np.array_equal(hits.t, expected.t) and np.array_equal(hits.prim, expected.prim)
+    occluded = app_api.occluded(teapot_scene, origins, directions, cull=cull)
+    assert np.array_equal(occluded.occluded, np.isfinite(expected.t))
+    once = app_api.trace(*teapot, origins, directions, cull=cull)
+    assert np.array_equal(once.t, expected.t) and np.array_equal(once.prim, expected.prim)
+    if cull == "front":
+        assert not np.array_equal(hits.t, engine.closest(origins, directions).t), "vacuous"
 
 
 def test_tmin_and_tmax_bound_the_hits(app_api, scene_name):
