@@ -91,6 +91,22 @@ def watertight_setup(dx, dy, dz):
 
 
 @inline
+def corners_from_origin(tri_verts, tri, okx, oky, okz, kx, ky, kz):
+    """Triangle ``tri``'s corners minus the ray origin, in float64 and the ray's axis order."""
+    return (
+        np.float64(tri_verts[tri, kx]) - okx,
+        np.float64(tri_verts[tri, ky]) - oky,
+        np.float64(tri_verts[tri, kz]) - okz,
+        np.float64(tri_verts[tri, 3 + kx]) - okx,
+        np.float64(tri_verts[tri, 3 + ky]) - oky,
+        np.float64(tri_verts[tri, 3 + kz]) - okz,
+        np.float64(tri_verts[tri, 6 + kx]) - okx,
+        np.float64(tri_verts[tri, 6 + ky]) - oky,
+        np.float64(tri_verts[tri, 6 + kz]) - okz,
+    )
+
+
+@inline
 def intersect_triangle(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz):
     """Watertight ray-triangle test in float64 on float32 data.
 
@@ -100,15 +116,9 @@ def intersect_triangle(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz):
     computed from the same transformed vertices, so its sign agrees on both sides.
     Degenerate triangles give det == 0.
     """
-    ax = np.float64(tri_verts[tri, kx]) - okx
-    ay = np.float64(tri_verts[tri, ky]) - oky
-    az = np.float64(tri_verts[tri, kz]) - okz
-    bx = np.float64(tri_verts[tri, 3 + kx]) - okx
-    by = np.float64(tri_verts[tri, 3 + ky]) - oky
-    bz = np.float64(tri_verts[tri, 3 + kz]) - okz
-    cx = np.float64(tri_verts[tri, 6 + kx]) - okx
-    cy = np.float64(tri_verts[tri, 6 + ky]) - oky
-    cz = np.float64(tri_verts[tri, 6 + kz]) - okz
+    ax, ay, az, bx, by, bz, cx, cy, cz = corners_from_origin(
+        tri_verts, tri, okx, oky, okz, kx, ky, kz
+    )
     e0, e1, e2, det, noise, scaled_t = woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
     if woop_miss(e0, e1, e2, det, noise):
         return False, 0.0, 0.0, 0.0
@@ -166,15 +176,9 @@ def culled(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz, cull_side):
     """Whether the query culls triangle ``tri`` for this ray (arguments as for
     ``intersect_triangle``): det * cull_side > 0, det from the same arithmetic that decides the
     hit, so the same bits."""
-    ax = np.float64(tri_verts[tri, kx]) - okx
-    ay = np.float64(tri_verts[tri, ky]) - oky
-    az = np.float64(tri_verts[tri, kz]) - okz
-    bx = np.float64(tri_verts[tri, 3 + kx]) - okx
-    by = np.float64(tri_verts[tri, 3 + ky]) - oky
-    bz = np.float64(tri_verts[tri, 3 + kz]) - okz
-    cx = np.float64(tri_verts[tri, 6 + kx]) - okx
-    cy = np.float64(tri_verts[tri, 6 + ky]) - oky
-    cz = np.float64(tri_verts[tri, 6 + kz]) - okz
+    ax, ay, az, bx, by, bz, cx, cy, cz = corners_from_origin(
+        tri_verts, tri, okx, oky, okz, kx, ky, kz
+    )
     _, _, _, det, _, _ = woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
     return det * cull_side > 0.0
 
