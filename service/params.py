@@ -7,9 +7,10 @@ document what those checks accept.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Annotated
 
-from fastapi import Path, Query
+from fastapi import Depends, Path, Query
 
 from . import tracing, wire
 from .store import NAME
@@ -48,6 +49,31 @@ QueryKind = Annotated[
         json_schema_extra={"enum": [q.value for q in tracing.Query]},
     ),
 ]
+
+
+@dataclass(frozen=True)
+class BatchOptions:
+    """The query-string options every query takes, for the whole batch (API.md)."""
+
+    fields: str | None
+    strategy: str | None
+    stats: bool
+    cull: str
+
+    def for_query(self, query: tracing.Query | str, threads: int | None) -> tracing.Options:
+        """The engine options of ``query``; 422 naming the choices for an unknown value."""
+        return tracing.make_options(
+            query, self.fields, self.strategy, self.stats, threads, self.cull
+        )
+
+
+def batch_options(
+    fields: Fields = None, strategy: Strategy = None, stats: Stats = False, cull: Cull = "none"
+) -> BatchOptions:
+    return BatchOptions(fields, strategy, stats, cull)
+
+
+BatchOptionsDep = Annotated[BatchOptions, Depends(batch_options)]
 
 
 def body_format(formats: tuple[str, ...]):

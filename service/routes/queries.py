@@ -17,7 +17,7 @@ from ..deps import (
     require_token,
 )
 from ..metrics import Metrics
-from ..params import Cull, Fields, QueryKind, RayFormat, SceneName, Stats, Strategy, TraceFormat
+from ..params import BatchOptionsDep, QueryKind, RayFormat, SceneName, TraceFormat
 from ..responses import BuffersResponse
 from ..settings import Settings
 from ..store import Store, check_name
@@ -52,14 +52,11 @@ async def closest(
     settings: SettingsDep,
     store: StoreDep,
     metrics: MetricsDep,
-    fields: Fields = None,
-    strategy: Strategy = None,
-    stats: Stats = False,
-    cull: Cull = "none",
+    batch: BatchOptionsDep,
     format: RayFormat = None,
 ):
     """The nearest hit of each ray."""
-    options = tracing.make_options(Query.CLOSEST, fields, strategy, stats, settings.threads, cull)
+    options = batch.for_query(Query.CLOSEST, settings.threads)
     return await answer(request, settings, store, metrics, options, scene, format)
 
 
@@ -75,14 +72,11 @@ async def occluded(
     settings: SettingsDep,
     store: StoreDep,
     metrics: MetricsDep,
-    fields: Fields = None,
-    strategy: Strategy = None,
-    stats: Stats = False,
-    cull: Cull = "none",
+    batch: BatchOptionsDep,
     format: RayFormat = None,
 ):
     """Whether each ray hits anything in [tmin, tmax]."""
-    options = tracing.make_options(Query.OCCLUDED, fields, strategy, stats, settings.threads, cull)
+    options = batch.for_query(Query.OCCLUDED, settings.threads)
     return await answer(request, settings, store, metrics, options, scene, format)
 
 
@@ -96,15 +90,12 @@ async def trace(
     request: Request,
     settings: SettingsDep,
     metrics: MetricsDep,
+    batch: BatchOptionsDep,
     query: QueryKind = "closest",
-    fields: Fields = None,
-    strategy: Strategy = None,
-    stats: Stats = False,
-    cull: Cull = "none",
     format: TraceFormat = None,
 ):
     """A stateless one-shot: the mesh comes with the rays (answers carry X-Scene-Version: 0)."""
-    options = tracing.make_options(query, fields, strategy, stats, settings.threads, cull)
+    options = batch.for_query(query, settings.threads)
     return await answer(request, settings, None, metrics, options, None, format)
 
 
