@@ -250,7 +250,10 @@ def intersect_leaf_by_triangles(
     ray_masks = arrays.ray_masks
     tri_masks = arrays.tri_masks
     n_hits = arrays.n_hits
-    hit_list = (arrays.list_t, arrays.list_tri, arrays.list_u, arrays.list_v)
+    list_t = arrays.list_t
+    list_tri = arrays.list_tri
+    list_u = arrays.list_u
+    list_v = arrays.list_v
     any_hit = (flags & ANY_HIT) != 0
     count_only = (flags & ALL_HITS) == 0
     cull_side = culled_side(flags)
@@ -300,7 +303,10 @@ def intersect_leaf_by_triangles(
                 best = collect_hits(
                     count_only,
                     n_hits,
-                    hit_list,
+                    list_t,
+                    list_tri,
+                    list_u,
+                    list_v,
                     tri_verts,
                     tri_ids,
                     block_lo,
@@ -374,7 +380,10 @@ def hide_unseen(ray_mask, tri_masks, tri_ids, block_lo, n, t_block):
 def collect_hits(
     count_only,
     n_hits,
-    hit_list,
+    list_t,
+    list_tri,
+    list_u,
+    list_v,
     tri_verts,
     tri_ids,
     block_lo,
@@ -395,11 +404,15 @@ def collect_hits(
     cull_side,
 ):
     """Count (``count_only``) or list the crossings of ray ``ray`` with a block's triangles
-    whose distances are ``t_block``; returns the ray's new best_t. ``n_hits`` and ``hit_list``
-    (list_t, list_tri, list_u, list_v) are those of ``QueryArrays``. A distance in [t_lo, best]
-    is a candidate, confirmed by the half-open ``crossing`` (a subset of the inclusive test that
-    gave it), then by culling. best_t stays tmax while the ray's list has room and then becomes
-    its last entry's t, which bounds the boxes a ray still visits."""
+    whose distances are ``t_block``; returns the ray's new best_t. ``n_hits`` and the lists are
+    those of ``QueryArrays``: a ray's list is kept sorted by (t, kernel row) and at most as long
+    as the lists' rows (the farthest falls off). A distance in [t_lo, best] is a candidate,
+    confirmed by the half-open ``crossing`` (a subset of the inclusive test that gave it), then
+    by culling. best_t stays tmax while the ray's list has room and then becomes its last
+    entry's t, which bounds the boxes a ray still visits. One function with no calls that take
+    arrays: each such call would count references to them."""
+    list_size = list_t.shape[1]
+    last = list_size - 1
     for k in range(n):
         t = t_block[k]
         if not (t >= t_lo and t <= best):
@@ -408,39 +421,31 @@ def collect_hits(
         hit, _, u, v, det = crossing(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz)
         if not hit or det * cull_side > 0.0:
             continue
+        n_held = n_hits[ray]
         if count_only:
-            n_hits[ray] += 1
+            n_hits[ray] = n_held + 1
             continue
-        best = insert_hit(n_hits, hit_list, ray, t, tri, np.float32(u), np.float32(v), best)
+        if n_held == list_size and not (
+            t < list_t[ray, last] or (t == list_t[ray, last] and tri < list_tri[ray, last])
+        ):
+            continue
+        # Insertion: shift the farther entries down by one.
+        p = n_held if n_held < list_size else last
+        while p > 0 and (
+            t < list_t[ray, p - 1] or (t == list_t[ray, p - 1] and tri < list_tri[ray, p - 1])
+        ):
+            list_t[ray, p] = list_t[ray, p - 1]
+            list_tri[ray, p] = list_tri[ray, p - 1]
+            list_u[ray, p] = list_u[ray, p - 1]
+            list_v[ray, p] = list_v[ray, p - 1]
+            p -= 1
+        list_t[ray, p] = t
+        list_tri[ray, p] = tri
+        list_u[ray, p] = u
+        list_v[ray, p] = v
+        if n_held < list_size:
+            n_held += 1
+            n_hits[ray] = n_held
+        if n_held == list_size:
+            best = list_t[ray, last]
     return best
-
-
-@inline
-def insert_hit(n_hits, hit_list, ray, t, tri, u, v, best):
-    """Insert a hit into ray ``ray``'s list, kept sorted by (t, kernel row) and at most as long
-    as the list's rows (the farthest falls off); returns the ray's new best_t."""
-    list_t, list_tri, list_u, list_v = hit_list
-    list_size = list_t.shape[1]
-    n_held = n_hits[ray]
-    last = list_size - 1
-    if n_held == list_size and not (
-        t < list_t[ray, last] or (t == list_t[ray, last] and tri < list_tri[ray, last])
-    ):
-        return best
-    p = n_held if n_held < list_size else last
-    while p > 0 and (
-        t < list_t[ray, p - 1] or (t == list_t[ray, p - 1] and tri < list_tri[ray, p - 1])
-    ):
-        list_t[ray, p] = list_t[ray, p - 1]
-        list_tri[ray, p] = list_tri[ray, p - 1]
-        list_u[ray, p] = list_u[ray, p - 1]
-        list_v[ray, p] = list_v[ray, p - 1]
-        p -= 1
-    list_t[ray, p] = t
-    list_tri[ray, p] = tri
-    list_u[ray, p] = u
-    list_v[ray, p] = v
-    if n_held < list_size:
-        n_held += 1
-        n_hits[ray] = n_held
-    return list_t[ray, last] if n_held == list_size else best
