@@ -252,8 +252,6 @@ def intersect_leaf_by_triangles(
     n_hits = arrays.n_hits
     list_t = arrays.list_t
     list_tri = arrays.list_tri
-    list_u = arrays.list_u
-    list_v = arrays.list_v
     any_hit = (flags & ANY_HIT) != 0
     count_only = (flags & ALL_HITS) == 0
     cull_side = culled_side(flags)
@@ -305,9 +303,7 @@ def intersect_leaf_by_triangles(
                     n_hits,
                     list_t,
                     list_tri,
-                    list_u,
-                    list_v,
-                    tri_verts,
+                    corners,
                     tri_ids,
                     block_lo,
                     n,
@@ -382,9 +378,7 @@ def collect_hits(
     n_hits,
     list_t,
     list_tri,
-    list_u,
-    list_v,
-    tri_verts,
+    corners,
     tri_ids,
     block_lo,
     n,
@@ -403,28 +397,43 @@ def collect_hits(
     sz,
     cull_side,
 ):
-    """Count (``count_only``) or list the crossings of ray ``ray`` with a block's triangles
-    whose distances are ``t_block``; returns the ray's new best_t. ``n_hits`` and the lists are
-    those of ``QueryArrays``: a ray's list is kept sorted by (t, kernel row) and at most as long
-    as the lists' rows (the farthest falls off). A distance in [t_lo, best] is a candidate,
-    confirmed by the half-open ``crossing`` (a subset of the inclusive test that gave it), then
-    by culling. best_t stays tmax while the ray's list has room and then becomes its last
-    entry's t, which bounds the boxes a ray still visits. One function with no calls that take
-    arrays: each such call would count references to them."""
+    """Count (``count_only``) or list the crossings of ray ``ray`` with a block's triangles,
+    whose corners are ``corners`` (as for ``block_distances``) and distances ``t_block``;
+    returns the ray's new best_t.
+
+    ``n_hits`` and the lists are those of ``QueryArrays``: a ray's list is kept sorted by
+    (t, kernel row) and at most as long as the lists' rows (the farthest falls off). A distance
+    in [t_lo, best] is a candidate, confirmed by the half-open ``crossing`` (a subset of the
+    inclusive test that gave it), then by culling. best_t stays tmax while the ray's list has
+    room and then becomes its last entry's t, which bounds the boxes a ray still visits. No
+    call here takes several arrays: each would count references to them."""
     list_size = list_t.shape[1]
     last = list_size - 1
     for k in range(n):
         t = t_block[k]
         if not (t >= t_lo and t <= best):
             continue
-        tri = tri_ids[block_lo + k]
-        hit, _, u, v, det = crossing(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz)
+        hit, det = crossing(
+            corners[kx * LEAF_BLOCK + k] - okx,
+            corners[ky * LEAF_BLOCK + k] - oky,
+            corners[kz * LEAF_BLOCK + k] - okz,
+            corners[(3 + kx) * LEAF_BLOCK + k] - okx,
+            corners[(3 + ky) * LEAF_BLOCK + k] - oky,
+            corners[(3 + kz) * LEAF_BLOCK + k] - okz,
+            corners[(6 + kx) * LEAF_BLOCK + k] - okx,
+            corners[(6 + ky) * LEAF_BLOCK + k] - oky,
+            corners[(6 + kz) * LEAF_BLOCK + k] - okz,
+            sx,
+            sy,
+            sz,
+        )
         if not hit or det * cull_side > 0.0:
             continue
         n_held = n_hits[ray]
         if count_only:
             n_hits[ray] = n_held + 1
             continue
+        tri = tri_ids[block_lo + k]
         if n_held == list_size and not (
             t < list_t[ray, last] or (t == list_t[ray, last] and tri < list_tri[ray, last])
         ):
@@ -436,13 +445,9 @@ def collect_hits(
         ):
             list_t[ray, p] = list_t[ray, p - 1]
             list_tri[ray, p] = list_tri[ray, p - 1]
-            list_u[ray, p] = list_u[ray, p - 1]
-            list_v[ray, p] = list_v[ray, p - 1]
             p -= 1
         list_t[ray, p] = t
         list_tri[ray, p] = tri
-        list_u[ray, p] = u
-        list_v[ray, p] = v
         if n_held < list_size:
             n_held += 1
             n_hits[ray] = n_held
