@@ -11,6 +11,9 @@ What Open3D (0.19-0.20) does, and what follows here:
   ``[origin, direction]`` and consider every ``t >= 0`` (no ``tmin``, no ``tmax``).
 - ``list_intersections`` lists each ray's hits in Embree's traversal order; here they are sorted
   by ``(t, prim)``.
+- Each hit is dropped whose ``t`` equals, in float32, that of the hit Embree reported just before
+  on another triangle of the same geometry (Open3D's guard against one hit reported twice), so
+  coplanar overlapping triangles count once. Compare on rays whose crossings are all apart in t.
 - Embree's triangle test is not watertight: a ray exactly through a shared edge may count it
   twice or never. Compare on rays that pass through no edge or vertex.
 """

@@ -484,7 +484,7 @@ class _Crossings(NamedTuple):
     t: np.ndarray
     u: np.ndarray
     v: np.ndarray
-    # Pairs with an exactly zero side that are crossed for some perturbation (ray, prim, sides).
+    # (ray, prim, _Exact) of the pairs with an exactly zero side.
     touched: list
 
 
@@ -532,14 +532,18 @@ def _perturbations(directions, perturbation):
     return p, q
 
 
-def _exact_ints(*values):
-    """Python ints ``x * 2**k`` for every float in ``values`` (nested sequences), one ``k`` for all.
+def _scale(*values) -> int:
+    """The least power of two ``2**k`` that makes every float in ``values`` an integer."""
+    return max(float(x).as_integer_ratio()[1] for v in values for x in np.ravel(v))
 
-    Every float is ``num / 2**j``; scaling by the largest ``2**j`` makes all of them integers and
-    keeps every sign of a homogeneous polynomial in them.
+
+def _exact_ints(*values):
+    """Python ints ``x * _scale(*values)`` for every float in ``values`` (arrays), in order.
+
+    Every float is ``num / 2**j``; one common power of two makes all of them integers and keeps
+    the sign of every homogeneous polynomial in them.
     """
-    flat = [float(x) for v in values for x in np.ravel(v)]
-    ratios = [x.as_integer_ratio() for x in flat]
+    ratios = [float(x).as_integer_ratio() for v in values for x in np.ravel(v)]
     scale = max(den for _, den in ratios)
     return [num * (scale // den) for num, den in ratios]
 
@@ -557,47 +561,67 @@ def _sign(x) -> int:
     return (x > 0) - (x < 0)
 
 
-def _exact_pair(origin, direction, corners, p, q, lo, hi, cull):
-    """One ray against one triangle in exact integer arithmetic.
+class _Exact(NamedTuple):
+    """One ray-triangle pair in exact integers, before any perturbation.
 
-    Returns ``(crossed, t, u, v, zero_sides)``: ``crossed`` under the perturbation ``(p, q)``;
-    ``zero_sides`` lists the edges ``k`` whose side is exactly 0, or is None when no perturbation
-    can make the ray cross (edge-on, mixed nonzero sides, outside [lo, hi], culled).
+    signs : the sign of each side (0 where the line meets that edge's line)
+    d, edges : the direction and the three edges ``Xj - Xi`` as int 3-lists (their own scales)
+    t, u, v : float64, correctly rounded
     """
-    ints = _exact_ints(origin, direction, corners, p, q)
-    o, d = ints[0:3], ints[3:6]
-    xs = [ints[6:9], ints[9:12], ints[12:15]]
-    pp, qq = ints[15:18], ints[18:21]
+
+    signs: tuple
+    d: list
+    edges: list
+    t: float
+    u: float
+    v: float
+
+    @property
+    def touched(self) -> bool:
+        """Whether the ray meets an edge or a vertex of the triangle (some side is exactly 0)."""
+        return 0 in self.signs
+
+    def crossed(self, p, q) -> bool:
+        """Whether the ray moved by ``eps * p + eps**2 * q`` crosses the triangle."""
+        if not self.touched:
+            return True
+        pq = None
+        signs = []
+        for sign, edge in zip(self.signs, self.edges):
+            if sign == 0:
+                pq = pq or (_exact_ints(p), _exact_ints(q))
+                sign = _sign(_det3(self.d, edge, pq[0])) or _sign(_det3(self.d, edge, pq[1]))
+                # Both vanish only for an edge along d on the line, which makes d . n == 0.
+                assert sign != 0, "the perturbation (p, q) spans a plane containing d"
+            signs.append(sign)
+        return signs[0] == signs[1] == signs[2]
+
+
+def _exact_pair(origin, direction, corners, lo, hi, cull):
+    """One ray against one triangle in exact integer arithmetic: an :class:`_Exact`, or None when
+    no perturbation makes the ray cross (edge-on or degenerate, sides of both signs, outside
+    ``[lo, hi]``, culled)."""
+    ints = _exact_ints(origin, corners)
+    o, xs = ints[0:3], [ints[3:6], ints[6:9], ints[9:12]]
+    d = _exact_ints(direction)
     rel = [[x[c] - o[c] for c in range(3)] for x in xs]
     sides = [_det3(d, rel[i], rel[j]) for i, j in _EDGES]
-    dn = sum(sides)
+    dn = sum(sides)  # d . n, n = (X1 - X0) x (X2 - X0)
     if dn == 0:  # edge-on (the line lies in the triangle's plane) or degenerate
-        return False, 0.0, 0.0, 0.0, None
+        return None
     if (cull == "back" and dn > 0) or (cull == "front" and dn < 0):
-        return False, 0.0, 0.0, 0.0, None
-    nonzero = {_sign(s) for s in sides if s != 0}
-    if len(nonzero) > 1:
-        return False, 0.0, 0.0, 0.0, None
-    e1 = [xs[1][c] - xs[0][c] for c in range(3)]
-    e2 = [xs[2][c] - xs[0][c] for c in range(3)]
-    # n . (X0 - o) = det(X0 - o, e1, e2); t = that / (d . n), the same scale in both.
-    na = _det3(rel[0], e1, e2)
-    t = Fraction(na, dn)
+        return None
+    signs = tuple(_sign(x) for x in sides)
+    if 1 in signs and -1 in signs:
+        return None
+    edges = [[xs[j][c] - xs[i][c] for c in range(3)] for i, j in _EDGES]
+    # t = n . (X0 - o) / (d . n): positions cubed over positions squared times d, so the ratio
+    # carries the scale of positions over that of d, which _exact_ints undoes here.
+    na = -_det3(rel[0], edges[0], edges[2])
+    t = Fraction(na, dn) * Fraction(_scale(direction), _scale(origin, corners))
     if t < Fraction(lo) or (np.isfinite(hi) and t > Fraction(hi)):
-        return False, 0.0, 0.0, 0.0, None
-    zero_sides = [k for k, s in enumerate(sides) if s == 0]
-    signs = []
-    for k, (i, j) in enumerate(_EDGES):
-        if sides[k] != 0:
-            signs.append(_sign(sides[k]))
-            continue
-        edge = [xs[j][c] - xs[i][c] for c in range(3)]
-        sign = _sign(_det3(d, edge, pp)) or _sign(_det3(d, edge, qq))
-        # Both vanish only for an edge parallel to d on the line: then d . n == 0, handled above.
-        assert sign != 0, "perturbation (p, q) spans a plane containing the direction"
-        signs.append(sign)
-    crossed = signs[0] == signs[1] == signs[2]
-    return crossed, na / dn, sides[2] / dn, sides[0] / dn, zero_sides
+        return None
+    return _Exact(signs, d, edges, float(t), sides[2] / dn, sides[0] / dn)
 
 
 def _crossings(
@@ -725,17 +749,17 @@ def _decide(ri, fi, origins, directions, corners, lo, hi, cull, p_all, q_all, to
     out_t, out_u, out_v = [t[keep]], [u[keep]], [v[keep]]
     for k in np.flatnonzero(unsure):
         i, f = int(ri[k]), int(fi[k])
-        hit, tk, uk, vk, zero_sides = _exact_pair(
-            origins[i], directions[i], corners[f], p_all[i], q_all[i], lo[i], hi[i], cull
-        )
-        if zero_sides:
-            touched.append((i, f, tuple(zero_sides)))
-        if hit:
+        exact = _exact_pair(origins[i], directions[i], corners[f], lo[i], hi[i], cull)
+        if exact is None:
+            continue
+        if exact.touched:
+            touched.append((i, f, exact))
+        if exact.crossed(p_all[i], q_all[i]):
             out_ray.append([i])
             out_prim.append([f])
-            out_t.append([tk])
-            out_u.append([uk])
-            out_v.append([vk])
+            out_t.append([exact.t])
+            out_u.append([exact.u])
+            out_v.append([exact.v])
     return (
         np.concatenate(out_ray).astype(np.int64),
         np.concatenate(out_prim).astype(np.int64),
@@ -851,13 +875,10 @@ def count_range(
     lo_count, hi_count = counts.copy(), counts.copy()
     if not found.touched:
         return lo_count, hi_count
-    verts = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    corners = verts[np.asarray(faces, dtype=np.int64).reshape(-1, 3)]
-    lo, hi = ray_ranges(n_rays, tmin, tmax)
     crossed = set(zip(found.ray.tolist(), found.prim.tolist()))
     by_ray = {}
-    for ray, prim, zero_sides in found.touched:
-        by_ray.setdefault(ray, []).append((prim, zero_sides))
+    for ray, prim, exact in found.touched:
+        by_ray.setdefault(ray, []).append((prim, exact))
     for ray, pairs in by_ray.items():
         d = directions[ray]
         e1 = np.cross(d, np.eye(3)[np.argmin(np.abs(d))])
@@ -865,27 +886,22 @@ def count_range(
         e2 = np.cross(d / np.linalg.norm(d), e1)
         g1, g2 = np.cross(e1, d), np.cross(e2, d)
         angles = []
-        for prim, zero_sides in pairs:
-            for k in zero_sides:
-                i, j = _EDGES[k]
-                edge = corners[prim, j] - corners[prim, i]
-                # p(theta) x d is perpendicular to the edge at theta0 and theta0 + pi.
-                theta0 = np.arctan2(-(edge @ g1), edge @ g2)
-                angles += [theta0 % (2 * np.pi), (theta0 + np.pi) % (2 * np.pi)]
-        angles = np.unique(angles)
+        for _, exact in pairs:
+            for sign, edge in zip(exact.signs, exact.edges):
+                if sign == 0:
+                    edge = np.array([float(x) for x in edge])
+                    # p(theta) x d is perpendicular to the edge at theta0 and theta0 + pi.
+                    theta0 = np.arctan2(-(edge @ g1), edge @ g2)
+                    angles += [theta0 % (2 * np.pi), (theta0 + np.pi) % (2 * np.pi)]
+        angles = np.sort(angles)
+        angles = angles[np.r_[True, np.diff(angles) > 1e-9]]
         samples = (angles + np.diff(np.r_[angles, angles[0] + 2 * np.pi]) / 2) % (2 * np.pi)
         fixed = counts[ray] - sum((ray, prim) in crossed for prim, _ in pairs)
         seen = []
         for theta in samples:
             p = np.cos(theta) * e1 + np.sin(theta) * e2
             q = -np.sin(theta) * e1 + np.cos(theta) * e2
-            seen.append(
-                fixed
-                + sum(
-                    _exact_pair(origins[ray], d, corners[prim], p, q, lo[ray], hi[ray], cull)[0]
-                    for prim, _ in pairs
-                )
-            )
+            seen.append(fixed + sum(exact.crossed(p, q) for _, exact in pairs))
         lo_count[ray], hi_count[ray] = min(seen), max(seen)
     return lo_count, hi_count
 
