@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import procedural as pg
 
+CLOSED_MESHES = ("cube", "icosphere", "uv_sphere")  # the names closed_mesh() knows
 STEP = 2.0**-10  # grid of the quantised vertices
 INSIDE_POINT = np.array([0.125, -0.0625, 0.1875])  # dyadic, inside every mesh of closed_mesh()
 

@@ -106,8 +106,6 @@ def test_procedural_grid_covers_the_square_once(alternate):
 # Every crossing (all_hits, count, count_range): the half-open rule
 # ---------------------------------------------------------------------------------------------
 
-CLOSED = ("cube", "icosphere", "uv_sphere")
-
 
 def test_all_hits_single_triangle_conventions():
     v, f = pg.single_triangle()
@@ -258,7 +256,7 @@ def test_fold_counts_zero_or_two():
     assert (lo[0], hi[0]) == (0, 2)
 
 
-@pytest.mark.parametrize("name", CLOSED)
+@pytest.mark.parametrize("name", ["cube", "icosphere", "uv_sphere"])
 def test_closed_mesh_parity_through_vertices_and_edges(name):
     """Rays exactly through every vertex and edge midpoint of a closed mesh: from outside the
     count is even, from inside odd, for every perturbation; count_range brackets it."""
