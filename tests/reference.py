@@ -20,6 +20,12 @@ Float64 Möller–Trumbore is not watertight: a ray exactly through a shared edg
 miss here. Tests that need a robust verdict use ``eps`` (a slack on the barycentric range and the
 ``[tmin, tmax]`` interval) and :func:`closest_bracket`, which answers for a shrunk, an exact and a
 widened acceptance in one pass.
+
+:func:`all_hits` and :func:`count` (every crossing of each ray, for ``hits`` and ``count``) are
+exact instead, for any float inputs: Plücker side tests decided in float64 where that is provably
+right and in Python integers elsewhere, with the half-open rule at shared edges and vertices made
+by a symbolic perturbation of the ray (notes above :class:`HitList`). :func:`count_range` gives
+the least and greatest count over every way of moving a ray off the edges and vertices it meets.
 """
 
 from __future__ import annotations

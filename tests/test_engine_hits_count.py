@@ -24,7 +24,7 @@ import sample_scenes
 
 import dacrt
 
-BIG = 100_000  # max_hits that truncates nothing here
+BIG = 256  # max_hits that truncates nothing here (the engine holds max_hits + 1 slots a ray)
 MESH_MASKS = np.array([0b0001, 0b0010, 0b0110, 0xFFFFFFFF], np.uint32)
 RAY_MASKS = np.array([0b0001, 0b0010, 0b0100, 0b1000, 0b0011, 0xFFFFFFFF], np.uint32)
 GENERIC_SCENES = ("soup", "multi", "teapot", "bunny", "sibenik_slice")
@@ -159,6 +159,31 @@ def test_every_strategy_and_thread_count_gives_the_same_answers(name, strategy, 
             hc.assert_same_hitlist(got[what], answer, f"{strategy}, {threads} threads, {what}")
         else:
             np.testing.assert_array_equal(got[what], answer, f"{strategy}, {threads}, {what}")
+
+
+@pytest.mark.parametrize("batch", ["scattered", "camera"])
+@pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
+def test_two_threads_split_a_large_batch_without_changing_it(strategy, batch):
+    """A batch large enough to be cut into chunks on two threads (scattered origins: slabs;
+    one eye: coherent chunks) gives the one-thread hit lists and counts bit for bit."""
+    meshes = sample_scenes.multi(26)
+    v, _, _ = pg.concat(meshes)
+    n_rays = 2 * dacrt.chunks.MIN_RAYS_PER_THREAD + 101
+    if batch == "scattered":
+        o, d = pg.mixed_rays(pg.bounds(v), n_rays, np.random.default_rng(26))
+    else:
+        o, d = pg.camera_rays(pg.bounds(v), 182, 182)
+        o, d = o[:n_rays], d[:n_rays]
+    masks = MESH_MASKS[np.arange(len(meshes)) % len(MESH_MASKS)]
+    ray_masks = np.random.default_rng(27).choice(RAY_MASKS, len(o))
+    scene = dacrt.Scene(meshes, masks=masks)
+    one = {"strategy": strategy, "threads": 1}
+    two = {"strategy": strategy, "threads": 2}
+    for options in ({"max_hits": 4}, {"max_hits": 64, "mask": ray_masks, "cull": "back"}):
+        a = scene.hits(o, d, **options, **one)
+        hc.assert_same_hitlist(scene.hits(o, d, **options, **two), a, f"two threads {options}")
+        assert a.truncated.any() == (options["max_hits"] == 4) and a.offsets[-1] > 2000
+    np.testing.assert_array_equal(scene.count(o, d, **two).count, scene.count(o, d, **one).count)
 
 
 @pytest.mark.parametrize("name", ["teapot", "bunny", "sibenik_slice"])
