@@ -24,8 +24,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from dacrt.validation import place_vertices
+
 from .errors import Conflict, Invalid, NotFound, TooLarge
 from .wire import FrameChange, MeshArrays, json_ready
+from .wire.arrays import engine_errors
 
 if TYPE_CHECKING:
     from .persistence import DataDir
@@ -97,6 +100,22 @@ class Geometry:
         used[self.faces.ravel()] = True
         return self.vertices.T if used.all() else np.ascontiguousarray(self.vertices[used].T)
 
+    @functools.cached_property
+    def _corners(self) -> np.ndarray:
+        """(3, 8) float64 the corners of the box of every vertex (referenced or not)."""
+        box = self.vertices.min(axis=0), self.vertices.max(axis=0)
+        return np.array([[box[i >> a & 1][a] for i in range(8)] for a in range(3)], np.float64)
+
+    def check_placeable(self, transform: np.ndarray, name: str) -> None:
+        """422 unless ``transform`` keeps every vertex within the float32 range."""
+        if not len(self.vertices):
+            return
+        corners = transform[:3, :3] @ self._corners + transform[:3, 3:]
+        if np.abs(corners).max() <= np.finfo(np.float32).max:
+            return  # every placed vertex lies in the placed box of these corners
+        with engine_errors():
+            place_vertices(self.vertices, transform, name)
+
     def placed_bounds(self, transform: np.ndarray | None) -> np.ndarray:
         """(2, 3) float32 bounds in scene space of the referenced vertices placed by
         ``transform`` (computed in float64, as the engine places them)."""
@@ -160,7 +179,10 @@ class Mesh:
 
 
 def placed(mesh: Mesh) -> Mesh:
-    """``mesh`` with bounds of its geometry as its transform places it."""
+    """``mesh`` with bounds of its geometry as its transform places it; 422 if the transform
+    places a vertex beyond the float32 range (the engine could not trace it)."""
+    if mesh.transform is not None:
+        mesh.geometry.check_placeable(mesh.transform, f"transform of mesh {mesh.name!r}")
     return replace(mesh, bounds=mesh.geometry.placed_bounds(mesh.transform))
 
 
@@ -463,9 +485,9 @@ class Store:
         snapshot = Snapshot(scene, version, MappingProxyType(meshes), next_index)
         if snapshot.n_triangles > self.max_triangles_per_scene:
             raise TooLarge(
-                f"scene {scene!r} would hold {snapshot.n_triangles} triangles (instances "
-                f"included), over the limit of {self.max_triangles_per_scene} "
-                "(DACRT_MAX_TRIANGLES_PER_SCENE)"
+                f"scene {scene!r} would hold {snapshot.n_triangles} triangles, over the limit "
+                f"of {self.max_triangles_per_scene} (DACRT_MAX_TRIANGLES_PER_SCENE; an "
+                "instance counts its source's triangles again)"
             )
         nbytes = self._nbytes - (old.nbytes if old else 0) + snapshot.nbytes
         if nbytes > self.max_scene_bytes:
