@@ -398,7 +398,8 @@ class Store:
         (limits are not checked: the scenes were accepted when they were made)."""
         with self._lock:
             for snapshot in snapshots:
-                self._nbytes += snapshot.nbytes - self._scenes.get(snapshot.scene, snapshot).nbytes
+                old = self._scenes.get(snapshot.scene)
+                self._nbytes += snapshot.nbytes - (old.nbytes if old is not None else 0)
                 self._scenes[snapshot.scene] = snapshot
             for scene, version in last_versions.items():
                 self._last_version[scene] = max(version, self._last_version.get(scene, 0))
