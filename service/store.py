@@ -444,7 +444,7 @@ class Store:
             changes["geometry"] = geometry
         if instance_of is not ...:
             changes["instance_of"] = instance_of
-        return placed(replace(before, **changes))
+        return placed(replace(before, **changes)) if changes else before
 
     @staticmethod
     def _moved(mesh: Mesh, vertices: np.ndarray, scene: str) -> Mesh:
