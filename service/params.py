@@ -41,7 +41,13 @@ Cull = Annotated[
         description="which faces rays ignore", json_schema_extra={"enum": list(tracing.CULL_MODES)}
     ),
 ]
-Mask = Annotated[str | None, Query(description="the mesh's visibility mask (not served yet: 422)")]
+Mask = Annotated[
+    str | None,
+    Query(
+        description="the mesh's visibility mask, a uint32 in decimal or 0x hex (default "
+        "0xFFFFFFFF for a new mesh; a replaced mesh keeps its own)"
+    ),
+]
 QueryKind = Annotated[
     str,
     Query(

@@ -18,6 +18,8 @@ OPERATIONS = [
 BODIES = {
     ("PUT", "/v1/scenes/{scene}/meshes/{mesh}"): wire.MESH_FORMATS,
     ("PUT", "/v1/scenes/{scene}/meshes/{mesh}/vertices"): wire.VERTEX_FORMATS,
+    ("PUT", "/v1/scenes/{scene}/meshes/{mesh}/transform"): ("json",),
+    ("PUT", "/v1/scenes/{scene}/meshes/{mesh}/mask"): ("json",),
     ("POST", "/v1/scenes/{scene}/frame"): wire.FRAME_FORMATS,
     ("POST", "/v1/scenes/{scene}/closest"): wire.RAY_FORMATS,
     ("POST", "/v1/scenes/{scene}/occluded"): wire.RAY_FORMATS,
