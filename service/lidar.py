@@ -37,7 +37,8 @@ class BeamModel:
 
 
 def _uniform(low: float, high: float, n: int) -> tuple[float, ...]:
-    return tuple(float(a) for a in np.linspace(low, high, n))
+    """n angles from low to high, evenly spaced: low + (high - low) * k / (n - 1)."""
+    return tuple(low + (high - low) * k / (n - 1) for k in range(n))
 
 
 # Velodyne VLP-16 ("Puck"): 16 lasers from -15 to +15 degrees, 2 degrees apart.
@@ -103,9 +104,7 @@ HDL_32E = BeamModel(
 # subdivisions of about 0.4 degrees. Each unit's db.xml holds its calibrated angles.
 HDL_64E = BeamModel(
     "HDL-64E",
-    tuple(
-        sorted([2.0 - k / 3 for k in range(32)] + [2.0 - 31 / 3 - 0.5 - k / 2 for k in range(32)])
-    ),
+    tuple(sorted([2 - k / 3 for k in range(32)] + [-53 / 6 - k / 2 for k in range(32)])),
     "Velodyne HDL-64E S3 User's Manual and Programming Guide (63-HDL64ES3): upper block +2 to "
     "-8.33 degrees at 1/3 degree, lower block -8.83 to -24.33 degrees at 1/2 degree",
 )
