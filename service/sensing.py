@@ -8,7 +8,7 @@ engine scene, built once per scene version, and the same stable mesh indices as 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -144,23 +144,52 @@ def lidar_scan(
     snapshot: Snapshot, scan: Scan, max_returns: int, options: SensorOptions
 ) -> SensorResult:
     """The points of one revolution: the first ``max_returns`` hits of each ray in
-    ``[min_range, max_range]``, in ray order, nearest first."""
+    ``[min_range, max_range]``, in ray order, nearest first. One return is ``closest``'s hit; more
+    are ``Scene.hits``' list, which counts a crossing of an edge shared by two triangles once."""
     start = time.perf_counter()
     origins, directions = scan.rays()
     if max_returns == 1:
         result = _closest(snapshot, origins, directions, scan.min_range, scan.max_range, options)
-        hits = result.arrays
-        ray = np.flatnonzero(np.isfinite(hits["t"])).astype(np.int32)
+        ray = np.flatnonzero(np.isfinite(result.arrays["t"])).astype(np.int32)
+        hits = {name: result.arrays[name][ray] for name in ("t", "mesh", "prim", "normal")}
         returns = np.zeros(len(ray), np.int16)
-        t, mesh, prim = hits["t"][ray], hits["mesh"][ray], hits["prim"][ray]
-        normal = hits["normal"][ray]
+        version, stats = result.version, result.stats
     else:
-        raise Invalid(
-            "max_returns above 1 needs the engine's multi-hit query, which this server does not "
-            "have yet; send max_returns 1"
-        )
-    per_point = points(scan, origins, directions, ray, t, normal)
-    per_point.update({"mesh": mesh, "prim": prim, "return": returns, "ray": ray})
+        hit_list, stats = _hit_list(snapshot, origins, directions, scan, max_returns, options)
+        counts = np.diff(hit_list.offsets)
+        ray = np.repeat(np.arange(len(origins), dtype=np.int32), counts)
+        returns = (np.arange(len(ray)) - np.repeat(hit_list.offsets[:-1], counts)).astype(np.int16)
+        hits = {"t": hit_list.t, "mesh": hit_list.mesh, "prim": hit_list.prim}
+        hits["normal"] = hit_list.normal
+        version = snapshot.version
+    per_point = points(scan, origins, directions, ray, hits["t"], hits["normal"])
+    per_point.update({"mesh": hits["mesh"], "prim": hits["prim"], "return": returns, "ray": ray})
     arrays = {name: per_point[name] for name in options.fields}
     seconds = time.perf_counter() - start
-    return SensorResult(arrays, result.version, result.stats, seconds, len(origins), {})
+    return SensorResult(arrays, version, stats, seconds, len(origins), {})
+
+
+def _hit_list(snapshot, origins, directions, scan: Scan, max_hits: int, options: SensorOptions):
+    """``Scene.hits`` on the snapshot's engine scene (the one ``tracing`` builds once per
+    version), with stable mesh indices; (HitList, stats or None)."""
+    checked = options.closest()  # the strategy and cull, checked as for every query
+    engine = snapshot.cached("dacrt", tracing._snapshot_engine)
+    try:
+        hit_list = engine.scene.hits(
+            origins,
+            directions,
+            scan.min_range,
+            scan.max_range,
+            max_hits=max_hits,
+            cull=checked.cull,
+            strategy=checked.strategy,
+            threads=checked.threads,
+            stats=checked.stats,
+        )
+    except ValueError as exc:  # the engine names the first bad ray (a pose far out of range)
+        raise Invalid(str(exc)) from None
+    hit_list = replace(hit_list, mesh=engine.map_mesh(hit_list.mesh))
+    stats = None
+    if hit_list.stats is not None:
+        stats = {**hit_list.stats, "strategy": checked.strategy}
+    return hit_list, stats

@@ -8,7 +8,9 @@ from __future__ import annotations
 import numpy as np
 import procedural
 import pytest
-from sensor_helpers import lidar_rays, npz, put_room, rigid_pose
+from sensor_helpers import MESHES, lidar_rays, npz, put_room, rigid_pose
+
+import dacrt
 
 NPZ_ANSWER = {"Accept": "application/x-npz"}
 FIELDS = (
@@ -152,6 +154,43 @@ def test_azimuth_runs_from_x_toward_y(app_client, inside_sphere):
     assert np.allclose(first, [0, 1, 0], atol=1e-6)
 
 
+@pytest.mark.parametrize("max_returns", [2, 3, 8])
+def test_multiple_returns_are_what_hits_answers_for_the_rays(app_client, room, max_returns):
+    """Against the engine's ``Scene.hits`` on the same rays, in process: every hit in the range
+    window, nearest first, at most max_returns a ray; return k is the k-th."""
+    angles, steps = [-12.0, -4.0, 0.0, 3.0], 720
+    body = {
+        "pose": POSES[0].tolist(),
+        "vertical_angles_deg": angles,
+        "horizontal_steps": steps,
+        "min_range": 0.5,
+        "max_range": 30.0,
+        "max_returns": max_returns,
+    }
+    answer = npz(lidar(app_client, room, body).content)
+    origins, directions, ring, azimuth, elevation = lidar_rays(POSES[0], angles, steps)
+    scene = dacrt.Scene(list(MESHES.values()))  # mesh positions = upload order = indices
+    expected = scene.hits(origins, directions, 0.5, 30.0, max_hits=max_returns)
+    counts = np.diff(expected.offsets)
+    ray = np.repeat(np.arange(len(origins)), counts)
+    assert np.array_equal(answer["ray"], ray)
+    assert np.array_equal(answer["return"], np.concatenate([np.arange(c) for c in counts]))
+    assert np.array_equal(answer["range"], expected.t)
+    assert np.array_equal(answer["mesh"], expected.mesh)
+    assert np.array_equal(answer["prim"], expected.prim)
+    xyz = origins[ray] + expected.t[:, None].astype(np.float64) * directions[ray]
+    assert np.array_equal(answer["xyz"], xyz.astype(np.float32))
+    assert np.array_equal(answer["ring"], ring[ray]) and np.array_equal(
+        answer["azimuth"], azimuth[ray].astype(np.float32)
+    )
+    assert np.array_equal(answer["elevation"], elevation[ray].astype(np.float32))
+    # into and out of the sphere or the box, then the floor: three hits at most
+    assert answer["return"].max() == min(max_returns, 3) - 1
+    # the first returns are the single-return answer, but where a ray grazes a shared edge
+    first = npz(lidar(app_client, room, {**body, "max_returns": 1}).content)
+    assert np.mean(np.isin(answer["ray"][answer["return"] == 0], first["ray"])) > 0.999
+
+
 def test_a_small_request_answers_json_and_fields_pick_arrays(app_client, room):
     body = {"pose": POSES[0].tolist(), "model": "VLP-16", "horizontal_steps": 16}
     as_json = app_client.post(f"/v1/scenes/{room}/lidar", json=body).json()
@@ -190,6 +229,7 @@ POSE = np.eye(4).tolist()
         ({"pose": POSE, "model": "VLP-16", "min_range": 5.0, "max_range": 5.0}, 422, "max_range"),
         ({"pose": POSE, "model": "VLP-16", "min_range": -1.0}, 422, "min_range"),
         ({"pose": POSE, "model": "VLP-16", "max_returns": 0}, 422, "max_returns"),
+        ({"pose": POSE, "model": "VLP-16", "max_returns": 65}, 422, "max_returns"),
         (
             {"pose": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]], "model": "VLP-16"},
             422,
