@@ -8,9 +8,9 @@ Conventions:
   ``((j - cx) / fx, (i - cy) / fy, 1)`` in that frame: OpenCV's pixel coordinates (u, v) = (j, i)
   put integer coordinates at pixel centres.
 - ``pose`` (4, 4, row-major) maps the camera frame to the scene: the rays start at ``pose[:3, 3]``
-  and a camera-frame direction ``(x, y, 1)`` becomes ``x * R[:, 0] + y * R[:, 1] + R[:, 2]`` with
-  ``R = pose[:3, :3]``, computed in float64 and rounded to float32. Its component along the optical
-  axis is 1, so a hit's ``t`` is its depth: the distance along the camera's z axis.
+  and a camera-frame direction ``(x, y, 1)`` becomes ``x * R[:, 0] + (y * R[:, 1] + R[:, 2])``
+  with ``R = pose[:3, :3]``, computed in float64 and rounded to float32. Its component along the
+  optical axis is 1, so a hit's ``t`` is its depth: the distance along the camera's z axis.
 - A look-at camera (``eye``, ``target``, ``up``, ``fov_deg``: the vertical field of view) is the
   pinhole with ``fx = fy = (height / 2) / tan(fov_deg / 2)``, ``cx = (width - 1) / 2``,
   ``cy = (height - 1) / 2`` at ``eye``, with z along ``target - eye``, x along ``z x up`` and
@@ -66,12 +66,13 @@ class Pinhole:
         x = (np.arange(self.width, dtype=np.float64) - self.cx) / self.fx
         y = (np.arange(self.height, dtype=np.float64) - self.cy) / self.fy
         rotation = self.pose[:3, :3]
-        directions = (
-            x[None, :, None] * rotation[:, 0] + y[:, None, None] * rotation[:, 1] + rotation[:, 2]
-        )
-        directions = np.ascontiguousarray(directions.reshape(-1, 3), dtype=np.float32)
-        origins = np.empty_like(directions)
-        origins[:] = self.origin.astype(np.float32)
+        # a column's part and a row's part, added in float64 and rounded once to float32
+        column = x[:, None] * rotation[:, 0]
+        row = y[:, None] * rotation[:, 1] + rotation[:, 2]
+        directions = np.empty((self.height, self.width, 3), np.float32)
+        np.add(column[None, :, :], row[:, None, :], out=directions, casting="same_kind")
+        directions = directions.reshape(-1, 3)
+        origins = np.tile(self.origin.astype(np.float32), (len(directions), 1))
         return origins, directions
 
 

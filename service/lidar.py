@@ -8,10 +8,11 @@ Conventions:
 - One revolution has ``horizontal_steps`` columns; step s has azimuth ``2 pi s / steps``
   (radians, from +x toward +y, i.e. counter-clockwise seen from +z).
 - Ray number ``ring * steps + step`` starts at ``pose[:3, 3]`` and runs along the unit vector
-  ``(cos e cos a, cos e sin a, sin e)`` in the sensor frame, which becomes
-  ``x * R[:, 0] + y * R[:, 1] + z * R[:, 2]`` in the scene (R = ``pose[:3, :3]``), computed in
-  float64 and rounded to float32. ``t`` along it is the range; rays are traced for
-  ``min_range <= t <= max_range``.
+  ``(cos e cos a, cos e sin a, sin e)`` in the sensor frame, which is
+  ``cos e * (cos a * R[:, 0] + sin a * R[:, 1]) + sin e * R[:, 2]`` in the scene
+  (R = ``pose[:3, :3]``), computed in float64 and rounded to float32. ``t`` along it is the range;
+  rays are traced for ``min_range <= t <= max_range``. A point is ``origin + t * direction`` in
+  float32 arithmetic.
 
 The named models' elevations are the nominal ones their makers publish; a unit's own calibration
 (Velodyne's db.xml / XML calibration, Ouster's ``beam_altitude_angles``) differs by fractions of
@@ -158,16 +159,17 @@ class Scan:
         """(origins, directions), each (n_rays, 3) float32 C-contiguous; ray ``ring * steps +
         step``; directions are unit length before rounding to float32."""
         elevation, azimuth = self.angles()
-        cos_e, sin_e = np.cos(elevation)[:, None], np.sin(elevation)[:, None]
-        x, y = cos_e * np.cos(azimuth), cos_e * np.sin(azimuth)
-        z = np.broadcast_to(sin_e, x.shape)
         rotation = self.pose[:3, :3]
-        directions = (x[..., None] * rotation[:, 0] + y[..., None] * rotation[:, 1]) + z[
-            ..., None
-        ] * rotation[:, 2]
+        # the horizontal part once per step, the vertical once per ring
+        level = (
+            np.cos(azimuth)[:, None] * rotation[:, 0] + np.sin(azimuth)[:, None] * rotation[:, 1]
+        )
+        directions = (
+            np.cos(elevation)[:, None, None] * level
+            + (np.sin(elevation)[:, None] * rotation[:, 2])[:, None, :]
+        )
         directions = np.ascontiguousarray(directions.reshape(-1, 3), dtype=np.float32)
-        origins = np.empty_like(directions)
-        origins[:] = self.pose[:3, 3].astype(np.float32)
+        origins = np.tile(self.pose[:3, 3].astype(np.float32), (len(directions), 1))
         return origins, directions
 
 
@@ -186,22 +188,20 @@ def points(
     t: np.ndarray,
     normal: np.ndarray,
 ) -> dict[str, np.ndarray]:
-    """The per-point arrays derived from the hits of ``scan``'s rays: for hit k of ray ``ray[k]``
-    at ``t[k]`` with unit normal ``normal[k]``: ``xyz`` (origin + t * direction, float64 rounded to
-    float32), ``range`` (t), ``ring`` int16, ``azimuth`` and ``elevation`` float32 radians,
-    ``cos_incidence`` float32 |n . d| with d the unit direction."""
-    elevation, azimuth = scan.angles()
+    """The per-point arrays derived from the hits of ``scan``'s rays, in float32 arithmetic: for
+    hit k of ray ``ray[k]`` at ``t[k]`` with unit normal ``normal[k]``: ``xyz`` (origin + t *
+    direction), ``range`` (t), ``ring`` int16, ``azimuth`` and ``elevation`` float32 radians,
+    ``cos_incidence`` |n . d| (d is unit up to float32 rounding; at most 1)."""
+    elevation, azimuth = (a.astype(np.float32) for a in scan.angles())
     ring = ray // scan.steps
     step = ray - ring * scan.steps
-    d = directions[ray].astype(np.float64)
-    xyz = origins[ray].astype(np.float64) + t.astype(np.float64)[:, None] * d
-    unit = d / np.linalg.norm(d, axis=1, keepdims=True)
-    cos_incidence = np.abs(np.einsum("ij,ij->i", unit, normal.astype(np.float64)))
+    d = directions[ray]
+    cos_incidence = np.abs(np.einsum("ij,ij->i", d, normal))
     return {
-        "xyz": xyz.astype(np.float32),
-        "range": t.astype(np.float32),
+        "xyz": origins[0] + t[:, None] * d,  # every ray starts at the sensor
+        "range": t,
         "ring": ring.astype(np.int16),
-        "azimuth": azimuth[step].astype(np.float32),
-        "elevation": elevation[ring].astype(np.float32),
-        "cos_incidence": cos_incidence.astype(np.float32),
+        "azimuth": azimuth[step],
+        "elevation": elevation[ring],
+        "cos_incidence": np.minimum(cos_incidence, np.float32(1)),
     }

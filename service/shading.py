@@ -36,6 +36,7 @@ PALETTE = np.array(
     ],
     np.float64,
 )
+_PALETTE32 = PALETTE.astype(np.float32)
 BACKGROUND = (30, 33, 40)  #: the colour of a miss in ``shaded``
 DEPTH_NEAR, DEPTH_FAR = 255, 55  #: the grey of the nearest and of the farthest hit in ``depth``
 AMBIENT = 0.15  #: the share of a mesh's colour that a grazing hit keeps in ``shaded``
@@ -56,7 +57,7 @@ def depth_pixels(depth: np.ndarray) -> tuple[np.ndarray, tuple[float, float] | N
 
 def normal_pixels(t: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """uint8 (H, W, 3): each hit's unit normal mapped from [-1, 1] to [0, 255]; misses black."""
-    rgb = np.rint((normal.astype(np.float64) + 1) * 127.5).clip(0, 255).astype(np.uint8)
+    rgb = np.rint((normal + np.float32(1)) * np.float32(127.5)).clip(0, 255).astype(np.uint8)
     rgb[~np.isfinite(t)] = 0
     return rgb
 
@@ -65,12 +66,11 @@ def shaded_pixels(
     t: np.ndarray, mesh: np.ndarray, normal: np.ndarray, directions: np.ndarray
 ) -> np.ndarray:
     """uint8 (H, W, 3): each hit's mesh colour lit by a light at the eye; misses BACKGROUND."""
-    d = directions.astype(np.float64)
-    cosine = np.abs(np.einsum("...i,...i->...", d, normal.astype(np.float64)))
-    cosine /= np.linalg.norm(d, axis=-1)
-    light = AMBIENT + (1 - AMBIENT) * np.minimum(cosine, 1.0)
-    colour = PALETTE[np.maximum(mesh, 0) % len(PALETTE)] * light[..., None]
-    rgb = np.rint(colour).clip(0, 255).astype(np.uint8)
+    cosine = np.abs(np.einsum("...i,...i->...", directions, normal))
+    cosine /= np.sqrt(np.einsum("...i,...i->...", directions, directions))
+    light = np.float32(AMBIENT) + np.float32(1 - AMBIENT) * np.minimum(cosine, np.float32(1))
+    colour = _PALETTE32[np.maximum(mesh, 0) % len(PALETTE)] * light[..., None]
+    rgb = np.rint(colour).astype(np.uint8)  # at most 230: no clipping needed
     rgb[~np.isfinite(t)] = BACKGROUND
     return rgb
 

@@ -47,7 +47,8 @@ def room_triangles() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def look_at_rays(eye, target, up, fov_deg, width, height):
     """(origins, directions, forward) of a look-at camera: pixel (i, j) at row i from the top,
-    ray i * width + j, direction x * right + y * down + forward with x = (j - (width - 1) / 2) / f,
+    ray i * width + j, direction x * right + (y * down + forward) with
+    x = (j - (width - 1) / 2) / f,
     y = (i - (height - 1) / 2) / f, f = (height / 2) / tan(fov / 2), in float64, then float32."""
     eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
     forward = (target - eye) / np.linalg.norm(target - eye)
@@ -63,13 +64,13 @@ def look_at_rays(eye, target, up, fov_deg, width, height):
 
 def pinhole_rays(fx, fy, cx, cy, pose, width, height):
     """(origins, directions) of an OpenCV pinhole with camera-to-scene ``pose``: camera-frame
-    direction ((j - cx) / fx, (i - cy) / fy, 1), mapped as x R[:, 0] + y R[:, 1] + R[:, 2]."""
+    direction ((j - cx) / fx, (i - cy) / fy, 1), mapped as x R[:, 0] + (y R[:, 1] + R[:, 2])."""
     pose = np.asarray(pose, np.float64)
     rotation = pose[:3, :3]
     i, j = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
     x = ((j - cx) / fx).reshape(-1, 1)
     y = ((i - cy) / fy).reshape(-1, 1)
-    directions = (x * rotation[:, 0] + y * rotation[:, 1] + rotation[:, 2]).astype(np.float32)
+    directions = (x * rotation[:, 0] + (y * rotation[:, 1] + rotation[:, 2])).astype(np.float32)
     origins = np.tile(pose[:3, 3], (len(directions), 1)).astype(np.float32)
     return origins, directions
 
@@ -78,15 +79,17 @@ def lidar_rays(pose, elevations_deg, steps):
     """(origins, directions, ring, azimuth, elevation) of one revolution: ray ring * steps + step
     along (cos e cos a, cos e sin a, sin e) in the sensor frame (x forward, y left, z up), e the
     ring's elevation (rings sorted from the lowest), a = 2 pi step / steps; in the scene
-    x R[:, 0] + y R[:, 1] + z R[:, 2]."""
+    cos e (cos a R[:, 0] + sin a R[:, 1]) + sin e R[:, 2], in float64, then float32."""
     pose = np.asarray(pose, np.float64)
     rotation = pose[:3, :3]
     elevation = np.radians(np.sort(np.asarray(elevations_deg, np.float64), kind="stable"))
     azimuth = 2 * np.pi * np.arange(steps) / steps
     ring = np.repeat(np.arange(len(elevation)), steps)
     e, a = elevation[ring], np.tile(azimuth, len(elevation))
-    x, y, z = (np.cos(e) * np.cos(a))[:, None], (np.cos(e) * np.sin(a))[:, None], np.sin(e)[:, None]
-    directions = ((x * rotation[:, 0] + y * rotation[:, 1]) + z * rotation[:, 2]).astype(np.float32)
+    level = np.cos(a)[:, None] * rotation[:, 0] + np.sin(a)[:, None] * rotation[:, 1]
+    directions = (np.cos(e)[:, None] * level + np.sin(e)[:, None] * rotation[:, 2]).astype(
+        np.float32
+    )
     origins = np.tile(pose[:3, 3], (len(directions), 1)).astype(np.float32)
     return origins, directions, ring, a, e
 
