@@ -161,3 +161,31 @@ def test_a_new_version_of_the_scene_is_shown_and_new_scenes_are_listed(
     camera, png, version = shown(driver)
     assert version == "1"
     assert_is_the_render_of_its_camera(url, scene_name + "-more", camera, png)
+
+
+def test_on_a_server_with_a_token_the_page_asks_for_it(driver):
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    server = ServerProcess({"DACRT_TOKEN": "viewer-token-7", "DACRT_LOAD_DEMO": "true"})
+    try:
+        url = server.wait_ready()
+        driver.get("about:blank")
+        driver.get(f"{url}/")
+        form = driver.find_element("id", "token-form")
+        WebDriverWait(driver, 30, poll_frequency=0.05).until(lambda d: form.is_displayed())
+        assert "token" in driver.find_element("id", "error").text
+        driver.find_element("id", "token").send_keys("viewer-token-7")
+        form.submit()
+        browser.wait_for_picture(driver)
+        camera, png, _ = shown(driver)
+        response = httpx.post(
+            f"{url}/v1/scenes/demo/render",
+            json=camera,
+            headers={"Authorization": "Bearer viewer-token-7"},
+            timeout=60,
+        )
+        assert np.array_equal(pixels(response.content), pixels(png))
+        assert not form.is_displayed()
+    finally:
+        driver.execute_script("sessionStorage.clear()")
+        server.stop()
