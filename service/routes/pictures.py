@@ -71,6 +71,7 @@ async def render(
     vertical field of view (docs/sensors.md)."""
     check_accepts_png(request.headers.get("accept"))
     options = sensing.SensorOptions((), strategy, stats, settings.threads, cull)
+    options.closest()  # 422 for an unknown strategy or cull before the body is read
 
     def work(body: memoryview, timing: ServerTiming):
         with timing("decode"):
@@ -112,8 +113,8 @@ async def camera(
     options = sensing.SensorOptions(
         fields, batch.strategy, batch.stats, settings.threads, batch.cull
     )
-    accept = request.headers.get("accept")
-    answer_format = wire.negotiate(accept, "json")
+    options.closest()  # 422 for an unknown strategy or cull before the body is read
+    answer_format = wire.negotiate(request.headers.get("accept"), "json")
 
     def work(body: memoryview, timing: ServerTiming):
         with timing("decode"):
@@ -158,6 +159,7 @@ async def lidar(
     options = sensing.SensorOptions(
         fields, batch.strategy, batch.stats, settings.threads, batch.cull
     )
+    options.closest()  # 422 for an unknown strategy or cull before the body is read
     answer_format = wire.negotiate(request.headers.get("accept"), "json")
 
     def work(body: memoryview, timing: ServerTiming):
@@ -233,7 +235,18 @@ def check_accepts_png(accept: str | None) -> None:
         return
     for part in accept.split(","):
         media, *params = [p.strip().lower() for p in part.split(";")]
-        rejected = any(p.replace(" ", "") in ("q=0", "q=0.0", "q=0.00", "q=0.000") for p in params)
-        if media in (PNG, "image/*", "*/*") and not rejected:
+        if media in (PNG, "image/*", "*/*") and quality(params) > 0:
             return
     raise NotAcceptable(f"Accept: {accept} does not admit {PNG}, the only answer of render")
+
+
+def quality(params: list[str]) -> float:
+    """The q-value of an Accept entry's parameters (1 if absent, 0 if unreadable)."""
+    for param in params:
+        name, _, value = param.partition("=")
+        if name.strip() == "q":
+            try:
+                return float(value)
+            except ValueError:
+                return 0.0
+    return 1.0

@@ -5,6 +5,8 @@ are the data sheets' angles; bad requests are refused with a clear 4xx."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import procedural
 import pytest
@@ -248,3 +250,24 @@ def test_bad_requests_are_refused_naming_the_problem(app_client, room, body, sta
     response = lidar(app_client, room, body)
     assert response.status_code == status, response.text
     assert words in response.json()["detail"]
+
+
+def test_query_options_are_those_of_the_queries(app_client, app_api, room):
+    body = {"pose": POSES[1].tolist(), "model": "VLP-16", "horizontal_steps": 180}
+    plain = npz(lidar(app_client, room, body).content)
+    for strategy in dacrt.STRATEGIES:
+        same = npz(lidar(app_client, room, body, f"?strategy={strategy}").content)
+        assert all(np.array_equal(same[k], plain[k]) for k in FIELDS), strategy
+    response = lidar(app_client, room, body, "?stats=true")
+    stats = json.loads(response.headers["x-trace-stats"])
+    assert stats["rays"] == 16 * 180 and stats["strategy"] == dacrt.STRATEGIES[0]
+    culled = npz(lidar(app_client, room, body, "?cull=front").content)
+    expected = expected_points(app_api, room, POSES[1], PUBLISHED["VLP-16"], 180)
+    origins, directions, *_ = lidar_rays(POSES[1], PUBLISHED["VLP-16"], 180)
+    front = app_api.closest(room, origins, directions, cull="front")
+    assert np.array_equal(culled["ray"], np.flatnonzero(np.isfinite(front.t)))
+    assert np.array_equal(culled["range"], front.t[np.isfinite(front.t)])
+    assert len(culled["ray"]) < len(expected["ray"])  # the floor faces up: rays from above pass
+    for query, words in [("?strategy=fast", "strategy"), ("?cull=both", "cull")]:
+        response = lidar(app_client, room, body, query)
+        assert response.status_code == 422 and words in response.json()["detail"]
