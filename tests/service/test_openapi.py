@@ -24,6 +24,9 @@ BODIES = {
     ("POST", "/v1/scenes/{scene}/closest"): wire.RAY_FORMATS,
     ("POST", "/v1/scenes/{scene}/occluded"): wire.RAY_FORMATS,
     ("POST", "/v1/trace"): wire.TRACE_FORMATS,
+    ("POST", "/v1/scenes/{scene}/render"): ("json",),
+    ("POST", "/v1/scenes/{scene}/camera"): ("json",),
+    ("POST", "/v1/scenes/{scene}/lidar"): ("json",),
 }
 
 
