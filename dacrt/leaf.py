@@ -17,8 +17,8 @@ from .geometry import (
 from .query import ALL_HITS, ANY_HIT, COLLECT, CULL_BACK, CULL_FRONT, MASKED
 from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN, ORIGIN_QUAD, TMIN, field, set_field
 
-# The flags a leaf over rays does not handle.
-FILTERS = CULL_BACK | CULL_FRONT | MASKED | COLLECT
+# The flags the leaf over rays does not handle.
+FILTERS = CULL_BACK | CULL_FRONT | MASKED
 # best_tri of a ray with no hit yet: larger than any triangle, so the tie rule needs no branch.
 NO_HIT = np.iinfo(np.int32).max
 # Triangles a leaf gathers at a time into float64 rows (see intersect_leaf).
@@ -168,6 +168,20 @@ def intersect_leaf(
     triangles, at least BY_RAYS_MIN_RAYS rays); the order of tests changes no answer."""
     # Culling and masks are tested by triangles only, outside the vectorised loops: a test in
     # those loops slows every query.
+    if flags & COLLECT:
+        return collect_leaf(
+            flags,
+            tri_verts,
+            rays,
+            ray_ids,
+            ray_lo,
+            ray_hi,
+            tri_ids,
+            tri_lo,
+            tri_hi,
+            arrays,
+            scratch,
+        )
     by_rays = tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS
     if by_rays and (flags & FILTERS) == 0:
         return intersect_leaf_by_rays(
@@ -249,33 +263,18 @@ def intersect_leaf_by_triangles(
     hit_v = arrays.hit_v
     ray_masks = arrays.ray_masks
     tri_masks = arrays.tri_masks
-    n_hits = arrays.n_hits
-    list_t = arrays.list_t
-    list_tri = arrays.list_tri
     any_hit = (flags & ANY_HIT) != 0
-    count_only = (flags & ALL_HITS) == 0
     cull_side = culled_side(flags)
     masked = (flags & MASKED) != 0
-    collect = (flags & COLLECT) != 0
     n_tests = 0
     for block_lo in range(tri_lo, tri_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, tri_hi - block_lo)
-        for k in range(n):
-            tri = tri_ids[block_lo + k]
-            for c in range(9):
-                corners[c * LEAF_BLOCK + k] = np.float64(tri_verts[tri, c])
+        gather_block(tri_verts, tri_ids, block_lo, n, corners)
         for r in range(ray_lo, ray_hi):
             best = field(rays, BEST_T, r)
             if best == -np.inf:
                 continue  # an occlusion ray that has already hit
-            kx, ky, kz, sx, sy, sz = watertight_setup(
-                field(rays, DIRECTION, r),
-                field(rays, DIRECTION + 1, r),
-                field(rays, DIRECTION + 2, r),
-            )
-            okx = np.float64(field(rays, ORIGIN + kx, r))
-            oky = np.float64(field(rays, ORIGIN + ky, r))
-            okz = np.float64(field(rays, ORIGIN + kz, r))
+            kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_frame(rays, r)
             n_tests += n
             # Padding lanes hold stale corners; their distances are never read.
             block_distances(
@@ -297,33 +296,6 @@ def intersect_leaf_by_triangles(
                 hide_unseen(ray_masks[ray], tri_masks, tri_ids, block_lo, n, t_block)
             # Ranges and ties are decided on the float32 t that is reported.
             t_lo = field(rays, TMIN, r)
-            if collect:
-                best = collect_hits(
-                    count_only,
-                    n_hits,
-                    list_t,
-                    list_tri,
-                    corners,
-                    tri_ids,
-                    block_lo,
-                    n,
-                    t_block,
-                    t_lo,
-                    best,
-                    ray,
-                    okx,
-                    oky,
-                    okz,
-                    kx,
-                    ky,
-                    kz,
-                    sx,
-                    sy,
-                    sz,
-                    cull_side,
-                )
-                set_field(rays, BEST_T, r, best)
-                continue
             winner = -1
             winner_tri = best_tri[ray]
             for k in range(n):
@@ -359,6 +331,99 @@ def intersect_leaf_by_triangles(
                 hit_v[ray] = v
                 if any_hit:
                     best = -np.inf
+            set_field(rays, BEST_T, r, best)
+    return n_tests
+
+
+@inline
+def gather_block(tri_verts, tri_ids, block_lo, n, corners):
+    """Copy the corners of triangles ``tri_ids[block_lo:block_lo + n]`` to float64 rows:
+    coordinate c of the block's triangle k at corners[c * LEAF_BLOCK + k]."""
+    for k in range(n):
+        tri = tri_ids[block_lo + k]
+        for c in range(9):
+            corners[c * LEAF_BLOCK + k] = np.float64(tri_verts[tri, c])
+
+
+@inline
+def ray_frame(rays, r):
+    """The watertight test's constants of record r (``watertight_setup``) and its origin in
+    the ray's axis order, in float64: (kx, ky, kz, sx, sy, sz, okx, oky, okz)."""
+    kx, ky, kz, sx, sy, sz = watertight_setup(
+        field(rays, DIRECTION, r),
+        field(rays, DIRECTION + 1, r),
+        field(rays, DIRECTION + 2, r),
+    )
+    okx = np.float64(field(rays, ORIGIN + kx, r))
+    oky = np.float64(field(rays, ORIGIN + ky, r))
+    okz = np.float64(field(rays, ORIGIN + kz, r))
+    return kx, ky, kz, sx, sy, sz, okx, oky, okz
+
+
+@inline
+def collect_leaf(
+    flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
+):
+    """intersect_leaf of ``count`` and ``hits`` (COLLECT): blocks of triangles as for
+    ``intersect_leaf_by_triangles``, then every distance of a ray in its [tmin, best_t] is a
+    candidate for ``collect_hits``. Its own function, so the closest-hit leaf stays as small."""
+    corners, t_block, _, _ = scratch
+    ray_masks = arrays.ray_masks
+    tri_masks = arrays.tri_masks
+    n_hits = arrays.n_hits
+    list_t = arrays.list_t
+    list_tri = arrays.list_tri
+    count_only = (flags & ALL_HITS) == 0
+    cull_side = culled_side(flags)
+    masked = (flags & MASKED) != 0
+    n_tests = 0
+    for block_lo in range(tri_lo, tri_hi, LEAF_BLOCK):
+        n = min(LEAF_BLOCK, tri_hi - block_lo)
+        gather_block(tri_verts, tri_ids, block_lo, n, corners)
+        for r in range(ray_lo, ray_hi):
+            kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_frame(rays, r)
+            n_tests += n
+            block_distances(
+                corners,
+                min(LEAF_BLOCK, -(-n // LANES) * LANES),
+                okx,
+                oky,
+                okz,
+                kx,
+                ky,
+                kz,
+                sx,
+                sy,
+                sz,
+                t_block,
+            )
+            ray = ray_ids[r]
+            if masked:
+                hide_unseen(ray_masks[ray], tri_masks, tri_ids, block_lo, n, t_block)
+            best = collect_hits(
+                count_only,
+                n_hits,
+                list_t,
+                list_tri,
+                corners,
+                tri_ids,
+                block_lo,
+                n,
+                t_block,
+                field(rays, TMIN, r),
+                field(rays, BEST_T, r),
+                ray,
+                okx,
+                oky,
+                okz,
+                kx,
+                ky,
+                kz,
+                sx,
+                sy,
+                sz,
+                cull_side,
+            )
             set_field(rays, BEST_T, r, best)
     return n_tests
 
