@@ -1,19 +1,24 @@
 """The path and query parameters of the routes, declared once with their descriptions and choices.
 
 Values are checked by the service itself (``store.check_name``, ``tracing.make_options``,
-``wire.resolve_format``), whose 422 messages name the fix; the declarations here tell the OpenAPI
-document what those checks accept.
+``wire.resolve_format``, ``parse_mask``), whose 422 messages name the fix; the declarations here
+tell the OpenAPI document what those checks accept.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Annotated
 
 from fastapi import Depends, Path, Query
 
 from . import tracing, wire
+from .errors import Invalid
 from .store import NAME
+
+#: A 32-bit mask in the query string: decimal or 0x hexadecimal.
+MASK_PATTERN = re.compile(r"0[xX][0-9A-Fa-f]{1,8}|[0-9]{1,10}")
 
 _NAME = {"pattern": f"^{NAME.pattern}$"}
 
@@ -42,6 +47,22 @@ Cull = Annotated[
     ),
 ]
 Mask = Annotated[str | None, Query(description="the mesh's visibility mask (not served yet: 422)")]
+RayMask = Annotated[
+    str | None,
+    Query(
+        description="one visibility mask for every ray of the batch, decimal or 0x hex (a ray "
+        "sees a mesh where ray mask & mesh mask != 0); the body's mask instead for one per ray",
+        json_schema_extra={"pattern": f"^({MASK_PATTERN.pattern})$"},
+    ),
+]
+MaxHits = Annotated[
+    int | None,
+    Query(
+        description=f"hits kept per ray, nearest first (default {tracing.DEFAULT_MAX_HITS}, "
+        "at most the server's DACRT_MAX_HITS); hits only",
+        ge=1,
+    ),
+]
 QueryKind = Annotated[
     str,
     Query(
@@ -49,6 +70,20 @@ QueryKind = Annotated[
         json_schema_extra={"enum": [q.value for q in tracing.Query]},
     ),
 ]
+
+
+def parse_mask(text: str, name: str = "mask") -> int:
+    """A 32-bit mask from a query string: decimal (``4294967295``) or hex (``0xFFFFFFFF``)."""
+    value = text.strip()
+    number = -1
+    if MASK_PATTERN.fullmatch(value):
+        number = int(value, 16 if value[1:2] in ("x", "X") else 10)
+    if not 0 <= number <= 0xFFFFFFFF:
+        raise Invalid(
+            f"?{name}={text} is not a 32-bit mask; give a decimal integer from 0 to 4294967295 "
+            "or hexadecimal from 0x0 to 0xFFFFFFFF"
+        )
+    return number
 
 
 @dataclass(frozen=True)
@@ -59,18 +94,37 @@ class BatchOptions:
     strategy: str | None
     stats: bool
     cull: str
+    mask: str | None = None
 
-    def for_query(self, query: tracing.Query | str, threads: int | None) -> tracing.Options:
+    def for_query(
+        self,
+        query: tracing.Query | str,
+        threads: int | None,
+        max_hits: int | None = None,
+        max_hits_limit: int | None = None,
+    ) -> tracing.Options:
         """The engine options of ``query``; 422 naming the choices for an unknown value."""
         return tracing.make_options(
-            query, self.fields, self.strategy, self.stats, threads, self.cull
+            query,
+            self.fields,
+            self.strategy,
+            self.stats,
+            threads,
+            self.cull,
+            max_hits,
+            None if self.mask is None else parse_mask(self.mask),
+            max_hits_limit,
         )
 
 
 def batch_options(
-    fields: Fields = None, strategy: Strategy = None, stats: Stats = False, cull: Cull = "none"
+    fields: Fields = None,
+    strategy: Strategy = None,
+    stats: Stats = False,
+    cull: Cull = "none",
+    mask: RayMask = None,
 ) -> BatchOptions:
-    return BatchOptions(fields, strategy, stats, cull)
+    return BatchOptions(fields, strategy, stats, cull, mask)
 
 
 BatchOptionsDep = Annotated[BatchOptions, Depends(batch_options)]
