@@ -84,3 +84,50 @@ class Occlusion:
 
     def __len__(self):
         return len(self.occluded)
+
+
+@dataclass
+class HitList:
+    """Every hit of each ray, nearest first, in CSR form.
+
+    offsets : (n + 1,) int64; ray i's hits are rows offsets[i]:offsets[i + 1] of the arrays below
+    t : (m,) float32, sorted within each ray, ties by (mesh, prim)
+    mesh, prim : (m,) int32
+    u, v : (m,) float32 barycentrics, hit = (1-u-v)*p0 + u*p1 + v*p2
+    normal : (m, 3) float32 unit geometric normal (p1-p0)x(p2-p0)
+    truncated : (n,) bool, true where a ray had more hits than max_hits (the nearest are kept)
+    stats : dict of counters when asked for, else None
+    """
+
+    offsets: np.ndarray
+    t: np.ndarray
+    mesh: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    normal: np.ndarray
+    truncated: np.ndarray
+    stats: dict | None = None
+
+    def __len__(self):
+        return len(self.truncated)
+
+    @property
+    def counts(self):
+        """(n,) int64: the hits held for each ray."""
+        return np.diff(self.offsets)
+
+
+@dataclass
+class Counts:
+    """How many triangles each ray crosses.
+
+    count : (n,) int32
+    stats : dict of counters when asked for, else None
+    """
+
+    count: np.ndarray
+    stats: dict | None = None
+
+    def __len__(self):
+        return len(self.count)

@@ -5,6 +5,7 @@ import numpy as np
 from .config import inline
 from .contracts import NAN32, NEG_INF32
 from .geometry import (
+    crossing,
     culled,
     culled_side,
     intersect_triangle,
@@ -13,11 +14,11 @@ from .geometry import (
     woop_edges,
     woop_miss,
 )
-from .query import ANY_HIT, CULL_BACK, CULL_FRONT, MASKED
+from .query import ALL_HITS, ANY_HIT, COLLECT, CULL_BACK, CULL_FRONT, MASKED
 from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN, ORIGIN_QUAD, TMIN, field, set_field
 
-# The flags a leaf over rays does not test.
-FILTERS = CULL_BACK | CULL_FRONT | MASKED
+# The flags a leaf over rays does not handle.
+FILTERS = CULL_BACK | CULL_FRONT | MASKED | COLLECT
 # best_tri of a ray with no hit yet: larger than any triangle, so the tie rule needs no branch.
 NO_HIT = np.iinfo(np.int32).max
 # Triangles a leaf gathers at a time into float64 rows (see intersect_leaf).
@@ -158,8 +159,9 @@ def intersect_leaf(
 
     Keeps, per ray, the hit with the smallest (t, triangle index) in [tmin, best_t]; best_t
     lives in the ray record, the rest in ``arrays`` (``QueryArrays``) indexed by ray id. With
-    ANY_HIT in ``flags`` a ray stops at its first hit and its best_t becomes -inf; culled faces
-    and triangles a ray's mask does not see never hit (CULL_BACK, CULL_FRONT, MASKED).
+    ANY_HIT in ``flags`` a ray stops at its first hit and its best_t becomes -inf; with COUNT it
+    counts its hits, with ALL_HITS it keeps its nearest in its list (``collect_hits``); culled
+    faces and triangles a ray's mask does not see never hit (CULL_BACK, CULL_FRONT, MASKED).
     ``scratch`` is ``leaf_scratch()``. Returns the ray-triangle tests made.
 
     The tests run as vectorised loops, over triangles (a few rays) or over rays (a few
@@ -243,6 +245,7 @@ def intersect_leaf_by_triangles(
     any_hit = (flags & ANY_HIT) != 0
     cull_side = culled_side(flags)
     masked = (flags & MASKED) != 0
+    collect = (flags & COLLECT) != 0
     n_tests = 0
     for block_lo in range(tri_lo, tri_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, tri_hi - block_lo)
@@ -283,6 +286,31 @@ def intersect_leaf_by_triangles(
                 hide_unseen(arrays, ray, tri_ids, block_lo, n, t_block)
             # Ranges and ties are decided on the float32 t that is reported.
             t_lo = field(rays, TMIN, r)
+            if collect:
+                best = collect_hits(
+                    flags,
+                    tri_verts,
+                    tri_ids,
+                    block_lo,
+                    n,
+                    t_block,
+                    t_lo,
+                    best,
+                    ray,
+                    okx,
+                    oky,
+                    okz,
+                    kx,
+                    ky,
+                    kz,
+                    sx,
+                    sy,
+                    sz,
+                    cull_side,
+                    arrays,
+                )
+                set_field(rays, BEST_T, r, best)
+                continue
             winner = -1
             winner_tri = best_tri[ray]
             for k in range(n):
@@ -330,3 +358,78 @@ def hide_unseen(arrays, ray, tri_ids, block_lo, n, t_block):
     for k in range(n):
         seen = (arrays.tri_masks[tri_ids[block_lo + k]] & ray_mask) != 0
         t_block[k] = t_block[k] if seen else NAN32
+
+
+@inline
+def collect_hits(
+    flags,
+    tri_verts,
+    tri_ids,
+    block_lo,
+    n,
+    t_block,
+    t_lo,
+    best,
+    ray,
+    okx,
+    oky,
+    okz,
+    kx,
+    ky,
+    kz,
+    sx,
+    sy,
+    sz,
+    cull_side,
+    arrays,
+):
+    """Count (COUNT) or list (ALL_HITS) the crossings of one ray with a block's triangles whose
+    distances are ``t_block``; returns the ray's new best_t. A distance in [t_lo, best] is a
+    candidate, confirmed by the half-open ``crossing`` (a subset of the inclusive test that gave
+    it), then by culling. best_t stays tmax while the ray's list has room and then becomes its
+    last entry's t, which bounds the boxes a ray still visits."""
+    list_size = arrays.list_t.shape[1]
+    for k in range(n):
+        t = t_block[k]
+        if not (t >= t_lo and t <= best):
+            continue
+        tri = tri_ids[block_lo + k]
+        hit, _, u, v, det = crossing(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz)
+        if not hit or det * cull_side > 0.0:
+            continue
+        if (flags & ALL_HITS) == 0:
+            arrays.n_hits[ray] += 1
+            continue
+        best = insert_hit(arrays, ray, list_size, t, tri, np.float32(u), np.float32(v), best)
+    return best
+
+
+@inline
+def insert_hit(arrays, ray, list_size, t, tri, u, v, best):
+    """Insert a hit into ray ``ray``'s list, kept sorted by (t, kernel row) and at most
+    ``list_size`` long (the farthest falls off); returns the ray's new best_t."""
+    list_t = arrays.list_t
+    list_tri = arrays.list_tri
+    n_held = arrays.n_hits[ray]
+    if n_held == list_size and not (
+        t < list_t[ray, n_held - 1]
+        or (t == list_t[ray, n_held - 1] and tri < list_tri[ray, n_held - 1])
+    ):
+        return best
+    p = n_held if n_held < list_size else list_size - 1
+    while p > 0 and (
+        t < list_t[ray, p - 1] or (t == list_t[ray, p - 1] and tri < list_tri[ray, p - 1])
+    ):
+        list_t[ray, p] = list_t[ray, p - 1]
+        list_tri[ray, p] = list_tri[ray, p - 1]
+        arrays.list_u[ray, p] = arrays.list_u[ray, p - 1]
+        arrays.list_v[ray, p] = arrays.list_v[ray, p - 1]
+        p -= 1
+    list_t[ray, p] = t
+    list_tri[ray, p] = tri
+    arrays.list_u[ray, p] = u
+    arrays.list_v[ray, p] = v
+    if n_held < list_size:
+        n_held += 1
+        arrays.n_hits[ray] = n_held
+    return list_t[ray, list_size - 1] if n_held == list_size else best

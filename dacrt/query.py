@@ -20,6 +20,13 @@ CULL_FRONT = 4
 MASKED = 8
 # Every record of the chunk has the same origin quad (``rays.uniform_origin``).
 FIXED_ORIGIN = 16
+# A ray keeps its nearest hits in a sorted list (``hits``) rather than one best hit.
+ALL_HITS = 32
+# A ray counts its hits (``count``) rather than keeping any.
+COUNT = 64
+# The kinds that keep more than one hit a ray, and so count a crossing through a shared edge or
+# vertex once (``geometry.crossing``).
+COLLECT = ALL_HITS | COUNT
 
 CULL_MODES = ("none", "back", "front")
 CULL_FLAGS = {"none": 0, "back": CULL_BACK, "front": CULL_FRONT}
@@ -29,7 +36,21 @@ ALL_MASKS = np.uint32(0xFFFFFFFF)
 
 QueryArrays = namedtuple(
     "QueryArrays",
-    ["best_tri", "hit_u", "hit_v", "ray_masks", "tri_masks", "hit_mask", "tri_bins", "stats"],
+    [
+        "best_tri",
+        "hit_u",
+        "hit_v",
+        "ray_masks",
+        "tri_masks",
+        "n_hits",
+        "list_t",
+        "list_tri",
+        "list_u",
+        "list_v",
+        "hit_mask",
+        "tri_bins",
+        "stats",
+    ],
 )
 QueryArrays.__doc__ = """The arrays of one chunk's trace.
 
@@ -37,6 +58,9 @@ best_tri : (n,) int32 kernel row of each ray's best hit, NO_HIT for none; by ray
 hit_u, hit_v : (n,) float32 barycentrics of that hit; by ray id
 ray_masks : (n,) uint32 by ray id, or (0,) when the MASKED bit is clear
 tri_masks : (F,) uint32 by kernel row, or (0,) when the MASKED bit is clear
+n_hits : (n,) int32 by ray id: hits counted (COUNT) or held in the ray's list (ALL_HITS), else (0,)
+list_t, list_tri, list_u, list_v : (n, L) by ray id: each ray's nearest hits sorted by (t, kernel
+    row), its first n_hits entries in use (ALL_HITS), else (0, 0)
 hit_mask : (m,) bool scratch, one entry per record of the chunk
 tri_bins : (F,) uint8 scratch, each triangle's bin from binning to partition
 stats : (len(STAT_NAMES),) int64 counters

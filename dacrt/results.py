@@ -59,3 +59,48 @@ def finish_closest(
             normal[ray, 2] = normals[row, 2]
         else:
             normal[ray, 0], normal[ray, 1], normal[ray, 2] = unit_normal(tri_verts, row)
+
+
+@jit
+def finish_hits(
+    list_t,
+    list_tri,
+    list_u,
+    list_v,
+    offsets,
+    tri_global,
+    mesh_offsets,
+    tri_verts,
+    normals,
+    t,
+    mesh,
+    prim,
+    u,
+    v,
+    normal,
+):
+    """Copy the first offsets[i + 1] - offsets[i] entries of each ray i's list (kernel rows,
+    sorted by (t, row)) into the CSR rows offsets[i]:offsets[i + 1], as (mesh, prim) and unit
+    normals (``normals`` as for ``finish_closest``). Kernel rows rise with global triangle
+    indices, so the lists' order is the (t, mesh, prim) order."""
+    have_normals = normals.shape[0] > 0
+    m = 0
+    for ray in range(offsets.shape[0] - 1):
+        first = offsets[ray]
+        for k in range(offsets[ray + 1] - first):
+            out = first + k
+            row = list_tri[ray, k]
+            tri = tri_global[row]
+            if not mesh_offsets[m] <= tri < mesh_offsets[m + 1]:
+                m = np.searchsorted(mesh_offsets, tri, side="right") - 1
+            t[out] = list_t[ray, k] + np.float32(0.0)  # -0.0 (a hit at the origin) as +0.0
+            mesh[out] = m
+            prim[out] = tri - mesh_offsets[m]
+            u[out] = list_u[ray, k]
+            v[out] = list_v[ray, k]
+            if have_normals:
+                normal[out, 0] = normals[row, 0]
+                normal[out, 1] = normals[row, 1]
+                normal[out, 2] = normals[row, 2]
+            else:
+                normal[out, 0], normal[out, 1], normal[out, 2] = unit_normal(tri_verts, row)

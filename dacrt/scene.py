@@ -29,24 +29,39 @@ from .contracts import (
     STAT_RAYS,
     STAT_TRIANGLES,
     STRATEGY_CODES,
+    Counts,
+    HitList,
     Hits,
     Occlusion,
 )
 from .leaf import NO_HIT
-from .query import ALL_MASKS, ANY_HIT, CULL_FLAGS, FIXED_ORIGIN, MASKED, QueryArrays
+from .query import (
+    ALL_HITS,
+    ALL_MASKS,
+    ANY_HIT,
+    COLLECT,
+    COUNT,
+    CULL_FLAGS,
+    FIXED_ORIGIN,
+    MASKED,
+    QueryArrays,
+)
 from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
 from .rayspace import trace_ray_space
-from .results import finish_closest, unit_normals
+from .results import finish_closest, finish_hits, unit_normals
 from .traversal import trace_object_split
 from .triangles import gather_triangles, triangle_boxes
 from .validation import (
     check_cull,
     check_masks,
+    check_max_hits,
     check_mesh,
     check_rays,
     check_strategy,
     check_threads,
+    check_transform,
     explain_bad_rays,
+    place_vertices,
 )
 
 
@@ -57,11 +72,18 @@ class Scene:
         its position in this sequence and a triangle by its row in that mesh's faces.
     masks : None (every mesh all ones), an integer, or (n_meshes,) uint32: each mesh's mask; a
         ray sees a mesh only where ray mask & mesh mask != 0 (``mask=`` of the queries).
+    transforms : None, or one entry per mesh: None (as given) or a (4, 4) row-major affine
+        matrix that places the mesh, each vertex p at M[:3, :3] @ p + M[:3, 3] (in float64,
+        then float32). Answers are in scene space: t, u, v along the caller's ray, normals of
+        the placed triangles; prim stays the row of the mesh's own faces. The same (vertices,
+        faces) arrays may be given several times, each with its own matrix and mask: instances.
     """
 
-    def __init__(self, meshes, masks=None):
+    def __init__(self, meshes, masks=None, transforms=None):
         meshes = list(meshes)
         checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in enumerate(meshes)]
+        if transforms is not None:
+            checked = self._placed(checked, list(transforms))
         counts = [len(faces) for _, faces in checked]
         self.n_meshes = len(checked)
         self.masks = check_masks(
@@ -91,6 +113,19 @@ class Scene:
             self._box[:] = 0
         # Bounds of the referenced vertices: every corner, degenerate triangles included.
         self.bounds = corner_box.reshape(2, 3) if self.n_triangles else np.zeros((2, 3), FLOAT)
+
+    @staticmethod
+    def _placed(checked, transforms):
+        """The checked meshes with their vertices placed by ``transforms`` (one per mesh)."""
+        if len(transforms) != len(checked):
+            raise ValueError(f"transforms has {len(transforms)} entries for {len(checked)} meshes")
+        placed = []
+        for i, ((vertices, faces), matrix) in enumerate(zip(checked, transforms)):
+            if matrix is not None:
+                name = f"transforms[{i}]"
+                vertices = place_vertices(vertices, check_transform(matrix, name), name)
+            placed.append((vertices, faces))
+        return placed
 
     @property
     def nbytes(self):
@@ -160,9 +195,10 @@ class Scene:
         threads : None for every core, or a positive int
         Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
         """
-        t, best_tri, u, v, counters = self._trace(
+        t, answer, counters = self._trace(
             0, origins, directions, tmin, tmax, cull, mask, strategy, threads
         )
+        best_tri, u, v = answer.best_tri, answer.hit_u, answer.hit_v
         n = len(t)
         mesh = np.empty(n, INDEX)  # every element is written by finish_closest
         prim = np.empty(n, INDEX)
@@ -207,10 +243,90 @@ class Scene:
         """Whether each ray hits anything with tmin <= t <= tmax (it stops at its first hit).
 
         Same arguments as ``closest``. Returns ``Occlusion``."""
-        _, best_tri, _, _, counters = self._trace(
+        _, answer, counters = self._trace(
             ANY_HIT, origins, directions, tmin, tmax, cull, mask, strategy, threads
         )
-        return Occlusion(best_tri != NO_HIT, counters if stats else None)
+        return Occlusion(answer.best_tri != NO_HIT, counters if stats else None)
+
+    def hits(
+        self,
+        origins,
+        directions,
+        tmin=None,
+        tmax=None,
+        *,
+        max_hits=16,
+        cull="none",
+        mask=None,
+        strategy="sampling",
+        threads=None,
+        stats=False,
+    ):
+        """Every hit of each ray with tmin <= t <= tmax, nearest first, at most ``max_hits``.
+
+        Same arguments as ``closest``, and max_hits (a positive int). A ray through an edge or
+        vertex shared by two triangles crosses one of them, not both (``count``). Returns
+        ``HitList``: ray i's hits are rows offsets[i]:offsets[i + 1], sorted by (t, mesh, prim);
+        truncated[i] where it had more than max_hits, of which the nearest are kept."""
+        max_hits = check_max_hits(max_hits)
+        # One entry beyond max_hits tells a truncated list from a full one.
+        _, answer, counters = self._trace(
+            ALL_HITS, origins, directions, tmin, tmax, cull, mask, strategy, threads, max_hits + 1
+        )
+        n_held = answer.n_hits
+        n_rays = len(n_held)
+        offsets = np.zeros(n_rays + 1, np.int64)
+        np.cumsum(np.minimum(n_held, max_hits), out=offsets[1:])
+        n = int(offsets[-1])
+        t = np.empty(n, FLOAT)
+        mesh = np.empty(n, INDEX)
+        prim = np.empty(n, INDEX)
+        u = np.empty(n, FLOAT)
+        v = np.empty(n, FLOAT)
+        normal = np.empty((n, 3), FLOAT)
+        normals = self._unit_normals if n >= self.n_triangles else self._no_normals
+        finish_hits(
+            answer.list_t,
+            answer.list_tri,
+            answer.list_u,
+            answer.list_v,
+            offsets,
+            self._tri_global,
+            self.mesh_offsets,
+            self._tri_verts,
+            normals,
+            t,
+            mesh,
+            prim,
+            u,
+            v,
+            normal,
+        )
+        truncated = n_held > max_hits
+        return HitList(offsets, t, mesh, prim, u, v, normal, truncated, counters if stats else None)
+
+    def count(
+        self,
+        origins,
+        directions,
+        tmin=None,
+        tmax=None,
+        *,
+        cull="none",
+        mask=None,
+        strategy="sampling",
+        threads=None,
+        stats=False,
+    ):
+        """How many triangles each ray crosses with tmin <= t <= tmax.
+
+        Same arguments as ``closest``. A crossing through an edge or vertex shared by several
+        triangles counts once (``geometry.crossing``): from outside a closed mesh a ray counts an
+        even number, from inside an odd one. Returns ``Counts``."""
+        _, answer, counters = self._trace(
+            COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads
+        )
+        return Counts(answer.n_hits, counters if stats else None)
 
     def _visible_rows(self, ray_masks):
         """How a batch's masks are traced: (flags, tri_ids, tri_masks). A batch whose rays
@@ -226,9 +342,12 @@ class Scene:
             return 0, None, self._no_masks
         return 0, np.flatnonzero(self._row_masks & ray_mask).astype(INDEX), self._no_masks
 
-    def _trace(self, flags, origins, directions, tmin, tmax, cull, mask, strategy, threads):
+    def _trace(
+        self, flags, origins, directions, tmin, tmax, cull, mask, strategy, threads, list_size=0
+    ):
         """Run the kernels with ``flags`` (``dacrt.query``) and the query's options; returns
-        best_t, best_tri (kernel rows), u, v and the counters."""
+        best_t, the answer's ``QueryArrays`` (without scratch) and the counters. ``list_size``
+        is the length of each ray's list of hits (ALL_HITS)."""
         strategy = check_strategy(strategy)
         threads = check_threads(threads, N_CORES)
         flags |= CULL_FLAGS[check_cull(cull)]
@@ -237,18 +356,30 @@ class Scene:
         ray_masks = None if mask is None else check_masks(mask, n_rays, "mask", "ray")
         mask_flags, visible_rows, tri_masks = self._visible_rows(ray_masks)
         flags |= mask_flags
-        ray_masks = ray_masks if mask_flags else self._no_masks
         best_t = tmax.copy()  # the records' best_t, scattered back after the trace
-        best_tri = np.full(n_rays, NO_HIT, INDEX)
-        hit_u = np.zeros(n_rays, FLOAT)
-        hit_v = np.zeros(n_rays, FLOAT)
+        lists = (n_rays, list_size) if flags & ALL_HITS else (0, 0)
+        answer = QueryArrays(
+            best_tri=np.full(n_rays, NO_HIT, INDEX),
+            hit_u=np.zeros(n_rays, FLOAT),
+            hit_v=np.zeros(n_rays, FLOAT),
+            ray_masks=ray_masks if mask_flags else self._no_masks,
+            tri_masks=tri_masks,
+            n_hits=np.zeros(n_rays if flags & COLLECT else 0, INDEX),
+            list_t=np.empty(lists, FLOAT),
+            list_tri=np.empty(lists, INDEX),
+            list_u=np.empty(lists, FLOAT),
+            list_v=np.empty(lists, FLOAT),
+            hit_mask=None,
+            tri_bins=None,
+            stats=None,
+        )
         counters = dict.fromkeys(STAT_NAMES, 0)
         counters["rays"] = n_rays
         counters["triangles"] = self.n_triangles
         n_live = len(self._tri_verts) if visible_rows is None else len(visible_rows)
         if n_rays == 0 or n_live == 0:
             explain_bad_rays(origins, directions, tmin, tmax)  # no kernel will check them
-            return best_t, best_tri, hit_u, hit_v, counters
+            return best_t, answer, counters
         code = STRATEGY_CODES[strategy]
         ray_space = code == RAYSPACE
         # The values are not checked yet (each chunk checks its own): a bad ray may make
@@ -271,15 +402,10 @@ class Scene:
                 np.arange(n_live, dtype=INDEX) if visible_rows is None else visible_rows.copy()
             )
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
-            arrays = QueryArrays(
-                best_tri,
-                hit_u,
-                hit_v,
-                ray_masks,
-                tri_masks,
-                np.empty(len(ray_ids), np.bool_),
-                np.empty(n_live, np.uint8),
-                chunk_stats,
+            arrays = answer._replace(
+                hit_mask=np.empty(len(ray_ids), np.bool_),
+                tri_bins=np.empty(n_live, np.uint8),
+                stats=chunk_stats,
             )
             if ray_space:
                 trace_ray_space(
@@ -320,4 +446,4 @@ class Scene:
             if i not in (STAT_RAYS, STAT_TRIANGLES):
                 counters[name] = int(totals[i])
         counters["max_depth"] = int(max(c[STAT_NAMES.index("max_depth")] for c in per_chunk))
-        return best_t, best_tri, hit_u, hit_v, counters
+        return best_t, answer, counters

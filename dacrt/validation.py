@@ -151,6 +151,48 @@ def check_threads(threads, n_cores):
     return int(threads)
 
 
+def check_transform(matrix, name="matrix"):
+    """A 4x4 row-major affine placement as float64 (4, 4): finite, last row exactly
+    [0, 0, 0, 1], its 3x3 part invertible. ValueError naming ``name`` otherwise."""
+    try:
+        matrix = np.array(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a 4x4 array of numbers") from None
+    if matrix.shape != (4, 4):
+        raise ValueError(f"{name} must have shape (4, 4), got {matrix.shape}")
+    if not np.isfinite(matrix).all():
+        raise ValueError(f"{name} has a non-finite entry")
+    if not np.array_equal(matrix[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ValueError(f"{name} is not affine: its last row must be [0, 0, 0, 1]")
+    linear = matrix[:3, :3]
+    # Singular up to rounding: the determinant against the scale of the rows.
+    scale = np.prod(np.linalg.norm(linear, axis=1))
+    if not abs(np.linalg.det(linear)) > 1e-12 * scale:
+        raise ValueError(f"{name} is singular: its 3x3 part has no inverse")
+    return matrix
+
+
+def place_vertices(vertices, matrix, name):
+    """``vertices`` (V, 3) moved by the affine ``matrix`` (``check_transform``) in float64,
+    as float32; ValueError naming ``name`` if a placed vertex leaves the float32 range."""
+    placed = vertices.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
+    with np.errstate(over="ignore"):
+        placed = placed.astype(FLOAT)
+    bad = np.flatnonzero(~np.isfinite(placed).all(axis=1))
+    if len(bad):
+        raise ValueError(
+            f"{name} places vertex {bad[0]} beyond the float32 range ({len(bad)} vertices)"
+        )
+    return placed
+
+
+def check_max_hits(max_hits):
+    """``max_hits`` as an int: a positive integer, not a bool."""
+    if isinstance(max_hits, bool) or not isinstance(max_hits, int | np.integer) or max_hits < 1:
+        raise ValueError(f"max_hits must be a positive integer, got {max_hits!r}")
+    return int(max_hits)
+
+
 def check_cull(cull):
     if cull not in CULL_MODES:
         raise ValueError(f"unknown cull {cull!r}; use one of {', '.join(CULL_MODES)}")

@@ -21,6 +21,8 @@ def warmup():
     for strategy in STRATEGIES:
         scene.closest(origins, directions, strategy=strategy, threads=1)
         scene.occluded(origins, directions, strategy=strategy, threads=1)
+        scene.hits(origins, directions, strategy=strategy, threads=1)
+        scene.count(origins, directions, strategy=strategy, threads=1)
     # Rays as the columns of one read-only (n, 6) array, as a server decodes them from a body.
     rays = np.hstack([origins, directions])
     rays.flags.writeable = False

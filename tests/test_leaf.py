@@ -46,15 +46,22 @@ def run_leaf(mode, tri_verts, origins, directions, tmin, tmax, tri_ids):
     hit_u = np.zeros(n, np.float32)
     hit_v = np.zeros(n, np.float32)
     no_masks = np.empty(0, np.uint32)
+    no_lists = np.empty((0, 0), np.float32)
+    no_rows = np.empty((0, 0), np.int32)
     arrays = QueryArrays(
-        best_tri,
-        hit_u,
-        hit_v,
-        no_masks,
-        no_masks,
-        np.empty(n, np.bool_),
-        np.empty(len(tri_verts), np.uint8),
-        np.zeros(len(STAT_NAMES), np.int64),
+        best_tri=best_tri,
+        hit_u=hit_u,
+        hit_v=hit_v,
+        ray_masks=no_masks,
+        tri_masks=no_masks,
+        n_hits=np.empty(0, np.int32),
+        list_t=no_lists,
+        list_tri=no_rows,
+        list_u=no_lists,
+        list_v=no_lists,
+        hit_mask=np.empty(n, np.bool_),
+        tri_bins=np.empty(len(tri_verts), np.uint8),
+        stats=np.zeros(len(STAT_NAMES), np.int64),
     )
     n_tests = intersect_leaf(
         mode, tri_verts, rays, ray_ids, 0, n, tri_ids, 0, len(tri_ids), arrays, leaf_scratch()
