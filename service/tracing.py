@@ -19,7 +19,7 @@ import dacrt
 
 from .errors import Invalid
 from .store import Snapshot
-from .wire import MeshArrays, Rays
+from .wire import ANSWER_FORMATS, MeshArrays, Rays
 
 
 class Query(str, Enum):  # noqa: UP042 - StrEnum would change str() and format() of members
@@ -76,9 +76,12 @@ class Options:
         return n_rays * (self.max_hits + 1) * HIT_BUFFER_BYTES
 
     @property
-    def single_length(self) -> bool:
-        """Whether every answer array has one row per ray (an npy answer needs that)."""
-        return not (set(self.fields) & {"offsets", *PER_HIT_FIELDS})
+    def answer_formats(self) -> tuple[str, ...]:
+        """The formats the answer can be written in: npy needs one row per ray in every array
+        (a hits answer with ``offsets`` or a per-hit key is CSR: npz and JSON only)."""
+        if set(self.fields) & {"offsets", *PER_HIT_FIELDS}:
+            return tuple(fmt for fmt in ANSWER_FORMATS if fmt != "npy")
+        return ANSWER_FORMATS
 
 
 def make_options(

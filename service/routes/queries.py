@@ -200,14 +200,12 @@ async def answer(
 
 
 def negotiate(accept: str | None, request_format: str, options: tracing.Options) -> str:
-    """The answer format; an npy answer only where every array has one row per ray (a hits
-    answer with per-hit fields is CSR: npz or JSON)."""
-    if options.single_length:
-        return wire.negotiate(accept, request_format)
-    writable = tuple(fmt for fmt in wire.ANSWER_FORMATS if fmt != "npy")
+    """The answer format, among those the query's answer can be written in (406 naming them)."""
     try:
-        return wire.negotiate(accept, request_format, writable)
+        return wire.negotiate(accept, request_format, options.answer_formats)
     except NotAcceptable:
+        if options.answer_formats == wire.ANSWER_FORMATS:
+            raise
         raise NotAcceptable(
             f"Accept: {accept} names no format a {options.query.value} answer with "
             f"{', '.join(options.fields)} is written in: its arrays have different lengths (CSR), "
