@@ -15,8 +15,9 @@ The methods, argument names, shapes, dtypes and ``-1`` conventions are those of
   and both rays hit something it tries one more direction (from a fixed seed, so answers repeat),
   as trimesh does with a random one.
 - A ray with a non-finite component or a zero direction hits nothing (no error).
-- Locations are ``(1-u-v)*p0 + u*p1 + v*p2`` of the hit triangle's corners in float64: on the
-  triangle, within float32 rounding of the ray.
+- Locations are where the ray meets the hit triangle's plane, in float64 from the caller's
+  origins and directions (as trimesh computes them): the engine picks the triangles, float64
+  places the points.
 
 The engine traces in float32; the in-process backend moves the mesh's bounding-box centre to the
 origin first (rays too), which keeps float32 precision for meshes far from the origin. ``t`` is
@@ -147,7 +148,8 @@ class RayMeshIntersector:
         index_tri = np.asarray(prim, dtype=np.int64)
         index_ray = np.asarray(index_ray, dtype=np.int64)
         if return_locations:
-            return index_tri, index_ray, self._locations(index_tri, u, v)
+            locations = self._locations(index_tri, index_ray, origins, directions, u, v)
+            return index_tri, index_ray, locations
         return index_tri, index_ray
 
     def intersects_location(self, ray_origins, ray_directions, multiple_hits=True):
@@ -206,12 +208,20 @@ class RayMeshIntersector:
             return np.zeros(len(origins) + 1, dtype=np.int64), empty, empty, empty
         return self._backend.hits(origins, directions, int(max_hits))
 
-    def _locations(self, prim, u, v):
-        """(m, 3) float64 points (1-u-v)*p0 + u*p1 + v*p2 of triangles ``prim``."""
+    def _locations(self, prim, index_ray, origins, directions, u, v):
+        """(m, 3) float64 points where rays ``index_ray`` meet the planes of triangles ``prim``
+        (for a triangle nearly edge-on to its ray, (1-u-v)*p0 + u*p1 + v*p2)."""
         corners = self._vertices[self._faces[prim]]
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        o, d = origins[index_ray], directions[index_ray]
+        facing = np.einsum("ij,ij->i", normals, d)
+        along = np.einsum("ij,ij->i", normals, corners[:, 0] - o)
+        steep = np.abs(facing) > 1e-6 * np.linalg.norm(normals, axis=1)
+        t = np.divide(along, facing, out=np.zeros_like(along), where=steep)
         u = np.asarray(u, dtype=np.float64)[:, None]
         v = np.asarray(v, dtype=np.float64)[:, None]
-        return (1 - u - v) * corners[:, 0] + u * corners[:, 1] + v * corners[:, 2]
+        on_triangle = (1 - u - v) * corners[:, 0] + u * corners[:, 1] + v * corners[:, 2]
+        return np.where(steep[:, None], o + t[:, None] * d, on_triangle)
 
 
 def _unit(vectors):

@@ -79,7 +79,7 @@ class Options:
     def answer_formats(self) -> tuple[str, ...]:
         """The formats the answer can be written in: npy needs one row per ray in every array
         (a hits answer with ``offsets`` or a per-hit key is CSR: npz and JSON only)."""
-        if set(self.fields) & {"offsets", *PER_HIT_FIELDS}:
+        if self.query is Query.HITS and set(self.fields) & {"offsets", *PER_HIT_FIELDS}:
             return tuple(fmt for fmt in ANSWER_FORMATS if fmt != "npy")
         return ANSWER_FORMATS
 

@@ -4,7 +4,7 @@
 Rays are generic (random origins around the mesh, random targets inside its box): trimesh's
 ``ray_triangle`` reports a ray through a shared edge on both triangles, where dacrt reports it
 once, so rays exactly through edges are avoided here (``test_a_ray_through_a_shared_edge_...``
-states dacrt's rule). Several hits of one ray are compared as sets, each hit's location to 1e-4
+states dacrt's rule). Several hits of one ray are compared as sets, each hit's location to 1e-9
 of the mesh's size.
 """
 
@@ -121,7 +121,7 @@ def test_every_hit_equals_trimeshs_as_sets_with_the_same_locations(mesh, oracle)
     assert len(where) == len(index_ray)
     matched = [where[pair] for pair in zip(index_ray.tolist(), index_tri.tolist())]
     scale = np.linalg.norm(mesh.extents)
-    np.testing.assert_allclose(locations, their_locations[matched], atol=1e-4 * scale, rtol=1e-7)
+    np.testing.assert_allclose(locations, their_locations[matched], atol=1e-9 * scale, rtol=0)
 
 
 @pytest.mark.parametrize("mesh", MESH_NAMES, indirect=True)
