@@ -127,27 +127,22 @@ def intersect_triangle(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz):
 
 
 @inline
-def crossing(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz):
-    """The half-open watertight test of ``hits`` and ``count`` (arguments as for
-    ``intersect_triangle``): returns (hit, t, u, v, det).
+def crossing(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz):
+    """The half-open watertight test of ``hits`` and ``count``, from the corners relative to the
+    ray origin in the ray's axis order (``corners_from_origin``): returns (hit, det).
 
     An edge function that is exactly zero (the ray through an edge or vertex) takes the sign it
     would have with the ray moved by (delta, delta**2) in the sheared plane, delta -> 0+: its
     x-derivative's sign, or its y-derivative's if that is zero. Two triangles on either side of a
-    shared edge get opposite signs from the same bits, so exactly one holds the crossing; a hit
-    here is also a hit of ``intersect_triangle``, with the same t, u and v."""
-    ax, ay, az, bx, by, bz, cx, cy, cz = corners_from_origin(
-        tri_verts, tri, okx, oky, okz, kx, ky, kz
-    )
-    e0, e1, e2, det, noise, scaled_t = woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
+    shared edge get opposite signs from the same bits, so exactly one holds the crossing. A hit
+    here is also a hit of ``intersect_triangle``, which gives its t, u and v."""
+    e0, e1, e2, det, noise, _ = woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
     ax, ay, bx, by, cx, cy = shear(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy)
     s0 = perturbed_sign(e0, cy - by, bx - cx)
     s1 = perturbed_sign(e1, ay - cy, cx - ax)
     s2 = perturbed_sign(e2, by - ay, ax - bx)
-    if s0 == 0 or s0 != s1 or s0 != s2 or abs(det) <= noise:
-        return False, 0.0, 0.0, 0.0, det
-    inv_det = 1.0 / det
-    return True, scaled_t * inv_det, e1 * inv_det, e2 * inv_det, det
+    hit = s0 != 0 and s0 == s1 and s0 == s2 and abs(det) > noise
+    return hit, det
 
 
 @inline

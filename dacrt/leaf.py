@@ -198,6 +198,8 @@ def intersect_leaf_by_rays(
     the scalar test again, and starts with no triangle, so no ray's best is gathered first."""
     _, t_block, tri_block, block_rows = scratch
     best_tri = arrays.best_tri
+    hit_u = arrays.hit_u
+    hit_v = arrays.hit_v
     any_hit = (flags & ANY_HIT) != 0
     n_tests = 0
     for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
@@ -228,8 +230,8 @@ def intersect_leaf_by_rays(
                 continue
             set_field(rays, BEST_T, r, t_block[i])
             best_tri[ray] = tri
-            arrays.hit_u[ray] = block_rows[0, i]
-            arrays.hit_v[ray] = block_rows[1, i]
+            hit_u[ray] = block_rows[0, i]
+            hit_v[ray] = block_rows[1, i]
     return n_tests
 
 
@@ -241,8 +243,17 @@ def intersect_leaf_by_triangles(
     rows (``corners``), so each ray's tests over a block run as one vectorised loop; the
     winner's u, v then come from the scalar test, which is the same arithmetic."""
     corners, t_block, _, _ = scratch
+    # Arrays are taken from the record once: each access in a loop would count a reference.
     best_tri = arrays.best_tri
+    hit_u = arrays.hit_u
+    hit_v = arrays.hit_v
+    ray_masks = arrays.ray_masks
+    tri_masks = arrays.tri_masks
+    n_hits = arrays.n_hits
+    list_t = arrays.list_t
+    list_tri = arrays.list_tri
     any_hit = (flags & ANY_HIT) != 0
+    count_only = (flags & ALL_HITS) == 0
     cull_side = culled_side(flags)
     masked = (flags & MASKED) != 0
     collect = (flags & COLLECT) != 0
@@ -283,13 +294,16 @@ def intersect_leaf_by_triangles(
             )
             ray = ray_ids[r]
             if masked:
-                hide_unseen(arrays, ray, tri_ids, block_lo, n, t_block)
+                hide_unseen(ray_masks[ray], tri_masks, tri_ids, block_lo, n, t_block)
             # Ranges and ties are decided on the float32 t that is reported.
             t_lo = field(rays, TMIN, r)
             if collect:
                 best = collect_hits(
-                    flags,
-                    tri_verts,
+                    count_only,
+                    n_hits,
+                    list_t,
+                    list_tri,
+                    corners,
                     tri_ids,
                     block_lo,
                     n,
@@ -307,7 +321,6 @@ def intersect_leaf_by_triangles(
                     sy,
                     sz,
                     cull_side,
-                    arrays,
                 )
                 set_field(rays, BEST_T, r, best)
                 continue
@@ -342,8 +355,8 @@ def intersect_leaf_by_triangles(
                     tri_verts, winner_tri, okx, oky, okz, kx, ky, kz, sx, sy, sz
                 )
                 best_tri[ray] = winner_tri
-                arrays.hit_u[ray] = u
-                arrays.hit_v[ray] = v
+                hit_u[ray] = u
+                hit_v[ray] = v
                 if any_hit:
                     best = -np.inf
             set_field(rays, BEST_T, r, best)
@@ -351,19 +364,21 @@ def intersect_leaf_by_triangles(
 
 
 @inline
-def hide_unseen(arrays, ray, tri_ids, block_lo, n, t_block):
-    """Turn into misses (NaN) the distances of a block's triangles that ray ``ray``'s mask does
-    not see."""
-    ray_mask = arrays.ray_masks[ray]
+def hide_unseen(ray_mask, tri_masks, tri_ids, block_lo, n, t_block):
+    """Turn into misses (NaN) the distances of a block's triangles that a ray of mask
+    ``ray_mask`` does not see."""
     for k in range(n):
-        seen = (arrays.tri_masks[tri_ids[block_lo + k]] & ray_mask) != 0
+        seen = (tri_masks[tri_ids[block_lo + k]] & ray_mask) != 0
         t_block[k] = t_block[k] if seen else NAN32
 
 
 @inline
 def collect_hits(
-    flags,
-    tri_verts,
+    count_only,
+    n_hits,
+    list_t,
+    list_tri,
+    corners,
     tri_ids,
     block_lo,
     n,
@@ -381,55 +396,61 @@ def collect_hits(
     sy,
     sz,
     cull_side,
-    arrays,
 ):
-    """Count (COUNT) or list (ALL_HITS) the crossings of one ray with a block's triangles whose
-    distances are ``t_block``; returns the ray's new best_t. A distance in [t_lo, best] is a
-    candidate, confirmed by the half-open ``crossing`` (a subset of the inclusive test that gave
-    it), then by culling. best_t stays tmax while the ray's list has room and then becomes its
-    last entry's t, which bounds the boxes a ray still visits."""
-    list_size = arrays.list_t.shape[1]
+    """Count (``count_only``) or list the crossings of ray ``ray`` with a block's triangles,
+    whose corners are ``corners`` (as for ``block_distances``) and distances ``t_block``;
+    returns the ray's new best_t.
+
+    ``n_hits`` and the lists are those of ``QueryArrays``: a ray's list is kept sorted by
+    (t, kernel row) and at most as long as the lists' rows (the farthest falls off). A distance
+    in [t_lo, best] is a candidate, confirmed by the half-open ``crossing`` (a subset of the
+    inclusive test that gave it), then by culling. best_t stays tmax while the ray's list has
+    room and then becomes its last entry's t, which bounds the boxes a ray still visits. No
+    call here takes several arrays: each would count references to them."""
+    list_size = list_t.shape[1]
+    last = list_size - 1
     for k in range(n):
         t = t_block[k]
         if not (t >= t_lo and t <= best):
             continue
-        tri = tri_ids[block_lo + k]
-        hit, _, u, v, det = crossing(tri_verts, tri, okx, oky, okz, kx, ky, kz, sx, sy, sz)
+        hit, det = crossing(
+            corners[kx * LEAF_BLOCK + k] - okx,
+            corners[ky * LEAF_BLOCK + k] - oky,
+            corners[kz * LEAF_BLOCK + k] - okz,
+            corners[(3 + kx) * LEAF_BLOCK + k] - okx,
+            corners[(3 + ky) * LEAF_BLOCK + k] - oky,
+            corners[(3 + kz) * LEAF_BLOCK + k] - okz,
+            corners[(6 + kx) * LEAF_BLOCK + k] - okx,
+            corners[(6 + ky) * LEAF_BLOCK + k] - oky,
+            corners[(6 + kz) * LEAF_BLOCK + k] - okz,
+            sx,
+            sy,
+            sz,
+        )
         if not hit or det * cull_side > 0.0:
             continue
-        if (flags & ALL_HITS) == 0:
-            arrays.n_hits[ray] += 1
+        n_held = n_hits[ray]
+        if count_only:
+            n_hits[ray] = n_held + 1
             continue
-        best = insert_hit(arrays, ray, list_size, t, tri, np.float32(u), np.float32(v), best)
+        tri = tri_ids[block_lo + k]
+        if n_held == list_size and not (
+            t < list_t[ray, last] or (t == list_t[ray, last] and tri < list_tri[ray, last])
+        ):
+            continue
+        # Insertion: shift the farther entries down by one.
+        p = n_held if n_held < list_size else last
+        while p > 0 and (
+            t < list_t[ray, p - 1] or (t == list_t[ray, p - 1] and tri < list_tri[ray, p - 1])
+        ):
+            list_t[ray, p] = list_t[ray, p - 1]
+            list_tri[ray, p] = list_tri[ray, p - 1]
+            p -= 1
+        list_t[ray, p] = t
+        list_tri[ray, p] = tri
+        if n_held < list_size:
+            n_held += 1
+            n_hits[ray] = n_held
+        if n_held == list_size:
+            best = list_t[ray, last]
     return best
-
-
-@inline
-def insert_hit(arrays, ray, list_size, t, tri, u, v, best):
-    """Insert a hit into ray ``ray``'s list, kept sorted by (t, kernel row) and at most
-    ``list_size`` long (the farthest falls off); returns the ray's new best_t."""
-    list_t = arrays.list_t
-    list_tri = arrays.list_tri
-    n_held = arrays.n_hits[ray]
-    if n_held == list_size and not (
-        t < list_t[ray, n_held - 1]
-        or (t == list_t[ray, n_held - 1] and tri < list_tri[ray, n_held - 1])
-    ):
-        return best
-    p = n_held if n_held < list_size else list_size - 1
-    while p > 0 and (
-        t < list_t[ray, p - 1] or (t == list_t[ray, p - 1] and tri < list_tri[ray, p - 1])
-    ):
-        list_t[ray, p] = list_t[ray, p - 1]
-        list_tri[ray, p] = list_tri[ray, p - 1]
-        arrays.list_u[ray, p] = arrays.list_u[ray, p - 1]
-        arrays.list_v[ray, p] = arrays.list_v[ray, p - 1]
-        p -= 1
-    list_t[ray, p] = t
-    list_tri[ray, p] = tri
-    arrays.list_u[ray, p] = u
-    arrays.list_v[ray, p] = v
-    if n_held < list_size:
-        n_held += 1
-        arrays.n_hits[ray] = n_held
-    return list_t[ray, list_size - 1] if n_held == list_size else best

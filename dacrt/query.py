@@ -45,8 +45,6 @@ QueryArrays = namedtuple(
         "n_hits",
         "list_t",
         "list_tri",
-        "list_u",
-        "list_v",
         "hit_mask",
         "tri_bins",
         "stats",
@@ -59,8 +57,8 @@ hit_u, hit_v : (n,) float32 barycentrics of that hit; by ray id
 ray_masks : (n,) uint32 by ray id, or (0,) when the MASKED bit is clear
 tri_masks : (F,) uint32 by kernel row, or (0,) when the MASKED bit is clear
 n_hits : (n,) int32 by ray id: hits counted (COUNT) or held in the ray's list (ALL_HITS), else (0,)
-list_t, list_tri, list_u, list_v : (n, L) by ray id: each ray's nearest hits sorted by (t, kernel
-    row), its first n_hits entries in use (ALL_HITS), else (0, 0)
+list_t, list_tri : (n, L) by ray id: each ray's nearest hits (t, kernel row) in that order, its
+    first n_hits entries in use (ALL_HITS), else (0, 0); u and v are found when they are finished
 hit_mask : (m,) bool scratch, one entry per record of the chunk
 tri_bins : (F,) uint8 scratch, each triangle's bin from binning to partition
 stats : (len(STAT_NAMES),) int64 counters

@@ -4,7 +4,7 @@ import numpy as np
 
 from .config import inline, jit
 from .contracts import MISS
-from .geometry import triangle_normal
+from .geometry import intersect_triangle, pick, triangle_normal, watertight_setup
 from .leaf import NO_HIT
 
 
@@ -65,9 +65,9 @@ def finish_closest(
 def finish_hits(
     list_t,
     list_tri,
-    list_u,
-    list_v,
     offsets,
+    origins,
+    directions,
     tri_global,
     mesh_offsets,
     tri_verts,
@@ -79,15 +79,25 @@ def finish_hits(
     v,
     normal,
 ):
-    """Copy the first offsets[i + 1] - offsets[i] entries of each ray i's list (kernel rows,
-    sorted by (t, row)) into the CSR rows offsets[i]:offsets[i + 1], as (mesh, prim) and unit
-    normals (``normals`` as for ``finish_closest``). Kernel rows rise with global triangle
-    indices, so the lists' order is the (t, mesh, prim) order."""
+    """Copy the first offsets[i + 1] - offsets[i] entries of each ray i's list (t and kernel
+    row, sorted by (t, row)) into the CSR rows offsets[i]:offsets[i + 1], as (mesh, prim), with
+    u and v from the ray's watertight test (the arithmetic that found the hit, so the same bits)
+    and unit normals (``normals`` as for ``finish_closest``). Kernel rows rise with global
+    triangle indices, so the lists' order is the (t, mesh, prim) order."""
     have_normals = normals.shape[0] > 0
     m = 0
     for ray in range(offsets.shape[0] - 1):
         first = offsets[ray]
-        for k in range(offsets[ray + 1] - first):
+        n = offsets[ray + 1] - first
+        if n == 0:
+            continue
+        kx, ky, kz, sx, sy, sz = watertight_setup(
+            directions[ray, 0], directions[ray, 1], directions[ray, 2]
+        )
+        okx = np.float64(pick(kx, origins[ray, 0], origins[ray, 1], origins[ray, 2]))
+        oky = np.float64(pick(ky, origins[ray, 0], origins[ray, 1], origins[ray, 2]))
+        okz = np.float64(pick(kz, origins[ray, 0], origins[ray, 1], origins[ray, 2]))
+        for k in range(n):
             out = first + k
             row = list_tri[ray, k]
             tri = tri_global[row]
@@ -96,8 +106,9 @@ def finish_hits(
             t[out] = list_t[ray, k] + np.float32(0.0)  # -0.0 (a hit at the origin) as +0.0
             mesh[out] = m
             prim[out] = tri - mesh_offsets[m]
-            u[out] = list_u[ray, k]
-            v[out] = list_v[ray, k]
+            _, _, u[out], v[out] = intersect_triangle(
+                tri_verts, row, okx, oky, okz, kx, ky, kz, sx, sy, sz
+            )
             if have_normals:
                 normal[out, 0] = normals[row, 0]
                 normal[out, 1] = normals[row, 1]

@@ -7,6 +7,7 @@ over threads is ``chunks``.
 """
 
 import functools
+from collections import namedtuple
 
 import numpy as np
 
@@ -63,6 +64,11 @@ from .validation import (
     explain_bad_rays,
     place_vertices,
 )
+
+Traced = namedtuple("Traced", ["best_t", "arrays", "counters", "origins", "directions"])
+Traced.__doc__ = """What the kernels leave of a query: each ray's best_t, the query's
+``QueryArrays`` (without scratch), the counters (a dict), and the checked float32 origins and
+directions."""
 
 
 class Scene:
@@ -195,10 +201,9 @@ class Scene:
         threads : None for every core, or a positive int
         Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
         """
-        t, answer, counters = self._trace(
-            0, origins, directions, tmin, tmax, cull, mask, strategy, threads
-        )
-        best_tri, u, v = answer.best_tri, answer.hit_u, answer.hit_v
+        traced = self._trace(0, origins, directions, tmin, tmax, cull, mask, strategy, threads)
+        t, counters = traced.best_t, traced.counters
+        best_tri, u, v = traced.arrays.best_tri, traced.arrays.hit_u, traced.arrays.hit_v
         n = len(t)
         mesh = np.empty(n, INDEX)  # every element is written by finish_closest
         prim = np.empty(n, INDEX)
@@ -243,10 +248,10 @@ class Scene:
         """Whether each ray hits anything with tmin <= t <= tmax (it stops at its first hit).
 
         Same arguments as ``closest``. Returns ``Occlusion``."""
-        _, answer, counters = self._trace(
+        traced = self._trace(
             ANY_HIT, origins, directions, tmin, tmax, cull, mask, strategy, threads
         )
-        return Occlusion(answer.best_tri != NO_HIT, counters if stats else None)
+        return Occlusion(traced.arrays.best_tri != NO_HIT, traced.counters if stats else None)
 
     def hits(
         self,
@@ -269,10 +274,13 @@ class Scene:
         ``HitList``: ray i's hits are rows offsets[i]:offsets[i + 1], sorted by (t, mesh, prim);
         truncated[i] where it had more than max_hits, of which the nearest are kept."""
         max_hits = check_max_hits(max_hits)
-        # One entry beyond max_hits tells a truncated list from a full one.
-        _, answer, counters = self._trace(
-            ALL_HITS, origins, directions, tmin, tmax, cull, mask, strategy, threads, max_hits + 1
+        # One entry beyond max_hits tells a truncated list from a full one; a ray has no more
+        # hits than the scene has triangles.
+        list_size = min(max_hits, len(self._tri_verts)) + 1
+        traced = self._trace(
+            ALL_HITS, origins, directions, tmin, tmax, cull, mask, strategy, threads, list_size
         )
+        answer = traced.arrays
         n_held = answer.n_hits
         n_rays = len(n_held)
         offsets = np.zeros(n_rays + 1, np.int64)
@@ -288,9 +296,9 @@ class Scene:
         finish_hits(
             answer.list_t,
             answer.list_tri,
-            answer.list_u,
-            answer.list_v,
             offsets,
+            traced.origins,
+            traced.directions,
             self._tri_global,
             self.mesh_offsets,
             self._tri_verts,
@@ -303,7 +311,8 @@ class Scene:
             normal,
         )
         truncated = n_held > max_hits
-        return HitList(offsets, t, mesh, prim, u, v, normal, truncated, counters if stats else None)
+        counters = traced.counters if stats else None
+        return HitList(offsets, t, mesh, prim, u, v, normal, truncated, counters)
 
     def count(
         self,
@@ -323,10 +332,8 @@ class Scene:
         Same arguments as ``closest``. A crossing through an edge or vertex shared by several
         triangles counts once (``geometry.crossing``): from outside a closed mesh a ray counts an
         even number, from inside an odd one. Returns ``Counts``."""
-        _, answer, counters = self._trace(
-            COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads
-        )
-        return Counts(answer.n_hits, counters if stats else None)
+        traced = self._trace(COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads)
+        return Counts(traced.arrays.n_hits, traced.counters if stats else None)
 
     def _visible_rows(self, ray_masks):
         """How a batch's masks are traced: (flags, tri_ids, tri_masks). A batch whose rays
@@ -346,8 +353,7 @@ class Scene:
         self, flags, origins, directions, tmin, tmax, cull, mask, strategy, threads, list_size=0
     ):
         """Run the kernels with ``flags`` (``dacrt.query``) and the query's options; returns
-        best_t, the answer's ``QueryArrays`` (without scratch) and the counters. ``list_size``
-        is the length of each ray's list of hits (ALL_HITS)."""
+        ``Traced``. ``list_size`` is the length of each ray's list of hits (ALL_HITS)."""
         strategy = check_strategy(strategy)
         threads = check_threads(threads, N_CORES)
         flags |= CULL_FLAGS[check_cull(cull)]
@@ -367,8 +373,6 @@ class Scene:
             n_hits=np.zeros(n_rays if flags & COLLECT else 0, INDEX),
             list_t=np.empty(lists, FLOAT),
             list_tri=np.empty(lists, INDEX),
-            list_u=np.empty(lists, FLOAT),
-            list_v=np.empty(lists, FLOAT),
             hit_mask=None,
             tri_bins=None,
             stats=None,
@@ -379,7 +383,7 @@ class Scene:
         n_live = len(self._tri_verts) if visible_rows is None else len(visible_rows)
         if n_rays == 0 or n_live == 0:
             explain_bad_rays(origins, directions, tmin, tmax)  # no kernel will check them
-            return best_t, answer, counters
+            return Traced(best_t, answer, counters, origins, directions)
         code = STRATEGY_CODES[strategy]
         ray_space = code == RAYSPACE
         # The values are not checked yet (each chunk checks its own): a bad ray may make
@@ -446,4 +450,4 @@ class Scene:
             if i not in (STAT_RAYS, STAT_TRIANGLES):
                 counters[name] = int(totals[i])
         counters["max_depth"] = int(max(c[STAT_NAMES.index("max_depth")] for c in per_chunk))
-        return best_t, answer, counters
+        return Traced(best_t, answer, counters, origins, directions)

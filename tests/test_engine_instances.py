@@ -1,0 +1,243 @@
+"""``Scene(meshes, transforms=...)``: meshes placed by 4x4 affine matrices, and instances.
+
+A placed mesh must answer exactly as the same mesh placed in numpy (float64, then float32) and
+passed whole: every query, bit for bit, and like the reference on the placed triangles (normals
+in scene space: the cross product of the placed corners, whatever the matrix does to
+orientation). Bad matrices are ValueErrors naming ``transforms[i]``.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import assertions as check
+import hitlist_checks as hc
+import numpy as np
+import procedural as pg
+import pytest
+import reference
+import sample_scenes
+
+import dacrt
+
+BIG = 256  # max_hits that truncates nothing here
+
+
+def affine(linear=None, offset=(0.0, 0.0, 0.0)):
+    """A (4, 4) float64 affine matrix from a 3x3 part and a translation."""
+    m = np.eye(4)
+    if linear is not None:
+        m[:3, :3] = linear
+    m[:3, 3] = offset
+    return m
+
+
+MATRICES = {
+    "rotation": affine(pg.rotation([1.0, 2.0, 0.5], 0.7), (0.25, -0.5, 0.125)),
+    "reflection": affine(np.diag([-1.0, 1.0, 1.0]) @ pg.rotation([0.0, 1.0, 1.0], 0.4), (1, 0, 0)),
+    "nonuniform_scale": affine(
+        np.diag([3.0, 0.25, 1.5]) @ pg.rotation([1.0, 0.0, 1.0], 0.3), (0, 1, 0)
+    ),
+    "shear": affine([[1.0, 0.6, 0.0], [0.0, 1.0, -0.4], [0.2, 0.0, 0.9]], (-0.3, 0.2, 0.5)),
+    # Far from the origin: float32 arithmetic would round the placed vertices differently.
+    "far": affine(pg.rotation([0.3, -1.0, 0.2], 1.1) * 7.0, (1000.0, -2000.0, 500.0)),
+}
+
+
+def place(vertices, matrix):
+    """``M[:3, :3] @ p + M[:3, 3]`` for each vertex with numpy's matmul in float64, then float32.
+
+    The contract names this expression: another float64 order of operations can differ in the
+    last bit where the terms cancel, and then, rarely, in float32 (the "shear" matrix here moves
+    a few corners by one float32 step if the sums are written out term by term).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    m = np.asarray(matrix, dtype=np.float64)
+    return (v @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+
+
+@functools.cache
+def _meshes():
+    """A closed perturbed icosphere, a soup and a tilted grid (their own copies)."""
+    return [
+        sample_scenes.sphere(6)[0],
+        pg.triangle_soup(400, np.random.default_rng(6)),
+        sample_scenes.tilted_grid(6)[0],
+    ]
+
+
+def _queries(scene, o, d, **options):
+    return {
+        "closest": scene.closest(o, d, **options),
+        "occluded": scene.occluded(o, d, **options),
+        "hits": scene.hits(o, d, max_hits=BIG, **options),
+        "count": scene.count(o, d, **options),
+    }
+
+
+def assert_same_answers(a, b, what):
+    for query, answer in a.items():
+        other = b[query]
+        if query == "hits":
+            hc.assert_same_hitlist(answer, other, f"{what}: hits")
+            continue
+        for name, value in vars(answer).items():
+            if name != "stats":
+                np.testing.assert_array_equal(value, getattr(other, name), f"{what}: {query}")
+
+
+@pytest.mark.parametrize("kind", sorted(MATRICES))
+def test_placed_meshes_answer_as_meshes_placed_in_numpy(kind):
+    """Two of three meshes placed by a matrix (one left as given): every query, culled or not,
+    gives the bits of the scene of the numpy-placed meshes, and matches the reference there."""
+    meshes = _meshes()
+    m = MATRICES[kind]
+    matrices = [m, None, m @ MATRICES["rotation"]]
+    placed = [(v if m is None else place(v, m), f) for (v, f), m in zip(meshes, matrices)]
+    scene = dacrt.Scene(meshes, transforms=matrices)
+    whole = dacrt.Scene(placed)
+    vertices, faces, offsets = pg.concat(placed)
+    rng = np.random.default_rng(7)
+    rays = [pg.mixed_rays(pg.bounds(v), n, rng) for (v, _), n in zip(placed, (200, 100, 100))]
+    o, d = (np.concatenate(x) for x in zip(*rays))
+    for cull in ("none", "back", "front"):
+        got = _queries(scene, o, d, cull=cull)
+        assert_same_answers(got, _queries(whole, o, d, cull=cull), f"{kind}, cull={cull}")
+        hc.check_hitlist_layout(got["hits"], len(o))
+        if cull == "front":
+            continue  # the reference's culling is tested elsewhere; two sides are enough here
+        ref = reference.all_hits(vertices, faces, o, d, cull=cull)
+        assert ref.count.sum() > 200
+        hc.check_hits_match_reference(got["hits"], ref, vertices, faces, offsets, o, d, kind)
+        np.testing.assert_array_equal(got["count"].count, ref.count)
+    # min_clear: far from the origin fewer hits are clear of float32 rounding (the check's term).
+    check.check_against_reference(
+        got["closest"], vertices, faces, o, d, mesh_offsets=offsets, min_hits=100, min_clear=0.8,
+        cull="front",
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("kind", ["reflection", "nonuniform_scale"])
+def test_normals_are_those_of_the_placed_corners(kind):
+    """Normals are (p1-p0) x (p2-p0) of the placed corners, normalised: for a reflection they
+    turn with the winding (a closed sphere then faces inwards), for a non-uniform scale they are
+    not the matrix applied to the mesh's normals."""
+    (v, f) = _meshes()[0]
+    m = MATRICES[kind]
+    scene = dacrt.Scene([(v, f)], transforms=[m])
+    placed = place(v, m)
+    centre = m[:3, 3]
+    o, d = pg.rays_at(
+        np.broadcast_to(centre, (300, 3)), pg.unit_vectors(300, np.random.default_rng(8)), 8.0
+    )
+    hits = scene.closest(o, d)
+    assert (hits.prim >= 0).all()
+    expected = reference.normals(placed, f, hits.prim)
+    np.testing.assert_allclose(hits.normal, expected, atol=1e-5)
+    naive = reference.normals(v, f, hits.prim) @ m[:3, :3].T
+    naive /= np.linalg.norm(naive, axis=1, keepdims=True)
+    assert np.abs(naive - expected).max() > 0.1  # the naive normals would fail the check above
+    facing = np.einsum("ij,ij->i", hits.normal, d)
+    if kind == "reflection":
+        # Placed inside out: from outside the first hit is a back face, and culling back faces
+        # leaves the far side.
+        assert (facing > 0).all()
+        far = scene.closest(o, d, cull="back")
+        assert (far.prim >= 0).all() and (far.t > hits.t).all()
+    else:
+        assert (facing < 0).all()
+        np.testing.assert_array_equal(scene.closest(o, d, cull="back").t, hits.t)
+
+
+def test_instances_of_one_mesh_with_their_own_matrices_and_masks():
+    """One (vertices, faces) pair three times, side by side along x, each with its own matrix
+    and mask: each instance is its own mesh in the answers, prim is the row of the shared faces,
+    and per-ray masks pick instances, as with three meshes placed in numpy."""
+    v, f = _meshes()[0]
+    matrices = [
+        affine(pg.rotation([0, 0, 1.0], 0.3), (0.0, 0.0, 0.0)),
+        affine(np.diag([1.0, 0.5, 1.0]), (3.0, 0.0, 0.0)),
+        affine(np.diag([-1.0, 1.0, 1.0]), (6.0, 0.0, 0.0)),
+    ]
+    masks = np.array([0b001, 0b010, 0b100], np.uint32)
+    scene = dacrt.Scene([(v, f)] * 3, masks=masks, transforms=matrices)
+    placed = [(place(v, m), f) for m in matrices]
+    whole = dacrt.Scene(placed, masks=masks)
+    rng = np.random.default_rng(9)
+    o, d = sample_scenes.mixed_rays(placed, 9, n=600)
+    ray_masks = rng.choice(np.array([0b001, 0b010, 0b100, 0b110, 0b111], np.uint32), len(o))
+    for mask in (None, ray_masks):
+        got = _queries(scene, o, d, mask=mask)
+        assert_same_answers(got, _queries(whole, o, d, mask=mask), f"instances, mask={mask}")
+    # A ray along +x through the three centres crosses each instance twice, in order.
+    hl = scene.hits(np.array([[-5.0, 0.01, 0.02]], np.float32), np.array([[1.0, 0, 0]], np.float32))
+    np.testing.assert_array_equal(hl.mesh, [0, 0, 1, 1, 2, 2])
+    assert np.all(hl.prim < len(f))
+    hl = scene.hits(
+        np.array([[-5.0, 0.01, 0.02]], np.float32),
+        np.array([[1.0, 0, 0]], np.float32),
+        mask=np.uint32(0b101),
+    )
+    np.testing.assert_array_equal(hl.mesh, [0, 0, 2, 2])
+
+
+def test_no_transforms_and_identities_change_nothing():
+    meshes = _meshes()
+    o, d = sample_scenes.mixed_rays(meshes, 10, n=400)
+    plain = _queries(dacrt.Scene(meshes), o, d)
+    for transforms in ([None] * 3, [np.eye(4), None, np.eye(4).tolist()]):
+        got = _queries(dacrt.Scene(meshes, transforms=transforms), o, d)
+        assert_same_answers(got, plain, f"transforms={transforms}")
+
+
+BAD_MATRICES = {
+    "shape (3, 3)": (np.eye(3), "shape"),
+    "shape (4, 3)": (np.eye(4)[:, :3], "shape"),
+    "flat (16,)": (np.eye(4).ravel(), "shape"),
+    "ragged": ([[1, 0, 0, 0], [0, 1, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "4x4"),
+    "text": ("identity", "4x4|shape"),
+    "nan": (np.where(np.eye(4) == 1, np.eye(4), np.nan), "non-finite"),
+    "inf": (affine(offset=(np.inf, 0, 0)), "non-finite"),
+    "last row scaled": (np.diag([1.0, 1.0, 1.0, 2.0]), "not affine"),
+    "projective": (np.vstack([np.eye(4)[:3], [0, 0, 1, 1]]), "not affine"),
+    "zero": (affine(np.zeros((3, 3))), "singular"),
+    "flattening": (affine(np.diag([1.0, 1.0, 0.0])), "singular"),
+    "rank two": (affine([[1, 2, 3], [2, 4, 6], [0, 0, 1.0]]), "singular"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_MATRICES))
+def test_bad_transforms_are_value_errors_naming_the_entry(case):
+    matrix, message = BAD_MATRICES[case]
+    meshes = _meshes()
+    with pytest.raises(ValueError, match=r"transforms\[1\]") as raised:
+        dacrt.Scene(meshes, transforms=[None, matrix, np.eye(4)])
+    assert raised.match(message)
+    with pytest.raises(ValueError, match=message) as raised:
+        dacrt.check_transform(matrix)
+    assert raised.match("matrix")
+    with pytest.raises(ValueError, match=r"frames\[0\]\.transform"):
+        dacrt.check_transform(matrix, name="frames[0].transform")
+
+
+def test_transforms_of_the_wrong_length_or_out_of_range():
+    meshes = _meshes()
+    with pytest.raises(ValueError, match="transforms"):
+        dacrt.Scene(meshes, transforms=[None, None])
+    with pytest.raises(ValueError, match="transforms"):
+        dacrt.Scene(meshes, transforms=[None] * 4)
+    # A placement beyond the float32 range.
+    with pytest.raises(ValueError, match=r"transforms\[2\]"):
+        dacrt.Scene(meshes, transforms=[None, None, affine(np.eye(3) * 1e39)])
+
+
+def test_check_transform_returns_the_matrix_as_float64():
+    m = MATRICES["shear"]
+    got = dacrt.check_transform(m.tolist())
+    assert got.dtype == np.float64 and got.shape == (4, 4)
+    np.testing.assert_array_equal(got, m)
+    np.testing.assert_array_equal(dacrt.check_transform(np.eye(4, dtype=np.float32)), np.eye(4))
+    # A reflection is invertible, and so a valid placement.
+    np.testing.assert_array_equal(
+        dacrt.check_transform(MATRICES["reflection"]), MATRICES["reflection"]
+    )
