@@ -43,7 +43,9 @@ FIELDS: dict[Query, tuple[str, ...]] = {
 PER_HIT_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")
 #: ``max_hits`` of a hits query that does not give it (API.md).
 DEFAULT_MAX_HITS = 16
-#: Bytes the engine holds per ray and kept hit while it gathers a hits answer (t, triangle, u, v).
+#: The measure of a hits query's memory that DACRT_MAX_HITS_BYTES bounds: this many bytes per ray
+#: and slot, rays x (max_hits + 1) slots (the engine's lists hold t and a triangle, 8 bytes a
+#: slot, and the answer up to 32 bytes a hit).
 HIT_BUFFER_BYTES = 16
 
 
