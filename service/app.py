@@ -21,7 +21,7 @@ from .deps import Readiness, require_ready
 from .logs import configure_logging
 from .metrics import Metrics, MetricsMiddleware
 from .persistence import DataDir
-from .routes import meshes, ops, queries
+from .routes import meshes, ops, pictures, queries
 from .settings import Settings, load_settings_or_exit
 from .store import Store
 
@@ -63,8 +63,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings, app.state.store, app.state.metrics = settings, store, metrics
     app.state.readiness = Readiness()
     errors.install(app)
-    for module in (meshes, queries):  # each router carries its full prefix (route templates
-        app.include_router(  # in metrics) and the token check of its /v1 routes
+    # each router carries its full prefix (route templates in metrics) and its /v1 token check
+    for module in (meshes, queries, pictures):
+        app.include_router(
             module.router, dependencies=[Depends(require_ready)], responses=openapi.errors(503)
         )
     app.include_router(ops.router)

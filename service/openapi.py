@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from . import wire
+from .store import NAME
 
 _BINARY = {"type": "string", "format": "binary"}
 _NUMBER = {"type": "number"}
@@ -50,11 +51,35 @@ RAYS_JSON = _object(
 )
 MESH_JSON = _object({"vertices": _POINTS, "faces": _TRIANGLES})
 VERTICES_JSON = _object({"vertices": _POINTS})
+_MATRIX = {
+    "type": "array",
+    "items": {"type": "array", "items": _NUMBER, "minItems": 4, "maxItems": 4},
+    "minItems": 4,
+    "maxItems": 4,
+    "description": "4x4 row-major affine matrix: last row [0, 0, 0, 1], invertible",
+}
+_MASK = {
+    "anyOf": [
+        {"type": "integer", "minimum": 0, "maximum": 0xFFFFFFFF},
+        {"type": "string", "pattern": "^([0-9]+|0[xX][0-9a-fA-F]+)$"},
+    ],
+    "description": "uint32: a ray sees the mesh where ray mask & mesh mask != 0",
+}
+_MESH_NAME = {"type": "string", "pattern": f"^{NAME.pattern}$"}
+INSTANCE_JSON = _object({"instance_of": _MESH_NAME}, {"transform": _MATRIX})
+TRANSFORM_JSON = _object({"matrix": _MATRIX})
+MASK_JSON = _object({"mask": _MASK})
 FRAME_JSON = {
     "type": "object",
     "minProperties": 1,
     "additionalProperties": False,
-    "patternProperties": {r"^.+\.vertices$": _POINTS, r"^.+\.faces$": _TRIANGLES},
+    "patternProperties": {
+        r"^.+\.vertices$": _POINTS,
+        r"^.+\.faces$": _TRIANGLES,
+        r"^.+\.transform$": _MATRIX,
+        r"^.+\.mask$": _MASK,
+        r"^.+\.instance_of$": _MESH_NAME,
+    },
 }
 TRACE_JSON = _object(
     {"vertices": _POINTS, "faces": _TRIANGLES, "origins": _POINTS, "directions": _POINTS},
@@ -77,8 +102,14 @@ MESH_INFO = {
         "index": {"type": "integer", "description": "the mesh's number in hit results"},
         "vertices": {"type": "integer"},
         "triangles": {"type": "integer"},
-        "bounds": {**_BOUNDS, "description": "[[min x, y, z], [max x, y, z]]"},
+        "bounds": {**_BOUNDS, "description": "[[min x, y, z], [max x, y, z]] in scene space"},
         "version": {"type": "integer", "description": "scene version of the mesh's last change"},
+        "mask": {"type": "integer", "description": "the mesh's visibility mask (uint32)"},
+        "transform": {**_MATRIX, "description": "the mesh's placement (identity by default)"},
+        "instance_of": {
+            "anyOf": [{"type": "string"}, {"type": "null"}],
+            "description": "the mesh whose arrays this instance shares; null for a mesh",
+        },
     },
 }
 HEALTH = {
@@ -99,7 +130,7 @@ ERROR_STATUSES = {
     401: "a token is configured and missing or wrong",
     404: "unknown scene or mesh",
     406: "Accept names no answer format",
-    409: "the vertex count differs from the mesh's",
+    409: "the vertex count differs from the mesh's, or the change contradicts an instance",
     408: "the body arrived too slowly",
     413: "over a configured limit",
     415: "unsupported Content-Type",

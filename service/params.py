@@ -1,24 +1,19 @@
 """The path and query parameters of the routes, declared once with their descriptions and choices.
 
 Values are checked by the service itself (``store.check_name``, ``tracing.make_options``,
-``wire.resolve_format``, ``parse_mask``), whose 422 messages name the fix; the declarations here
-tell the OpenAPI document what those checks accept.
+``wire.resolve_format``, ``wire.parse_mask``), whose 422 messages name the fix; the declarations
+here tell the OpenAPI document what those checks accept.
 """
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from typing import Annotated
 
 from fastapi import Depends, Path, Query
 
 from . import tracing, wire
-from .errors import Invalid
 from .store import NAME
-
-#: A 32-bit mask in the query string: decimal or 0x hexadecimal.
-MASK_PATTERN = re.compile(r"0[xX][0-9A-Fa-f]{1,8}|[0-9]{1,10}")
 
 _NAME = {"pattern": f"^{NAME.pattern}$"}
 
@@ -46,13 +41,19 @@ Cull = Annotated[
         description="which faces rays ignore", json_schema_extra={"enum": list(tracing.CULL_MODES)}
     ),
 ]
-Mask = Annotated[str | None, Query(description="the mesh's visibility mask (not served yet: 422)")]
+Mask = Annotated[
+    str | None,
+    Query(
+        description="the mesh's visibility mask, a uint32 in decimal or 0x hex (default "
+        "0xFFFFFFFF for a new mesh; a replaced mesh keeps its own)"
+    ),
+]
 RayMask = Annotated[
     str | None,
     Query(
         description="one visibility mask for every ray of the batch, decimal or 0x hex (a ray "
         "sees a mesh where ray mask & mesh mask != 0); the body's mask instead for one per ray",
-        json_schema_extra={"pattern": f"^({MASK_PATTERN.pattern})$"},
+        json_schema_extra={"pattern": "^([0-9]+|0[xX][0-9A-Fa-f]+)$"},
     ),
 ]
 MaxHits = Annotated[
@@ -70,20 +71,6 @@ QueryKind = Annotated[
         json_schema_extra={"enum": [q.value for q in tracing.Query]},
     ),
 ]
-
-
-def parse_mask(text: str, name: str = "mask") -> int:
-    """A 32-bit mask from a query string: decimal (``4294967295``) or hex (``0xFFFFFFFF``)."""
-    value = text.strip()
-    number = -1
-    if MASK_PATTERN.fullmatch(value):
-        number = int(value, 16 if value[1:2] in ("x", "X") else 10)
-    if not 0 <= number <= 0xFFFFFFFF:
-        raise Invalid(
-            f"?{name}={text} is not a 32-bit mask; give a decimal integer from 0 to 4294967295 "
-            "or hexadecimal from 0x0 to 0xFFFFFFFF"
-        )
-    return number
 
 
 @dataclass(frozen=True)
@@ -112,7 +99,7 @@ class BatchOptions:
             threads,
             self.cull,
             max_hits,
-            None if self.mask is None else parse_mask(self.mask),
+            None if self.mask is None else wire.parse_mask(self.mask, "?mask"),
             max_hits_limit,
         )
 

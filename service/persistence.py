@@ -7,6 +7,11 @@ Layout, one folder per scene (scene names are safe file names)::
     DATA_DIR/scenes/SCENE/INDEX.VERSION.vertices.npy (V, 3) float32, written at VERSION
     DATA_DIR/scenes/SCENE/INDEX.VERSION.faces.npy    (F, 3) int32, written at VERSION
 
+An instance has no array files: its manifest entry names its source (``instance_of``) and is
+restored sharing the source's arrays. Each entry also holds the mesh's ``mask`` and, unless it is
+the identity, its ``transform`` (16 numbers, row-major, exact in JSON); a mask or transform change
+writes only the manifest. Manifests of format 1 (without these) are read with the defaults.
+
 Every file is written to ``NAME.tmp``, fsynced, renamed to ``NAME``, and its folder fsynced. A
 version's arrays are durable before its manifest is written, so a manifest only names complete
 files; a change writes only the arrays it changes (a vertices update: one ``.npy`` and the
@@ -23,7 +28,7 @@ import logging
 import os
 import re
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
@@ -35,13 +40,16 @@ try:
 except ImportError:  # pragma: no cover - isal is a dependency; zlib gives the same checksums
     from zlib import crc32
 
-from .store import Mesh, Snapshot, referenced_bounds
+from .errors import Invalid
+from .store import Geometry, Mesh, Snapshot, owned_transform, placed, referenced_bounds
+from .wire import check_matrix, parse_mask
 
 log = logging.getLogger("service")
 
 MANIFEST = re.compile(r"scene\.([0-9]+)\.json")
 TEMPORARY = ".tmp"
-FORMAT = 1  #: the manifest format this module writes and reads
+FORMAT = 2  #: the manifest format this module writes
+READ_FORMATS = (1, 2)  #: the manifest formats it reads (1: no masks, transforms or instances)
 
 
 @dataclass(frozen=True)
@@ -65,6 +73,10 @@ class Restored:
     last_versions: dict[str, int]
 
 
+#: A mesh's array files: (vertices, faces), or () for an instance.
+MeshFiles = tuple[ArrayFile, ...]
+
+
 def write_file(path: Path, write) -> None:
     """``write(file)`` into ``path`` atomically: a temporary file, fsync, rename (the folder is
     fsynced by the caller, once for all the files of a change)."""
@@ -85,6 +97,11 @@ def sync_folder(folder: Path) -> None:
         os.close(fd)
 
 
+def _transform(value: Any) -> np.ndarray | None:
+    """A manifest's transform (16 numbers as 4 rows, or absent: the identity), checked."""
+    return None if value is None else check_matrix(value, "transform")
+
+
 def checksum(array: np.ndarray) -> int:
     return crc32(memoryview(np.ascontiguousarray(array)).cast("B"))
 
@@ -97,8 +114,8 @@ class DataDir:
         self.scenes = self.root / "scenes"
         self.scenes.mkdir(parents=True, exist_ok=True)
         sync_folder(self.root)
-        #: scene -> mesh name -> (vertices file, faces file) of the current version
-        self._files: dict[str, dict[str, tuple[ArrayFile, ArrayFile]]] = {}
+        #: scene -> mesh name -> its array files in the current version
+        self._files: dict[str, dict[str, MeshFiles]] = {}
         self._current: dict[str, Snapshot] = {}  #: the snapshot each scene's files hold
 
     # ---- writing
@@ -108,11 +125,14 @@ class DataDir:
         folder = self._folder(snapshot.scene)
         old = self._current.get(snapshot.scene)
         old_files = self._files.get(snapshot.scene, {})
-        files: dict[str, tuple[ArrayFile, ArrayFile]] = {}
+        files: dict[str, MeshFiles] = {}
         for name, mesh in snapshot.meshes.items():
+            if mesh.instance_of is not None:
+                files[name] = ()  # the source's files hold its arrays
+                continue
             before = old.meshes.get(name) if old is not None else None
             kept = old_files.get(name)
-            if before is None or kept is None:
+            if before is None or not kept:
                 vertices_file = faces_file = None
             else:
                 vertices_file = kept[0] if before.vertices is mesh.vertices else None
@@ -150,25 +170,32 @@ class DataDir:
         return ArrayFile(name, array.shape, checksum(array))
 
     @staticmethod
-    def _manifest(snapshot: Snapshot, files: dict[str, tuple[ArrayFile, ArrayFile]]) -> dict:
+    def _manifest(snapshot: Snapshot, files: dict[str, MeshFiles]) -> dict:
         def array(file: ArrayFile) -> dict[str, Any]:
             return {"file": file.name, "shape": list(file.shape), "crc32": file.crc32}
+
+        def entry(mesh: Mesh) -> dict[str, Any]:
+            record = {
+                "name": mesh.name,
+                "index": mesh.index,
+                "version": mesh.version,
+                "mask": mesh.mask,
+            }
+            if mesh.transform is not None:
+                record["transform"] = mesh.transform.tolist()
+            if mesh.instance_of is not None:
+                record["instance_of"] = mesh.instance_of
+            else:
+                vertices_file, faces_file = files[mesh.name]
+                record["vertices"], record["faces"] = array(vertices_file), array(faces_file)
+            return record
 
         return {
             "format": FORMAT,
             "scene": snapshot.scene,
             "version": snapshot.version,
             "next_index": snapshot.next_index,
-            "meshes": [
-                {
-                    "name": mesh.name,
-                    "index": mesh.index,
-                    "version": mesh.version,
-                    "vertices": array(files[mesh.name][0]),
-                    "faces": array(files[mesh.name][1]),
-                }
-                for mesh in snapshot.meshes.values()
-            ],
+            "meshes": [entry(mesh) for mesh in snapshot.meshes.values()],
         }
 
     @staticmethod
@@ -217,13 +244,15 @@ class DataDir:
 
     def _read_scene(
         self, folder: Path, path: Path, version: int
-    ) -> tuple[Snapshot | None, dict[str, tuple[ArrayFile, ArrayFile]]]:
+    ) -> tuple[Snapshot | None, dict[str, MeshFiles]]:
         try:
             record = json.loads(path.read_bytes())
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise CorruptScene(f"{path.name} is not JSON ({exc})") from None
-        if not isinstance(record, dict) or record.get("format") != FORMAT:
-            raise CorruptScene(f"{path.name} is not a manifest of format {FORMAT}")
+        if not isinstance(record, dict) or record.get("format") not in READ_FORMATS:
+            raise CorruptScene(
+                f"{path.name} is not a manifest of format {' or '.join(map(str, READ_FORMATS))}"
+            )
         if record.get("version") != version or record.get("scene") != folder.name:
             raise CorruptScene(f"{path.name} names another scene or version")
         if record.get("deleted"):
@@ -231,22 +260,50 @@ class DataDir:
         try:
             meshes, files = {}, {}
             for item in record["meshes"]:
-                vertices = self._read_array(folder, item["vertices"], np.float32)
-                faces = self._read_array(folder, item["faces"], np.int32)
-                if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
-                    raise CorruptScene(f"{item['faces']['file']} has indices out of range")
-                bounds = referenced_bounds(vertices, faces)
-                name, index, changed = item["name"], item["index"], item["version"]
-                meshes[name] = Mesh(name, index, vertices, faces, bounds, changed)
-                files[name] = (
-                    ArrayFile(item["vertices"]["file"], vertices.shape, item["vertices"]["crc32"]),
-                    ArrayFile(item["faces"]["file"], faces.shape, item["faces"]["crc32"]),
+                name = item["name"]
+                if "instance_of" in item:
+                    geometry, files[name] = None, ()
+                else:
+                    geometry, files[name] = self._read_geometry(folder, item)
+                meshes[name] = Mesh(
+                    name,
+                    item["index"],
+                    geometry,  # an instance's is its source's, linked below
+                    None,
+                    item["version"],
+                    parse_mask(item.get("mask", 0xFFFFFFFF), "mask"),
+                    owned_transform(_transform(item.get("transform"))),
+                    item.get("instance_of"),
                 )
             next_index = record["next_index"]
+            for name, mesh in meshes.items():
+                if mesh.instance_of is not None:
+                    source = meshes.get(mesh.instance_of)
+                    if source is None or source.instance_of is not None:
+                        raise CorruptScene(
+                            f"{path.name}: {name!r} is an instance of {mesh.instance_of!r}, "
+                            "which is not a mesh of its own"
+                        )
+                    mesh = replace(mesh, geometry=source.geometry)
+                meshes[name] = placed(mesh)
         except (KeyError, TypeError) as exc:
             raise CorruptScene(f"{path.name} lacks {exc}") from None
+        except Invalid as exc:
+            raise CorruptScene(f"{path.name}: {exc.detail}") from None
         meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))
         return Snapshot(folder.name, version, MappingProxyType(meshes), next_index), files
+
+    def _read_geometry(self, folder: Path, item: dict[str, Any]) -> tuple[Geometry, MeshFiles]:
+        """A mesh's arrays and their files, as its manifest entry names them."""
+        vertices = self._read_array(folder, item["vertices"], np.float32)
+        faces = self._read_array(folder, item["faces"], np.int32)
+        if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+            raise CorruptScene(f"{item['faces']['file']} has indices out of range")
+        files = (
+            ArrayFile(item["vertices"]["file"], vertices.shape, item["vertices"]["crc32"]),
+            ArrayFile(item["faces"]["file"], faces.shape, item["faces"]["crc32"]),
+        )
+        return Geometry(vertices, faces, referenced_bounds(vertices, faces)), files
 
     @staticmethod
     def _read_array(folder: Path, item: dict[str, Any], dtype: type) -> np.ndarray:
@@ -269,7 +326,7 @@ class DataDir:
         return array
 
     @staticmethod
-    def _clean(folder: Path, manifest: Path, files: dict[str, tuple[ArrayFile, ArrayFile]]) -> None:
+    def _clean(folder: Path, manifest: Path, files: dict[str, MeshFiles]) -> None:
         """Remove what a crash left: temporary files, older manifests, arrays nobody names."""
         kept = {manifest.name} | {file.name for pair in files.values() for file in pair}
         for path in folder.iterdir():

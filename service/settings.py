@@ -42,6 +42,8 @@ class Settings(BaseSettings):
     token: SecretStr | None = None
     max_body_bytes: Bytes = 512 * MiB  #: largest request body (also the largest decompressed .npz)
     max_rays_per_request: PositiveInt = 16 * MiB  #: most rays in one query
+    #: most pixels (width x height) of one picture or depth image (render, camera)
+    max_image_pixels: PositiveInt = 4 * MiB
     max_triangles_per_scene: PositiveInt = 32 * MiB  #: most triangles in one scene
     max_scene_bytes: Bytes = 4 * GiB  #: total bytes of vertices and faces over all scenes
     max_hits: PositiveInt = 1024  #: largest ``max_hits`` of a hits query
@@ -88,6 +90,7 @@ class Settings(BaseSettings):
         return {
             "max_body_bytes": self.max_body_bytes,
             "max_rays_per_request": self.max_rays_per_request,
+            "max_image_pixels": self.max_image_pixels,
             "max_triangles_per_scene": self.max_triangles_per_scene,
             "max_scene_bytes": self.max_scene_bytes,
             "max_hits": self.max_hits,

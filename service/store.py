@@ -5,26 +5,38 @@ lock and swaps it in with one assignment, so a reader that took a snapshot keeps
 version however many changes follow. Arrays are owned by the store and read-only. Every change
 checks the limits and the request first and swaps last: a rejected change leaves nothing behind.
 With a journal (``persistence.DataDir``), a version is durable before it is swapped in.
+
+A mesh is its arrays (a ``Geometry``) placed in the scene by a ``transform`` and seen by rays
+through its ``mask``. An instance is a mesh whose ``Geometry`` is its source's own object: the
+arrays are held once, an instance follows every change of its source's arrays, and a source cannot
+be deleted (or become an instance itself) while instances of it exist.
 """
 
 from __future__ import annotations
 
+import functools
 import re
 import threading
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from dacrt.validation import place_vertices
+
 from .errors import Conflict, Invalid, NotFound, TooLarge
-from .wire import MeshArrays, json_ready
+from .wire import FrameChange, MeshArrays, json_ready
+from .wire.arrays import engine_errors
 
 if TYPE_CHECKING:
     from .persistence import DataDir
 
 NAME = re.compile(r"[A-Za-z0-9_.\-]{1,64}")
+ALL_MASKS = 0xFFFFFFFF  #: a mesh's mask unless one is set: every ray sees it
+IDENTITY = np.eye(4)
+IDENTITY.setflags(write=False)
 
 
 def check_name(kind: str, name: str) -> str:
@@ -60,27 +72,98 @@ def referenced_bounds(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     ).astype(np.float32)
 
 
-@dataclass(frozen=True, slots=True)
-class Mesh:
-    """One named mesh of a scene. Later: ``mask`` and ``transform`` fields fit here."""
+def owned_transform(matrix: np.ndarray | None) -> np.ndarray | None:
+    """A checked (4, 4) matrix as the store keeps it: None for the identity, else a read-only
+    float64 copy."""
+    if matrix is None or np.array_equal(matrix, IDENTITY):
+        return None
+    return _owned(matrix, "<f8")
 
-    name: str
-    index: int  #: the mesh's number in hit results; fixed while the mesh exists
+
+@dataclass(frozen=True, eq=False)
+class Geometry:
+    """A mesh's arrays, as uploaded: shared (never copied) by the mesh and its instances."""
+
     vertices: np.ndarray  #: (V, 3) float32, read-only
     faces: np.ndarray  #: (F, 3) int32, read-only, every index in [0, V)
-    bounds: np.ndarray  #: (2, 3) float32 of the referenced vertices
-    version: int  #: scene version of the mesh's last change
-
-    @property
-    def n_triangles(self) -> int:
-        return len(self.faces)
+    bounds: np.ndarray  #: (2, 3) float32 of the referenced vertices, untransformed
 
     @property
     def nbytes(self) -> int:
         return self.vertices.nbytes + self.faces.nbytes
 
+    @functools.cached_property
+    def _referenced_columns(self) -> np.ndarray:
+        """(3, V') the referenced vertices' coordinates, a row per axis (the vertices' own memory
+        when every vertex is referenced)."""
+        used = np.zeros(len(self.vertices), dtype=bool)
+        used[self.faces.ravel()] = True
+        return self.vertices.T if used.all() else np.ascontiguousarray(self.vertices[used].T)
+
+    @functools.cached_property
+    def _corners(self) -> np.ndarray:
+        """(3, 8) float64 the corners of the box of every vertex (referenced or not)."""
+        box = self.vertices.min(axis=0), self.vertices.max(axis=0)
+        return np.array([[box[i >> a & 1][a] for i in range(8)] for a in range(3)], np.float64)
+
+    def check_placeable(self, transform: np.ndarray, name: str) -> None:
+        """422 unless ``transform`` keeps every vertex within the float32 range."""
+        if not len(self.vertices):
+            return
+        corners = transform[:3, :3] @ self._corners + transform[:3, 3:]
+        if np.abs(corners).max() <= np.finfo(np.float32).max:
+            return  # every placed vertex lies in the placed box of these corners
+        with engine_errors():
+            place_vertices(self.vertices, transform, name)
+
+    def placed_bounds(self, transform: np.ndarray | None) -> np.ndarray:
+        """(2, 3) float32 bounds in scene space of the referenced vertices placed by
+        ``transform`` (computed in float64, as the engine places them)."""
+        if transform is None or not len(self.faces):
+            return self.bounds
+        placed = transform[:3, :3] @ self._referenced_columns + transform[:3, 3:]
+        return np.stack([placed.min(axis=1), placed.max(axis=1)]).astype(np.float32)
+
+
+def new_geometry(arrays: MeshArrays) -> Geometry:
+    """A Geometry owning copies of checked arrays."""
+    vertices, faces = _owned(arrays.vertices, "<f4"), _owned(arrays.faces, "<i4")
+    return Geometry(vertices, faces, referenced_bounds(vertices, faces))
+
+
+@dataclass(frozen=True, slots=True)
+class Mesh:
+    """One named mesh of a scene: its arrays, where they are placed and which rays see them."""
+
+    name: str
+    index: int  #: the mesh's number in hit results; fixed while the mesh exists
+    geometry: Geometry  #: the arrays; an instance holds its source's object
+    bounds: np.ndarray  #: (2, 3) float32 scene-space bounds of the placed referenced vertices
+    version: int  #: scene version of the mesh's last change (its source's, for an instance)
+    mask: int = ALL_MASKS  #: uint32; a ray sees the mesh where ray mask & mask != 0
+    transform: np.ndarray | None = None  #: (4, 4) float64 read-only row-major; None: identity
+    instance_of: str | None = None  #: the source mesh whose Geometry this instance shares
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """(V, 3) float32 as uploaded (before ``transform``)."""
+        return self.geometry.vertices
+
+    @property
+    def faces(self) -> np.ndarray:
+        return self.geometry.faces
+
+    @property
+    def n_triangles(self) -> int:
+        return len(self.geometry.faces)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the mesh's arrays (an instance's are its source's: see Snapshot.nbytes)."""
+        return self.geometry.nbytes
+
     def info(self, scene: str) -> dict[str, Any]:
-        """Mesh info JSON of API.md."""
+        """Mesh info JSON of API.md, with the mesh's mask, transform and source."""
         return {
             "scene": scene,
             "mesh": self.name,
@@ -89,13 +172,31 @@ class Mesh:
             "triangles": self.n_triangles,
             "bounds": json_ready(self.bounds),
             "version": self.version,
+            "mask": self.mask,
+            "transform": (IDENTITY if self.transform is None else self.transform).tolist(),
+            "instance_of": self.instance_of,
         }
 
 
-def new_mesh(name: str, arrays: MeshArrays, index: int = -1, version: int = 0) -> Mesh:
+def placed(mesh: Mesh) -> Mesh:
+    """``mesh`` with bounds of its geometry as its transform places it; 422 if the transform
+    places a vertex beyond the float32 range (the engine could not trace it)."""
+    if mesh.transform is not None:
+        mesh.geometry.check_placeable(mesh.transform, f"transform of mesh {mesh.name!r}")
+    return replace(mesh, bounds=mesh.geometry.placed_bounds(mesh.transform))
+
+
+def new_mesh(
+    name: str,
+    arrays: MeshArrays,
+    index: int = -1,
+    version: int = 0,
+    mask: int = ALL_MASKS,
+    transform: np.ndarray | None = None,
+) -> Mesh:
     """A Mesh owning copies of checked arrays; ``index`` and ``version`` are set by the store."""
-    vertices, faces = _owned(arrays.vertices, "<f4"), _owned(arrays.faces, "<i4")
-    return Mesh(name, index, vertices, faces, referenced_bounds(vertices, faces), version)
+    geometry = new_geometry(arrays)
+    return placed(Mesh(name, index, geometry, geometry.bounds, version, mask, transform))
 
 
 @dataclass(frozen=True)
@@ -111,11 +212,14 @@ class Snapshot:
 
     @property
     def n_triangles(self) -> int:
+        """Placed triangles: an instance's count as many as its source's."""
         return sum(m.n_triangles for m in self.meshes.values())
 
     @property
     def nbytes(self) -> int:
-        return sum(m.nbytes for m in self.meshes.values())
+        """Bytes of vertices and faces held, each array once however many meshes share it."""
+        arrays = {id(a): a.nbytes for m in self.meshes.values() for a in (m.vertices, m.faces)}
+        return sum(arrays.values())
 
     @property
     def bounds(self) -> np.ndarray:
@@ -132,6 +236,10 @@ class Snapshot:
             raise NotFound(
                 f"scene {self.scene!r} has no mesh {name!r}; it has {sorted(self.meshes) or 'none'}"
             ) from None
+
+    def instances_of(self, name: str) -> list[str]:
+        """The names of the instances of mesh ``name``, in index order."""
+        return [m.name for m in self.meshes.values() if m.instance_of == name]
 
     def info(self) -> dict[str, Any]:
         """Scene info JSON of API.md."""
@@ -184,49 +292,105 @@ class Store:
 
     # ---- changing: each builds a new snapshot under the lock, then swaps it in
 
-    def put_mesh(self, scene: str, name: str, arrays: MeshArrays) -> tuple[Mesh, bool]:
-        """Add or replace a mesh (creating the scene); answers (mesh, created)."""
+    def put_mesh(
+        self, scene: str, name: str, arrays: MeshArrays, mask: int | None = None
+    ) -> tuple[Mesh, bool]:
+        """Add or replace a mesh (creating the scene); answers (mesh, created). A replaced mesh
+        keeps its transform, and its mask unless ``mask`` is given; it is no longer an
+        instance."""
         check_name("scene", scene), check_name("mesh", name)
-        mesh = new_mesh(name, arrays)
+        geometry = new_geometry(arrays)
         with self._lock:
             old = self._scenes.get(scene)
+            before = old.meshes.get(name) if old is not None else None
+            mesh = self._changed(before, name, mask=mask, geometry=geometry, instance_of=None)
             snapshot = self._commit(scene, old, {name: mesh})
-            return snapshot.meshes[name], old is None or name not in old.meshes
+            return snapshot.meshes[name], before is None
+
+    def put_instance(
+        self,
+        scene: str,
+        name: str,
+        source: str,
+        transform: np.ndarray | None = None,
+        mask: int | None = None,
+    ) -> tuple[Mesh, bool]:
+        """Add or replace mesh ``name`` as an instance of mesh ``source`` of the same scene,
+        sharing its arrays; answers (mesh, created). ``transform`` (checked, (4, 4)) and
+        ``mask`` are the instance's own: a replaced mesh keeps its own where they are None."""
+        check_name("scene", scene), check_name("mesh", name), check_name("mesh", source)
+        with self._lock:
+            old = self.snapshot(scene)
+            before = old.meshes.get(name)
+            mesh = self._changed(before, name, transform, mask, instance_of=source)
+            snapshot = self._commit(scene, old, {name: mesh})
+            return snapshot.meshes[name], before is None
 
     def update_vertices(self, scene: str, name: str, vertices: np.ndarray) -> Mesh:
-        """New positions for a mesh's vertices, same count; faces are kept (409 on a count
-        change)."""
+        """New positions for a mesh's vertices, same count; faces, mask and transform are kept
+        (409 on a count change or for an instance)."""
         with self._lock:
             old = self.snapshot(scene)
             mesh = self._moved(old.mesh(name), vertices, old.scene)
             return self._commit(scene, old, {name: mesh}).meshes[name]
 
+    def set_transform(self, scene: str, name: str, transform: np.ndarray | None) -> Mesh:
+        """Place a mesh by a checked (4, 4) matrix (None: the identity); its arrays are kept."""
+        with self._lock:
+            old = self.snapshot(scene)
+            matrix = IDENTITY if transform is None else transform
+            mesh = self._changed(old.mesh(name), name, transform=matrix)
+            return self._commit(scene, old, {name: mesh}).meshes[name]
+
+    def set_mask(self, scene: str, name: str, mask: int) -> Mesh:
+        """Set a mesh's visibility mask (a checked uint32); everything else is kept."""
+        with self._lock:
+            old = self.snapshot(scene)
+            mesh = self._changed(old.mesh(name), name, mask=mask)
+            return self._commit(scene, old, {name: mesh}).meshes[name]
+
     def apply_frame(
-        self, scene: str, changes: Mapping[str, tuple[np.ndarray, np.ndarray | None]]
+        self,
+        scene: str,
+        changes: Mapping[str, FrameChange | tuple[np.ndarray, np.ndarray | None]],
     ) -> Snapshot:
-        """Change several meshes in one version: (vertices, faces) adds or replaces a mesh,
-        (vertices, None) moves an existing one's vertices."""
+        """Change several meshes in one version (``wire.FrameChange``, or a (vertices, faces)
+        pair): vertices with faces add or replace a mesh, vertices alone move an existing mesh's
+        vertices, ``instance_of`` makes the mesh an instance, and ``transform`` and ``mask`` set
+        its placement and mask (kept where not given)."""
         check_name("scene", scene)
+        changes = {name: FrameChange(*change) for name, change in changes.items()}
         for name in changes:
             check_name("mesh", name)
         added = {
-            name: new_mesh(name, MeshArrays(vertices, faces))
-            for name, (vertices, faces) in changes.items()
-            if faces is not None
+            name: new_geometry(MeshArrays(change.vertices, change.faces))
+            for name, change in changes.items()
+            if change.faces is not None
         }
         with self._lock:
             old = self._scenes.get(scene)
             meshes: dict[str, Mesh] = {}
-            for name, (vertices, faces) in changes.items():
-                if faces is not None:
-                    meshes[name] = added[name]
-                elif old is None:
+            for name, change in changes.items():
+                before = old.meshes.get(name) if old is not None else None
+                if name in added:
+                    meshes[name] = self._changed(
+                        before, name, change.transform, change.mask, added[name], None
+                    )
+                elif change.instance_of is not None:
+                    meshes[name] = self._changed(
+                        before, name, change.transform, change.mask, instance_of=change.instance_of
+                    )
+                elif before is None:
                     raise NotFound(
-                        f"no scene {scene!r}, so {name}.vertices has no faces to go "
-                        f"with; send {name}.faces too to create it"
+                        f"no mesh {name!r} in scene {scene!r}, so the frame's {name}.* keys "
+                        f"have nothing to change; send {name}.vertices and {name}.faces (or "
+                        f"{name}.instance_of) to create it"
                     )
                 else:
-                    meshes[name] = self._moved(old.mesh(name), vertices, scene)
+                    mesh = before
+                    if change.vertices is not None:
+                        mesh = self._moved(before, change.vertices, scene)
+                    meshes[name] = self._changed(mesh, name, change.transform, change.mask)
             return self._commit(scene, old, meshes)
 
     def restore(self, snapshots: list[Snapshot], last_versions: Mapping[str, int]) -> None:
@@ -234,7 +398,8 @@ class Store:
         (limits are not checked: the scenes were accepted when they were made)."""
         with self._lock:
             for snapshot in snapshots:
-                self._nbytes += snapshot.nbytes - self._scenes.get(snapshot.scene, snapshot).nbytes
+                old = self._scenes.get(snapshot.scene)
+                self._nbytes += snapshot.nbytes - (old.nbytes if old is not None else 0)
                 self._scenes[snapshot.scene] = snapshot
             for scene, version in last_versions.items():
                 self._last_version[scene] = max(version, self._last_version.get(scene, 0))
@@ -248,6 +413,7 @@ class Store:
             self._nbytes -= old.nbytes
 
     def delete_mesh(self, scene: str, name: str) -> Snapshot:
+        """Delete a mesh (409 naming its instances while it has any)."""
         with self._lock:
             old = self.snapshot(scene)
             old.mesh(name)
@@ -256,7 +422,39 @@ class Store:
     # ---- helpers, called with the lock held
 
     @staticmethod
+    def _changed(
+        before: Mesh | None,
+        name: str,
+        transform: np.ndarray | None = None,
+        mask: int | None = None,
+        geometry: Geometry | None = None,
+        instance_of: str | None = ...,  # type: ignore[assignment]
+    ) -> Mesh:
+        """``before`` (or a new mesh) with what is given changed; ``instance_of=None`` makes it a
+        mesh of its own, ``...`` keeps what it was. An instance's geometry is linked by
+        ``_commit``."""
+        if before is None:
+            before = Mesh(name, -1, geometry or EMPTY, EMPTY.bounds, 0)
+        changes: dict[str, Any] = {}
+        if transform is not None:
+            changes["transform"] = owned_transform(transform)
+        if mask is not None:
+            changes["mask"] = int(mask)
+        if geometry is not None:
+            changes["geometry"] = geometry
+        if instance_of is not ...:
+            changes["instance_of"] = instance_of
+        return placed(replace(before, **changes)) if changes else before
+
+    @staticmethod
     def _moved(mesh: Mesh, vertices: np.ndarray, scene: str) -> Mesh:
+        if mesh.instance_of is not None:
+            raise Conflict(
+                f"mesh {mesh.name!r} of scene {scene!r} is an instance of {mesh.instance_of!r}, "
+                f"whose vertices it shares; move {mesh.instance_of!r}'s vertices (every instance "
+                "follows), place this instance with its transform, or PUT it vertices and faces "
+                "of its own"
+            )
         if len(vertices) != len(mesh.vertices):
             raise Conflict(
                 f"mesh {mesh.name!r} of scene {scene!r} has {len(mesh.vertices)} vertices "
@@ -264,7 +462,8 @@ class Store:
                 f"PUT the whole mesh to /v1/scenes/{scene}/meshes/{mesh.name}"
             )
         vertices = _owned(vertices, "<f4")
-        return replace(mesh, vertices=vertices, bounds=referenced_bounds(vertices, mesh.faces))
+        geometry = Geometry(vertices, mesh.faces, referenced_bounds(vertices, mesh.faces))
+        return placed(replace(mesh, geometry=geometry))
 
     def _commit(
         self, scene: str, old: Snapshot | None, changes: Mapping[str, Mesh | None]
@@ -282,12 +481,14 @@ class Store:
             else:
                 index, next_index = next_index, next_index + 1
             meshes[name] = replace(mesh, index=index, version=version)
+        _link_instances(scene, meshes, [n for n, m in changes.items() if m is not None], version)
         meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))
         snapshot = Snapshot(scene, version, MappingProxyType(meshes), next_index)
         if snapshot.n_triangles > self.max_triangles_per_scene:
             raise TooLarge(
-                f"scene {scene!r} would hold {snapshot.n_triangles} triangles, over the "
-                f"limit of {self.max_triangles_per_scene} (DACRT_MAX_TRIANGLES_PER_SCENE)"
+                f"scene {scene!r} would hold {snapshot.n_triangles} triangles, over the limit "
+                f"of {self.max_triangles_per_scene} (DACRT_MAX_TRIANGLES_PER_SCENE; an "
+                "instance counts its source's triangles again)"
             )
         nbytes = self._nbytes - (old.nbytes if old else 0) + snapshot.nbytes
         if nbytes > self.max_scene_bytes:
@@ -302,3 +503,57 @@ class Store:
         self._last_version[scene] = version
         self._nbytes = nbytes
         return snapshot
+
+
+EMPTY = new_geometry(MeshArrays(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)))
+
+
+def _link_instances(scene: str, meshes: dict[str, Mesh], changed: Iterable[str], version: int):
+    """Give every instance in ``meshes`` its source's geometry, in place.
+
+    A changed instance naming an instance is linked to that instance's own source (404 if there
+    is none). An instance whose source is gone, or has become an instance itself, is 409.
+    """
+    for name in changed:
+        mesh = meshes[name]
+        if mesh.instance_of is None:
+            continue
+        source, chain = mesh.instance_of, [name]
+        while (
+            source not in chain
+            and (target := meshes.get(source)) is not None
+            and target.instance_of is not None
+        ):
+            chain.append(source)
+            source = target.instance_of
+        if source in chain:
+            raise Invalid(
+                f"mesh {name!r} of scene {scene!r} cannot be an instance of itself"
+                if len(chain) == 1
+                else f"meshes {chain} of scene {scene!r} would be instances of each other"
+            )
+        if source not in meshes:
+            raise NotFound(
+                f"scene {scene!r} has no mesh {source!r} for {name!r} to be an instance of; "
+                f"it has {sorted(n for n in meshes if n != name) or 'none'}"
+            )
+        meshes[name] = replace(mesh, instance_of=source)
+    orphans: dict[str, list[str]] = {}
+    for name, mesh in meshes.items():
+        if mesh.instance_of is None:
+            continue
+        source = meshes.get(mesh.instance_of)
+        if source is None or source.instance_of is not None:
+            orphans.setdefault(mesh.instance_of, []).append(name)
+        elif mesh.geometry is not source.geometry:
+            meshes[name] = placed(replace(mesh, geometry=source.geometry, version=version))
+    for source, names in orphans.items():
+        change = (
+            "be deleted"
+            if source not in meshes
+            else f"become an instance of {meshes[source].instance_of!r}"
+        )
+        raise Conflict(
+            f"mesh {source!r} of scene {scene!r} has instances {names}, so it cannot {change}; "
+            "delete them first, or PUT them vertices and faces of their own"
+        )

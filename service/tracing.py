@@ -160,13 +160,20 @@ class EngineScene:
         return self.mesh_index[positions]  # a miss (-1) picks the trailing -1
 
 
-def build_engine_scene(meshes: Iterable[tuple[int, np.ndarray, np.ndarray]]) -> EngineScene:
-    """The engine scene of (index, vertices, faces) triples; meshes without triangles are left
-    out."""
-    kept = [(index, vertices, faces) for index, vertices, faces in meshes if len(faces)]
-    indices = np.array([index for index, _, _ in kept] + [-1], dtype=np.int32)
+def build_engine_scene(meshes: Iterable[tuple]) -> EngineScene:
+    """The engine scene of (index, vertices, faces[, mask[, transform]]) tuples (mask: uint32,
+    default all ones; transform: (4, 4) or None, the identity); meshes without triangles are left
+    out. Meshes may share arrays (instances): the engine places each by its own transform."""
+    kept = [tuple(mesh) for mesh in meshes if len(mesh[2])]
+    indices = np.array([mesh[0] for mesh in kept] + [-1], dtype=np.int32)
+    masks = np.array([mesh[3] if len(mesh) > 3 else 0xFFFFFFFF for mesh in kept], np.uint32)
+    transforms = [mesh[4] if len(mesh) > 4 else None for mesh in kept]
     try:
-        scene = dacrt.Scene([(vertices, faces) for _, vertices, faces in kept])
+        scene = dacrt.Scene(
+            [(mesh[1], mesh[2]) for mesh in kept],
+            masks=None if (masks == 0xFFFFFFFF).all() else masks,
+            transforms=None if all(t is None for t in transforms) else transforms,
+        )
     except ValueError as exc:
         raise Invalid(str(exc)) from None
     identity = np.array_equal(indices[:-1], np.arange(len(kept)))
@@ -174,7 +181,9 @@ def build_engine_scene(meshes: Iterable[tuple[int, np.ndarray, np.ndarray]]) -> 
 
 
 def _snapshot_engine(snapshot: Snapshot) -> EngineScene:
-    return build_engine_scene((m.index, m.vertices, m.faces) for m in snapshot.meshes.values())
+    return build_engine_scene(
+        (m.index, m.vertices, m.faces, m.mask, m.transform) for m in snapshot.meshes.values()
+    )
 
 
 @dataclass(frozen=True)

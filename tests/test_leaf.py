@@ -9,9 +9,9 @@ import pytest
 import reference
 
 from dacrt.contracts import STAT_NAMES
-from dacrt.geometry import intersect_triangle, watertight_setup
+from dacrt.geometry import corners_from_origin, crossing, intersect_triangle, watertight_setup
 from dacrt.leaf import NO_HIT, intersect_leaf, leaf_scratch
-from dacrt.query import ANY_HIT, QueryArrays
+from dacrt.query import ALL_HITS, ANY_HIT, COUNT, QueryArrays
 from dacrt.rays import BEST_T, new_records, pack_rays
 
 MODE_CLOSEST = 0
@@ -46,19 +46,19 @@ def run_leaf(mode, tri_verts, origins, directions, tmin, tmax, tri_ids):
     hit_u = np.zeros(n, np.float32)
     hit_v = np.zeros(n, np.float32)
     no_masks = np.empty(0, np.uint32)
-    no_lists = np.empty((0, 0), np.float32)
-    no_rows = np.empty((0, 0), np.int32)
+    list_size = len(tri_ids) + 1 if mode & ALL_HITS else 0
+    n_hits = np.zeros(n if mode & (ALL_HITS | COUNT) else 0, np.int32)
+    list_t = np.empty((n if list_size else 0, list_size), np.float32)
+    list_tri = np.empty((n if list_size else 0, list_size), np.int32)
     arrays = QueryArrays(
         best_tri=best_tri,
         hit_u=hit_u,
         hit_v=hit_v,
         ray_masks=no_masks,
         tri_masks=no_masks,
-        n_hits=np.empty(0, np.int32),
-        list_t=no_lists,
-        list_tri=no_rows,
-        list_u=no_lists,
-        list_v=no_lists,
+        n_hits=n_hits,
+        list_t=list_t,
+        list_tri=list_tri,
         hit_mask=np.empty(n, np.bool_),
         tri_bins=np.empty(len(tri_verts), np.uint8),
         stats=np.zeros(len(STAT_NAMES), np.int64),
@@ -66,9 +66,11 @@ def run_leaf(mode, tri_verts, origins, directions, tmin, tmax, tri_ids):
     n_tests = intersect_leaf(
         mode, tri_verts, rays, ray_ids, 0, n, tri_ids, 0, len(tri_ids), arrays, leaf_scratch()
     )
-    # Closest hits test every pair; an occlusion ray skips the blocks after its first hit.
-    assert n_tests == n * len(tri_ids) if mode == MODE_CLOSEST else n_tests <= n * len(tri_ids)
+    # Every pair is tested, but an occlusion ray skips the blocks after its first hit.
+    assert n_tests == n * len(tri_ids) if mode != MODE_OCCLUDED else n_tests <= n * len(tri_ids)
     best_t = rays[BEST_T >> 2, 3 : 4 * n : 4].copy()
+    if mode & (ALL_HITS | COUNT):
+        return n_hits, list_t, list_tri
     return best_t, best_tri, hit_u, hit_v
 
 
@@ -134,3 +136,37 @@ def test_occluded_leaf_finds_a_hit_exactly_when_closest_does(n_tris, n_rays):
     np.testing.assert_array_equal(best_tri != NO_HIT, blocked)
     assert (best_t[blocked] == -np.inf).all(), "an occlusion ray that hit is not done"
     np.testing.assert_array_equal(best_t[~blocked], tmax[~blocked])
+
+
+def crossings_brute_force(tri_verts, origins, directions, tmin, tmax):
+    """Per ray: the sorted (float32 t, triangle) of every triangle the scalar half-open test
+    (``crossing``) says it crosses within [tmin, tmax]."""
+    lists = []
+    for i in range(len(origins)):
+        kx, ky, kz, sx, sy, sz = watertight_setup(*directions[i])
+        ok = [np.float64(origins[i, k]) for k in (kx, ky, kz)]
+        found = []
+        for tri in range(len(tri_verts)):
+            corners = corners_from_origin(tri_verts, tri, *ok, kx, ky, kz)
+            if crossing(*corners, sx, sy, sz)[0]:
+                _, t, _, _ = intersect_triangle(tri_verts, tri, *ok, kx, ky, kz, sx, sy, sz)
+                t = np.float32(t)
+                if tmin[i] <= t <= tmax[i]:
+                    found.append((t, tri))
+        lists.append(sorted(found))
+    return lists
+
+
+@pytest.mark.parametrize("n_tris,n_rays", SHAPES)
+def test_count_and_hits_leaves_list_every_crossing_in_order(n_tris, n_rays):
+    tri_verts, o, d, tmin, tmax, rng = leaf_scene(4, n_tris, n_rays)
+    tri_ids = rng.permutation(n_tris).astype(np.int32)
+    want = crossings_brute_force(tri_verts, o, d, tmin, tmax)
+    assert sum(map(len, want)) >= n_rays // 4, "vacuous: few crossings"
+    counts, _, _ = run_leaf(COUNT, tri_verts, o, d, tmin, tmax, tri_ids)
+    np.testing.assert_array_equal(counts, [len(found) for found in want])
+    n_held, list_t, list_tri = run_leaf(ALL_HITS, tri_verts, o, d, tmin, tmax, tri_ids)
+    np.testing.assert_array_equal(n_held, counts)
+    for i, found in enumerate(want):
+        got = list(zip(list_t[i, : n_held[i]], list_tri[i, : n_held[i]]))
+        assert got == found, f"ray {i}"

@@ -1,9 +1,11 @@
-"""Meshes and the scenes that hold them: upload, deform, frame, inspect, delete."""
+"""Meshes and the scenes that hold them: upload, instance, deform, place, mask, frame, inspect,
+delete."""
 
 from __future__ import annotations
 
 from functools import partial
 
+import numpy as np
 from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request, Response
 
@@ -22,14 +24,24 @@ router = APIRouter(
 
 MESH_BODY = openapi.request_body(
     wire.MESH_FORMATS,
-    openapi.MESH_JSON,
-    "a mesh: .npz, JSON or a mesh file (OBJ, PLY, STL, GLB, OFF)",
+    {"anyOf": [openapi.MESH_JSON, openapi.INSTANCE_JSON]},
+    "a mesh: .npz, JSON or a mesh file (OBJ, PLY, STL, GLB, OFF); or, in JSON, an instance of "
+    "another mesh of the scene: {instance_of, transform}",
+)
+TRANSFORM_BODY = openapi.request_body(
+    ("json",), openapi.TRANSFORM_JSON, "the mesh's placement: a 4x4 row-major affine matrix"
+)
+MASK_BODY = openapi.request_body(
+    ("json",), openapi.MASK_JSON, "the mesh's visibility mask: a uint32, decimal or 0x hex"
 )
 VERTICES_BODY = openapi.request_body(
     wire.VERTEX_FORMATS, openapi.VERTICES_JSON, "vertex positions, as many as the mesh has"
 )
 FRAME_BODY = openapi.request_body(
-    wire.FRAME_FORMATS, openapi.FRAME_JSON, "MESH.vertices (and MESH.faces) for several meshes"
+    wire.FRAME_FORMATS,
+    openapi.FRAME_JSON,
+    "MESH.vertices (and MESH.faces), MESH.transform, MESH.mask (and, in JSON, MESH.instance_of) "
+    "for several meshes",
 )
 CHANGE_ERRORS = openapi.errors(400, 401, 404, 408, 409, 413, 415, 422)
 READ_ERRORS = openapi.errors(401, 404, 422)
@@ -55,10 +67,11 @@ async def put_mesh(
     format: MeshFormat = None,
     mask: Mask = None,
 ) -> dict:
-    """Add or replace a mesh (201 new / 200 replaced); creates the scene if needed."""
+    """Add or replace a mesh (201 new / 200 replaced); creates the scene if needed. A JSON body
+    ``{"instance_of": MESH, "transform": 4x4}`` makes it an instance of another mesh of the
+    scene, sharing its arrays."""
     check_name("scene", scene), check_name("mesh", mesh)
-    if mask is not None:
-        raise Invalid("?mask= (visibility masks) is not supported by this server yet")
+    mask_value = None if mask is None else wire.parse_mask(mask, "?mask")
     body = await read_body(request, settings.max_body_bytes)
     fmt = wire.resolve_format(
         request.headers.get("content-type"),
@@ -67,10 +80,33 @@ async def put_mesh(
         body,
         "PUT /v1/scenes/{scene}/meshes/{mesh}",
     )
-    arrays = await run_sync(partial(wire.decode_mesh, body, fmt, settings.max_body_bytes))
-    stored, created = await run_sync(store.put_mesh, scene, mesh, arrays)
+    decoded = await run_sync(partial(_decode_mesh_or_instance, body, fmt, settings.max_body_bytes))
+    if isinstance(decoded, wire.MeshArrays):
+        stored, created = await run_sync(store.put_mesh, scene, mesh, decoded, mask_value)
+    else:
+        source, transform = decoded
+        put = partial(store.put_instance, scene, mesh, source, transform, mask_value)
+        stored, created = await run_sync(put)
     response.status_code = 201 if created else 200
     return stored.info(scene)
+
+
+def _decode_mesh_or_instance(
+    body: memoryview, fmt: str, max_bytes: int
+) -> wire.MeshArrays | tuple[str, np.ndarray | None]:
+    """A mesh, or (source, transform or None) of an instance: ``{"instance_of", "transform"}``."""
+    if fmt != "json":
+        return wire.decode_mesh(body, fmt, max_bytes)
+    doc = wire.read_json(body, "vertices, faces (or instance_of and transform)")
+    if "instance_of" not in doc:
+        wire.check_keys(doc, ("vertices", "faces"))
+        return wire.mesh_arrays(doc["vertices"], doc["faces"])
+    wire.check_keys(doc, ("instance_of",), ("transform",))
+    source = doc["instance_of"]
+    if not isinstance(source, str):
+        raise Invalid(f"instance_of must be a mesh name (a string), not {type(source).__name__}")
+    transform = doc.get("transform")
+    return source, None if transform is None else wire.check_matrix(transform, "transform")
 
 
 @router.put("/{scene}/meshes/{mesh}/vertices", openapi_extra=VERTICES_BODY, responses=CHANGE_ERRORS)
@@ -98,6 +134,43 @@ async def put_vertices(
     return stored.info(scene)
 
 
+@router.put(
+    "/{scene}/meshes/{mesh}/transform", openapi_extra=TRANSFORM_BODY, responses=CHANGE_ERRORS
+)
+async def put_transform(
+    scene: SceneName, mesh: MeshName, request: Request, settings: SettingsDep, store: StoreDep
+) -> dict:
+    """Place a mesh in the scene by a 4x4 row-major affine matrix; its arrays are kept."""
+    check_name("scene", scene), check_name("mesh", mesh)
+    store.snapshot(scene).mesh(mesh)  # 404 before reading the body
+    doc = await _json_body(
+        request, settings, "matrix", "PUT /v1/scenes/{scene}/meshes/{mesh}/transform"
+    )
+    matrix = wire.check_matrix(doc["matrix"], "matrix")
+    return (await run_sync(store.set_transform, scene, mesh, matrix)).info(scene)
+
+
+@router.put("/{scene}/meshes/{mesh}/mask", openapi_extra=MASK_BODY, responses=CHANGE_ERRORS)
+async def put_mask(
+    scene: SceneName, mesh: MeshName, request: Request, settings: SettingsDep, store: StoreDep
+) -> dict:
+    """Set a mesh's visibility mask; everything else is kept."""
+    check_name("scene", scene), check_name("mesh", mesh)
+    store.snapshot(scene).mesh(mesh)  # 404 before reading the body
+    doc = await _json_body(request, settings, "mask", "PUT /v1/scenes/{scene}/meshes/{mesh}/mask")
+    value = wire.parse_mask(doc["mask"], "mask")
+    return (await run_sync(store.set_mask, scene, mesh, value)).info(scene)
+
+
+async def _json_body(request: Request, settings: SettingsDep, key: str, what: str) -> dict:
+    """The JSON object ``{key: ...}`` of a small body (415 for another Content-Type)."""
+    body = await read_body(request, settings.max_body_bytes)
+    wire.resolve_format(request.headers.get("content-type"), None, ("json",), body, what)
+    doc = wire.read_json(body, key)
+    wire.check_keys(doc, (key,))
+    return doc
+
+
 @router.post("/{scene}/frame", openapi_extra=FRAME_BODY, responses=CHANGE_ERRORS)
 async def post_frame(
     scene: SceneName,
@@ -106,7 +179,8 @@ async def post_frame(
     store: StoreDep,
     format: FrameFormat = None,
 ) -> dict:
-    """Change several meshes in one version, atomically."""
+    """Change several meshes in one version, atomically: their vertices, faces, transforms and
+    masks, and new instances."""
     check_name("scene", scene)
     body = await read_body(request, settings.max_body_bytes)
     fmt = wire.resolve_format(
@@ -143,8 +217,10 @@ async def delete_scene(scene: SceneName, store: StoreDep) -> Response:
     return Response(status_code=204)
 
 
-@router.delete("/{scene}/meshes/{mesh}", status_code=204, responses=READ_ERRORS)
+@router.delete(
+    "/{scene}/meshes/{mesh}", status_code=204, responses=openapi.errors(401, 404, 409, 422)
+)
 async def delete_mesh(scene: SceneName, mesh: MeshName, store: StoreDep) -> Response:
     check_name("scene", scene), check_name("mesh", mesh)
-    store.delete_mesh(scene, mesh)
+    await run_sync(store.delete_mesh, scene, mesh)  # 409 while it has instances
     return Response(status_code=204)

@@ -1,6 +1,8 @@
-"""Operations: the start page /, /health, /metrics (no token), /v1/capabilities."""
+"""Operations: the start page / (the viewer), /health, /metrics (no token), /v1/capabilities."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 from fastapi import APIRouter, Depends, Response
 from fastapi.responses import HTMLResponse, JSONResponse, PlainTextResponse
@@ -21,22 +23,25 @@ from ..deps import (
 router = APIRouter(tags=["operations"])
 unauthenticated = [Depends(reject_unknown_query)]
 
-START_PAGE = f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>dacrt {__version__}</title></head>
-<body><h1>dacrt ray-casting service {__version__}</h1>
-<p>Scenes of triangle meshes, queried with batches of rays over HTTP.</p>
-<ul><li><a href="/docs">/docs</a>: the API, to read and try (OpenAPI at
-<a href="/openapi.json">/openapi.json</a>)</li>
-<li><a href="/health">/health</a>: readiness</li>
-<li><a href="/metrics">/metrics</a>: Prometheus metrics</li></ul></body></html>
-"""
+#: The start page: the viewer (one HTML file, plain JavaScript), with links to /docs, /health and
+#: /metrics.
+START_PAGE = (
+    (Path(__file__).resolve().parents[1] / "static" / "viewer.html")
+    .read_text(encoding="utf-8")
+    .replace("{{version}}", __version__)
+)
 
 
 @router.get(
     "/",
     dependencies=unauthenticated,
     response_class=HTMLResponse,
-    responses={200: {"description": "a page linking to /docs", "content": {"text/html": {}}}},
+    responses={
+        200: {
+            "description": "the viewer: a scene rendered by the server, orbited with the mouse",
+            "content": {"text/html": {}},
+        }
+    },
 )
 async def start_page() -> HTMLResponse:
     return HTMLResponse(START_PAGE)

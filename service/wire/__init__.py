@@ -71,7 +71,12 @@ Vertices (``decode_vertices``; formats npy, npz, json)
 
 Frames (``decode_frame``; formats npz, json)
     Keys ``MESH.vertices`` and optionally ``MESH.faces`` for any number of meshes (a mesh name may
-    itself contain dots: the suffix after the last dot is the array). JSON uses the same flat keys.
+    itself contain dots: the suffix after the last dot is the part). JSON uses the same flat keys.
+    Each mesh may also have ``MESH.transform``: a (4, 4) row-major affine matrix (npz: float32 or
+    float64; JSON: 4 lists of 4 numbers), checked by the engine (``check_matrix``);
+    ``MESH.mask``: a uint32 (npz: an integer array of one element; JSON: an integer or a string
+    in decimal or ``0x`` hex, ``parse_mask``); and, in JSON only, ``MESH.instance_of``: the name
+    of the mesh whose arrays it shares, never with ``MESH.vertices`` or ``MESH.faces``.
 
 One-shot trace (``decode_trace``; formats npz, json)
     The keys of a mesh (``vertices``, ``faces``) and of rays (``origins``, ``directions``,
@@ -104,12 +109,15 @@ from .arrays import (
 )
 from .body import BodyBuffer
 from .decoders import (
+    FrameChange,
     check_keys,
+    check_matrix,
     decode_frame,
     decode_mesh,
     decode_rays,
     decode_trace,
     decode_vertices,
+    parse_mask,
     read_json,
     read_mapping,
 )
@@ -149,12 +157,14 @@ __all__ = [
     "VERTEX_FORMATS",
     "BodyBuffer",
     "Buffer",
+    "FrameChange",
     "MeshArrays",
     "NpzBody",
     "Rays",
     "array_bytes",
     "check_faces",
     "check_keys",
+    "check_matrix",
     "check_vertices",
     "decode_frame",
     "decode_mesh",
@@ -173,6 +183,7 @@ __all__ = [
     "npy_parts",
     "npz_parts",
     "nulls_to_inf",
+    "parse_mask",
     "read_json",
     "read_mapping",
     "read_npy",

@@ -3,17 +3,22 @@
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterable, Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
+
+import dacrt
 
 from ..errors import BadBody, Invalid, TooLarge, UnsupportedMediaType
 from .arrays import (
     MeshArrays,
     Rays,
     check_faces,
+    check_json_numbers,
     check_vertices,
+    engine_errors,
     float_array,
     index_array,
     mask_array,
@@ -151,35 +156,115 @@ def decode_vertices(body: Buffer, fmt: str, max_bytes: int | None = None) -> np.
     return check_vertices(float_array(value, "vertices", 3))
 
 
-def decode_frame(
-    body: Buffer, fmt: str, max_bytes: int | None = None
-) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
-    """mesh name -> (vertices, faces or None) from ``MESH.vertices`` / ``MESH.faces`` keys.
+class FrameChange(NamedTuple):
+    """What a frame changes of one mesh; None leaves a part as it is."""
 
-    Only shapes and dtypes are checked here; face indices are checked against the vertex count
-    of the mesh they end up with (``check_faces``) by the store.
+    vertices: np.ndarray | None = None  #: (V, 3) float32, checked finite
+    faces: np.ndarray | None = None  #: (F, 3) int32, checked against ``vertices``
+    transform: np.ndarray | None = None  #: (4, 4) float64, checked by ``check_matrix``
+    mask: int | None = None  #: uint32
+    instance_of: str | None = None  #: the mesh whose arrays this one shares
+
+
+#: The parts of a mesh a frame can set, as the suffixes of its keys.
+FRAME_PARTS = FrameChange._fields
+
+
+def decode_frame(body: Buffer, fmt: str, max_bytes: int | None = None) -> dict[str, FrameChange]:
+    """mesh name -> FrameChange from ``MESH.vertices``, ``MESH.faces``, ``MESH.transform``,
+    ``MESH.mask`` and ``MESH.instance_of`` keys (``instance_of`` only in JSON: it is text).
+
+    Values are checked here; face indices against the frame's vertices (``check_faces``), and
+    which meshes exist by the store.
     """
     mapping = read_mapping(body, fmt, "MESH.vertices (and optionally MESH.faces) keys", max_bytes)
     parts: dict[str, dict[str, Any]] = {}
     for key, value in mapping.items():
         mesh, _, kind = key.rpartition(".")
-        if not mesh or kind not in ("vertices", "faces"):
-            raise BadBody(f"frame key {key!r} is not MESH.vertices or MESH.faces")
+        if not mesh or kind not in FRAME_PARTS:
+            raise BadBody(
+                f"frame key {key!r} is not MESH.vertices or MESH.faces, nor MESH.transform, "
+                "MESH.mask or MESH.instance_of"
+            )
         parts.setdefault(mesh, {})[kind] = value
     if not parts:
-        raise BadBody("frame body holds no MESH.vertices keys")
-    frame = {}
-    for mesh, arrays in parts.items():
-        if "vertices" not in arrays:
-            raise BadBody(f"frame has {mesh}.faces but no {mesh}.vertices")
+        raise BadBody("frame body holds no MESH.vertices (or other MESH.*) keys")
+    return {mesh: _frame_change(mesh, arrays) for mesh, arrays in parts.items()}
+
+
+def _frame_change(mesh: str, arrays: dict[str, Any]) -> FrameChange:
+    if "faces" in arrays and "vertices" not in arrays:
+        raise BadBody(f"frame has {mesh}.faces but no {mesh}.vertices")
+    if "instance_of" in arrays and ("vertices" in arrays or "faces" in arrays):
+        raise BadBody(
+            f"frame has {mesh}.instance_of and {mesh}.vertices: an instance shares its "
+            "source's arrays, so send one or the other"
+        )
+    vertices = faces = transform = mask = source = None
+    if "vertices" in arrays:
         vertices = check_vertices(
             float_array(arrays["vertices"], f"{mesh}.vertices", 3), f"{mesh}.vertices"
         )
-        faces = arrays.get("faces")
-        if faces is not None:
-            faces = check_faces(index_array(faces, f"{mesh}.faces"), len(vertices), f"{mesh}.faces")
-        frame[mesh] = (vertices, faces)
-    return frame
+    if "faces" in arrays:
+        faces = index_array(arrays["faces"], f"{mesh}.faces")
+        faces = check_faces(faces, len(vertices), f"{mesh}.faces")
+    if "transform" in arrays:
+        transform = check_matrix(arrays["transform"], f"{mesh}.transform")
+    if "mask" in arrays:
+        mask = parse_mask(arrays["mask"], f"{mesh}.mask")
+    if "instance_of" in arrays:
+        source = arrays["instance_of"]
+        if not isinstance(source, str):
+            raise Invalid(
+                f"{mesh}.instance_of must be a mesh name (a JSON string); an .npz frame cannot "
+                "hold one: send it in a JSON frame or PUT the instance"
+            )
+    return FrameChange(vertices, faces, transform, mask, source)
+
+
+#: What a mask may be written as, in a query string or a JSON string.
+_MASK_TEXT = re.compile(r"(?:-?[0-9]{1,20}|0[xX][0-9a-fA-F]{1,16})")
+MAX_MASK = 0xFFFFFFFF
+
+
+def parse_mask(value: Any, name: str) -> int:
+    """A uint32 visibility mask from decimal or ``0x`` hex text, a JSON integer or an integer
+    array of one element; 422 naming the value otherwise."""
+    fix = "a mask is a uint32, in decimal (255) or hex (0xff), from 0 to 0xFFFFFFFF"
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "iu" or value.size != 1:
+            raise Invalid(f"{name} must be one integer, got {value.dtype} {value.shape}; {fix}")
+        value = int(value.ravel()[0])
+    if isinstance(value, str):
+        text = value.strip()
+        if not _MASK_TEXT.fullmatch(text):
+            raise Invalid(f"{name}={value[:40]!r} is not a mask; {fix}")
+        value = int(text, 16 if text[:2].lower() == "0x" else 10)
+    elif type(value) is not int:  # JSON: bool, float, null, list or object
+        raise Invalid(f"{name} must be an integer or a string, not {type(value).__name__}; {fix}")
+    if not 0 <= value <= MAX_MASK:
+        raise Invalid(f"{name}={value} is {'negative' if value < 0 else 'over 0xFFFFFFFF'}; {fix}")
+    return value
+
+
+def check_matrix(value: Any, name: str) -> np.ndarray:
+    """A (4, 4) float64 row-major affine matrix from nested JSON lists or a float array, checked
+    by the engine (shape, finite, last row [0, 0, 0, 1], invertible); 422 in its words."""
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "fiu":
+            raise Invalid(f"{name} must be a float array, got {value.dtype}")
+    else:
+        if not isinstance(value, list):
+            raise Invalid(
+                f"{name} must be a 4x4 matrix (4 rows of 4 numbers), not {type(value).__name__}"
+            )
+        check_json_numbers(value, name, (int, float))
+        try:
+            value = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            raise Invalid(f"{name} must be a 4x4 matrix (4 rows of 4 numbers)") from None
+    with engine_errors():
+        return dacrt.check_transform(value, name)
 
 
 def decode_trace(

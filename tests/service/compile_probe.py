@@ -33,6 +33,9 @@ def signature_counts() -> dict[str, int]:
     return counts
 
 
+NPZ_TYPE = NPZ["Content-Type"]
+
+
 def first_requests(http) -> None:
     vertices, faces = quad(0, 1, 0, 1, 0)
     rays = np.array([[0.3, 0.6, 1, 0, 0, -1, 0, 5], [3, 3, 1, 0, 0, -1, 0, 5]], np.float32)
@@ -69,6 +72,14 @@ def first_requests(http) -> None:
                 "/v1/scenes/p/closest", content=npy_bytes(rays), headers={**NPY, "Accept": accept}
             )
         )
+    look = {"width": 64, "height": 48, "eye": [0.5, 0.5, 3], "target": [0.5, 0.5, 0]}
+    for shading in ("depth", "normal", "shaded"):
+        sent.append(http.post("/v1/scenes/p/render", json={**look, "shading": shading}))
+    sent.append(http.post("/v1/scenes/p/camera", json=look))
+    pose = [[1, 0, 0, 0.5], [0, 1, 0, 0.5], [0, 0, 1, 1], [0, 0, 0, 1]]
+    for returns in (1, 3):
+        lidar = {"pose": pose, "model": "VLP-16", "horizontal_steps": 2048, "max_returns": returns}
+        sent.append(http.post("/v1/scenes/p/lidar", json=lidar, headers={"Accept": NPZ_TYPE}))
     bad = [(r.request.url.path, r.status_code, r.text) for r in sent if r.status_code >= 300]
     assert not bad, bad
 

@@ -97,6 +97,9 @@ def test_put_mesh_is_201_then_200_with_mesh_info(app_client, scene_name):
         "triangles": 2,
         "bounds": [[-1, 0, 3], [2, 1, 3]],
         "version": 1,
+        "mask": 0xFFFFFFFF,
+        "transform": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+        "instance_of": None,
     }
     assert again.json()["version"] == 2 and again.json()["index"] == 0
 

@@ -449,16 +449,6 @@ def test_bad_options_are_422(app_client, quad_scene, params, message):
     assert message in detail(response, 422)
 
 
-def test_masks_are_refused_rather_than_ignored(app_client, scene_name):
-    vertices, faces = quad(0, 1, 0, 1, 0)
-    response = app_client.put(
-        f"/v1/scenes/{scene_name}/meshes/m?mask=0x1",
-        headers=NPZ,
-        content=npz_bytes(vertices=vertices, faces=faces),
-    )
-    assert "not supported by this server yet" in detail(response, 422)
-
-
 def test_bad_one_shot_query_kind_is_422(app_client):
     vertices, faces = quad(0, 1, 0, 1, 0)
     body = npz_bytes(

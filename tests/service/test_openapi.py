@@ -18,12 +18,17 @@ OPERATIONS = [
 BODIES = {
     ("PUT", "/v1/scenes/{scene}/meshes/{mesh}"): wire.MESH_FORMATS,
     ("PUT", "/v1/scenes/{scene}/meshes/{mesh}/vertices"): wire.VERTEX_FORMATS,
+    ("PUT", "/v1/scenes/{scene}/meshes/{mesh}/transform"): ("json",),
+    ("PUT", "/v1/scenes/{scene}/meshes/{mesh}/mask"): ("json",),
     ("POST", "/v1/scenes/{scene}/frame"): wire.FRAME_FORMATS,
     ("POST", "/v1/scenes/{scene}/closest"): wire.RAY_FORMATS,
     ("POST", "/v1/scenes/{scene}/occluded"): wire.RAY_FORMATS,
     ("POST", "/v1/scenes/{scene}/hits"): wire.RAY_FORMATS,
     ("POST", "/v1/scenes/{scene}/count"): wire.RAY_FORMATS,
     ("POST", "/v1/trace"): wire.TRACE_FORMATS,
+    ("POST", "/v1/scenes/{scene}/render"): ("json",),
+    ("POST", "/v1/scenes/{scene}/camera"): ("json",),
+    ("POST", "/v1/scenes/{scene}/lidar"): ("json",),
 }
 
 

@@ -4,6 +4,7 @@ or failed change writes nothing that is loaded, and damaged files are logged and
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from service_helpers import grid, quad
 from service.errors import Conflict, TooLarge
 from service.persistence import DataDir
 from service.store import Store
-from service.wire import MeshArrays
+from service.wire import FrameChange, MeshArrays
 
 
 def open_store(folder: Path, max_triangles: int = 100_000) -> Store:
@@ -32,15 +33,26 @@ def files(folder: Path) -> dict[str, int]:
 
 
 def assert_same_scenes(restored: Store, original: Store) -> None:
+    """The same scenes: info (masks, transforms, sources, bounds), arrays, shared arrays."""
     assert [s.info() for s in restored.snapshots()] == [s.info() for s in original.snapshots()]
+    assert restored.nbytes == original.nbytes
     for before in original.snapshots():
         after = restored.snapshot(before.scene)
         for name, mesh in before.meshes.items():
             np.testing.assert_array_equal(after.meshes[name].vertices, mesh.vertices)
             np.testing.assert_array_equal(after.meshes[name].faces, mesh.faces)
+            np.testing.assert_array_equal(after.meshes[name].bounds, mesh.bounds)
             assert after.meshes[name].vertices.dtype == np.float32
             assert after.meshes[name].faces.dtype == np.int32
             assert not after.meshes[name].vertices.flags.writeable
+            if mesh.transform is None:
+                assert after.meshes[name].transform is None
+            else:
+                assert after.meshes[name].transform.tobytes() == mesh.transform.tobytes()
+                assert not after.meshes[name].transform.flags.writeable
+            if mesh.instance_of is not None:
+                source = after.meshes[mesh.instance_of]
+                assert after.meshes[name].geometry is source.geometry
 
 
 @pytest.fixture
@@ -179,3 +191,97 @@ def test_leftovers_of_a_crash_are_ignored_and_removed(tmp_path):
     assert sorted(p.name for p in folder.iterdir()) == ["0.1.faces.npy", "0.1.vertices.npy"] + [
         "scene.1.json"
     ]
+
+
+def turn(degrees: float, shift=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """(4, 4) float64: a turn about +z (inexact in binary), then a shift."""
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    matrix = np.eye(4)
+    matrix[:2, :2] = [[c, -s], [s, c]]
+    matrix[:3, 3] = shift
+    return matrix
+
+
+@pytest.fixture
+def placed(tmp_path) -> Store:
+    """A store over tmp_path with masks, transforms and instances, after changes of each."""
+    store = open_store(tmp_path)
+    store.put_mesh("s", "floor", MeshArrays(*quad(-5, 5, -5, 5, 0)), mask=0x10)
+    store.put_mesh("s", "car", MeshArrays(*grid(4, z=1.0)), mask=3)
+    store.set_transform("s", "car", turn(33.3, shift=(0.1, 0.2, 0.3)))
+    for i in range(3):
+        store.put_instance("s", f"car{i}", "car", turn(7.7 * i, shift=(i, 0, 0)), mask=1 << i)
+    store.update_vertices("s", "car", grid(4, z=2.0)[0])
+    store.apply_frame(
+        "s",
+        {"car1": FrameChange(transform=turn(1.1)), "truck": FrameChange(instance_of="car0")},
+    )
+    store.set_mask("s", "floor", 0xFFFF0000)
+    return store
+
+
+def test_masks_transforms_and_instances_are_restored(tmp_path, placed):
+    restored = open_store(tmp_path)
+    assert_same_scenes(restored, placed)
+    assert restored.snapshot("s").meshes["truck"].instance_of == "car"
+    arrays = sorted(p.name for p in (tmp_path / "scenes" / "s").glob("*.npy"))
+    assert len(arrays) == 4  # floor's and car's: the instances' arrays are car's
+    again = open_store(tmp_path)
+    again.update_vertices("s", "car", grid(4, z=3.0)[0])  # instances follow after a restart too
+    assert again.snapshot("s").meshes["car2"].bounds[:, 2].tolist() == [3, 3]
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda s: s.set_transform("s", "car", turn(5)),
+        lambda s: s.set_mask("s", "car", 7),
+        lambda s: s.put_instance("s", "car9", "car", turn(9)),
+        lambda s: s.apply_frame("s", {f"car{i}": FrameChange(transform=turn(i)) for i in range(3)}),
+        lambda s: s.delete_mesh("s", "car0"),
+    ],
+    ids=["transform", "mask", "new instance", "frame of transforms", "delete an instance"],
+)
+def test_a_placement_change_writes_only_the_manifest(tmp_path, placed, change):
+    before = files(tmp_path)
+    change(placed)
+    after = files(tmp_path)
+    written = {name for name in after if before.get(name) != after[name]}
+    assert [Path(n).name for n in written] == [f"scene.{placed.snapshot('s').version}.json"]
+    assert_same_scenes(open_store(tmp_path), placed)
+
+
+def test_a_format_1_manifest_is_read_with_the_defaults(tmp_path):
+    store = open_store(tmp_path)
+    store.put_mesh("s", "a", MeshArrays(*grid(4)))
+    [path] = (tmp_path / "scenes" / "s").glob("scene.*.json")
+    record = json.loads(path.read_bytes())
+    assert record["format"] == 2 and record["meshes"][0]["mask"] == 0xFFFFFFFF
+    record["format"] = 1
+    for item in record["meshes"]:
+        del item["mask"]
+    path.write_text(json.dumps(record))
+    assert_same_scenes(open_store(tmp_path), store)
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda m: m.update(instance_of="nope"), "'car0' is an instance of 'nope'"),
+        (lambda m: m.update(instance_of="car1"), "'car0' is an instance of 'car1'"),
+        (lambda m: m.update(transform=np.zeros((4, 4)).tolist()), "transform is not affine"),
+        (lambda m: m.update(transform=[[1, 2]]), "transform must have shape (4, 4)"),
+        (lambda m: m.update(mask=-1), "mask=-1 is negative"),
+        (lambda m: m.pop("instance_of"), "lacks 'vertices'"),
+    ],
+)
+def test_a_manifest_with_a_bad_placement_is_logged_and_skipped(
+    tmp_path, placed, caplog, edit, message
+):
+    [path] = (tmp_path / "scenes" / "s").glob("scene.*.json")
+    record = json.loads(path.read_bytes())
+    edit(next(m for m in record["meshes"] if m["name"] == "car0"))
+    path.write_text(json.dumps(record))
+    with caplog.at_level(logging.ERROR, logger="service"):
+        assert open_store(tmp_path).snapshots() == []
+    assert "skipped scene 's'" in caplog.text and message in caplog.text

@@ -225,16 +225,27 @@ def test_a_bad_json_mask_is_422_naming_it(app_client, teapot_scene, mask, detail
     assert response.status_code == 422 and response.json()["detail"] == detail
 
 
-@pytest.mark.parametrize("mask", ["-1", "4294967296", "0x100000000", "1.5", "ff", "0x", "", "1e3"])
-def test_a_bad_query_string_mask_is_422_naming_it(app_client, teapot_scene, mask):
+@pytest.mark.parametrize(
+    "mask, words",
+    [
+        ("-1", "?mask=-1 is negative"),
+        ("4294967296", "?mask=4294967296 is over 0xFFFFFFFF"),
+        ("0x100000000", "?mask=4294967296 is over 0xFFFFFFFF"),
+        ("1.5", "?mask='1.5' is not a mask"),
+        ("ff", "?mask='ff' is not a mask"),
+        ("0x", "?mask='0x' is not a mask"),
+        ("", "?mask='' is not a mask"),
+        ("1e3", "?mask='1e3' is not a mask"),
+    ],
+)
+def test_a_bad_query_string_mask_is_422_naming_it(app_client, teapot_scene, mask, words):
     body = npy_bytes(np.hstack(RAYS).astype(np.float32))
     response = app_client.post(
         f"/v1/scenes/{teapot_scene}/hits", params={"mask": mask}, content=body, headers=NPY
     )
     assert response.status_code == 422
     assert response.json()["detail"] == (
-        f"?mask={mask} is not a 32-bit mask; give a decimal integer from 0 to 4294967295 "
-        "or hexadecimal from 0x0 to 0xFFFFFFFF"
+        f"{words}; a mask is a uint32, in decimal (255) or hex (0xff), from 0 to 0xFFFFFFFF"
     )
 
 

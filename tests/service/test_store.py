@@ -11,7 +11,7 @@ from service_helpers import grid, quad
 
 from service.errors import Conflict, Invalid, NotFound, TooLarge
 from service.store import Store, check_name, referenced_bounds
-from service.wire import MeshArrays
+from service.wire import FrameChange, MeshArrays
 
 
 def mesh(*args) -> MeshArrays:
@@ -192,3 +192,155 @@ def test_unknown_mesh_lists_the_meshes(store):
     store.put_mesh("s", "a", mesh())
     with pytest.raises(NotFound, match=r"no mesh 'zz'; it has \['a'\]"):
         store.delete_mesh("s", "zz")
+
+
+# ---- masks, transforms and instances
+
+
+def turn(degrees: float = 90.0, shift=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """(4, 4) float64: a turn about +z, then a shift."""
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    matrix = np.eye(4)
+    matrix[:2, :2] = [[c, -s], [s, c]]
+    matrix[:3, 3] = shift
+    return matrix
+
+
+def test_every_placement_change_makes_one_version(store):
+    store.put_mesh("s", "a", mesh(), mask=5)
+    assert store.set_transform("s", "a", turn()).version == 2
+    assert store.set_mask("s", "a", 6).version == 3
+    assert store.put_instance("s", "b", "a", turn(45))[0].version == 4
+    frame = {"a": FrameChange(transform=turn(10), mask=1), "b": FrameChange(transform=turn(20))}
+    assert store.apply_frame("s", frame).version == 5
+    assert store.set_transform("s", "b", None).transform is None  # the identity
+    assert store.snapshot("s").version == 6
+
+
+def test_mask_and_transform_are_kept_until_set(store):
+    store.put_mesh("s", "a", mesh(), mask=5)
+    store.set_transform("s", "a", turn())
+    kept = [
+        store.update_vertices("s", "a", quad(0, 2, 0, 2, 0)[0]),
+        store.put_mesh("s", "a", mesh(0, 3, 0, 3, 0))[0],
+        store.apply_frame("s", {"a": (quad(0, 4, 0, 4, 0)[0], None)}).meshes["a"],
+        store.apply_frame("s", {"a": quad(0, 1, 0, 1, 0)}).meshes["a"],
+    ]
+    for m in kept:
+        assert m.mask == 5 and np.array_equal(m.transform, turn())
+    assert store.put_mesh("s", "a", mesh(), mask=7)[0].mask == 7
+
+
+def test_bounds_are_of_the_placed_referenced_vertices(store):
+    vertices = np.array([[0, 0, 0], [2, 0, 0], [0, 1, 0], [1e30, 1e30, 1e30]], np.float32)
+    faces = np.array([[0, 1, 2]], np.int32)
+    store.put_mesh("s", "a", MeshArrays(vertices, faces))
+    placed = store.set_transform("s", "a", turn(90, shift=(10, 0, 5)))
+    expected = (vertices[:3].astype(np.float64) @ turn(90)[:3, :3].T + [10, 0, 5]).astype(
+        np.float32
+    )
+    np.testing.assert_array_equal(placed.bounds, [expected.min(axis=0), expected.max(axis=0)])
+    np.testing.assert_allclose(placed.bounds, [[9, 0, 5], [10, 2, 5]], atol=1e-6)
+    np.testing.assert_array_equal(store.snapshot("s").bounds, placed.bounds)
+
+
+def test_a_transform_that_leaves_the_float32_range_is_422(store):
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1e30, 0, 0]], np.float32)
+    store.put_mesh("s", "a", MeshArrays(vertices, np.array([[0, 1, 2]], np.int32)))
+    with pytest.raises(Invalid, match="transform of mesh 'a' places vertex 3 beyond the float32"):
+        store.set_transform("s", "a", np.diag([1e9, 1.0, 1.0, 1.0]))  # vertex 3 is unreferenced
+    assert store.snapshot("s").version == 1
+    assert store.set_transform("s", "a", np.diag([1e8, 1.0, 1.0, 1.0])).version == 2
+
+
+def test_instances_share_their_sources_arrays_counted_once():
+    store = Store(max_triangles_per_scene=10_000, max_scene_bytes=20_000)
+    source, _ = store.put_mesh("s", "car", MeshArrays(*grid(20)))  # 14892 bytes
+    for i in range(5):
+        store.put_instance("s", f"car{i}", "car", turn(10 * i, shift=(i, 0, 0)), mask=i + 1)
+    snapshot = store.snapshot("s")
+    for i in range(5):
+        made = snapshot.meshes[f"car{i}"]
+        assert made.vertices is source.vertices and made.faces is source.faces
+        assert (made.instance_of, made.mask, made.index) == ("car", i + 1, i + 1)
+    assert store.nbytes == snapshot.nbytes == 14892 and snapshot.n_triangles == 6 * 800
+    store.delete_mesh("s", "car0")
+    assert store.nbytes == 14892
+
+
+def test_instances_follow_their_sources_arrays(store):
+    store.put_mesh("s", "car", mesh())
+    store.put_instance("s", "twin", "car", turn(0, shift=(5, 0, 0)))
+    before = store.snapshot("s")
+    moved = store.update_vertices("s", "car", quad(0, 1, 0, 1, 3)[0])
+    twin = store.snapshot("s").meshes["twin"]
+    assert twin.vertices is moved.vertices and twin.version == 3
+    assert twin.bounds.tolist() == [[5, 0, 3], [6, 1, 3]]
+    assert before.meshes["twin"].bounds.tolist() == [[5, 0, 0], [6, 1, 0]]  # unchanged
+    store.put_mesh("s", "car", MeshArrays(*grid(2)))
+    twin = store.snapshot("s").meshes["twin"]
+    assert twin.n_triangles == 8 and twin.vertices is store.snapshot("s").meshes["car"].vertices
+    assert store.nbytes == store.snapshot("s").meshes["car"].nbytes
+
+
+def test_an_instance_of_an_instance_shares_the_first_source(store):
+    store.put_mesh("s", "car", mesh())
+    store.put_instance("s", "a", "car")
+    assert store.put_instance("s", "b", "a")[0].instance_of == "car"
+    frame = {"c": FrameChange(instance_of="d"), "d": FrameChange(instance_of="b")}
+    assert {m.instance_of for m in store.apply_frame("s", frame).meshes.values()} == {None, "car"}
+
+
+def test_a_frame_makes_instances_of_a_mesh_it_adds(store):
+    v, f = quad(0, 1, 0, 1, 2)
+    frame = {"i": FrameChange(instance_of="car", transform=turn(90)), "car": FrameChange(v, f)}
+    snapshot = store.apply_frame("s", frame)
+    assert snapshot.meshes["i"].vertices is snapshot.meshes["car"].vertices
+    assert [m.name for m in snapshot.meshes.values()] == ["i", "car"]
+
+
+@pytest.mark.parametrize(
+    "change, error, message",
+    [
+        (lambda s: s.delete_mesh("s", "car"), Conflict, r"instances \['i'\], so it cannot be del"),
+        (lambda s: s.put_instance("s", "car", "b"), Conflict, "cannot become an instance of 'b'"),
+        (lambda s: s.put_instance("s", "x", "zz"), NotFound, "no mesh 'zz' for 'x'"),
+        (lambda s: s.put_instance("s", "x", "x"), Invalid, "cannot be an instance of itself"),
+        (lambda s: s.put_instance("s", "x", "a b"), Invalid, "mesh name 'a b'"),
+        (lambda s: s.put_instance("t", "x", "car"), NotFound, "no scene 't'"),
+        (lambda s: s.update_vertices("s", "i", quad(0, 1, 0, 1, 0)[0]), Conflict, "an instance"),
+        (
+            lambda s: s.apply_frame("s", {"b": (quad(0, 1, 0, 1, 7)[0], None), "i": ([], None)}),
+            Conflict,
+            "'i' of scene 's' is an instance of 'car'",
+        ),
+        (
+            lambda s: s.apply_frame("s", {"p": FrameChange(instance_of="q"), "q": (None, None)}),
+            NotFound,
+            "no mesh 'q'",
+        ),
+        (
+            lambda s: s.apply_frame("s", {f"k{i}": FrameChange(instance_of="b") for i in range(9)}),
+            TooLarge,
+            "DACRT_MAX_TRIANGLES_PER_SCENE",
+        ),
+    ],
+)
+def test_a_rejected_instance_change_changes_nothing(change, error, message):
+    store = Store(max_triangles_per_scene=20, max_scene_bytes=100_000)
+    store.put_mesh("s", "car", mesh())
+    store.put_mesh("s", "b", mesh())
+    store.put_instance("s", "i", "car")
+    before, nbytes = store.snapshot("s"), store.nbytes
+    with pytest.raises(error, match=message):
+        change(store)
+    assert store.snapshot("s") is before and store.nbytes == nbytes
+
+
+def test_info_shows_mask_transform_and_source(store):
+    store.put_mesh("s", "car", mesh(), mask=0xF0)
+    info = store.put_instance("s", "i", "car", turn(0, shift=(1, 2, 3)))[0].info("s")
+    assert info["mask"] == 0xFFFFFFFF and info["instance_of"] == "car"
+    assert info["transform"] == turn(0, shift=(1, 2, 3)).tolist()
+    assert store.snapshot("s").meshes["car"].info("s")["transform"] == np.eye(4).tolist()
+    assert store.snapshot("s").meshes["car"].info("s")["mask"] == 0xF0

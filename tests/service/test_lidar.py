@@ -1,0 +1,273 @@
+"""POST /v1/scenes/{scene}/lidar: the points are exactly what ``closest`` answers for the rays that
+the documented convention gives (built here in numpy: x forward, y left, z up, azimuth from +x
+toward +y, ring k the k-th lowest elevation, ray = ring * steps + step); the named beam patterns
+are the data sheets' angles; bad requests are refused with a clear 4xx."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import procedural
+import pytest
+from sensor_helpers import MESHES, lidar_rays, npz, put_room, rigid_pose
+
+import dacrt
+
+NPZ_ANSWER = {"Accept": "application/x-npz"}
+FIELDS = (
+    "xyz",
+    "range",
+    "ring",
+    "azimuth",
+    "elevation",
+    "mesh",
+    "prim",
+    "return",
+    "cos_incidence",
+    "ray",
+)
+#: The data sheets' vertical angles, written out here independently of service/lidar.py.
+PUBLISHED = {
+    "VLP-16": [-15, -13, -11, -9, -7, -5, -3, -1, 1, 3, 5, 7, 9, 11, 13, 15],
+    "HDL-32E": [round((4 * k - 92) / 3, 2) for k in range(32)],  # 4/3 apart, printed to 0.01
+    "HDL-64E": [2 - k / 3 for k in range(32)] + [-53 / 6 - k / 2 for k in range(32)],
+    "OS1-64": [-22.5 + 45 * k / 63 for k in range(64)],
+    "OS1-128": [-22.5 + 45 * k / 127 for k in range(128)],
+}
+POSES = [
+    rigid_pose(0, 0, (0.0, -3.0, 1.2)),
+    rigid_pose(35, -10, (-2.0, -1.0, 1.8)),
+]
+
+
+@pytest.fixture
+def room(app_api, scene_name):
+    put_room(app_api, scene_name)
+    return scene_name
+
+
+@pytest.fixture
+def inside_sphere(app_api, scene_name):
+    """A closed sphere of radius 40 around the origin: every beam of a sensor inside hits it."""
+    vertices, faces = procedural.icosphere(3, 40.0)
+    app_api.put_mesh(scene_name, "dome", vertices, faces)
+    return scene_name
+
+
+def lidar(app_client, scene, body, query="", **headers):
+    return app_client.post(
+        f"/v1/scenes/{scene}/lidar{query}", json=body, headers={**NPZ_ANSWER, **headers}
+    )
+
+
+def expected_points(app_api, scene, pose, elevations, steps, tmin=None, tmax=None):
+    """The points the convention gives, from closest on the numpy-built rays."""
+    origins, directions, ring, azimuth, elevation = lidar_rays(pose, elevations, steps)
+    hits = app_api.closest(scene, origins, directions, tmin, tmax)
+    ray = np.flatnonzero(np.isfinite(hits.t))
+    d = directions[ray].astype(np.float64)
+    unit = d / np.linalg.norm(d, axis=1, keepdims=True)
+    return {
+        "xyz": origins[ray] + hits.t[ray, None] * directions[ray],  # float32 arithmetic
+        "range": hits.t[ray],
+        "ring": ring[ray].astype(np.int16),
+        "azimuth": azimuth[ray].astype(np.float32),
+        "elevation": elevation[ray].astype(np.float32),
+        "mesh": hits.mesh[ray],
+        "prim": hits.prim[ray],
+        "return": np.zeros(len(ray), np.int16),
+        "cos_incidence": np.abs((unit * hits.normal[ray]).sum(1)).astype(np.float32),
+        "ray": ray.astype(np.int32),
+    }
+
+
+def assert_same_points(answer, expected):
+    assert list(answer) == list(FIELDS)
+    for name in FIELDS:
+        assert answer[name].dtype == expected[name].dtype, name
+        if name == "cos_incidence":  # a dot product: summation order may differ by an ulp
+            assert np.allclose(answer[name], expected[name], rtol=1e-6, atol=1e-7), name
+        else:
+            assert np.array_equal(answer[name], expected[name]), name
+
+
+@pytest.mark.parametrize("model", list(PUBLISHED))
+@pytest.mark.parametrize("pose", range(len(POSES)))
+def test_each_model_answers_what_closest_answers_for_its_rays(
+    app_client, app_api, room, model, pose
+):
+    body = {"pose": POSES[pose].tolist(), "model": model, "horizontal_steps": 360}
+    response = lidar(app_client, room, body)
+    assert response.status_code == 200, response.text
+    assert int(response.headers["x-scene-version"]) == 3
+    answer = npz(response.content)
+    expected = expected_points(app_api, room, POSES[pose], PUBLISHED[model], 360)
+    assert len(answer["ray"]) > 100  # the floor and more are in view
+    assert_same_points(answer, expected)
+
+
+def test_explicit_angles_and_the_range_window(app_client, app_api, room):
+    angles = [10.0, -20.0, -5.0, 0.0, -5.0]  # unsorted, with a repeat: rings sort them
+    body = {
+        "pose": POSES[1].tolist(),
+        "vertical_angles_deg": angles,
+        "horizontal_steps": 500,
+        "min_range": 2.0,
+        "max_range": 7.5,
+    }
+    answer = npz(lidar(app_client, room, body).content)
+    expected = expected_points(app_api, room, POSES[1], angles, 500, 2.0, 7.5)
+    assert_same_points(answer, expected)
+    assert answer["range"].min() >= 2.0 and answer["range"].max() <= 7.5
+    assert set(np.unique(answer["ring"])) <= {0, 1, 2, 3, 4}
+
+
+@pytest.mark.parametrize("model", list(PUBLISHED))
+def test_rings_are_the_published_elevations_lowest_first(app_client, inside_sphere, model):
+    """From inside a closed sphere every ray hits, so every ring and step is in the answer."""
+    steps = 64
+    body = {"pose": np.eye(4).tolist(), "model": model, "horizontal_steps": steps}
+    answer = npz(lidar(app_client, inside_sphere, body).content)
+    n_rings = len(PUBLISHED[model])
+    assert np.array_equal(answer["ray"], np.arange(n_rings * steps))
+    elevation = answer["elevation"].reshape(n_rings, steps)
+    assert (elevation == elevation[:, :1]).all()
+    published = np.radians(np.sort(PUBLISHED[model]))
+    assert np.allclose(elevation[:, 0], published, atol=np.radians(0.006))  # two decimals
+    assert np.array_equal(answer["ring"], np.repeat(np.arange(n_rings), steps).astype(np.int16))
+    # ring 0 looks lowest: its points have the least height over the sensor, per azimuth
+    z = answer["xyz"][:, 2].reshape(n_rings, steps)
+    assert (np.diff(z, axis=0) > 0).all()
+    assert np.allclose(np.linalg.norm(answer["xyz"], axis=1), answer["range"], rtol=1e-6)
+
+
+def test_azimuth_runs_from_x_toward_y(app_client, inside_sphere):
+    body = {"pose": np.eye(4).tolist(), "vertical_angles_deg": [0.0], "horizontal_steps": 8}
+    answer = npz(lidar(app_client, inside_sphere, body).content)
+    assert np.allclose(answer["azimuth"], np.arange(8) * np.pi / 4)
+    xy = answer["xyz"][:, :2] / answer["range"][:, None]
+    expected = np.stack([np.cos(np.arange(8) * np.pi / 4), np.sin(np.arange(8) * np.pi / 4)], 1)
+    assert np.allclose(xy, expected, atol=1e-6)  # step 2 looks along +y (left)
+    # a sensor turned by the pose: yaw 90 degrees makes its forward the scene's +y
+    body["pose"] = rigid_pose(90, 0, (1.0, 2.0, 3.0)).tolist()
+    answer = npz(lidar(app_client, inside_sphere, body).content)
+    first = (answer["xyz"][0] - [1.0, 2.0, 3.0]) / answer["range"][0]
+    assert np.allclose(first, [0, 1, 0], atol=1e-6)
+
+
+@pytest.mark.parametrize("max_returns", [2, 3, 8])
+def test_multiple_returns_are_what_hits_answers_for_the_rays(app_client, room, max_returns):
+    """Against the engine's ``Scene.hits`` on the same rays, in process: every hit in the range
+    window, nearest first, at most max_returns a ray; return k is the k-th."""
+    angles, steps = [-12.0, -4.0, 0.0, 3.0], 720
+    body = {
+        "pose": POSES[0].tolist(),
+        "vertical_angles_deg": angles,
+        "horizontal_steps": steps,
+        "min_range": 0.5,
+        "max_range": 30.0,
+        "max_returns": max_returns,
+    }
+    answer = npz(lidar(app_client, room, body).content)
+    origins, directions, ring, azimuth, elevation = lidar_rays(POSES[0], angles, steps)
+    scene = dacrt.Scene(list(MESHES.values()))  # mesh positions = upload order = indices
+    expected = scene.hits(origins, directions, 0.5, 30.0, max_hits=max_returns)
+    counts = np.diff(expected.offsets)
+    ray = np.repeat(np.arange(len(origins)), counts)
+    assert np.array_equal(answer["ray"], ray)
+    assert np.array_equal(answer["return"], np.concatenate([np.arange(c) for c in counts]))
+    assert np.array_equal(answer["range"], expected.t)
+    assert np.array_equal(answer["mesh"], expected.mesh)
+    assert np.array_equal(answer["prim"], expected.prim)
+    assert np.array_equal(answer["xyz"], origins[ray] + expected.t[:, None] * directions[ray])
+    assert np.array_equal(answer["ring"], ring[ray]) and np.array_equal(
+        answer["azimuth"], azimuth[ray].astype(np.float32)
+    )
+    assert np.array_equal(answer["elevation"], elevation[ray].astype(np.float32))
+    # into and out of the sphere or the box, then the floor: three hits at most
+    assert answer["return"].max() == min(max_returns, 3) - 1
+    # the first returns are the single-return answer, but where a ray grazes a shared edge
+    first = npz(lidar(app_client, room, {**body, "max_returns": 1}).content)
+    assert np.mean(np.isin(answer["ray"][answer["return"] == 0], first["ray"])) > 0.999
+
+
+def test_a_small_request_answers_json_and_fields_pick_arrays(app_client, room):
+    body = {"pose": POSES[0].tolist(), "model": "VLP-16", "horizontal_steps": 16}
+    as_json = app_client.post(f"/v1/scenes/{room}/lidar", json=body).json()
+    answer = npz(lidar(app_client, room, body).content)
+    assert list(as_json) == list(FIELDS)
+    assert np.array_equal(np.array(as_json["xyz"], np.float32).reshape(-1, 3), answer["xyz"])
+    assert np.array_equal(np.array(as_json["ray"]), answer["ray"])
+    picked = npz(lidar(app_client, room, body, "?fields=ray,xyz").content)
+    assert list(picked) == ["xyz", "ray"] and np.array_equal(picked["xyz"], answer["xyz"])
+
+
+def test_a_miss_everywhere_answers_empty_arrays(app_client, room):
+    body = {
+        "pose": rigid_pose(0, 0, (0, 0, 50.0)).tolist(),
+        "vertical_angles_deg": [5.0, 10.0],
+        "horizontal_steps": 90,
+    }
+    answer = npz(lidar(app_client, room, body).content)
+    assert list(answer) == list(FIELDS)
+    assert answer["xyz"].shape == (0, 3) and answer["ring"].dtype == np.int16
+    assert all(len(a) == 0 for a in answer.values())
+
+
+POSE = np.eye(4).tolist()
+
+
+@pytest.mark.parametrize(
+    "body, status, words",
+    [
+        ({"pose": POSE, "model": "VLP-16", "vertical_angles_deg": [0.0]}, 422, "exactly one"),
+        ({"pose": POSE}, 422, "exactly one"),
+        ({"pose": POSE, "model": "VLP-32"}, 422, "'VLP-16'"),
+        ({"pose": POSE, "model": "VLP-16", "horizontal_steps": 0}, 422, "horizontal_steps"),
+        ({"pose": POSE, "vertical_angles_deg": []}, 422, "vertical_angles_deg"),
+        ({"pose": POSE, "vertical_angles_deg": [91.0]}, 422, "vertical_angles_deg[0]"),
+        ({"pose": POSE, "model": "VLP-16", "min_range": 5.0, "max_range": 5.0}, 422, "max_range"),
+        ({"pose": POSE, "model": "VLP-16", "min_range": -1.0}, 422, "min_range"),
+        ({"pose": POSE, "model": "VLP-16", "max_returns": 0}, 422, "max_returns"),
+        ({"pose": POSE, "model": "VLP-16", "max_returns": 65}, 422, "max_returns"),
+        (
+            {"pose": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]], "model": "VLP-16"},
+            422,
+            "rotation",
+        ),  # fmt: skip
+        ({"pose": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "model": "VLP-16"}, 422, "pose"),
+        ({"model": "VLP-16"}, 400, "pose: missing"),
+        ({"pose": POSE, "model": "VLP-16", "rpm": 600}, 400, "rpm: unknown key"),
+        (
+            {"pose": POSE, "model": "OS1-128", "horizontal_steps": 131073},
+            413,
+            "DACRT_MAX_RAYS_PER_REQUEST",
+        ),  # fmt: skip
+    ],
+)
+def test_bad_requests_are_refused_naming_the_problem(app_client, room, body, status, words):
+    response = lidar(app_client, room, body)
+    assert response.status_code == status, response.text
+    assert words in response.json()["detail"]
+
+
+def test_query_options_are_those_of_the_queries(app_client, app_api, room):
+    body = {"pose": POSES[1].tolist(), "model": "VLP-16", "horizontal_steps": 180}
+    plain = npz(lidar(app_client, room, body).content)
+    for strategy in dacrt.STRATEGIES:
+        same = npz(lidar(app_client, room, body, f"?strategy={strategy}").content)
+        assert all(np.array_equal(same[k], plain[k]) for k in FIELDS), strategy
+    response = lidar(app_client, room, body, "?stats=true")
+    stats = json.loads(response.headers["x-trace-stats"])
+    assert stats["rays"] == 16 * 180 and stats["strategy"] == dacrt.STRATEGIES[0]
+    culled = npz(lidar(app_client, room, body, "?cull=front").content)
+    expected = expected_points(app_api, room, POSES[1], PUBLISHED["VLP-16"], 180)
+    origins, directions, *_ = lidar_rays(POSES[1], PUBLISHED["VLP-16"], 180)
+    front = app_api.closest(room, origins, directions, cull="front")
+    assert np.array_equal(culled["ray"], np.flatnonzero(np.isfinite(front.t)))
+    assert np.array_equal(culled["range"], front.t[np.isfinite(front.t)])
+    assert len(culled["ray"]) < len(expected["ray"])  # the floor faces up: rays from above pass
+    for query, words in [("?strategy=fast", "strategy"), ("?cull=both", "cull")]:
+        response = lidar(app_client, room, body, query)
+        assert response.status_code == 422 and words in response.json()["detail"]

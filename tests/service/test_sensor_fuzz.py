@@ -1,0 +1,113 @@
+"""Random JSON bodies for /render, /camera and /lidar on a scene that exists (the schema fuzzing of
+test_fuzz.py mostly meets unknown scenes): none gets a 5xx, every refusal is a ``{"detail": str}``
+with a 4xx the contract names, and a rejected request changes nothing."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from sensor_helpers import put_room
+
+numbers = st.one_of(
+    st.integers(-3, 64),
+    st.floats(-1e3, 1e3, allow_nan=False),
+    st.sampled_from([0, 1e30, -1e30, 1e-30, 2**63, 0.5]),
+)
+values = st.recursive(
+    st.one_of(numbers, st.none(), st.booleans(), st.text(max_size=4)),
+    lambda inner: st.lists(inner, max_size=5),
+    max_leaves=20,
+)
+vector = st.lists(numbers, min_size=3, max_size=3)
+matrix = st.lists(st.lists(numbers, min_size=4, max_size=4), min_size=4, max_size=4)
+pose = st.one_of(
+    matrix,
+    st.just([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]]),
+    st.just([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 1], [0, 0, 0, 1]]),
+)
+size = st.one_of(st.integers(1, 24), numbers)
+LOOK_AT = {"width": size, "height": size, "eye": vector, "target": vector}
+#: (required keys, optional keys) of the bodies of each route, and of each kind of camera.
+SHAPES = {
+    "render": [
+        (LOOK_AT, {"up": vector, "fov_deg": numbers, "shading": st.sampled_from(["depth", "x"])})
+    ],
+    "camera": [
+        (LOOK_AT, {"up": vector, "fov_deg": numbers, "near": numbers, "far": numbers}),
+        (
+            {
+                "width": size,
+                "height": size,
+                "fx": numbers,
+                "fy": numbers,
+                "cx": numbers,
+                "cy": numbers,
+                "pose": pose,
+            },
+            {"near": numbers, "far": numbers, "eye": vector},
+        ),
+    ],  # fmt: skip
+    "lidar": [
+        (
+            {"pose": pose, "model": st.sampled_from(["VLP-16", "HDL-64E", "OS1-128", "?"])},
+            {
+                "horizontal_steps": size,
+                "min_range": numbers,
+                "max_range": numbers,
+                "max_returns": numbers,
+                "vertical_angles_deg": st.lists(numbers, max_size=6),
+            },
+        ),
+        (
+            {"pose": pose, "vertical_angles_deg": st.lists(numbers, max_size=6)},
+            {
+                "horizontal_steps": size,
+                "min_range": numbers,
+                "max_range": numbers,
+                "max_returns": numbers,
+            },
+        ),
+    ],  # fmt: skip
+}
+
+
+def bodies(route: str):
+    """Objects with the route's required keys (mostly well-typed values) and some optional ones,
+    or any of its keys with any JSON values, now and then with a stray key."""
+    typed = [
+        st.fixed_dictionaries(required, optional=optional) for required, optional in SHAPES[route]
+    ]
+    keys = sorted({k for required, optional in SHAPES[route] for k in [*required, *optional]})
+    loose = st.dictionaries(st.sampled_from([*keys, "zoom"]), values, max_size=len(keys))
+    return st.one_of(*typed, *typed, loose)
+
+
+@pytest.fixture(scope="module")
+def fuzz_room(app_client):
+    from service.client import Client
+
+    put_room(Client(http=app_client), "fuzz-room")
+    return "fuzz-room"
+
+
+@pytest.mark.parametrize("route", list(SHAPES))
+def test_no_body_gets_a_server_error(app_client, fuzz_room, route):
+    version = app_client.get(f"/v1/scenes/{fuzz_room}").json()["version"]
+
+    @given(body=bodies(route))
+    @settings(
+        max_examples=200,
+        deadline=None,
+        derandomize=True,
+        database=None,
+        suppress_health_check=list(HealthCheck),
+    )
+    def call(body):
+        response = app_client.post(f"/v1/scenes/{fuzz_room}/{route}", json=body)
+        assert response.status_code in (200, 400, 413, 422), (body, response.text[:300])
+        if response.status_code != 200:
+            assert list(response.json()) == ["detail"], response.text
+
+    call()
+    assert app_client.get(f"/v1/scenes/{fuzz_room}").json()["version"] == version
