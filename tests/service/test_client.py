@@ -596,3 +596,25 @@ def test_the_service_intersector_answers_as_the_in_process_one(app_client, teapo
     kept.close()
     assert [m["mesh"] for m in api.scene("kept-" + scene)["meshes"]] == ["pot"]
     api.delete("kept-" + scene)
+
+
+def test_set_transform_places_the_mesh_for_hits_and_count(app_api, scene_name, teapot):
+    """An instance placed by a rotation, a scale and a shift answers as the mesh placed in numpy."""
+    import procedural
+
+    vertices, faces = teapot
+    app_api.put_mesh(scene_name, "pot", vertices, faces)
+    matrix = np.eye(4)
+    matrix[:3, :3] = 0.5 * procedural.rotation([1.0, 2.0, 0.5], 0.7)
+    matrix[:3, 3] = [10, -4, 2]
+    info = app_api.set_transform(scene_name, "pot", matrix)
+    assert info["version"] == 2
+    placed = (vertices.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]).astype(np.float32)
+    origins, directions = rays_at(placed, faces, 200, seed=35)
+    hits = app_api.hits(scene_name, origins, directions)
+    expected = reference.all_hits(placed, faces, origins, directions, perturbation="shear")
+    assert np.array_equal(hits.offsets, expected.offsets) and expected.offsets[-1] > 300
+    assert np.array_equal(hits.prim, expected.prim) and (hits.mesh == 0).all()
+    np.testing.assert_allclose(hits.t, expected.t, rtol=1e-5)
+    count = app_api.count(scene_name, origins, directions).count
+    assert np.array_equal(count, np.diff(expected.offsets))

@@ -1,9 +1,9 @@
 """Per-ray visibility masks: ``mask`` in .npz and JSON ray bodies, ``?mask=`` for a whole batch of
 any format, on every query kind; bad masks are 422 naming the problem.
 
-A ray sees a mesh where ray mask & mesh mask != 0; these meshes keep the default mesh mask
-0xFFFFFFFF, so a ray sees everything unless its mask is 0. Answers are compared with the
-plain-NumPy reference on the rays that see the scene and with misses on the others.
+A ray sees a mesh where ray mask & mesh mask != 0. The teapot keeps the default mesh mask
+0xFFFFFFFF, so a ray sees it unless its mask is 0; the layered scene gives its meshes masks of
+their own (``?mask=`` on upload). Answers are compared with the plain-NumPy reference.
 """
 
 from __future__ import annotations
@@ -13,9 +13,10 @@ import json
 from types import SimpleNamespace
 
 import numpy as np
+import procedural
 import pytest
 import reference
-from service_helpers import NPY, NPZ, down_rays, npy_bytes, npz_bytes, rays_at
+from service_helpers import NPY, NPZ, down_rays, grid, npy_bytes, npz_bytes, rays_at
 
 from service.client import read_answer
 
@@ -281,3 +282,62 @@ def test_the_client_refuses_masks_it_cannot_send(app_api, teapot_scene):
         with pytest.raises(ValueError) as caught:
             app_api.count(teapot_scene, origins, directions, mask=bad)
         assert words in str(caught.value)
+
+
+# ---- ray masks against mesh masks
+
+
+@pytest.fixture
+def layered_scene(app_api, scene_name):
+    """Four stacked 3 x 3 grids whose meshes have masks 0b001, 0b010, 0b100 and the default."""
+    layers = [grid(3, z=z) for z in (0, 1, 2, 3)]
+    masks = [0b001, 0b010, 0b100, None]
+    for k, (mesh, mask) in enumerate(zip(layers, masks)):
+        app_api.put_mesh(scene_name, f"layer{k}", *mesh, mask=mask)
+    face_masks = np.concatenate(
+        [
+            np.full(len(f), 0xFFFFFFFF if m is None else m, np.uint32)
+            for (_, f), m in zip(layers, masks)
+        ]
+    )
+    vertices, faces, _ = procedural.concat(layers)
+    return scene_name, vertices, faces, face_masks
+
+
+@pytest.mark.parametrize("query", QUERIES)
+def test_ray_masks_meet_mesh_masks_as_the_reference_says(app_api, layered_scene, query):
+    scene, vertices, faces, face_masks = layered_scene
+    rng = np.random.default_rng(25)
+    origins, directions = down_rays(rng.uniform(0.05, 0.95, (300, 2)))
+    directions[:, :2] = rng.normal(scale=0.02, size=(300, 2))
+    ray_masks = rng.integers(0, 16, 300).astype(np.uint32)  # 8 and 0 see the default mesh only
+    every = reference.all_hits(
+        vertices,
+        faces,
+        origins,
+        directions,
+        ray_masks=ray_masks,
+        face_masks=face_masks,
+        perturbation="shear",
+    )
+    answer = app_api.query(scene, query, origins, directions, mask=ray_masks)
+    count = np.diff(every.offsets)
+    assert set(count.tolist()) >= {0, 1, 2, 3, 4}, "vacuous: masks select too little"
+    if query == "count":
+        assert np.array_equal(answer.count, count)
+    elif query == "occluded":
+        assert np.array_equal(answer.occluded, count > 0)
+    elif query == "hits":
+        assert np.array_equal(answer.offsets, every.offsets)
+        first_rows = np.cumsum([0] + [len(faces) // 4] * 3)
+        mesh = np.searchsorted(first_rows, every.prim, side="right") - 1
+        assert np.array_equal(answer.mesh, mesh)
+        assert np.array_equal(answer.prim, every.prim - first_rows[mesh])
+        np.testing.assert_allclose(answer.t, every.t, rtol=1e-5)
+    else:
+        first = every.offsets[:-1][count > 0]
+        np.testing.assert_allclose(answer.t[count > 0], every.t[first], rtol=1e-5)
+        assert np.isinf(answer.t[count == 0]).all()
+    one = app_api.query(scene, query, origins, directions, mask=0b010)
+    both = app_api.query(scene, query, origins, directions, mask=np.full(300, 0b010, np.uint32))
+    assert all(np.array_equal(one[key], both[key]) for key in one)
