@@ -89,7 +89,9 @@ Answers (``negotiate`` and ``encode_answer``)
     npz  one uncompressed member per field (``t``, ``mesh``, ...); the body is sent as zip headers
          around the answer arrays' own memory, never joined into one copy.
     npy  a single field is a plain array; several fields are one structured array with a named
-         field each (``a["t"]``, ``a["normal"]`` of shape (N, 3)).
+         field each (``a["t"]``, ``a["normal"]`` of shape (N, 3)). So every field must have one
+         row per ray: a hits answer in CSR form (``offsets`` and per-hit keys) is npz or JSON only
+         (the route's ``formats`` for ``negotiate``).
     json ``{"t": [...], ...}``; float32 values in their shortest round-trip form, so
          ``np.float32(json_value)`` gives back the binary answer bit for bit; inf (and nan) are
          null.
