@@ -8,8 +8,8 @@ The methods, argument names, shapes, dtypes and ``-1`` conventions are those of
 ``intersects_any``, ``intersects_id``, ``intersects_location``, ``contains_points``. What differs:
 
 - A ray crossing a shared edge or vertex of the mesh reports that crossing once (trimesh's
-  ``ray_triangle`` reports both triangles); several hits of one ray come nearest first, rays in
-  input order (trimesh's order is its own).
+  ``ray_triangle`` reports both triangles); coplanar duplicate triangles are each reported. Several
+  hits of one ray come nearest first, rays in input order (trimesh's order is its own).
 - ``contains_points`` counts crossings with ``Scene.count``, which is exact at edges and
   vertices, along trimesh's fixed direction and its opposite; where the two parities disagree
   and both rays hit something it tries one more direction (from a fixed seed, so answers repeat),
