@@ -1,6 +1,7 @@
 """hits and count through a real server: what a 1M-ray request costs, split by Server-Timing.
 
     python -m bench.http_hits [SCENE.npz] [--rays 1000000] [--max-hits 16] [--repeat 3]
+                              [--fields t,mesh,prim]
 
 Starts ``uvicorn service.app:create_app`` on loopback, uploads the scene, and sends the same
 random rays (origins uniform in the scene's box, directions uniform on the sphere: the rays of
@@ -34,6 +35,7 @@ def main() -> None:
     parser.add_argument("--rays", type=int, default=1_000_000)
     parser.add_argument("--max-hits", type=int, default=16)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--fields", help="?fields= of the hits requests (default: every key)")
     args = parser.parse_args()
 
     import dacrt
@@ -50,7 +52,11 @@ def main() -> None:
             queries = {
                 "hits": (
                     lambda: client.hits(
-                        "bench", rays.origins, rays.directions, max_hits=args.max_hits
+                        "bench",
+                        rays.origins,
+                        rays.directions,
+                        max_hits=args.max_hits,
+                        fields=args.fields,
                     ),
                     lambda: engine.hits(rays.origins, rays.directions, max_hits=args.max_hits),
                 ),
@@ -79,14 +85,15 @@ def main() -> None:
                         row.setdefault(key, []).append(value)
                     if name == "hits":
                         row.setdefault("hits", []).append(int(answer.offsets[-1]))
-                        row.setdefault("truncated", []).append(int(answer.truncated.sum()))
+                        truncated = answer.truncated.sum() if "truncated" in answer else -1
+                        row.setdefault("truncated", []).append(int(truncated))
     finally:
         process.terminate()
         process.wait()
 
     print(
         f"{Path(args.scene).stem}: {len(faces)} triangles, {args.rays} random rays, "
-        f"max_hits={args.max_hits}, medians of {args.repeat}"
+        f"max_hits={args.max_hits}, fields={args.fields or 'all'}, medians of {args.repeat}"
     )
     keys = ("wall", "receive", "decode", "trace", "encode", "engine")
     print(f"{'query':6} " + " ".join(f"{k + ' ms':>11}" for k in keys) + f" {'answer MB':>10}")
