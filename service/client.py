@@ -5,6 +5,9 @@
         client.put_mesh("demo", "box", vertices, faces)        # (V,3) float, (F,3) int
         hits = client.closest("demo", origins, directions)    # (N,3) each, or one (N,6|8) array
         hits.t, hits.mesh, hits.version                        # arrays, and the scene version
+        every = client.hits("demo", origins, directions, max_hits=8)
+        every.t[every.offsets[i]:every.offsets[i + 1]]         # the hits of ray i, nearest first
+        client.count("demo", origins, directions, mask=0b10).count  # crossings, masked rays
 
 Binary by default (.npy rays in, .npz answers out); arrays are converted to the wire dtypes
 (float32, int32) here, so any float or int arrays may be passed. Errors raise ``APIError`` with
@@ -35,6 +38,9 @@ ANSWER_DTYPES = {
     "v": np.float32,
     "normal": np.float32,
     "occluded": np.bool_,
+    "offsets": np.int64,
+    "truncated": np.bool_,
+    "count": np.int32,
 }
 _SUFFIX_FORMATS = {
     ".obj": "obj",
@@ -229,10 +235,13 @@ class Client:
         *,
         file: str | Path | bytes | None = None,
         format: str | None = None,
+        mask: int | None = None,
     ) -> dict[str, Any]:
         """Add or replace a mesh from arrays, or from a mesh file (path or bytes; ``format`` is
-        obj/ply/stl/glb/off, taken from the path's suffix if not given). Answers mesh info."""
+        obj/ply/stl/glb/off, taken from the path's suffix if not given). ``mask`` is the mesh's
+        32-bit visibility mask (default all ones). Answers mesh info."""
         path = f"/v1/scenes/{scene}/meshes/{mesh}"
+        params = {} if mask is None else {"mask": str(_mask_value(mask, "mask"))}
         if file is None:
             return self._binary(
                 "PUT",
@@ -241,6 +250,7 @@ class Client:
                     "vertices": np.asarray(vertices, dtype="<f4"),
                     "faces": np.asarray(faces, dtype="<i4"),
                 },
+                params=params,
             ).json()
         if isinstance(file, (str, Path)):
             format = format or _SUFFIX_FORMATS.get(Path(file).suffix.lower())
@@ -253,7 +263,7 @@ class Client:
             "PUT",
             path,
             content=file,
-            params={"format": format},
+            params={"format": format, **params},
             headers={"Content-Type": wire.MEDIA_TYPES[format]},
         ).json()
 
@@ -264,6 +274,14 @@ class Client:
             f"/v1/scenes/{scene}/meshes/{mesh}/vertices",
             {"vertices": np.asarray(vertices, dtype="<f4")},
             "npy",
+        ).json()
+
+    def set_transform(self, scene: str, mesh: str, matrix: Any) -> dict[str, Any]:
+        """Place a mesh with a 4x4 row-major affine ``matrix`` (an instance: the mesh is not
+        sent again). Answers mesh info."""
+        matrix = np.asarray(matrix, dtype=np.float64)
+        return self.request(
+            "PUT", f"/v1/scenes/{scene}/meshes/{mesh}/transform", json={"matrix": matrix.tolist()}
         ).json()
 
     def frame(self, scene: str, meshes: Mapping[str, Any]) -> dict[str, Any]:
@@ -309,6 +327,35 @@ class Client:
         """Whether each ray hits anything in [tmin, tmax]: ``answer.occluded``."""
         return self.query(scene, "occluded", origins, directions, tmin, tmax, **options)
 
+    def hits(
+        self,
+        scene: str,
+        origins: Any,
+        directions: Any = None,
+        tmin: Any = None,
+        tmax: Any = None,
+        max_hits: int | None = None,
+        **options: Any,
+    ) -> Answer:
+        """Every hit of each ray, nearest first, at most ``max_hits`` (the server's default 16):
+        CSR ``offsets`` (N+1) with t, mesh, prim, u, v, normal per hit, ``truncated`` per ray.
+        The hits of ray i are ``answer.t[answer.offsets[i]:answer.offsets[i + 1]]``."""
+        return self.query(
+            scene, "hits", origins, directions, tmin, tmax, max_hits=max_hits, **options
+        )
+
+    def count(
+        self,
+        scene: str,
+        origins: Any,
+        directions: Any = None,
+        tmin: Any = None,
+        tmax: Any = None,
+        **options: Any,
+    ) -> Answer:
+        """How many triangles each ray crosses in [tmin, tmax]: ``answer.count``, int32 (N,)."""
+        return self.query(scene, "count", origins, directions, tmin, tmax, **options)
+
     def query(
         self,
         scene: str,
@@ -322,17 +369,30 @@ class Client:
         strategy: str | None = None,
         stats: bool = False,
         cull: str = "none",
+        mask: Any = None,
+        max_hits: int | None = None,
         answer: str = "npz",
     ) -> Answer:
-        """A query on a stored scene. ``origins`` may be a whole (N, 6|8) ray array when
-        ``directions`` is None. ``cull`` is none, back or front. ``answer`` is npz, npy or json
-        (the format the server writes)."""
+        """A query (closest, occluded, hits or count) on a stored scene. ``origins`` may be a
+        whole (N, 6|8) ray array when ``directions`` is None. ``cull`` is none, back or front.
+        ``mask`` is one 32-bit mask for every ray (sent as ``?mask=``) or (N,) masks (sent in an
+        .npz body). ``max_hits`` is for hits only. ``answer`` is npz, npy or json (the format
+        the server writes)."""
         rays = rays_array(origins, directions, tmin, tmax)
+        params = _params(fields, strategy, stats, cull)
+        if max_hits is not None:
+            params["max_hits"] = str(max_hits)
+        body, fmt = {"rays": rays}, "npy"
+        if mask is not None and np.ndim(mask) == 0:
+            params["mask"] = str(_mask_value(mask, "mask"))
+        elif mask is not None:
+            body, fmt = _ray_arrays(rays), "npz"
+            body["mask"] = _mask_array(mask, len(rays))
         return self._query(
             f"/v1/scenes/{scene}/{query}",
-            {"rays": rays},
-            "npy",
-            params=_params(fields, strategy, stats, cull),
+            body,
+            fmt,
+            params=params,
             headers={"Accept": wire.MEDIA_TYPES[answer]},
         )
 
@@ -350,9 +410,12 @@ class Client:
         strategy: str | None = None,
         stats: bool = False,
         cull: str = "none",
+        mask: Any = None,
+        max_hits: int | None = None,
         answer: str = "npz",
     ) -> Answer:
-        """A one-shot query on a mesh sent with the rays (nothing is stored)."""
+        """A one-shot query on a mesh sent with the rays (nothing is stored); ``mask`` is one
+        value or (N,) values, sent in the body."""
         arrays = {
             "vertices": np.asarray(vertices, dtype="<f4"),
             "faces": np.asarray(faces, dtype="<i4"),
@@ -363,10 +426,45 @@ class Client:
             arrays["tmin"] = np.asarray(tmin, dtype="<f4")
         if tmax is not None:
             arrays["tmax"] = np.asarray(tmax, dtype="<f4")
+        if mask is not None:
+            arrays["mask"] = _mask_array(mask, len(arrays["origins"]))
         params = {"query": query, **_params(fields, strategy, stats, cull)}
+        if max_hits is not None:
+            params["max_hits"] = str(max_hits)
         return self._query(
             "/v1/trace", arrays, "npz", params=params, headers={"Accept": wire.MEDIA_TYPES[answer]}
         )
+
+
+def _ray_arrays(rays: np.ndarray) -> dict[str, np.ndarray]:
+    """The .npz keys of an (N, 6|8) ray array: origins, directions (and tmin, tmax)."""
+    arrays = {"origins": rays[:, 0:3], "directions": rays[:, 3:6]}
+    if rays.shape[1] == 8:
+        arrays["tmin"], arrays["tmax"] = rays[:, 6], rays[:, 7]
+    return {key: np.ascontiguousarray(value) for key, value in arrays.items()}
+
+
+def _mask_value(mask: Any, name: str) -> int:
+    """One 32-bit mask as a Python int; ValueError outside [0, 2**32)."""
+    if isinstance(mask, (bool, np.bool_)) or not isinstance(mask, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer, got {mask!r}")
+    if not 0 <= int(mask) <= 0xFFFFFFFF:
+        raise ValueError(f"{name} must lie in [0, 2**32), got {mask}")
+    return int(mask)
+
+
+def _mask_array(mask: Any, n_rays: int) -> np.ndarray:
+    """Masks as little-endian uint32: () for one value, else (N,); ValueError outside uint32."""
+    if np.ndim(mask) == 0:
+        return np.asarray(_mask_value(mask, "mask"), dtype="<u4")
+    masks = np.asarray(mask)
+    if masks.dtype.kind not in "iu":
+        raise ValueError(f"mask must be integers, got dtype {masks.dtype}")
+    if masks.shape != (n_rays,):
+        raise ValueError(f"mask must have shape ({n_rays},), one per ray, got {masks.shape}")
+    if masks.dtype != np.uint32 and masks.size and (masks.min() < 0 or masks.max() > 0xFFFFFFFF):
+        raise ValueError("mask values must lie in [0, 2**32)")
+    return np.ascontiguousarray(masks, dtype="<u4")
 
 
 def _slices(parts: list, size: int = 1 << 20) -> list[memoryview]:
@@ -409,8 +507,10 @@ def read_answer(response: httpx.Response, body: wire.Buffer | None = None) -> di
         array = wire.read_npy(body, structured=True)
         if array.dtype.names:
             return {name: array[name] for name in array.dtype.names}
-        # one array: the single ?fields= name, or occluded (closest with all fields is structured)
-        return {response.request.url.params.get("fields") or "occluded": array}
+        # one array: the single ?fields= name, else the query's only key (occluded or count)
+        params = response.request.url.params
+        query = params.get("query") or response.request.url.path.rsplit("/", 1)[-1]
+        return {params.get("fields") or query: array}
     document = wire.read_json(body, "the answer's fields")
     return {key: _from_json(key, value) for key, value in document.items()}
 

@@ -41,7 +41,14 @@ def _object(required: dict[str, Any], optional: dict[str, Any] | None = None) ->
     }
 
 
-RAYS_JSON = _object({"origins": _POINTS, "directions": _POINTS}, {"tmin": _BOUND, "tmax": _BOUND})
+_MASK_VALUE = {"type": "integer", "minimum": 0, "maximum": 0xFFFFFFFF}
+_MASK = {
+    "anyOf": [_MASK_VALUE, {"type": "array", "items": _MASK_VALUE}, {"type": "null"}],
+    "description": "visibility mask, one for the batch or one per ray (decimal); null: all ones",
+}
+RAYS_JSON = _object(
+    {"origins": _POINTS, "directions": _POINTS}, {"tmin": _BOUND, "tmax": _BOUND, "mask": _MASK}
+)
 MESH_JSON = _object({"vertices": _POINTS, "faces": _TRIANGLES})
 VERTICES_JSON = _object({"vertices": _POINTS})
 _MATRIX = {
@@ -76,7 +83,7 @@ FRAME_JSON = {
 }
 TRACE_JSON = _object(
     {"vertices": _POINTS, "faces": _TRIANGLES, "origins": _POINTS, "directions": _POINTS},
-    {"tmin": _BOUND, "tmax": _BOUND},
+    {"tmin": _BOUND, "tmax": _BOUND, "mask": _MASK},
 )
 ERROR = {
     "type": "object",

@@ -1,8 +1,8 @@
 """The path and query parameters of the routes, declared once with their descriptions and choices.
 
 Values are checked by the service itself (``store.check_name``, ``tracing.make_options``,
-``wire.resolve_format``), whose 422 messages name the fix; the declarations here tell the OpenAPI
-document what those checks accept.
+``wire.resolve_format``, ``wire.parse_mask``), whose 422 messages name the fix; the declarations
+here tell the OpenAPI document what those checks accept.
 """
 
 from __future__ import annotations
@@ -48,6 +48,22 @@ Mask = Annotated[
         "0xFFFFFFFF for a new mesh; a replaced mesh keeps its own)"
     ),
 ]
+RayMask = Annotated[
+    str | None,
+    Query(
+        description="one visibility mask for every ray of the batch, decimal or 0x hex (a ray "
+        "sees a mesh where ray mask & mesh mask != 0); the body's mask instead for one per ray",
+        json_schema_extra={"pattern": "^([0-9]+|0[xX][0-9A-Fa-f]+)$"},
+    ),
+]
+MaxHits = Annotated[
+    int | None,
+    Query(
+        description=f"hits kept per ray, nearest first (default {tracing.DEFAULT_MAX_HITS}, "
+        "at most the server's DACRT_MAX_HITS); hits only",
+        ge=1,
+    ),
+]
 QueryKind = Annotated[
     str,
     Query(
@@ -65,18 +81,37 @@ class BatchOptions:
     strategy: str | None
     stats: bool
     cull: str
+    mask: str | None = None
 
-    def for_query(self, query: tracing.Query | str, threads: int | None) -> tracing.Options:
+    def for_query(
+        self,
+        query: tracing.Query | str,
+        threads: int | None,
+        max_hits: int | None = None,
+        max_hits_limit: int | None = None,
+    ) -> tracing.Options:
         """The engine options of ``query``; 422 naming the choices for an unknown value."""
         return tracing.make_options(
-            query, self.fields, self.strategy, self.stats, threads, self.cull
+            query,
+            self.fields,
+            self.strategy,
+            self.stats,
+            threads,
+            self.cull,
+            max_hits,
+            None if self.mask is None else wire.parse_mask(self.mask, "?mask"),
+            max_hits_limit,
         )
 
 
 def batch_options(
-    fields: Fields = None, strategy: Strategy = None, stats: Stats = False, cull: Cull = "none"
+    fields: Fields = None,
+    strategy: Strategy = None,
+    stats: Stats = False,
+    cull: Cull = "none",
+    mask: RayMask = None,
 ) -> BatchOptions:
-    return BatchOptions(fields, strategy, stats, cull)
+    return BatchOptions(fields, strategy, stats, cull, mask)
 
 
 BatchOptionsDep = Annotated[BatchOptions, Depends(batch_options)]

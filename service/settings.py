@@ -46,6 +46,9 @@ class Settings(BaseSettings):
     max_image_pixels: PositiveInt = 4 * MiB
     max_triangles_per_scene: PositiveInt = 32 * MiB  #: most triangles in one scene
     max_scene_bytes: Bytes = 4 * GiB  #: total bytes of vertices and faces over all scenes
+    max_hits: PositiveInt = 1024  #: largest ``max_hits`` of a hits query
+    #: largest hit buffers of one hits query: rays x (max_hits + 1) x 16 bytes
+    max_hits_bytes: Bytes = 2 * GiB
     threads: int | None = Field(None, gt=0)  #: engine threads per query (None: every core)
     #: .npz (vertices, faces) for the demo scene; None: the teapot shipped with the package
     demo_scene: Path | None = None
@@ -90,6 +93,8 @@ class Settings(BaseSettings):
             "max_image_pixels": self.max_image_pixels,
             "max_triangles_per_scene": self.max_triangles_per_scene,
             "max_scene_bytes": self.max_scene_bytes,
+            "max_hits": self.max_hits,
+            "max_hits_bytes": self.max_hits_bytes,
         }
 
 

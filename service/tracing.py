@@ -19,21 +19,34 @@ import dacrt
 
 from .errors import Invalid
 from .store import Snapshot
-from .wire import MeshArrays, Rays
+from .wire import ANSWER_FORMATS, MeshArrays, Rays
 
 
 class Query(str, Enum):  # noqa: UP042 - StrEnum would change str() and format() of members
-    """Kinds of query. Later: HITS (``/hits``) and COUNT (``/count``) join here."""
+    """Kinds of query."""
 
     CLOSEST = "closest"
     OCCLUDED = "occluded"
+    HITS = "hits"
+    COUNT = "count"
 
 
 #: The answer keys of each query, in answer order; ``?fields=`` picks a subset.
 FIELDS: dict[Query, tuple[str, ...]] = {
     Query.CLOSEST: ("t", "mesh", "prim", "u", "v", "normal"),
     Query.OCCLUDED: ("occluded",),
+    Query.HITS: ("offsets", "t", "mesh", "prim", "u", "v", "normal", "truncated"),
+    Query.COUNT: ("count",),
 }
+#: The keys of a hits answer with one value per hit: they come with ``offsets`` (CSR), listed in
+#: ``?fields=`` or not.
+PER_HIT_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")
+#: ``max_hits`` of a hits query that does not give it (API.md).
+DEFAULT_MAX_HITS = 16
+#: The measure of a hits query's memory that DACRT_MAX_HITS_BYTES bounds: this many bytes per ray
+#: and slot, rays x (max_hits + 1) slots (the engine's lists hold t and a triangle, 8 bytes a
+#: slot, and the answer up to 32 bytes a hit).
+HIT_BUFFER_BYTES = 16
 
 
 def strategies() -> tuple[str, ...]:
@@ -47,7 +60,7 @@ CULL_MODES = tuple(dacrt.CULL_MODES)
 
 @dataclass(frozen=True)
 class Options:
-    """Options of one query, for the whole batch. Later: ``max_hits``."""
+    """Options of one query, for the whole batch."""
 
     query: Query
     fields: tuple[str, ...]
@@ -55,6 +68,22 @@ class Options:
     stats: bool = False
     threads: int | None = None
     cull: str = "none"
+    max_hits: int | None = None  #: hits kept per ray (hits only)
+    mask: int | None = None  #: ``?mask=``: one mask for every ray of the batch
+
+    def hit_buffer_bytes(self, n_rays: int) -> int:
+        """Bytes of the engine's hit buffers for ``n_rays`` rays (0 but for hits)."""
+        if self.query is not Query.HITS:
+            return 0
+        return n_rays * (self.max_hits + 1) * HIT_BUFFER_BYTES
+
+    @property
+    def answer_formats(self) -> tuple[str, ...]:
+        """The formats the answer can be written in: npy needs one row per ray in every array
+        (a hits answer with ``offsets`` or a per-hit key is CSR: npz and JSON only)."""
+        if self.query is Query.HITS and set(self.fields) & {"offsets", *PER_HIT_FIELDS}:
+            return tuple(fmt for fmt in ANSWER_FORMATS if fmt != "npy")
+        return ANSWER_FORMATS
 
 
 def make_options(
@@ -64,8 +93,13 @@ def make_options(
     stats: bool = False,
     threads: int | None = None,
     cull: str = "none",
+    max_hits: int | None = None,
+    mask: int | None = None,
+    max_hits_limit: int | None = None,
 ) -> Options:
-    """Options from query-string values; 422 naming the choices for an unknown value."""
+    """Options from query-string values; 422 naming the choices for an unknown value.
+
+    ``max_hits`` (hits only; default DEFAULT_MAX_HITS) must lie in [1, ``max_hits_limit``]."""
     try:
         query = Query(query)
     except ValueError:
@@ -84,13 +118,30 @@ def make_options(
                 f"for {query.value}; choose from {', '.join(known)}"
             )
         chosen = tuple(name for name in known if name in names)
+        if query is Query.HITS and set(chosen) & set(PER_HIT_FIELDS):
+            chosen = ("offsets", *(name for name in chosen if name != "offsets"))
+    if query is Query.HITS:
+        max_hits = DEFAULT_MAX_HITS if max_hits is None else max_hits
+        max_hits = check_max_hits(max_hits, max_hits_limit)
+    elif max_hits is not None:
+        raise Invalid(f"max_hits applies to the hits query only, not to {query.value}")
     if strategy is None:
         strategy = strategies()[0]
     elif strategy not in strategies():
         raise Invalid(f"unknown strategy {strategy!r}; choose from {', '.join(strategies())}")
     if cull not in CULL_MODES:
         raise Invalid(f"unknown cull {cull!r}; choose from {', '.join(CULL_MODES)}")
-    return Options(query, chosen, strategy, stats, threads, cull)
+    return Options(query, chosen, strategy, stats, threads, cull, max_hits, mask)
+
+
+def check_max_hits(max_hits: int, limit: int | None) -> int:
+    """422 unless ``max_hits`` is an integer in [1, limit] (limit: DACRT_MAX_HITS)."""
+    within = f"1 to {limit} (DACRT_MAX_HITS)" if limit is not None else "at least 1"
+    if isinstance(max_hits, bool) or not isinstance(max_hits, int):
+        raise Invalid(f"max_hits must be an integer from {within}, got {max_hits!r}")
+    if max_hits < 1 or (limit is not None and max_hits > limit):
+        raise Invalid(f"max_hits must be an integer from {within}, got {max_hits}")
+    return max_hits
 
 
 @dataclass(frozen=True)
@@ -159,32 +210,37 @@ def trace_once(mesh: MeshArrays, rays: Rays, options: Options) -> TraceResult:
     return _run(engine, rays, options, 0, start)
 
 
+def ray_mask(rays: Rays, options: Options) -> np.ndarray | int | None:
+    """The batch's masks: the body's ``mask`` or ``?mask=`` (422 for both), else None."""
+    if rays.mask is not None and options.mask is not None:
+        raise Invalid(
+            "the rays carry a mask in the body and in ?mask= too; send one of them "
+            "(?mask= gives every ray of the batch one mask)"
+        )
+    return options.mask if rays.mask is None else rays.mask
+
+
 def _run(
     engine: EngineScene, rays: Rays, options: Options, version: int, start: float
 ) -> TraceResult:
     kwargs = {
         "cull": options.cull,
+        "mask": ray_mask(rays, options),
         "strategy": options.strategy,
         "threads": options.threads,
         "stats": options.stats,
     }
+    if options.query is Query.HITS:
+        kwargs["max_hits"] = options.max_hits
+    query = getattr(engine.scene, options.query.value)
     try:
-        if options.query is Query.CLOSEST:
-            hits = engine.scene.closest(
-                rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs
-            )
-            stats = hits.stats
-            arrays = {name: getattr(hits, name) for name in options.fields}
-            if "mesh" in arrays:
-                arrays["mesh"] = engine.map_mesh(arrays["mesh"])
-        else:
-            occlusion = engine.scene.occluded(
-                rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs
-            )
-            stats = occlusion.stats
-            arrays = {"occluded": occlusion.occluded}
+        answer = query(rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs)
     except ValueError as exc:  # the engine names the first bad ray and how many there are
         raise Invalid(str(exc)) from None
+    stats = answer.stats
+    arrays = {name: getattr(answer, name) for name in options.fields}
+    if "mesh" in arrays:
+        arrays["mesh"] = engine.map_mesh(arrays["mesh"])
     if stats is not None:
         stats = {**stats, "strategy": options.strategy}
     return TraceResult(arrays, version, stats, time.perf_counter() - start)

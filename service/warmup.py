@@ -145,7 +145,7 @@ def warm_up_queries(store: Store, threads: int | None) -> None:
                 options = tracing.make_options(
                     query, strategy=strategy, stats=stats, threads=threads, cull=cull
                 )
-                encode(tracing.trace(snapshot, rays, options).arrays)
+                encode(tracing.trace(snapshot, rays, options).arrays, options.answer_formats)
     trace_bodies = {
         "npz": npz(vertices=VERTICES, faces=FACES, origins=origins, directions=directions),
         "json": as_json(vertices=VERTICES, faces=FACES, origins=origins, directions=directions),
@@ -154,12 +154,16 @@ def warm_up_queries(store: Store, threads: int | None) -> None:
         mesh, rays = wire.decode_trace(data, fmt)
         for query in tracing.Query:
             options = tracing.make_options(query, threads=threads)
-            encode(tracing.trace_once(mesh, rays, options).arrays)
+            encode(tracing.trace_once(mesh, rays, options).arrays, options.answer_formats)
 
 
-def encode(arrays: dict[str, np.ndarray], consume: Callable[[object], object] = bytes) -> None:
-    """Each answer format, sent nowhere."""
-    for fmt in wire.ANSWER_FORMATS:
+def encode(
+    arrays: dict[str, np.ndarray],
+    formats: tuple[str, ...] = wire.ANSWER_FORMATS,
+    consume: Callable[[object], object] = bytes,
+) -> None:
+    """Each answer format of ``formats``, sent nowhere."""
+    for fmt in formats:
         parts, _, _ = wire.encode_answer(arrays, fmt)
         for part in parts:
             consume(part)

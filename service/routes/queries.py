@@ -1,4 +1,4 @@
-"""Ray queries: closest and occluded on a stored scene, and the one-shot /trace."""
+"""Ray queries: closest, occluded, hits and count on a stored scene, and the one-shot /trace."""
 
 from __future__ import annotations
 
@@ -16,8 +16,9 @@ from ..deps import (
     reject_unknown_query,
     require_token,
 )
+from ..errors import NotAcceptable, TooLarge
 from ..metrics import Metrics
-from ..params import BatchOptionsDep, QueryKind, RayFormat, SceneName, TraceFormat
+from ..params import BatchOptionsDep, MaxHits, QueryKind, RayFormat, SceneName, TraceFormat
 from ..responses import BuffersResponse
 from ..settings import Settings
 from ..store import Store, check_name
@@ -81,6 +82,53 @@ async def occluded(
 
 
 @router.post(
+    "/scenes/{scene}/hits",
+    openapi_extra=RAYS_BODY,
+    response_class=BuffersResponse,
+    responses={
+        **openapi.answers(
+            "every hit of each ray, nearest first, at most max_hits: offsets (N+1) and t, mesh, "
+            "prim, u, v, normal per hit (CSR), truncated per ray"
+        ),
+        **QUERY_ERRORS,
+    },
+)
+async def hits(
+    scene: SceneName,
+    request: Request,
+    settings: SettingsDep,
+    store: StoreDep,
+    metrics: MetricsDep,
+    batch: BatchOptionsDep,
+    max_hits: MaxHits = None,
+    format: RayFormat = None,
+):
+    """Every hit along each ray in [tmin, tmax], nearest first, at most ``max_hits``."""
+    options = batch.for_query(Query.HITS, settings.threads, max_hits, settings.max_hits)
+    return await answer(request, settings, store, metrics, options, scene, format)
+
+
+@router.post(
+    "/scenes/{scene}/count",
+    openapi_extra=RAYS_BODY,
+    response_class=BuffersResponse,
+    responses={**openapi.answers("how many triangles each ray crosses"), **QUERY_ERRORS},
+)
+async def count(
+    scene: SceneName,
+    request: Request,
+    settings: SettingsDep,
+    store: StoreDep,
+    metrics: MetricsDep,
+    batch: BatchOptionsDep,
+    format: RayFormat = None,
+):
+    """How many triangles each ray crosses in [tmin, tmax] (a shared edge or vertex once)."""
+    options = batch.for_query(Query.COUNT, settings.threads)
+    return await answer(request, settings, store, metrics, options, scene, format)
+
+
+@router.post(
     "/trace",
     openapi_extra=TRACE_BODY,
     response_class=BuffersResponse,
@@ -92,10 +140,11 @@ async def trace(
     metrics: MetricsDep,
     batch: BatchOptionsDep,
     query: QueryKind = "closest",
+    max_hits: MaxHits = None,
     format: TraceFormat = None,
 ):
     """A stateless one-shot: the mesh comes with the rays (answers carry X-Scene-Version: 0)."""
-    options = batch.for_query(query, settings.threads)
+    options = batch.for_query(query, settings.threads, max_hits, settings.max_hits)
     return await answer(request, settings, None, metrics, options, None, format)
 
 
@@ -122,7 +171,7 @@ async def answer(
         body,
         f"POST {request.url.path}",
     )
-    answer_format = wire.negotiate(request.headers.get("accept"), fmt)
+    answer_format = negotiate(request.headers.get("accept"), fmt, options)
     limits = {"max_rays": settings.max_rays_per_request, "max_bytes": settings.max_body_bytes}
 
     def work():
@@ -131,6 +180,7 @@ async def answer(
                 mesh, rays = wire.decode_trace(body, fmt, **limits)
             else:
                 rays = wire.decode_rays(body, fmt, **limits)
+        check_hit_buffers(len(rays), options, settings.max_hits_bytes)
         with timing("trace"):
             result = (
                 tracing.trace(store.snapshot(scene), rays, options)
@@ -147,3 +197,28 @@ async def answer(
     if result.stats is not None:
         headers["X-Trace-Stats"] = json.dumps(result.stats, separators=(",", ":"))
     return BuffersResponse(content, length, media, headers)
+
+
+def negotiate(accept: str | None, request_format: str, options: tracing.Options) -> str:
+    """The answer format, among those the query's answer can be written in (406 naming them)."""
+    try:
+        return wire.negotiate(accept, request_format, options.answer_formats)
+    except NotAcceptable:
+        if options.answer_formats == wire.ANSWER_FORMATS:
+            raise
+        raise NotAcceptable(
+            f"Accept: {accept} names no format a {options.query.value} answer with "
+            f"{', '.join(options.fields)} is written in: its arrays have different lengths (CSR), "
+            f"so use {wire.NPZ} or {wire.JSON}, or ?fields=truncated for an .npy"
+        ) from None
+
+
+def check_hit_buffers(n_rays: int, options: tracing.Options, limit: int) -> None:
+    """413 when a hits query would hold more hit buffers than DACRT_MAX_HITS_BYTES allows."""
+    needed = options.hit_buffer_bytes(n_rays)
+    if needed > limit:
+        raise TooLarge(
+            f"{n_rays} rays with max_hits={options.max_hits} need {needed} bytes of hit buffers "
+            f"({n_rays} x ({options.max_hits} + 1) x {tracing.HIT_BUFFER_BYTES}), over the limit "
+            f"of {limit} bytes (DACRT_MAX_HITS_BYTES); send fewer rays or a smaller max_hits"
+        )

@@ -46,11 +46,16 @@ digits is 400.
 Rays (``decode_rays``; formats npy, npz, json)
     npy  float32 (N, 6) ``[ox, oy, oz, dx, dy, dz]`` or (N, 8) ``[..., tmin, tmax]``.
     npz  ``origins`` float32 (N, 3), ``directions`` float32 (N, 3); optional ``tmin``, ``tmax``
-         float32 of shape (N,) or () (one value for the batch). No other keys.
+         float32 of shape (N,) or () (one value for the batch); optional ``mask`` uint32 of
+         shape (N,) or (). No other keys.
     json ``{"origins": [[x, y, z], ...], "directions": [...], "tmin": number | [..] | null,
-         "tmax": number | [..] | null}``; a null field means the default, a null element +inf.
-    Defaults: tmin 0, tmax +inf. More than ``max_rays`` rays is 413. Values (finite, non-zero
-    directions, tmin <= tmax) are checked by the engine, which names the first bad ray.
+         "tmax": number | [..] | null, "mask": integer | [..] | null}``; a null field means the
+         default, a null element of tmin or tmax +inf; mask values are decimal integers in
+         [0, 2**32).
+    Defaults: tmin 0, tmax +inf, mask 0xFFFFFFFF. An npy body has no mask: the query string's
+    ``?mask=`` gives one mask to a batch of any format (with a body mask too, 422). More than
+    ``max_rays`` rays is 413. Values (finite, non-zero directions, tmin <= tmax) are checked by the
+    engine, which names the first bad ray.
 
 Meshes (``decode_mesh``; formats npz, json, obj, ply, stl, glb, off)
     npz  ``vertices`` float32 (V, 3) and ``faces`` int32 or uint32 (F, 3). No other keys.
@@ -75,7 +80,7 @@ Frames (``decode_frame``; formats npz, json)
 
 One-shot trace (``decode_trace``; formats npz, json)
     The keys of a mesh (``vertices``, ``faces``) and of rays (``origins``, ``directions``,
-    ``tmin``, ``tmax``) in one body.
+    ``tmin``, ``tmax``, ``mask``) in one body.
 
 Answers (``negotiate`` and ``encode_answer``)
     ``Accept`` picks ``application/x-npz``, ``application/x-npy`` or ``application/json`` (q-values
@@ -84,7 +89,9 @@ Answers (``negotiate`` and ``encode_answer``)
     npz  one uncompressed member per field (``t``, ``mesh``, ...); the body is sent as zip headers
          around the answer arrays' own memory, never joined into one copy.
     npy  a single field is a plain array; several fields are one structured array with a named
-         field each (``a["t"]``, ``a["normal"]`` of shape (N, 3)).
+         field each (``a["t"]``, ``a["normal"]`` of shape (N, 3)). So every field must have one
+         row per ray: a hits answer in CSR form (``offsets`` and per-hit keys) is npz or JSON only
+         (the route's ``formats`` for ``negotiate``).
     json ``{"t": [...], ...}``; float32 values in their shortest round-trip form, so
          ``np.float32(json_value)`` gives back the binary answer bit for bit; inf (and nan) are
          null.
@@ -98,6 +105,7 @@ from .arrays import (
     check_vertices,
     float_array,
     index_array,
+    mask_array,
     mesh_arrays,
     nulls_to_inf,
 )
@@ -169,6 +177,7 @@ __all__ = [
     "encode_json",
     "float_array",
     "index_array",
+    "mask_array",
     "json_ready",
     "mesh_arrays",
     "negotiate",

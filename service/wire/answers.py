@@ -14,8 +14,11 @@ from .npy import array_bytes, npy_header
 from .npz_writer import NpzBody
 
 
-def negotiate(accept: str | None, request_format: str) -> str:
-    """The answer format for an ``Accept`` header: npz, npy or json (406 if none fits)."""
+def negotiate(
+    accept: str | None, request_format: str, formats: tuple[str, ...] = ANSWER_FORMATS
+) -> str:
+    """The answer format for an ``Accept`` header: one of ``formats`` (npz, npy or json; 406 if
+    none fits)."""
     default = "json" if request_format == "json" else "npz"
     if not accept or not accept.strip():
         return default
@@ -36,7 +39,7 @@ def negotiate(accept: str | None, request_format: str) -> str:
         if media in ("*/*", "application/*"):
             return default
         fmt = CONTENT_TYPES.get(media)
-        if fmt in ANSWER_FORMATS:
+        if fmt in formats:
             return fmt
     raise NotAcceptable(
         f"Accept: {accept} names no answer format this service writes; use {NPZ}, {NPY} or {JSON}"

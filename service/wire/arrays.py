@@ -26,6 +26,7 @@ class Rays:
     directions: np.ndarray  #: (N, 3) float32
     tmin: np.ndarray | float | None  #: (N,) float32, one value, or None (0)
     tmax: np.ndarray | float | None  #: (N,) float32, one value, or None (+inf)
+    mask: np.ndarray | int | None = None  #: (N,) uint32, one value, or None (all ones)
 
     def __len__(self) -> int:
         return len(self.origins)
@@ -90,6 +91,40 @@ def _json_kind(value: Any) -> str:
     if isinstance(value, (list, dict)):
         return "a list nested too deeply" if isinstance(value, list) else "an object"
     return "null" if value is None else f"the number {value!r:.32}"
+
+
+def mask_array(value: Any, name: str, n_rays: int) -> np.ndarray | int:
+    """Ray visibility masks: one value for the batch (an int) or a writable (N,) uint32 array.
+
+    Binary: little-endian uint32 of shape (N,) or (). JSON: an integer or a list of integers,
+    each in [0, 2**32) (decimal: JSON has no hex)."""
+    if isinstance(value, np.ndarray):
+        if value.dtype != _U32:
+            raise Invalid(
+                f"{name} must be little-endian uint32, got {value.dtype.str} ({value.dtype}); "
+                "convert with .astype('<u4')"
+            )
+        array = value
+    else:
+        check_json_numbers(value, name, (int,))
+        values = value if isinstance(value, list) else [value]
+        if any(type(item) is list for item in values):
+            raise Invalid(f"{name} must be one integer or a list of integers, not nested lists")
+        bad = [i for i, item in enumerate(values) if not 0 <= item <= 0xFFFFFFFF]
+        if bad:
+            where = f"{name}[{bad[0]}]" if isinstance(value, list) else name
+            raise Invalid(
+                f"{where} is {values[bad[0]]}, outside the uint32 range [0, 2**32) "
+                f"({len(bad)} out of range)"
+            )
+        array = np.asarray(value, dtype=_U32)
+    if array.ndim == 0:
+        return int(array)
+    if array.ndim != 1:
+        raise Invalid(f"{name} must be one value or shape (N,), got {array.shape}")
+    if len(array) != n_rays:
+        raise Invalid(f"{name} has {len(array)} values but there are {n_rays} rays")
+    return np.array(array, dtype=_U32)  # a writable copy: 4 bytes a ray
 
 
 def nulls_to_inf(value: Any) -> Any:

@@ -21,6 +21,7 @@ from .arrays import (
     engine_errors,
     float_array,
     index_array,
+    mask_array,
     mesh_arrays,
 )
 from .formats import MESH_FILE_FORMATS, Buffer
@@ -86,12 +87,16 @@ def decode_rays(
             array[:, 7] if has_t else None,
         )
     mapping = read_mapping(body, fmt, "origins, directions", max_bytes)
-    check_keys(mapping, ("origins", "directions"), ("tmin", "tmax"))
+    check_keys(mapping, ("origins", "directions"), RAY_OPTIONAL_KEYS)
     return rays_from_mapping(mapping, max_rays)
 
 
+#: The optional keys of a ray batch in an npz or JSON body.
+RAY_OPTIONAL_KEYS = ("tmin", "tmax", "mask")
+
+
 def rays_from_mapping(mapping: Mapping[str, Any], max_rays: int | None) -> Rays:
-    """Rays from the keys origins, directions, tmin, tmax of an npz or JSON body."""
+    """Rays from the keys origins, directions, tmin, tmax, mask of an npz or JSON body."""
     origins = mapping["origins"]
     n = (
         origins.shape[0]
@@ -113,7 +118,10 @@ def rays_from_mapping(mapping: Mapping[str, Any], max_rays: int | None) -> Rays:
             elif len(value) != len(origins):
                 raise Invalid(f"{key} has {len(value)} values but there are {len(origins)} rays")
         bounds.append(value)
-    return Rays(origins, directions, *bounds)
+    mask = mapping.get("mask")
+    if mask is not None:
+        mask = mask_array(mask, "mask", len(origins))
+    return Rays(origins, directions, *bounds, mask)
 
 
 def _check_ray_count(n: int, max_rays: int | None) -> None:
@@ -264,6 +272,6 @@ def decode_trace(
 ) -> tuple[MeshArrays, Rays]:
     """The mesh and the rays of a one-shot trace body."""
     mapping = read_mapping(body, fmt, "vertices, faces, origins, directions", max_bytes)
-    check_keys(mapping, ("vertices", "faces", "origins", "directions"), ("tmin", "tmax"))
+    check_keys(mapping, ("vertices", "faces", "origins", "directions"), RAY_OPTIONAL_KEYS)
     rays = rays_from_mapping(mapping, max_rays)
     return mesh_arrays(mapping["vertices"], mapping["faces"]), rays

@@ -6,8 +6,10 @@ compared with a plain-NumPy brute force."""
 from __future__ import annotations
 
 import io
+import json
 import zipfile
 
+import httpx
 import numpy as np
 import pytest
 import reference
@@ -15,7 +17,7 @@ from service_helpers import NPY, NPZ, down_rays, grid, npy_bytes, npz_bytes, qua
 
 import dacrt
 from service import wire
-from service.client import Answer, APIError
+from service.client import Answer, APIError, Client
 
 CLOSEST_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")
 
@@ -493,3 +495,126 @@ def test_mesh_files_by_format_parameter(app_client, app_api, scene_name, tmp_pat
     path = tmp_path / f"things.{fmt}"
     path.write_bytes(body)
     assert app_api.put_mesh(scene_name, "from-file", file=path)["triangles"] == n_faces
+
+
+# ---- hits, count, masks and the intersector through the client
+
+
+def test_hits_and_count_through_the_client_match_the_engine(app_api, teapot_scene, teapot):
+    origins, directions = rays_at(*teapot, 300, seed=31)
+    engine = dacrt.Scene([teapot])
+    hits = app_api.hits(teapot_scene, origins, directions, max_hits=3, cull="back")
+    expected = engine.hits(origins, directions, max_hits=3, cull="back")
+    for key in ("offsets", "t", "mesh", "prim", "u", "v", "normal", "truncated"):
+        assert np.array_equal(hits[key], getattr(expected, key)), key
+    assert expected.truncated.any() and hits.version == 1
+    count = app_api.count(teapot_scene, origins, directions, tmax=1.5, answer="npy")
+    assert np.array_equal(count.count, engine.count(origins, directions, tmax=1.5).count)
+    ray_array = np.hstack([origins, directions, np.zeros((300, 1)), np.full((300, 1), 1.5)])
+    assert np.array_equal(app_api.count(teapot_scene, ray_array).count, count.count)
+
+
+@pytest.mark.parametrize("query", ["closest", "occluded", "hits", "count"])
+def test_mask_on_every_query_of_the_client(app_api, teapot_scene, teapot, query):
+    """One mask (sent as ?mask=) or one per ray (sent in an .npz body), with the JSON answer."""
+    origins, directions = rays_at(*teapot, 60, seed=32)
+    masks = np.where(np.arange(60) % 2 == 0, 0, 0xF0).astype(np.uint32)
+    engine = dacrt.Scene([teapot])
+    for mask in (masks, 0, 0x10):
+        answer = app_api.query(teapot_scene, query, origins, directions, mask=mask, answer="json")
+        expected = getattr(engine, query)(origins, directions, mask=mask)
+        for key in answer:
+            assert np.array_equal(answer[key], getattr(expected, key)), (mask, key)
+    once = app_api.trace(*teapot, origins, directions, query=query, mask=masks)
+    expected = getattr(engine, query)(origins, directions, mask=masks)
+    assert all(np.array_equal(once[key], getattr(expected, key)) for key in once)
+
+
+def recording_client(answers: dict[str, dict]) -> tuple[Client, list[httpx.Request]]:
+    """A client whose requests are recorded and answered with ``answers[path]`` (JSON)."""
+    sent = []
+
+    def handle(request: httpx.Request) -> httpx.Response:
+        sent.append(request)
+        return httpx.Response(200, json=answers[request.url.path])
+
+    http = httpx.Client(base_url="http://recorded", transport=httpx.MockTransport(handle))
+    return Client(http=http), sent
+
+
+def test_set_transform_and_mesh_masks_send_what_the_contract_says():
+    info = {"scene": "s", "mesh": "m", "index": 0}
+    client, sent = recording_client(
+        {"/v1/scenes/s/meshes/m/transform": info, "/v1/scenes/s/meshes/m": info}
+    )
+    matrix = np.eye(4)
+    matrix[:3, 3] = [1, 2, 3.5]
+    assert client.set_transform("s", "m", matrix) == info
+    request = sent[-1]
+    assert request.method == "PUT" and request.headers["content-type"] == "application/json"
+    assert json.loads(request.content) == {
+        "matrix": [[1, 0, 0, 1], [0, 1, 0, 2], [0, 0, 1, 3.5], [0, 0, 0, 1]]
+    }
+    client.put_mesh("s", "m", *quad(0, 1, 0, 1, 0), mask=0xF0)
+    assert sent[-1].url.params["mask"] == "240" and sent[-1].method == "PUT"
+    client.put_mesh("s", "m", file=b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", format="obj", mask=3)
+    assert dict(sent[-1].url.params) == {"format": "obj", "mask": "3"}
+    client.put_mesh("s", "m", *quad(0, 1, 0, 1, 0))
+    assert "mask" not in sent[-1].url.params
+    with pytest.raises(ValueError, match="mask must lie in"):
+        client.put_mesh("s", "m", *quad(0, 1, 0, 1, 0), mask=-1)
+
+
+def test_the_service_intersector_answers_as_the_in_process_one(app_client, teapot):
+    import trimesh
+
+    from dacrt.trimesh_ray import RayMeshIntersector as InProcess
+    from service.intersector import RayMeshIntersector as OnService
+
+    mesh = trimesh.Trimesh(*teapot, process=False)
+    local = InProcess(mesh)
+    origins, directions = rays_at(*teapot, 300, seed=33)
+    directions[::3] *= -1
+    points = np.random.default_rng(34).uniform(*mesh.bounds, (400, 3))
+    api = Client(http=app_client)
+    with OnService(mesh, client=api) as remote:
+        scene = remote.scene
+        assert api.scene(scene)["triangles"] == len(mesh.faces)
+        for method in ("intersects_first", "intersects_any", "intersects_location"):
+            got = getattr(remote, method)(origins, directions)
+            want = getattr(local, method)(origins, directions)
+            for a, b in zip(*((x if isinstance(x, tuple) else (x,)) for x in (got, want))):
+                assert a.dtype == b.dtype and np.array_equal(a, b), method
+        index_tri, index_ray = remote.intersects_id(origins, directions, max_hits=2)
+        want_tri, want_ray = local.intersects_id(origins, directions, max_hits=2)
+        assert np.array_equal(index_tri, want_tri) and np.array_equal(index_ray, want_ray)
+        assert np.array_equal(remote.contains_points(points), local.contains_points(points))
+    with pytest.raises(APIError) as gone:
+        api.scene(scene)
+    assert gone.value.status == 404
+    kept = OnService(mesh, client=api, scene="kept-" + scene, mesh_name="pot")
+    kept.close()
+    assert [m["mesh"] for m in api.scene("kept-" + scene)["meshes"]] == ["pot"]
+    api.delete("kept-" + scene)
+
+
+def test_set_transform_places_the_mesh_for_hits_and_count(app_api, scene_name, teapot):
+    """An instance placed by a rotation, a scale and a shift answers as the mesh placed in numpy."""
+    import procedural
+
+    vertices, faces = teapot
+    app_api.put_mesh(scene_name, "pot", vertices, faces)
+    matrix = np.eye(4)
+    matrix[:3, :3] = 0.5 * procedural.rotation([1.0, 2.0, 0.5], 0.7)
+    matrix[:3, 3] = [10, -4, 2]
+    info = app_api.set_transform(scene_name, "pot", matrix)
+    assert info["version"] == 2
+    placed = (vertices.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]).astype(np.float32)
+    origins, directions = rays_at(placed, faces, 200, seed=35)
+    hits = app_api.hits(scene_name, origins, directions)
+    expected = reference.all_hits(placed, faces, origins, directions, perturbation="shear")
+    assert np.array_equal(hits.offsets, expected.offsets) and expected.offsets[-1] > 300
+    assert np.array_equal(hits.prim, expected.prim) and (hits.mesh == 0).all()
+    np.testing.assert_allclose(hits.t, expected.t, rtol=1e-5)
+    count = app_api.count(scene_name, origins, directions).count
+    assert np.array_equal(count, np.diff(expected.offsets))

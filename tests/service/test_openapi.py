@@ -23,6 +23,8 @@ BODIES = {
     ("POST", "/v1/scenes/{scene}/frame"): wire.FRAME_FORMATS,
     ("POST", "/v1/scenes/{scene}/closest"): wire.RAY_FORMATS,
     ("POST", "/v1/scenes/{scene}/occluded"): wire.RAY_FORMATS,
+    ("POST", "/v1/scenes/{scene}/hits"): wire.RAY_FORMATS,
+    ("POST", "/v1/scenes/{scene}/count"): wire.RAY_FORMATS,
     ("POST", "/v1/trace"): wire.TRACE_FORMATS,
     ("POST", "/v1/scenes/{scene}/render"): ("json",),
     ("POST", "/v1/scenes/{scene}/camera"): ("json",),

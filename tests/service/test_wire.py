@@ -254,10 +254,10 @@ def test_empty_batch_is_valid(fmt, body):
             npz_bytes(
                 origins=np.zeros((2, 3), np.float32),
                 directions=np.ones((2, 3), np.float32),
-                mask=np.ones(2, np.uint32),
+                weights=np.ones(2, np.float32),
             ),
             BadBody,
-            "unknown keys 'mask'",
+            "unknown keys 'weights'",
         ),
         (
             "npz",
