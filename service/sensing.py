@@ -8,7 +8,7 @@ engine scene, built once per scene version, and the same stable mesh indices as 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -53,6 +53,17 @@ class SensorOptions:
     def closest(self) -> tracing.Options:
         return tracing.make_options(
             Query.CLOSEST, _HIT_FIELDS, self.strategy, self.stats, self.threads, self.cull
+        )
+
+    def hits(self, max_hits: int) -> tracing.Options:
+        return tracing.make_options(
+            Query.HITS,
+            _HIT_FIELDS,
+            self.strategy,
+            self.stats,
+            self.threads,
+            self.cull,
+            max_hits=max_hits,
         )
 
 
@@ -155,12 +166,11 @@ def lidar_scan(
         returns = np.zeros(len(ray), np.int16)
         version, stats = result.version, result.stats
     else:
-        hit_list, stats = _hit_list(snapshot, origins, directions, scan, max_returns, options)
-        counts = np.diff(hit_list.offsets)
+        hits, stats = _hit_list(snapshot, origins, directions, scan, max_returns, options)
+        offsets = hits["offsets"]
+        counts = np.diff(offsets)
         ray = np.repeat(np.arange(len(origins), dtype=np.int32), counts)
-        returns = (np.arange(len(ray)) - np.repeat(hit_list.offsets[:-1], counts)).astype(np.int16)
-        hits = {"t": hit_list.t, "mesh": hit_list.mesh, "prim": hit_list.prim}
-        hits["normal"] = hit_list.normal
+        returns = (np.arange(len(ray)) - np.repeat(offsets[:-1], counts)).astype(np.int16)
         version = snapshot.version
     per_point = points(scan, origins, directions, ray, hits["t"], hits["normal"])
     per_point.update({"mesh": hits["mesh"], "prim": hits["prim"], "return": returns, "ray": ray})
@@ -170,26 +180,10 @@ def lidar_scan(
 
 
 def _hit_list(snapshot, origins, directions, scan: Scan, max_hits: int, options: SensorOptions):
-    """``Scene.hits`` on the snapshot's engine scene (the one ``tracing`` builds once per
-    version), with stable mesh indices; (HitList, stats or None)."""
-    checked = options.closest()  # the strategy and cull, checked as for every query
-    engine = snapshot.cached("dacrt", tracing._snapshot_engine)
-    try:
-        hit_list = engine.scene.hits(
-            origins,
-            directions,
-            scan.min_range,
-            scan.max_range,
-            max_hits=max_hits,
-            cull=checked.cull,
-            strategy=checked.strategy,
-            threads=checked.threads,
-            stats=checked.stats,
-        )
-    except ValueError as exc:  # the engine names the first bad ray (a pose far out of range)
-        raise Invalid(str(exc)) from None
-    hit_list = replace(hit_list, mesh=engine.map_mesh(hit_list.mesh))
-    stats = None
-    if hit_list.stats is not None:
-        stats = {**hit_list.stats, "strategy": checked.strategy}
-    return hit_list, stats
+    """Every hit of the scan's rays within its range window, at most ``max_hits`` a ray, as the
+    ``/hits`` query answers it: (arrays offsets, t, mesh, prim, normal; stats or None)."""
+    hits = options.hits(max_hits)
+    result = tracing.trace(
+        snapshot, Rays(origins, directions, scan.min_range, scan.max_range), hits
+    )
+    return result.arrays, result.stats
