@@ -53,10 +53,14 @@ def first_requests(http) -> None:
     ]
     for fmt, data in mesh_files().items():
         sent.append(http.put(f"/v1/scenes/p/meshes/{fmt}", content=data, params={"format": fmt}))
-    for query in ("closest", "occluded"):
+    sent.append(http.put("/v1/scenes/p/meshes/masked?mask=0x2", json=mesh))
+    sent.append(http.put("/v1/scenes/p/meshes/json/transform", json={"matrix": np.eye(4).tolist()}))
+    for query in ("closest", "occluded", "hits", "count"):
         for body in (npy_bytes(rays[:, :6]), npy_bytes(rays)):
             sent.append(http.post(f"/v1/scenes/p/{query}", content=body, headers=NPY))
         sent.append(http.post(f"/v1/scenes/p/{query}", json=rays_json))
+        sent.append(http.post(f"/v1/scenes/p/{query}", json={**rays_json, "mask": [1, 2]}))
+        sent.append(http.post(f"/v1/scenes/p/{query}?cull=back&mask=0x2", json=rays_json))
         sent.append(http.post(f"/v1/trace?query={query}", json={**mesh, **rays_json}))
     from dacrt.chunks import MIN_RAYS_PER_THREAD  # batches this big run on several threads
 
