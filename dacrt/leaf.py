@@ -5,6 +5,7 @@ import numpy as np
 from .config import inline
 from .contracts import NAN32, NEG_INF32
 from .geometry import (
+    corners_from_origin,
     crossing,
     culled,
     culled_side,
@@ -39,13 +40,16 @@ BY_RAYS_MIN_RAYS = 16
 def leaf_scratch():
     """Scratch for intersect_leaf, one tuple: a block's corners (9 rows of LEAF_BLOCK) and
     distances; for a block of rays, their best triangles and ``block_rows`` (u and v, then the
-    rays' fields: RAY_ROWS). Zeros, so padding lanes that were never written compute on
-    ordinary numbers."""
+    rays' fields: RAY_ROWS); and the crossings found for ``record_crossings`` (records, then
+    t; their triangles go in the best-triangle row), up to 2 LEAF_BLOCK. Zeros, so padding
+    lanes that were never written compute on ordinary numbers."""
     return (
         np.zeros(9 * LEAF_BLOCK, np.float64),
         np.zeros(LEAF_BLOCK, np.float32),
-        np.zeros(LEAF_BLOCK, np.int32),
+        np.zeros(2 * LEAF_BLOCK, np.int32),
         np.zeros((2 + RAY_ROWS, LEAF_BLOCK), np.float32),
+        np.zeros(2 * LEAF_BLOCK, np.int32),
+        np.zeros(2 * LEAF_BLOCK, np.float32),
     )
 
 
@@ -168,6 +172,20 @@ def intersect_leaf(
     triangles, at least BY_RAYS_MIN_RAYS rays); the order of tests changes no answer."""
     # Culling and masks are tested by triangles only, outside the vectorised loops: a test in
     # those loops slows every query.
+    if flags & COLLECT and tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS:
+        return collect_leaf_by_rays(
+            flags,
+            tri_verts,
+            rays,
+            ray_ids,
+            ray_lo,
+            ray_hi,
+            tri_ids,
+            tri_lo,
+            tri_hi,
+            arrays,
+            scratch,
+        )
     if flags & COLLECT:
         return collect_leaf(
             flags,
@@ -210,7 +228,7 @@ def intersect_leaf_by_rays(
     triangle in one vectorised loop that keeps the block's best (t, triangle, u, v); then
     the rays whose best changed take it. The loop keeps u and v with t, so no better hit needs
     the scalar test again, and starts with no triangle, so no ray's best is gathered first."""
-    _, t_block, tri_block, block_rows = scratch
+    _, t_block, tri_block, block_rows, _, _ = scratch
     best_tri = arrays.best_tri
     hit_u = arrays.hit_u
     hit_v = arrays.hit_v
@@ -256,7 +274,7 @@ def intersect_leaf_by_triangles(
     """intersect_leaf for few rays: triangles go in blocks of LEAF_BLOCK, copied to float64
     rows (``corners``), so each ray's tests over a block run as one vectorised loop; the
     winner's u, v then come from the scalar test, which is the same arithmetic."""
-    corners, t_block, _, _ = scratch
+    corners, t_block, _, _, _, _ = scratch
     # Arrays are taken from the record once: each access in a loop would count a reference.
     best_tri = arrays.best_tri
     hit_u = arrays.hit_u
@@ -361,13 +379,129 @@ def ray_frame(rays, r):
 
 
 @inline
+def collect_leaf_by_rays(
+    flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
+):
+    """collect_leaf for few triangles, at least BY_RAYS_MIN_RAYS rays: blocks of LEAF_BLOCK
+    rays, a block's distances to one triangle in one vectorised loop
+    (``block_crossing_distances``); each distance in its ray's [tmin, best_t] is a candidate,
+    confirmed by the half-open ``crossing``, its mask and culling, and the block's crossings
+    go to ``record_crossings``."""
+    _, t_block, found_tri, block_rows, found_at, found_t = scratch
+    n_hits = arrays.n_hits
+    list_t = arrays.list_t
+    list_tri = arrays.list_tri
+    ray_masks = arrays.ray_masks
+    tri_masks = arrays.tri_masks
+    count_only = (flags & ALL_HITS) == 0
+    masked = (flags & MASKED) != 0
+    cull_side = culled_side(flags)
+    n_tests = 0
+    for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
+        n = min(LEAF_BLOCK, ray_hi - block_lo)
+        q0 = rays[ORIGIN_QUAD, 4 * block_lo : 4 * (block_lo + n)]
+        q1 = rays[DIRECTION_QUAD, 4 * block_lo : 4 * (block_lo + n)]
+        for i in range(n):
+            for a in range(3):
+                block_rows[2 + a, i] = q0[4 * i + a]
+                block_rows[5 + a, i] = q1[4 * i + a]
+            block_rows[8, i] = q0[4 * i + 3]
+        n_found = 0
+        for k in range(tri_lo, tri_hi):
+            n_tests += n
+            tri = tri_ids[k]
+            block_crossing_distances(n, tri_verts, tri, block_rows, t_block)
+            for i in range(n):
+                t = t_block[i]
+                if not (t >= block_rows[8, i]):
+                    continue
+                r = block_lo + i
+                best = field(rays, BEST_T, r)
+                if not (t <= best):
+                    continue
+                ray = ray_ids[r]
+                if masked and (tri_masks[tri] & ray_masks[ray]) == 0:
+                    continue
+                kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_frame(rays, r)
+                ax, ay, az, bx, by, bz, cx, cy, cz = corners_from_origin(
+                    tri_verts, tri, okx, oky, okz, kx, ky, kz
+                )
+                hit, det = crossing(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
+                if not hit or det * cull_side > 0.0:
+                    continue
+                found_at[n_found] = r
+                found_tri[n_found] = tri
+                found_t[n_found] = t
+                n_found += 1
+            # The next triangle finds at most LEAF_BLOCK more.
+            if n_found > LEAF_BLOCK or (n_found and k == tri_hi - 1):
+                record_crossings(
+                    count_only,
+                    n_hits,
+                    list_t,
+                    list_tri,
+                    rays,
+                    ray_ids,
+                    found_at,
+                    found_tri,
+                    found_t,
+                    n_found,
+                )
+                n_found = 0
+    return n_tests
+
+
+@inline
+def block_crossing_distances(n, tri_verts, tri, block_rows, t_block):
+    """t_block[i] = the distance (``woop_hit``, NaN for a miss) of ray i of a block of rays
+    (rows 2-7 of ``block_rows``) to triangle ``tri``: one vectorised loop."""
+    p0x = np.float64(tri_verts[tri, 0])
+    p0y = np.float64(tri_verts[tri, 1])
+    p0z = np.float64(tri_verts[tri, 2])
+    p1x = np.float64(tri_verts[tri, 3])
+    p1y = np.float64(tri_verts[tri, 4])
+    p1z = np.float64(tri_verts[tri, 5])
+    p2x = np.float64(tri_verts[tri, 6])
+    p2y = np.float64(tri_verts[tri, 7])
+    p2z = np.float64(tri_verts[tri, 8])
+    ox_row = block_rows[2, :n]
+    oy_row = block_rows[3, :n]
+    oz_row = block_rows[4, :n]
+    dx_row = block_rows[5, :n]
+    dy_row = block_rows[6, :n]
+    dz_row = block_rows[7, :n]
+    for i in range(n):
+        kx, ky, kz, sx, sy, sz = watertight_setup(dx_row[i], dy_row[i], dz_row[i])
+        ox = np.float64(ox_row[i])
+        oy = np.float64(oy_row[i])
+        oz = np.float64(oz_row[i])
+        okx = pick(kx, ox, oy, oz)
+        oky = pick(ky, ox, oy, oz)
+        okz = pick(kz, ox, oy, oz)
+        t_block[i], _, _ = woop_hit(
+            pick(kx, p0x, p0y, p0z) - okx,
+            pick(ky, p0x, p0y, p0z) - oky,
+            pick(kz, p0x, p0y, p0z) - okz,
+            pick(kx, p1x, p1y, p1z) - okx,
+            pick(ky, p1x, p1y, p1z) - oky,
+            pick(kz, p1x, p1y, p1z) - okz,
+            pick(kx, p2x, p2y, p2z) - okx,
+            pick(ky, p2x, p2y, p2z) - oky,
+            pick(kz, p2x, p2y, p2z) - okz,
+            sx,
+            sy,
+            sz,
+        )
+
+
+@inline
 def collect_leaf(
     flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
 ):
-    """intersect_leaf of ``count`` and ``hits`` (COLLECT): blocks of triangles as for
-    ``intersect_leaf_by_triangles``, then every distance of a ray in its [tmin, best_t] is a
-    candidate for ``collect_hits``. Its own function, so the closest-hit leaf stays as small."""
-    corners, t_block, _, _ = scratch
+    """intersect_leaf of ``count`` and ``hits`` (COLLECT) by triangles: blocks of triangles as
+    for ``intersect_leaf_by_triangles``; a ray's crossings of a block (``collect_hits``) go to
+    ``record_crossings``. Its own function, so the closest-hit leaf stays as small."""
+    corners, t_block, found_tri, _, found_at, found_t = scratch
     ray_masks = arrays.ray_masks
     tri_masks = arrays.tri_masks
     n_hits = arrays.n_hits
@@ -380,6 +514,7 @@ def collect_leaf(
     for block_lo in range(tri_lo, tri_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, tri_hi - block_lo)
         gather_block(tri_verts, tri_ids, block_lo, n, corners)
+        n_found = 0
         for r in range(ray_lo, ray_hi):
             kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_frame(rays, r)
             n_tests += n
@@ -400,11 +535,8 @@ def collect_leaf(
             ray = ray_ids[r]
             if masked:
                 hide_unseen(ray_masks[ray], tri_masks, tri_ids, block_lo, n, t_block)
-            best = collect_hits(
-                count_only,
-                n_hits,
-                list_t,
-                list_tri,
+            n_found += collect_hits(
+                n_found,
                 corners,
                 tri_ids,
                 block_lo,
@@ -412,7 +544,7 @@ def collect_leaf(
                 t_block,
                 field(rays, TMIN, r),
                 field(rays, BEST_T, r),
-                ray,
+                r,
                 okx,
                 oky,
                 okz,
@@ -423,8 +555,25 @@ def collect_leaf(
                 sy,
                 sz,
                 cull_side,
+                found_at,
+                found_tri,
+                found_t,
             )
-            set_field(rays, BEST_T, r, best)
+            # The next ray finds at most LEAF_BLOCK more.
+            if n_found > LEAF_BLOCK or (n_found and r == ray_hi - 1):
+                record_crossings(
+                    count_only,
+                    n_hits,
+                    list_t,
+                    list_tri,
+                    rays,
+                    ray_ids,
+                    found_at,
+                    found_tri,
+                    found_t,
+                    n_found,
+                )
+                n_found = 0
     return n_tests
 
 
@@ -439,10 +588,7 @@ def hide_unseen(ray_mask, tri_masks, tri_ids, block_lo, n, t_block):
 
 @inline
 def collect_hits(
-    count_only,
-    n_hits,
-    list_t,
-    list_tri,
+    first,
     corners,
     tri_ids,
     block_lo,
@@ -450,7 +596,7 @@ def collect_hits(
     t_block,
     t_lo,
     best,
-    ray,
+    r,
     okx,
     oky,
     okz,
@@ -461,19 +607,16 @@ def collect_hits(
     sy,
     sz,
     cull_side,
+    found_at,
+    found_tri,
+    found_t,
 ):
-    """Count (``count_only``) or list the crossings of ray ``ray`` with a block's triangles,
-    whose corners are ``corners`` (as for ``block_distances``) and distances ``t_block``;
-    returns the ray's new best_t.
-
-    ``n_hits`` and the lists are those of ``QueryArrays``: a ray's list is kept sorted by
-    (t, kernel row) and at most as long as the lists' rows (the farthest falls off). A distance
-    in [t_lo, best] is a candidate, confirmed by the half-open ``crossing`` (a subset of the
-    inclusive test that gave it), then by culling. best_t stays tmax while the ray's list has
-    room and then becomes its last entry's t, which bounds the boxes a ray still visits. No
-    call here takes several arrays: each would count references to them."""
-    list_size = list_t.shape[1]
-    last = list_size - 1
+    """The crossings of record ``r`` with a block's triangles, whose corners are ``corners`` (as
+    for ``block_distances``) and distances ``t_block``, into ``found_at`` (r), ``found_tri`` and
+    ``found_t`` from index ``first`` on; returns how many. A distance in [t_lo, best] is a
+    candidate, confirmed by the half-open ``crossing`` (a subset of the inclusive test that gave
+    it), then by culling."""
+    n_found = first
     for k in range(n):
         t = t_block[k]
         if not (t >= t_lo and t <= best):
@@ -494,11 +637,34 @@ def collect_hits(
         )
         if not hit or det * cull_side > 0.0:
             continue
+        found_at[n_found] = r
+        found_tri[n_found] = tri_ids[block_lo + k]
+        found_t[n_found] = t
+        n_found += 1
+    return n_found - first
+
+
+@inline
+def record_crossings(
+    count_only, n_hits, list_t, list_tri, rays, ray_ids, found_at, found_tri, found_t, n_found
+):
+    """Record a block's ``n_found`` crossings (record, triangle, t): count them
+    (``count_only``), or insert each into its ray's list, kept sorted by (t, kernel row) and at
+    most as long as the lists' rows (the farthest falls off). A ray's best_t stays tmax while its
+    list has room, then becomes its last entry's t, which bounds the boxes it still visits.
+    Crossings are gathered and recorded by the dozen: a call per crossing would count
+    references to its arrays each time."""
+    list_size = list_t.shape[1]
+    last = list_size - 1
+    for j in range(n_found):
+        r = found_at[j]
+        ray = ray_ids[r]
         n_held = n_hits[ray]
         if count_only:
             n_hits[ray] = n_held + 1
             continue
-        tri = tri_ids[block_lo + k]
+        t = found_t[j]
+        tri = found_tri[j]
         if n_held == list_size and not (
             t < list_t[ray, last] or (t == list_t[ray, last] and tri < list_tri[ray, last])
         ):
@@ -517,5 +683,4 @@ def collect_hits(
             n_held += 1
             n_hits[ray] = n_held
         if n_held == list_size:
-            best = list_t[ray, last]
-    return best
+            set_field(rays, BEST_T, r, list_t[ray, last])
