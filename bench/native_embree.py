@@ -1,0 +1,156 @@
+"""Per frame against native Embree: dacrt's new scene + trace beside the C++ anchor of the shared
+folder (``anchors/embree_native.cpp``: Embree 3, a fresh build at low or medium quality or a refit
+of moved vertices, then ``rtcIntersect1`` / ``rtcOccluded1`` on every thread).
+
+The anchor is compiled on first use (``g++``, Debian's ``libembree-dev`` and ``libtbb-dev``) into
+``--build-dir``. For each scene and ray kind it is fed the same rays as dacrt, its answers are
+checked against dacrt's (hit or not, and t), and a frame of each quality is its build + trace (the
+minimum over its repetitions); Embree's best frame is the best of low, medium and refit, the
+choice a C++ user would make. dacrt's frame is ``dacrt.Scene`` + the query, the median and the
+minimum of ``--repeat`` frames on ``--threads`` threads, run between the anchor's runs.
+
+    python -m bench.native_embree ../shared/scenes/sibenik.npz --rays 1000000 --threads 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from bench import rays as R
+from bench.run import KINDS, make_ray_sets, reference_tracer
+from bench.scene_io import load_mesh, load_view, mesh_bounds
+
+ANCHOR = Path(__file__).resolve().parents[2] / "shared" / "anchors" / "embree_native.cpp"
+QUALITIES = ("low", "medium", "refit")
+
+
+def build_anchor(source: Path, build_dir: Path) -> Path:
+    """The anchor's executable, compiled from ``source`` unless it is there and newer."""
+    binary = build_dir / "embree_native"
+    if binary.exists() and binary.stat().st_mtime >= source.stat().st_mtime:
+        return binary
+    build_dir.mkdir(parents=True, exist_ok=True)
+    command = ["g++", "-O3", "-march=native", "-std=c++17", str(source), "-o", str(binary)]
+    command += ["-lembree3", "-lpthread"]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode:
+        raise SystemExit(
+            f"building the anchor failed (apt-get install -y libembree-dev libtbb-dev):\n"
+            f"{result.stderr}"
+        )
+    return binary
+
+
+def write_inputs(folder: Path, vertices, faces, rays: R.RaySet) -> None:
+    n = rays.n_rays
+    table = np.empty((n, 8), np.float32)
+    table[:, :3] = rays.origins
+    table[:, 3:6] = rays.directions
+    table[:, 6] = 0.0
+    table[:, 7] = rays.tmax
+    np.ascontiguousarray(vertices, np.float32).tofile(folder / "vertices.f32")
+    np.ascontiguousarray(faces, np.int32).tofile(folder / "faces.i32")
+    table.tofile(folder / "rays.f32")
+    (folder / "query.txt").write_text(rays.query)
+
+
+def run_anchor(binary: Path, folder: Path, quality: str, threads: int, reps: int):
+    """(build ms, trace ms, the anchor's t) of one quality."""
+    result = subprocess.run(
+        [str(binary), str(folder), quality, str(threads), str(reps)],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    build_ms, trace_ms = (float(x) for x in result.stdout.split()[:2])
+    return build_ms, trace_ms, np.fromfile(folder / "t.f32", np.float32)
+
+
+def dacrt_frame(dacrt, vertices, faces, rays: R.RaySet, threads: int):
+    start = time.perf_counter()
+    scene = dacrt.Scene([(vertices, faces)])
+    if rays.query == R.CLOSEST:
+        answer = scene.closest(rays.origins, rays.directions, tmax=rays.tmax, threads=threads)
+        t = answer.t
+    else:
+        answer = scene.occluded(rays.origins, rays.directions, tmax=rays.tmax, threads=threads)
+        t = np.where(answer.occluded, 0.0, np.inf).astype(np.float32)
+    return (time.perf_counter() - start) * 1e3, t
+
+
+def agreement(ours: np.ndarray, theirs: np.ndarray, diagonal: float) -> float:
+    """Fraction of rays with the same hit or miss and, for hits, t within 1e-4 of the diagonal."""
+    same_hit = np.isfinite(ours) == np.isfinite(theirs)
+    both = np.isfinite(ours) & np.isfinite(theirs)
+    close = np.ones_like(same_hit)
+    close[both] = np.abs(ours[both] - theirs[both]) <= 1e-4 * diagonal
+    return float(np.mean(same_hit & close))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("scenes", nargs="+")
+    parser.add_argument("--rays", type=int, default=1_000_000)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--kinds", default=",".join(KINDS))
+    parser.add_argument("--anchor", type=Path, default=ANCHOR)
+    parser.add_argument("--build-dir", type=Path, default=Path.home() / ".cache" / "dacrt-bench")
+    args = parser.parse_args(argv)
+    kinds = args.kinds.split(",")
+
+    import dacrt
+
+    binary = build_anchor(args.anchor, args.build_dir)
+    print(
+        "| scene | rays | dacrt ms (median, min) | Embree low | medium | refit "
+        "(build + trace ms) | Embree best / dacrt | agree |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for path in args.scenes:
+        vertices, faces = load_mesh(path)
+        bounds = mesh_bounds(vertices, faces)
+        _, view = load_view(path, bounds)
+        _, trace = reference_tracer(vertices, faces)
+        options = SimpleNamespace(seed=0, bounces=[1])
+        ray_sets = make_ray_sets(options, view, bounds, trace, args.rays, kinds)
+        diagonal = R.scene_diagonal(bounds)
+        folder = Path(tempfile.mkdtemp(prefix="native-embree-"))
+        try:
+            for rays in ray_sets:
+                write_inputs(folder, vertices, faces, rays)
+                dacrt_frame(dacrt, vertices, faces, rays, args.threads)  # compile, page in
+                ours_ms, frames, agree = [], {}, []
+                for quality in QUALITIES:
+                    ms, ours = dacrt_frame(dacrt, vertices, faces, rays, args.threads)
+                    ours_ms.append(ms)
+                    build_ms, trace_ms, theirs = run_anchor(
+                        binary, folder, quality, args.threads, args.repeat
+                    )
+                    frames[quality] = (build_ms, trace_ms)
+                    agree.append(agreement(ours, theirs, diagonal))
+                for _ in range(max(0, args.repeat - len(QUALITIES))):
+                    ours_ms.append(dacrt_frame(dacrt, vertices, faces, rays, args.threads)[0])
+                best = min(build + trace for build, trace in frames.values())
+                cells = " | ".join(f"{b:.1f} + {t:.1f}" for b, t in frames.values())
+                print(
+                    f"| {Path(path).stem} | {rays.kind} {rays.n_rays} "
+                    f"| {np.median(ours_ms):.1f}, {min(ours_ms):.1f} | {cells} "
+                    f"| {best / np.median(ours_ms):.2f} | {min(agree):.5f} |",
+                    flush=True,
+                )
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
