@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 
 import numpy as np
 
@@ -42,8 +43,8 @@ except ImportError as exc:  # pragma: no cover - the message is the point
     raise ImportError('dacrt.distributed needs dask.distributed: pip install ".[dask]"') from exc
 
 #: Fewest rays in a shard (but for a batch smaller than this): a worker's DACRT gains with rays
-#: per node, and below about this many a single-threaded shard traces measurably slower per ray
-#: (docs/cluster.md has the figures).
+#: per node; one thread traces shards of this size at about 7/8 of its rate on shards four times
+#: larger, and at about 5/8 on shards four times smaller (docs/cluster.md has the figures).
 MIN_SHARD_RAYS = 1 << 18
 #: Most rays in a shard: bounds a worker's memory per shard (about 60 bytes a ray in and out for
 #: closest) and the work sent again when a worker is lost.
@@ -97,11 +98,17 @@ def _worker_scene(key, payload):
         return scene
 
 
+def _build(key, payload):
+    _worker_scene(key, payload)
+
+
 def _trace_shard(key, payload, query, shard, kwargs):
-    """One shard's answer (on a worker)."""
+    """One shard's answer and the seconds its trace took (on a worker)."""
     origins, directions, tmin, tmax, mask = shard
     scene = _worker_scene(key, payload)
-    return getattr(scene, query)(origins, directions, tmin, tmax, mask=mask, **kwargs)
+    start = time.perf_counter()
+    answer = getattr(scene, query)(origins, directions, tmin, tmax, mask=mask, **kwargs)
+    return answer, time.perf_counter() - start
 
 
 def _forget(key):
@@ -156,6 +163,9 @@ class DistributedScene:
         self.retries = retries
         self.shard_rays = (min_shard_rays, max_shard_rays)
         self.resent = 0  #: shards sent again after their worker was lost, over every query
+        #: the last query's shards, seconds scattering its rays (``send``), seconds of the
+        #: workers' traces summed over shards (``trace``) and on the caller's clock (``wall``)
+        self.last_query = {}
         self.timeout = timeout
         self.n_meshes = n_meshes
         self.n_triangles = sum(len(faces) for _, faces in checked)
@@ -186,6 +196,17 @@ class DistributedScene:
                 self.client.run(_forget, self.key)
             except OSError:  # a worker or the scheduler went away: nothing left to drop there
                 pass
+
+    def build(self):
+        """Build the Scene on every worker now rather than on its first shard; answers the
+        seconds it took."""
+        start = time.perf_counter()
+        futures = [
+            self.client.submit(_build, self.key, self._payload, workers=[worker], pure=False)
+            for worker in self.client.nthreads()
+        ]
+        self.client.gather(futures)
+        return time.perf_counter() - start
 
     def threads(self):
         """Threads of the cluster's workers, in all."""
@@ -252,11 +273,14 @@ class DistributedScene:
             raise ClusterError(f"the dask client is {client.status}, not connected")
         answers = [None] * len(shards)
         tries = [0] * len(shards)
+        clock = {"shards": len(shards), "send": 0.0, "trace": 0.0, "wall": time.perf_counter()}
         sent = {}  # future -> (shard index, the scattered rays it holds on to)
-        done = distributed.as_completed(timeout=self.timeout)
+        done = distributed.as_completed(loop=client.loop, timeout=self.timeout)
 
         def send(indices):
+            start = time.perf_counter()
             held = client.scatter([shards[i] for i in indices], hash=False)
+            clock["send"] += time.perf_counter() - start
             for i, rays in zip(indices, held):
                 future = client.submit(
                     _trace_shard, self.key, self._payload, query, rays, options, pure=False
@@ -271,7 +295,8 @@ class DistributedScene:
                 failure = None
                 if future.status == "finished":
                     try:
-                        answers[i] = future.result()
+                        answers[i], seconds = future.result()
+                        clock["trace"] += seconds
                         continue
                     except Exception as exc:  # the answer went with its worker
                         failure = exc
@@ -284,8 +309,9 @@ class DistributedScene:
                 tries[i] += 1
                 if tries[i] > self.retries:
                     raise ClusterError(
-                        f"rays {bounds[i]}:{bounds[i + 1]} failed {tries[i]} times on the "
-                        f"cluster, last: {type(failure).__name__}: {failure}"
+                        f"rays {bounds[i]}:{bounds[i + 1]} failed on the cluster "
+                        f"({tries[i]} of {self.retries + 1} tries), last: "
+                        f"{type(failure).__name__}: {failure}"
                     ) from failure
                 self.resent += 1
                 send([i])
@@ -296,6 +322,8 @@ class DistributedScene:
         finally:
             for future in sent:
                 future.cancel()
+        clock["wall"] = time.perf_counter() - clock["wall"]
+        self.last_query = clock
         return answers
 
 
