@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import sys
 import threading
 import time
 
@@ -27,13 +28,16 @@ SMALL_SHARDS = {"min_shard_rays": 64, "max_shard_rays": 512}
 
 @pytest.fixture(scope="module")
 def client():
-    """One LocalCluster for the module: 2 worker processes of 1 thread."""
+    """One LocalCluster for the module: 2 worker processes of 1 thread. When this process files
+    Numba's kernels as the service does (``service.cache``, imported by the service tests), the
+    workers do too: they load the kernels compiled here rather than compile them again."""
     cluster = distributed.LocalCluster(
         n_workers=2,
         threads_per_worker=1,
         processes=True,
         dashboard_address=None,
         silence_logs=logging.CRITICAL,
+        preload=["service"] if "service" in sys.modules else [],
     )
     client = distributed.Client(cluster, set_as_default=False)  # as the service's
     client.wait_for_workers(2)
