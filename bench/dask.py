@@ -11,13 +11,15 @@ throughput against the shard size, the figure behind ``dacrt.distributed.MIN_SHA
 Then, on paper: the bytes of a scene version and of a shard, and what they predict for 8 and 32
 machines on a 10 Gbit/s network, each machine tracing at the measured 2-worker rate.
 
-Needs the ``dask`` extra. The machine may be shared: quote medians and ratios of one run.
+Needs the ``dask`` extra. The machine may be shared: quote medians and ratios of one run, with
+the 1-minute load average printed beside each (above the machine's cores, other work took CPU).
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import statistics
 import time
 from pathlib import Path
@@ -105,6 +107,7 @@ def run(args):
                         for _ in range(args.repeats):
                             remote.closest(batch.origins, batch.directions)
                             runs.append(dict(remote.last_query))
+                        load = os.getloadavg()[0]  # the machine may be shared
                         wall = statistics.median(r["wall"] for r in runs)
                         rows.append(
                             {
@@ -116,13 +119,14 @@ def run(args):
                                 "send": statistics.median(r["send"] for r in runs),
                                 "trace": statistics.median(r["trace"] for r in runs),
                                 "shards": runs[0]["shards"],
+                                "load": load,
                             }
                         )
                         print(
                             f"{name:8} {kind:8} {n / 2**20:5.0f}M  {n_workers} worker(s): "
                             f"wall {wall:7.2f} s  send {rows[-1]['send']:6.2f} s  "
                             f"trace {rows[-1]['trace']:7.2f} s (summed, "
-                            f"{rows[-1]['shards']} shards)",
+                            f"{rows[-1]['shards']} shards), load {load:.1f}",
                             flush=True,
                         )
                 remote.close()
@@ -133,8 +137,11 @@ def run(args):
 
 
 def report(rows, scenes, counts):
-    print("\n| scene | rays | 1 worker | 2 workers | speed-up | 2 workers: send / trace / rest |")
-    print("|---|---|---|---|---|---|")
+    print(
+        "\n| scene | rays | 1 worker | 2 workers | speed-up | 2 workers: send / trace / rest "
+        "| load (1 / 2 workers) |"
+    )
+    print("|---|---|---|---|---|---|---|")
     by = {(r["scene"], r["kind"], r["rays"], r["workers"]): r for r in rows}
     rates = []
     for scene, kind, n, workers in by:
@@ -146,7 +153,7 @@ def report(rows, scenes, counts):
         print(
             f"| {scene} {kind} | {n / 2**20:.0f}M | {one['wall']:.2f} s | {two['wall']:.2f} s "
             f"| {one['wall'] / two['wall']:.2f}x | {two['send']:.2f} / {two['trace'] / 2:.2f} "
-            f"/ {rest:.2f} s |"
+            f"/ {rest:.2f} s | {one['load']:.1f} / {two['load']:.1f} |"
         )
     print("\n| scene | triangles: bytes | scatter (1 / 2 workers) | Scene build on a worker |")
     print("|---|---|---|---|")

@@ -248,7 +248,8 @@ class DistributedScene:
             mask = np.asarray(mask)
             if mask.ndim:
                 mask = check_masks(mask, n, "mask", "ray")
-        bounds = shard_bounds(n, self.threads(), *self.shard_rays)
+        nthreads = self.client.nthreads()
+        bounds = shard_bounds(n, sum(nthreads.values()), *self.shard_rays)
         shards = [
             (
                 origins[a:b],
@@ -260,13 +261,13 @@ class DistributedScene:
             for a, b in zip(bounds[:-1], bounds[1:])
         ]
         try:
-            answers = self._map(query, shards, options, bounds)
+            answers = self._map(query, shards, options, bounds, nthreads)
         except ValueError:
             explain_bad_rays(origins, directions, tmin, tmax)  # names the batch's first bad ray
             raise
         return join(answers)
 
-    def _map(self, query, shards, options, bounds):
+    def _map(self, query, shards, options, bounds, nthreads):
         """Each shard's answer, in order; lost shards are sent again."""
         client = self.client
         if client.status != "running":
@@ -277,22 +278,48 @@ class DistributedScene:
         sent = {}  # future -> (shard index, the scattered rays it holds on to)
         done = distributed.as_completed(loop=client.loop, timeout=self.timeout)
 
-        def send(indices):
-            start = time.perf_counter()
-            held = client.scatter([shards[i] for i in indices], hash=False)
-            clock["send"] += time.perf_counter() - start
-            for i, rays in zip(indices, held):
-                future = client.submit(
-                    _trace_shard, self.key, self._payload, query, rays, options, pure=False
-                )
-                sent[future] = (i, rays)
-                done.add(future)
+        # One slot per worker thread, the workers taking turns: shard i goes to slot i.
+        slots = [
+            w for k in range(max(nthreads.values(), default=0)) for w in nthreads if nthreads[w] > k
+        ]
+
+        def lost(i, failure):
+            """Count a failed try of shard i; ClusterError past the retries."""
+            tries[i] += 1
+            if tries[i] > self.retries:
+                raise ClusterError(
+                    f"rays {bounds[i]}:{bounds[i + 1]} failed on the cluster "
+                    f"({tries[i]} of {self.retries + 1} tries), last: "
+                    f"{type(failure).__name__}: {failure}"
+                ) from failure
+            self.resent += 1
+
+        def send(i):
+            """Scatter shard i and trace it there: each shard is traced as soon as it has
+            arrived, while the next ones are sent. A shard sent again goes wherever the
+            scheduler likes (its slot's worker may be gone)."""
+            while True:
+                start = time.perf_counter()
+                workers = [slots[i % len(slots)]] if slots and not tries[i] else None
+                try:
+                    [rays] = client.scatter([shards[i]], workers=workers, hash=False)
+                    break
+                except (OSError, KeyError) as exc:  # that worker went away
+                    lost(i, exc)
+                    time.sleep(0.1 * tries[i])  # the scheduler has yet to notice
+                finally:
+                    clock["send"] += time.perf_counter() - start
+            future = client.submit(
+                _trace_shard, self.key, self._payload, query, rays, options, pure=False
+            )
+            sent[future] = (i, rays)
+            done.add(future)
 
         try:
-            send(range(len(shards)))
+            for i in range(len(shards)):
+                send(i)
             for future in done:
                 i, _ = sent.pop(future)
-                failure = None
                 if future.status == "finished":
                     try:
                         answers[i], seconds = future.result()
@@ -306,15 +333,8 @@ class DistributedScene:
                         raise failure  # the rays or the arguments: sending again will not help
                 else:
                     failure = RuntimeError(f"shard {future.status}")
-                tries[i] += 1
-                if tries[i] > self.retries:
-                    raise ClusterError(
-                        f"rays {bounds[i]}:{bounds[i + 1]} failed on the cluster "
-                        f"({tries[i]} of {self.retries + 1} tries), last: "
-                        f"{type(failure).__name__}: {failure}"
-                    ) from failure
-                self.resent += 1
-                send([i])
+                lost(i, failure)
+                send(i)
         except distributed.TimeoutError as exc:
             raise ClusterError(f"the batch took over {self.timeout} s on the cluster") from exc
         except OSError as exc:
