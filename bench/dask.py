@@ -59,7 +59,7 @@ def cluster(n_workers):
         n_workers=n_workers,
         threads_per_worker=1,
         processes=True,
-        dashboard_address=None,
+        dashboard_address=":0",  # never a fixed port: other clusters may run
         silence_logs=logging.ERROR,
     )
     return local, distributed.Client(local)
