@@ -43,8 +43,9 @@ except ImportError as exc:  # pragma: no cover - the message is the point
     raise ImportError('dacrt.distributed needs dask.distributed: pip install ".[dask]"') from exc
 
 #: Fewest rays in a shard (but for a batch smaller than this): a worker's DACRT gains with rays
-#: per node; one thread traces shards of this size at about 7/8 of its rate on shards four times
-#: larger, and at about 5/8 on shards four times smaller (docs/cluster.md has the figures).
+#: per node, and one thread traces shards of this size at 0.4 to 0.7 of its rate on shards of 1 Mi
+#: rays (docs/cluster.md has the figures); smaller shards would leave threads idle on batches of
+#: a few million rays instead.
 MIN_SHARD_RAYS = 1 << 18
 #: Most rays in a shard: bounds a worker's memory per shard (about 60 bytes a ray in and out for
 #: closest) and the work sent again when a worker is lost.
