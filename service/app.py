@@ -17,6 +17,7 @@ from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
 from . import CACHE_DIR, __version__, errors, openapi, warmup, wire
+from .cluster import Cluster
 from .deps import Readiness, require_ready
 from .logs import configure_logging
 from .metrics import Metrics, MetricsMiddleware
@@ -52,7 +53,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             name="dacrt-warmup",
             daemon=True,
         ).start()
+        if app.state.cluster is not None:
+            app.state.cluster.start()
         yield
+        if app.state.cluster is not None:
+            app.state.cluster.close()
 
     app = FastAPI(
         title="dacrt ray-casting service",
@@ -62,6 +67,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings, app.state.store, app.state.metrics = settings, store, metrics
     app.state.readiness = Readiness()
+    app.state.cluster = (
+        Cluster(settings.dask_scheduler, settings.dask_min_rays)
+        if settings.dask_scheduler is not None
+        else None
+    )
     errors.install(app)
     # each router carries its full prefix (route templates in metrics) and its /v1 token check
     for module in (meshes, queries, pictures):

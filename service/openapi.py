@@ -116,11 +116,16 @@ HEALTH = {
     "type": "object",
     "required": ["status", "service", "scenes"],
     "properties": {
-        "status": {"type": "string", "enum": ["starting", "ok", "error"]},
+        "status": {"type": "string", "enum": ["starting", "ok", "degraded", "error"]},
         "service": {"type": "string", "description": "the service's version"},
         "scenes": {"type": "integer"},
         "warmup_seconds": {"type": "number"},
         "detail": {"type": "string", "description": "why the warm-up failed"},
+        "cluster": {
+            "type": "object",
+            "description": "the dask cluster of DACRT_DASK_SCHEDULER, when set (degraded: "
+            "unreachable, queries traced in process)",
+        },
     },
 }
 

@@ -64,6 +64,15 @@ class Settings(BaseSettings):
     #: Numba's compiled kernels (read by ``service.cache`` before the engine is imported)
     cache_dir: Path | None = None
     log_level: Literal[LOG_LEVELS] = "info"  #: the service's and uvicorn's log level
+    #: address of a dask scheduler (``tcp://host:8786``): queries of at least ``dask_min_rays``
+    #: rays are traced on its workers (needs the ``dask`` extra); None: every query in process
+    dask_scheduler: str | None = None
+    dask_min_rays: PositiveInt = 1 * MiB  #: fewest rays of a query traced on the dask cluster
+
+    @field_validator("dask_scheduler", mode="before")
+    @classmethod
+    def _empty_scheduler_is_none(cls, value: object) -> object:
+        return None if value in ("", None) else value
 
     @field_validator("token", mode="before")
     @classmethod

@@ -11,7 +11,7 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -20,6 +20,9 @@ import dacrt
 from .errors import Invalid
 from .store import Snapshot
 from .wire import ANSWER_FORMATS, MeshArrays, Rays
+
+if TYPE_CHECKING:
+    from .cluster import Cluster
 
 
 class Query(str, Enum):  # noqa: UP042 - StrEnum would change str() and format() of members
@@ -160,16 +163,18 @@ class EngineScene:
         return self.mesh_index[positions]  # a miss (-1) picks the trailing -1
 
 
-def build_engine_scene(meshes: Iterable[tuple]) -> EngineScene:
+def build_engine_scene(meshes: Iterable[tuple], scene_type: Any = dacrt.Scene) -> EngineScene:
     """The engine scene of (index, vertices, faces[, mask[, transform]]) tuples (mask: uint32,
     default all ones; transform: (4, 4) or None, the identity); meshes without triangles are left
-    out. Meshes may share arrays (instances): the engine places each by its own transform."""
+    out. Meshes may share arrays (instances): the engine places each by its own transform.
+    ``scene_type`` builds the scene from (meshes, masks=, transforms=): ``dacrt.Scene``, or a
+    ``dacrt.distributed.DistributedScene`` bound to a client (``service.cluster``)."""
     kept = [tuple(mesh) for mesh in meshes if len(mesh[2])]
     indices = np.array([mesh[0] for mesh in kept] + [-1], dtype=np.int32)
     masks = np.array([mesh[3] if len(mesh) > 3 else 0xFFFFFFFF for mesh in kept], np.uint32)
     transforms = [mesh[4] if len(mesh) > 4 else None for mesh in kept]
     try:
-        scene = dacrt.Scene(
+        scene = scene_type(
             [(mesh[1], mesh[2]) for mesh in kept],
             masks=None if (masks == 0xFFFFFFFF).all() else masks,
             transforms=None if all(t is None for t in transforms) else transforms,
@@ -180,9 +185,10 @@ def build_engine_scene(meshes: Iterable[tuple]) -> EngineScene:
     return EngineScene(scene, None if identity else indices)
 
 
-def _snapshot_engine(snapshot: Snapshot) -> EngineScene:
+def _snapshot_engine(snapshot: Snapshot, scene_type: Any = dacrt.Scene) -> EngineScene:
     return build_engine_scene(
-        (m.index, m.vertices, m.faces, m.mask, m.transform) for m in snapshot.meshes.values()
+        ((m.index, m.vertices, m.faces, m.mask, m.transform) for m in snapshot.meshes.values()),
+        scene_type,
     )
 
 
@@ -194,12 +200,27 @@ class TraceResult:
     version: int
     stats: dict[str, Any] | None
     seconds: float  #: engine build (if not cached) + trace
+    where: str = "process"  #: where it was traced: "process", or "cluster" (``service.cluster``)
 
 
-def trace(snapshot: Snapshot, rays: Rays, options: Options) -> TraceResult:
-    """Answer a query on one scene version (the engine scene is built once per version)."""
+def trace(
+    snapshot: Snapshot, rays: Rays, options: Options, cluster: Cluster | None = None
+) -> TraceResult:
+    """Answer a query on one scene version (the engine scene is built once per version).
+
+    With a ``cluster`` (DACRT_DASK_SCHEDULER), a query of at least its ``min_rays`` rays is traced
+    on the cluster's workers, on the same version; in process when the cluster cannot take it."""
     start = time.perf_counter()
     engine = snapshot.cached("dacrt", _snapshot_engine)
+    if cluster is not None:
+        try:
+            remote = cluster.engine_for(snapshot, len(rays), _snapshot_engine)
+            if remote is not None:
+                return _run(remote, rays, options, snapshot.version, start, "cluster")
+        except Invalid:  # the query's fault: the same 422 in process
+            raise
+        except Exception as exc:  # the cluster's: lost, unreachable, too slow
+            cluster.failed(exc)
     return _run(engine, rays, options, snapshot.version, start)
 
 
@@ -221,13 +242,19 @@ def ray_mask(rays: Rays, options: Options) -> np.ndarray | int | None:
 
 
 def _run(
-    engine: EngineScene, rays: Rays, options: Options, version: int, start: float
+    engine: EngineScene,
+    rays: Rays,
+    options: Options,
+    version: int,
+    start: float,
+    where: str = "process",
 ) -> TraceResult:
     kwargs = {
         "cull": options.cull,
         "mask": ray_mask(rays, options),
         "strategy": options.strategy,
-        "threads": options.threads,
+        # threads of this machine; each shard on a cluster's worker takes one of its threads
+        "threads": options.threads if where == "process" else None,
         "stats": options.stats,
     }
     if options.query is Query.HITS:
@@ -242,8 +269,8 @@ def _run(
     if "mesh" in arrays:
         arrays["mesh"] = engine.map_mesh(arrays["mesh"])
     if stats is not None:
-        stats = {**stats, "strategy": options.strategy}
-    return TraceResult(arrays, version, stats, time.perf_counter() - start)
+        stats = {**stats, "strategy": options.strategy, "where": where}
+    return TraceResult(arrays, version, stats, time.perf_counter() - start, where)
 
 
 def warmup() -> float:

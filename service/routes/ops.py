@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
-from fastapi import APIRouter, Depends, Response
+from fastapi import APIRouter, Depends, Request, Response
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, JSONResponse, PlainTextResponse
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from dacrt.chunks import N_CORES
 
 from .. import __version__, openapi, tracing, wire
+from ..cluster import Cluster
 from ..deps import (
     MetricsDep,
     ReadinessDep,
@@ -19,6 +22,14 @@ from ..deps import (
     reject_unknown_query,
     require_token,
 )
+
+
+def get_cluster(request: Request) -> Cluster | None:
+    return request.app.state.cluster
+
+
+#: The dask cluster of DACRT_DASK_SCHEDULER, or None.
+ClusterDep = Annotated[Cluster | None, Depends(get_cluster)]
 
 router = APIRouter(tags=["operations"])
 unauthenticated = [Depends(reject_unknown_query)]
@@ -57,11 +68,11 @@ async def start_page() -> HTMLResponse:
         ),
     },
 )
-async def health(ready: ReadinessDep, store: StoreDep) -> JSONResponse:
+async def health(ready: ReadinessDep, store: StoreDep, cluster: ClusterDep) -> JSONResponse:
     # one string, so that the OpenAPI description stays one line
     (
-        """200 ``{"status": "ok", ...}`` once the engine is compiled; """
-        """503 ``starting``/``error`` before."""
+        """200 ``{"status": "ok", ...}`` once the engine is compiled (``degraded``: its dask """
+        """cluster is unreachable); 503 ``starting``/``error`` before."""
     )
     body = {
         "status": ready.status,
@@ -72,7 +83,11 @@ async def health(ready: ReadinessDep, store: StoreDep) -> JSONResponse:
         body["warmup_seconds"] = round(ready.seconds, 3)
     if ready.error:
         body["detail"] = ready.error
-    return JSONResponse(body, status_code=200 if ready.status == "ok" else 503)
+    if cluster is not None:
+        body["cluster"] = await run_in_threadpool(cluster.describe)
+        if ready.status == "ok" and body["cluster"]["status"] != "ok":
+            body["status"] = "degraded"
+    return JSONResponse(body, status_code=503 if ready.status in ("starting", "error") else 200)
 
 
 @router.get(
@@ -95,8 +110,8 @@ async def metrics(metrics: MetricsDep) -> Response:
     dependencies=[Depends(require_token), Depends(reject_unknown_query)],
     responses=openapi.errors(401, 422),
 )
-async def capabilities(settings: SettingsDep) -> dict:
-    """Formats, fields, strategies and the limits in force."""
+async def capabilities(settings: SettingsDep, cluster: ClusterDep) -> dict:
+    """Formats, fields, strategies, the limits in force and the dask cluster (or null)."""
 
     def media(formats):
         return [wire.MEDIA_TYPES[f] for f in formats]
@@ -119,4 +134,5 @@ async def capabilities(settings: SettingsDep) -> dict:
         "limits": settings.limits(),
         "auth": settings.token is not None,
         "threads": settings.threads or N_CORES,
+        "cluster": None if cluster is None else await run_in_threadpool(cluster.describe),
     }

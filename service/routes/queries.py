@@ -183,7 +183,7 @@ async def answer(
         check_hit_buffers(len(rays), options, settings.max_hits_bytes)
         with timing("trace"):
             result = (
-                tracing.trace(store.snapshot(scene), rays, options)
+                tracing.trace(store.snapshot(scene), rays, options, request.app.state.cluster)
                 if scene is not None
                 else tracing.trace_once(mesh, rays, options)
             )
@@ -193,6 +193,8 @@ async def answer(
 
     result, n_rays, content, length, media = await run_sync(work)
     metrics.traced(options.query.value, n_rays, result.seconds)
+    if result.where != "process":  # e.g. cluster;dur=...: traced on the dask cluster
+        timing.seconds[result.where] = result.seconds
     headers = {"X-Scene-Version": str(result.version), "Server-Timing": timing.header()}
     if result.stats is not None:
         headers["X-Trace-Stats"] = json.dumps(result.stats, separators=(",", ":"))

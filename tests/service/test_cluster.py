@@ -1,0 +1,156 @@
+"""The service with DACRT_DASK_SCHEDULER: large queries traced on a LocalCluster (2 worker
+processes, 1 thread each) give the in-process answers; small ones stay in process; a new scene
+version replaces the old one on the workers; an unreachable scheduler means in-process answers
+and a degraded /health."""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+
+import in_process
+import numpy as np
+import pytest
+from service_helpers import grid
+
+import dacrt
+from service.client import Client
+from service.settings import Settings, SettingsError, load_settings
+
+distributed = pytest.importorskip("distributed")
+
+MIN_RAYS = 2000
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """2 worker processes of 1 thread; they file Numba's kernels where this process does
+    (``service.cache``), so that they load the kernels compiled here rather than compile."""
+    cluster = distributed.LocalCluster(
+        n_workers=2,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=":0",  # never a fixed port: other clusters may run
+        silence_logs=logging.CRITICAL,
+        preload=["service"] if "service" in sys.modules else [],
+    )
+    yield cluster
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def api(cluster):
+    settings = Settings(
+        token=None,
+        load_demo=False,
+        dask_scheduler=cluster.scheduler_address,
+        dask_min_rays=MIN_RAYS,
+    )
+    with in_process.serve(settings) as http:
+        deadline = time.monotonic() + 30  # the connection to the scheduler is made in background
+        while http.get("/health").json()["status"] != "ok" and time.monotonic() < deadline:
+            time.sleep(0.1)
+        yield Client(http=http)
+
+
+@pytest.fixture(scope="module")
+def workers(cluster):
+    """A client of the cluster of its own, to look into the workers."""
+    with distributed.Client(cluster) as client:
+        yield client
+
+
+def held_scenes(workers) -> set[str]:
+    """The keys of the Scenes built on the workers."""
+    held = workers.run(lambda: sorted(__import__("dacrt.distributed").distributed._SCENES))
+    return {key for keys in held.values() for key in keys}
+
+
+def rays(n, seed, z=5.0):
+    rng = np.random.default_rng(seed)
+    origins = np.column_stack([rng.uniform(-0.2, 1.2, (n, 2)), np.full(n, z)]).astype(np.float32)
+    directions = np.column_stack([rng.uniform(-0.02, 0.02, (n, 2)), -np.ones(n)]).astype(np.float32)
+    return origins, directions
+
+
+def test_health_and_capabilities_show_the_cluster(api):
+    health = api.http.get("/health").json()
+    assert health["status"] == "ok"
+    assert health["cluster"]["status"] == "ok"
+    assert health["cluster"]["workers"] == 2 and health["cluster"]["threads"] == 2
+    caps = api.http.get("/v1/capabilities").json()
+    assert caps["cluster"]["workers"] == 2 and caps["cluster"]["min_rays"] == MIN_RAYS
+
+
+def test_large_queries_run_on_the_cluster(api, scene_name):
+    vertices, faces = grid(24)
+    api.put_mesh(scene_name, "ground", vertices, faces)
+    local = dacrt.Scene([(vertices, faces)])
+    origins, directions = rays(6000, 1)
+    answer = api.closest(scene_name, origins, directions, stats=True)
+    assert "cluster" in answer.timing and answer.stats["where"] == "cluster"
+    expected = local.closest(origins, directions)
+    for name in ("t", "prim", "u", "v", "normal"):
+        assert np.array_equal(answer[name], getattr(expected, name)), name
+    assert (answer["mesh"][np.isfinite(answer["t"])] == 0).all()
+    counts = api.query(scene_name, "count", origins, directions)
+    assert np.array_equal(counts["count"], local.count(origins, directions).count)
+    hits = api.query(scene_name, "hits", origins, directions, max_hits=2)
+    assert np.array_equal(hits["offsets"], local.hits(origins, directions, max_hits=2).offsets)
+    small = api.closest(scene_name, origins[: MIN_RAYS - 1], directions[: MIN_RAYS - 1])
+    assert "cluster" not in small.timing
+    assert np.array_equal(small["t"], expected.t[: MIN_RAYS - 1])
+
+
+def test_a_new_version_replaces_the_old_on_the_workers(api, workers, scene_name):
+    vertices, faces = grid(8)
+    api.put_mesh(scene_name, "ground", vertices, faces)
+    origins, directions = rays(4000, 2)
+    before = held_scenes(workers)
+    first = api.closest(scene_name, origins, directions)
+    first_keys = held_scenes(workers) - before
+    # the same mesh raised by 1: every hit comes 1 closer
+    api.put_mesh(scene_name, "ground", vertices + np.float32([0, 0, 1]), faces)
+    second = api.closest(scene_name, origins, directions)
+    assert second.version == first.version + 1 and "cluster" in second.timing
+    hit = np.isfinite(first["t"]) & np.isfinite(second["t"])
+    assert hit.sum() > 1500
+    np.testing.assert_allclose(second["t"][hit], first["t"][hit] - 1, atol=1e-4)
+    after = held_scenes(workers)
+    assert len(first_keys) == 1 and not first_keys & after  # the old version is gone
+    assert after - before  # the new one is there
+
+
+def test_unreachable_scheduler_falls_back(scene_name):
+    settings = Settings(
+        token=None, load_demo=False, dask_scheduler="tcp://127.0.0.1:9", dask_min_rays=10
+    )
+    with in_process.serve(settings) as http:
+        api = Client(http=http)
+        health = http.get("/health")
+        assert health.status_code == 200 and health.json()["status"] == "degraded"
+        assert health.json()["cluster"]["status"] == "unreachable"
+        vertices, faces = grid(8)
+        api.put_mesh(scene_name, "ground", vertices, faces)
+        origins, directions = rays(500, 3)
+        answer = api.closest(scene_name, origins, directions, stats=True)
+        assert "cluster" not in answer.timing and answer.stats["where"] == "process"
+        expected = dacrt.Scene([(vertices, faces)]).closest(origins, directions)
+        assert np.array_equal(answer["t"], expected.t)
+
+
+def test_settings(monkeypatch):
+    monkeypatch.setenv("DACRT_DASK_SCHEDULER", "tcp://10.0.0.5:8786")
+    monkeypatch.setenv("DACRT_DASK_MIN_RAYS", "2_000_000")
+    settings = load_settings()
+    assert settings.dask_scheduler == "tcp://10.0.0.5:8786" and settings.dask_min_rays == 2_000_000
+    monkeypatch.setenv("DACRT_DASK_MIN_RAYS", "0")
+    with pytest.raises(SettingsError, match="DACRT_DASK_MIN_RAYS"):
+        load_settings()
+    monkeypatch.setenv("DACRT_DASK_MIN_RAYS", "1")
+    monkeypatch.setenv("DACRT_DASK_SCHEDULER", "")
+    assert load_settings().dask_scheduler is None
+    monkeypatch.setenv("DACRT_DASK_SCHEDULR", "tcp://x:1")
+    with pytest.raises(SettingsError, match="did you mean DACRT_DASK_SCHEDULER"):
+        load_settings()
