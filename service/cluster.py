@@ -49,6 +49,8 @@ class Cluster:
         self._error: str | None = "connecting"
         self._lock = threading.Lock()
         self._connecting = False
+        self._connector: threading.Thread | None = None
+        self._closed = False
         self._last_attempt = -float("inf")
         # scene name -> (version, client, engine scene on the cluster, weak ref to the snapshot)
         self._sent: dict[str, tuple] = {}
@@ -60,7 +62,13 @@ class Cluster:
         self._connect_soon(force=True)
 
     def close(self) -> None:
-        """Drop every scene from the cluster and disconnect."""
+        """Drop every scene from the cluster and disconnect, once a connection attempt under
+        way has ended (it would otherwise outlive the service, retrying in the background)."""
+        with self._lock:
+            self._closed = True
+            connector = self._connector
+        if connector is not None:
+            connector.join(self.connect_timeout + 5.0)
         with self._lock:
             sent, self._sent = self._sent, {}
             client, self._client = self._client, None
@@ -72,10 +80,14 @@ class Cluster:
     def _connect_soon(self, force: bool = False) -> None:
         with self._lock:
             now = time.monotonic()
-            if self._connecting or (not force and now - self._last_attempt < self.retry_seconds):
+            recent = now - self._last_attempt < self.retry_seconds
+            if self._closed or self._connecting or (not force and recent):
                 return
             self._connecting, self._last_attempt = True, now
-        threading.Thread(target=self._connect, name="dacrt-dask-connect", daemon=True).start()
+            self._connector = threading.Thread(
+                target=self._connect, name="dacrt-dask-connect", daemon=True
+            )
+            self._connector.start()
 
     def _connect(self) -> None:
         try:
