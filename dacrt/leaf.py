@@ -164,15 +164,14 @@ def intersect_leaf(
     Keeps, per ray, the hit with the smallest (t, triangle index) in [tmin, best_t]; best_t
     lives in the ray record, the rest in ``arrays`` (``QueryArrays``) indexed by ray id. With
     ANY_HIT in ``flags`` a ray stops at its first hit and its best_t becomes -inf; with COUNT it
-    counts its hits, with ALL_HITS it keeps its nearest in its list (``collect_hits``); culled
+    counts its hits, with ALL_HITS it keeps its nearest in its list (``record_crossings``); culled
     faces and triangles a ray's mask does not see never hit (CULL_BACK, CULL_FRONT, MASKED).
     ``scratch`` is ``leaf_scratch()``. Returns the ray-triangle tests made.
 
     The tests run as vectorised loops, over triangles (a few rays) or over rays (a few
     triangles, at least BY_RAYS_MIN_RAYS rays); the order of tests changes no answer."""
-    # Culling and masks are tested by triangles only, outside the vectorised loops: a test in
-    # those loops slows every query.
-    if flags & COLLECT and tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS:
+    by_rays = tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS
+    if flags & COLLECT and by_rays:
         return collect_leaf_by_rays(
             flags,
             tri_verts,
@@ -200,7 +199,8 @@ def intersect_leaf(
             arrays,
             scratch,
         )
-    by_rays = tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS
+    # Closest and occluded test culling and masks by triangles only, outside the vectorised
+    # loops: a test in those loops slows every query.
     if by_rays and (flags & FILTERS) == 0:
         return intersect_leaf_by_rays(
             flags,
