@@ -98,6 +98,43 @@ def block_distances(corners, n, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_block):
 
 
 @inline
+def ray_hit(ox, oy, oz, dx, dy, dz, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z):
+    """``woop_hit`` of one ray (origin, direction) and one triangle (corners in float64), for
+    the loops over a block of rays: numbers only, so it adds nothing to their vectorised body."""
+    kx, ky, kz, sx, sy, sz = watertight_setup(dx, dy, dz)
+    okx = pick(kx, np.float64(ox), np.float64(oy), np.float64(oz))
+    oky = pick(ky, np.float64(ox), np.float64(oy), np.float64(oz))
+    okz = pick(kz, np.float64(ox), np.float64(oy), np.float64(oz))
+    return woop_hit(
+        pick(kx, p0x, p0y, p0z) - okx,
+        pick(ky, p0x, p0y, p0z) - oky,
+        pick(kz, p0x, p0y, p0z) - okz,
+        pick(kx, p1x, p1y, p1z) - okx,
+        pick(ky, p1x, p1y, p1z) - oky,
+        pick(kz, p1x, p1y, p1z) - okz,
+        pick(kx, p2x, p2y, p2z) - okx,
+        pick(ky, p2x, p2y, p2z) - oky,
+        pick(kz, p2x, p2y, p2z) - okz,
+        sx,
+        sy,
+        sz,
+    )
+
+
+@inline
+def rays_to_rows(rays, block_lo, n, block_rows):
+    """Copy records ``block_lo:block_lo + n``'s origin, direction and tmin to rows 2-8 of
+    ``block_rows`` (RAY_ROWS), read by every triangle's loop over the block."""
+    q0 = rays[ORIGIN_QUAD, 4 * block_lo : 4 * (block_lo + n)]
+    q1 = rays[DIRECTION_QUAD, 4 * block_lo : 4 * (block_lo + n)]
+    for i in range(n):
+        for a in range(3):
+            block_rows[2 + a, i] = q0[4 * i + a]
+            block_rows[5 + a, i] = q1[4 * i + a]
+        block_rows[8, i] = q0[4 * i + 3]
+
+
+@inline
 def update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows):
     """Test the block's n rays (rows 2-8 of ``block_rows``) against one triangle and keep, per
     ray, the better of its hit and the block's best so far (``t_block``, ``tri_block``, rows 0-1
@@ -125,26 +162,22 @@ def update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows):
     u_row = block_rows[0]
     v_row = block_rows[1]
     for i in range(n):
-        kx, ky, kz, sx, sy, sz = watertight_setup(dx_row[i], dy_row[i], dz_row[i])
-        ox = np.float64(ox_row[i])
-        oy = np.float64(oy_row[i])
-        oz = np.float64(oz_row[i])
-        okx = pick(kx, ox, oy, oz)
-        oky = pick(ky, ox, oy, oz)
-        okz = pick(kz, ox, oy, oz)
-        t, u, v = woop_hit(
-            pick(kx, p0x, p0y, p0z) - okx,
-            pick(ky, p0x, p0y, p0z) - oky,
-            pick(kz, p0x, p0y, p0z) - okz,
-            pick(kx, p1x, p1y, p1z) - okx,
-            pick(ky, p1x, p1y, p1z) - oky,
-            pick(kz, p1x, p1y, p1z) - okz,
-            pick(kx, p2x, p2y, p2z) - okx,
-            pick(ky, p2x, p2y, p2z) - oky,
-            pick(kz, p2x, p2y, p2z) - okz,
-            sx,
-            sy,
-            sz,
+        t, u, v = ray_hit(
+            ox_row[i],
+            oy_row[i],
+            oz_row[i],
+            dx_row[i],
+            dy_row[i],
+            dz_row[i],
+            p0x,
+            p0y,
+            p0z,
+            p1x,
+            p1y,
+            p1z,
+            p2x,
+            p2y,
+            p2z,
         )
         best = t_block[i]
         # A miss is NaN and fails every comparison; ties go to the lower triangle.
@@ -239,14 +272,9 @@ def intersect_leaf_by_rays(
         # The block starts from each ray's best t, with no triangle: a tie with that t is
         # settled against the ray's triangle afterwards, only for the rays that have one.
         # The block's fields go to rows once, read by every triangle's loop.
-        q0 = rays[ORIGIN_QUAD, 4 * block_lo : 4 * (block_lo + n)]
-        q1 = rays[DIRECTION_QUAD, 4 * block_lo : 4 * (block_lo + n)]
+        rays_to_rows(rays, block_lo, n, block_rows)
         for i in range(n):
-            for a in range(3):
-                block_rows[2 + a, i] = q0[4 * i + a]
-                block_rows[5 + a, i] = q1[4 * i + a]
-            block_rows[8, i] = q0[4 * i + 3]
-            t_block[i] = q1[4 * i + 3]
+            t_block[i] = field(rays, BEST_T, block_lo + i)
             tri_block[i] = NO_HIT
         for k in range(tri_lo, tri_hi):
             n_tests += n
@@ -399,13 +427,7 @@ def collect_leaf_by_rays(
     n_tests = 0
     for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, ray_hi - block_lo)
-        q0 = rays[ORIGIN_QUAD, 4 * block_lo : 4 * (block_lo + n)]
-        q1 = rays[DIRECTION_QUAD, 4 * block_lo : 4 * (block_lo + n)]
-        for i in range(n):
-            for a in range(3):
-                block_rows[2 + a, i] = q0[4 * i + a]
-                block_rows[5 + a, i] = q1[4 * i + a]
-            block_rows[8, i] = q0[4 * i + 3]
+        rays_to_rows(rays, block_lo, n, block_rows)
         n_found = 0
         for k in range(tri_lo, tri_hi):
             n_tests += n
@@ -471,26 +493,22 @@ def block_crossing_distances(n, tri_verts, tri, block_rows, t_block):
     dy_row = block_rows[6, :n]
     dz_row = block_rows[7, :n]
     for i in range(n):
-        kx, ky, kz, sx, sy, sz = watertight_setup(dx_row[i], dy_row[i], dz_row[i])
-        ox = np.float64(ox_row[i])
-        oy = np.float64(oy_row[i])
-        oz = np.float64(oz_row[i])
-        okx = pick(kx, ox, oy, oz)
-        oky = pick(ky, ox, oy, oz)
-        okz = pick(kz, ox, oy, oz)
-        t_block[i], _, _ = woop_hit(
-            pick(kx, p0x, p0y, p0z) - okx,
-            pick(ky, p0x, p0y, p0z) - oky,
-            pick(kz, p0x, p0y, p0z) - okz,
-            pick(kx, p1x, p1y, p1z) - okx,
-            pick(ky, p1x, p1y, p1z) - oky,
-            pick(kz, p1x, p1y, p1z) - okz,
-            pick(kx, p2x, p2y, p2z) - okx,
-            pick(ky, p2x, p2y, p2z) - oky,
-            pick(kz, p2x, p2y, p2z) - okz,
-            sx,
-            sy,
-            sz,
+        t_block[i], _, _ = ray_hit(
+            ox_row[i],
+            oy_row[i],
+            oz_row[i],
+            dx_row[i],
+            dy_row[i],
+            dz_row[i],
+            p0x,
+            p0y,
+            p0z,
+            p1x,
+            p1y,
+            p1z,
+            p2x,
+            p2y,
+            p2z,
         )
 
 
