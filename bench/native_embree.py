@@ -9,7 +9,13 @@ minimum over its repetitions); Embree's best frame is the best of low, medium an
 choice a C++ user would make. dacrt's frame is ``dacrt.Scene`` + the query, the median and the
 minimum of ``--repeat`` frames on ``--threads`` threads, run between the anchor's runs.
 
+``--rays`` takes several counts (each its own rows, same seed); after the table, one summary row
+per count gives the geometric mean of Embree best / dacrt over the scenes and kinds.
+
     python -m bench.native_embree ../shared/scenes/sibenik.npz --rays 1000000 --threads 2
+    python -m bench.native_embree ../shared/scenes/sibenik.npz --rays 65536,131072,1000000
+
+``bench.plots`` draws the same anchor's best frame (``anchor_frames``) beside the other engines.
 """
 
 from __future__ import annotations
@@ -25,26 +31,38 @@ from types import SimpleNamespace
 import numpy as np
 
 from bench import rays as R
-from bench.run import KINDS, make_ray_sets, reference_tracer
+from bench.run import KINDS, int_list, make_ray_sets, reference_tracer
 from bench.scene_io import load_mesh, load_view, mesh_bounds
 
 ANCHOR = Path(__file__).resolve().parents[2] / "shared" / "anchors" / "embree_native.cpp"
+BUILD_DIR = Path.home() / ".cache" / "dacrt-bench"
 QUALITIES = ("low", "medium", "refit")
 
 
-def build_anchor(source: Path, build_dir: Path) -> Path:
+class AnchorUnavailable(RuntimeError):
+    """The anchor cannot be compiled here (no source, no g++, or no Embree 3 headers)."""
+
+
+def build_anchor(source: Path = ANCHOR, build_dir: Path = BUILD_DIR) -> Path:
     """The anchor's executable, compiled from ``source`` unless it is there and newer."""
     binary = build_dir / "embree_native"
+    if not source.exists():
+        if binary.exists():
+            return binary
+        raise AnchorUnavailable(f"no anchor source at {source}")
     if binary.exists() and binary.stat().st_mtime >= source.stat().st_mtime:
         return binary
     build_dir.mkdir(parents=True, exist_ok=True)
     command = ["g++", "-O3", "-march=native", "-std=c++17", str(source), "-o", str(binary)]
     command += ["-lembree3", "-lpthread"]
-    result = subprocess.run(command, capture_output=True, text=True)
+    try:
+        result = subprocess.run(command, capture_output=True, text=True)
+    except FileNotFoundError as exc:
+        raise AnchorUnavailable(f"no compiler: {exc}") from exc
     if result.returncode:
-        raise SystemExit(
+        raise AnchorUnavailable(
             f"building the anchor failed (apt-get install -y libembree-dev libtbb-dev):\n"
-            f"{result.stderr}"
+            f"{result.stderr.strip()}"
         )
     return binary
 
@@ -74,6 +92,19 @@ def run_anchor(binary: Path, folder: Path, quality: str, threads: int, reps: int
     return build_ms, trace_ms, np.fromfile(folder / "t.f32", np.float32)
 
 
+def anchor_frames(binary: Path, folder: Path, vertices, faces, rays: R.RaySet, threads, reps):
+    """{quality: (build ms, trace ms, t)} of every quality of QUALITIES on the same inputs."""
+    write_inputs(folder, vertices, faces, rays)
+    # refit's first repetition is a fresh build: only later ones refit
+    reps = max(2, reps)
+    return {q: run_anchor(binary, folder, q, threads, reps) for q in QUALITIES}
+
+
+def best_quality(frames: dict) -> str:
+    """The quality of the fastest frame (build + trace) of {quality: (build ms, trace ms, ...)}."""
+    return min(frames, key=lambda q: frames[q][0] + frames[q][1])
+
+
 def dacrt_frame(dacrt, vertices, faces, rays: R.RaySet, threads: int):
     start = time.perf_counter()
     scene = dacrt.Scene([(vertices, faces)])
@@ -98,58 +129,83 @@ def agreement(ours: np.ndarray, theirs: np.ndarray, diagonal: float) -> float:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scenes", nargs="+")
-    parser.add_argument("--rays", type=int, default=1_000_000)
+    parser.add_argument(
+        "--rays", type=int_list, default=[1_000_000], help="comma list of ray counts per kind"
+    )
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--kinds", default=",".join(KINDS))
     parser.add_argument("--anchor", type=Path, default=ANCHOR)
-    parser.add_argument("--build-dir", type=Path, default=Path.home() / ".cache" / "dacrt-bench")
+    parser.add_argument("--build-dir", type=Path, default=BUILD_DIR)
     args = parser.parse_args(argv)
     kinds = args.kinds.split(",")
+    if not args.rays or min(args.rays) < 1:
+        parser.error("--rays takes positive counts")
 
     import dacrt
 
-    binary = build_anchor(args.anchor, args.build_dir)
+    try:
+        binary = build_anchor(args.anchor, args.build_dir)
+    except AnchorUnavailable as exc:
+        raise SystemExit(str(exc)) from exc
     print(
-        "| scene | rays | dacrt ms (median, min) | Embree low | medium | refit "
+        "| scene | kind | rays | dacrt ms (median, min) | Embree low | medium | refit "
         "(build + trace ms) | Embree best / dacrt | agree |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
+    rows_of = {n: [] for n in args.rays}  # compare()'s answer for each row, by ray count
     for path in args.scenes:
         vertices, faces = load_mesh(path)
         bounds = mesh_bounds(vertices, faces)
         _, view = load_view(path, bounds)
         _, trace = reference_tracer(vertices, faces)
         options = SimpleNamespace(seed=0, bounces=[1])
-        ray_sets = make_ray_sets(options, view, bounds, trace, args.rays, kinds)
         diagonal = R.scene_diagonal(bounds)
         folder = Path(tempfile.mkdtemp(prefix="native-embree-"))
         try:
-            for rays in ray_sets:
-                write_inputs(folder, vertices, faces, rays)
-                dacrt_frame(dacrt, vertices, faces, rays, args.threads)  # compile, page in
-                ours_ms, frames, agree = [], {}, []
-                for quality in QUALITIES:
-                    ms, ours = dacrt_frame(dacrt, vertices, faces, rays, args.threads)
-                    ours_ms.append(ms)
-                    build_ms, trace_ms, theirs = run_anchor(
-                        binary, folder, quality, args.threads, args.repeat
+            for n_rays in args.rays:
+                for rays in make_ray_sets(options, view, bounds, trace, n_rays, kinds):
+                    row = compare(dacrt, binary, folder, vertices, faces, rays, diagonal, args)
+                    rows_of[n_rays].append(row)
+                    ratio, agree, ours_ms, frames = row
+                    cells = " | ".join(f"{b:.1f} + {t:.1f}" for b, t in frames.values())
+                    print(
+                        f"| {Path(path).stem} | {rays.kind} | {rays.n_rays} "
+                        f"| {np.median(ours_ms):.1f}, {min(ours_ms):.1f} | {cells} "
+                        f"| {ratio:.2f} | {agree:.5f} |",
+                        flush=True,
                     )
-                    frames[quality] = (build_ms, trace_ms)
-                    agree.append(agreement(ours, theirs, diagonal))
-                for _ in range(max(0, args.repeat - len(QUALITIES))):
-                    ours_ms.append(dacrt_frame(dacrt, vertices, faces, rays, args.threads)[0])
-                best = min(build + trace for build, trace in frames.values())
-                cells = " | ".join(f"{b:.1f} + {t:.1f}" for b, t in frames.values())
-                print(
-                    f"| {Path(path).stem} | {rays.kind} {rays.n_rays} "
-                    f"| {np.median(ours_ms):.1f}, {min(ours_ms):.1f} | {cells} "
-                    f"| {best / np.median(ours_ms):.2f} | {min(agree):.5f} |",
-                    flush=True,
-                )
         finally:
             shutil.rmtree(folder, ignore_errors=True)
+    print()
+    print("| rays | rows | Embree best / dacrt, geometric mean | lowest | highest | agree |")
+    print("|---|---|---|---|---|---|")
+    for n_rays, rows in rows_of.items():
+        values = np.array([row[0] for row in rows])
+        print(
+            f"| {n_rays} | {len(rows)} | {np.exp(np.mean(np.log(values))):.2f} "
+            f"| {values.min():.2f} | {values.max():.2f} | {min(row[1] for row in rows):.5f} |"
+        )
     return 0
+
+
+def compare(dacrt, binary, folder, vertices, faces, rays: R.RaySet, diagonal, args):
+    """(Embree best / dacrt median, worst agreement, dacrt frame ms, {quality: (build, trace)})
+    of one ray set; dacrt's frames run between the anchor's runs."""
+    write_inputs(folder, vertices, faces, rays)
+    dacrt_frame(dacrt, vertices, faces, rays, args.threads)  # compile, page in
+    reps = max(2, args.repeat)  # refit's first repetition is a fresh build: only later ones refit
+    ours_ms, frames, agree = [], {}, []
+    for quality in QUALITIES:
+        ms, ours = dacrt_frame(dacrt, vertices, faces, rays, args.threads)
+        ours_ms.append(ms)
+        build_ms, trace_ms, theirs = run_anchor(binary, folder, quality, args.threads, reps)
+        frames[quality] = (build_ms, trace_ms)
+        agree.append(agreement(ours, theirs, diagonal))
+    for _ in range(max(0, args.repeat - len(QUALITIES))):
+        ours_ms.append(dacrt_frame(dacrt, vertices, faces, rays, args.threads)[0])
+    best = sum(frames[best_quality(frames)])
+    return best / np.median(ours_ms), min(agree), ours_ms, frames
 
 
 if __name__ == "__main__":
