@@ -180,13 +180,14 @@ def comma_list(text: str) -> tuple[str, ...]:
     return tuple(item for item in text.split(",") if item)
 
 
-def add_engine_arguments(parser) -> None:
-    """--engines, --strategies and --seed, as bench.run and bench.plots both take them."""
+def add_engine_arguments(parser, families: tuple[str, ...] = ("dacrt", "embree", "open3d")) -> None:
+    """--engines, --strategies and --seed, as bench.run and bench.plots both take them; --engines
+    chooses among ``families`` (all by default)."""
     parser.add_argument(
         "--engines",
         type=comma_list,
-        default="dacrt,embree,open3d",
-        help="comma list of dacrt,embree,open3d",
+        default=",".join(families),
+        help=f"comma list of {','.join(families)}",
     )
     parser.add_argument(
         "--strategies",

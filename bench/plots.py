@@ -1,19 +1,21 @@
 """Benchmark figures: speed against ray count, per-frame time against ray and triangle count.
 
     python -m bench.plots --out docs/img [--scene PATH ...] [--repeat 3] [--max-rays N]
-        [--threads 2] [--big]
+        [--threads 2] [--big] [--grid-sides 1,2,4]
     python -m bench.plots --out docs/img --replot docs/img/plots.json      # redraw, no measuring
 
 Writes into --out:
-  mrays-vs-rays-<scene>.png   trace-only Mrays/s against the number of primary rays (128² ... 2048²)
+  mrays-vs-rays-<scene>.png   trace-only Mrays/s against the number of primary rays (100² ... 2048²)
   frame-vs-rays-<scene>.png   per-frame time (new scene + trace) against the number of primary rays
   frame-vs-triangles.png      per-frame time at a fixed ray count against triangles (grids of
-                              dragons)
+                              dragons, 100K to 1.6M, with --big to 16.9M)
   plots.json                  every plotted median, every single timing, and the machine
 
 The timing is bench.run's: the same engine adapters (bench/engines.py), rays (bench/rays.py),
 timers (bench/measure.py), engines alternating within each repetition, medians of --repeat.
-Progress goes to stderr. See bench/README.md, "Figures".
+The per-frame figures also show native Embree (bench/native_embree.py's C++ anchor, run after the
+other engines at each point): its best frame of low, medium and refit, each its minimum over
+max(2, --repeat) repetitions. Progress goes to stderr. See bench/README.md, "Figures".
 """
 
 from __future__ import annotations
@@ -21,7 +23,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -30,14 +34,35 @@ import numpy as np
 from bench import rays as R
 from bench.engines import add_engine_arguments, available_engines
 from bench.measure import build_and_trace, machine_info, median, mrays
-from bench.run import KIND_SEED, WARMUP_RAYS, _clean, _error, _json_default, key_of, log, run_kind
+from bench.native_embree import (
+    ANCHOR,
+    BUILD_DIR,
+    AnchorUnavailable,
+    anchor_frames,
+    best_quality,
+    build_anchor,
+)
+from bench.run import (
+    KIND_SEED,
+    WARMUP_RAYS,
+    _clean,
+    _error,
+    _json_default,
+    int_list,
+    key_of,
+    log,
+    run_kind,
+)
 from bench.scene_io import load_mesh, load_view, mesh_bounds
 
 SHARED_SCENES = Path(__file__).resolve().parent.parent.parent / "shared" / "scenes"
 DEFAULT_SCENES = ("sibenik", "sponza", "conference")
-WIDTHS = (128, 256, 512, 1024, 2048)
+# image widths: width² from ~10K to ~4M primary rays, each about twice the one before
+WIDTHS = (100, 181, 256, 362, 512, 724, 1024, 1448, 2048)
 GRID_SIDES = (1, 2, 4)  # k x k copies of the grid mesh: 100K, 400K, 1.6M dragon triangles
-BIG_GRID_SIDE = 8  # --big: 6.4M
+BIG_GRID_SIDES = (8, 13)  # --big: 6.4M and 16.9M (13 x 13 keeps the grid square, as the image)
+NATIVE = "native-embree"  # the family and --engines name of bench.native_embree's anchor
+NATIVE_LABEL = "Embree (native, best of low/medium/refit)"
 GRID_GAP = 0.05  # space between copies, relative to the copy's extent
 GRID_FOV_DEG = 20.0
 JSON_NAME = "plots.json"
@@ -70,7 +95,8 @@ def parse_args(argv=None):
         "--threads",
         type=int,
         default=usable,
-        help=f"threads for dacrt and Open3D (default {usable}); Embree's run is always 1 thread",
+        help=f"threads for dacrt, Open3D and native Embree (default {usable}); embreex's run is "
+        "always 1 thread",
     )
     p.add_argument(
         "--frame-rays",
@@ -81,8 +107,20 @@ def parse_args(argv=None):
     p.add_argument(
         "--big",
         action="store_true",
-        help=f"also {BIG_GRID_SIDE}x{BIG_GRID_SIDE} copies in "
-        "frame-vs-triangles (6.4M dragon triangles)",
+        help="also "
+        + ", ".join(f"{k}x{k}" for k in BIG_GRID_SIDES)
+        + " copies in frame-vs-triangles (6.4M and 16.9M dragon triangles)",
+    )
+    p.add_argument(
+        "--grid-sides",
+        type=int_list,
+        default=None,
+        metavar="K,K,...",
+        help="the k of the k x k grids in frame-vs-triangles, instead of "
+        + ",".join(map(str, GRID_SIDES))
+        + " (and --big's "
+        + ",".join(map(str, BIG_GRID_SIDES))
+        + ")",
     )
     p.add_argument(
         "--grid-mesh",
@@ -94,7 +132,13 @@ def parse_args(argv=None):
         default="rays,triangles",
         help="which measurements: 'rays' (the two per-scene figures), 'triangles', or both",
     )
-    add_engine_arguments(p)
+    add_engine_arguments(p, ("dacrt", "embree", "open3d", NATIVE))
+    p.add_argument(
+        "--anchor-build-dir",
+        type=Path,
+        default=BUILD_DIR,
+        help=f"where native Embree's anchor ({ANCHOR}) is compiled (default {BUILD_DIR})",
+    )
     p.add_argument(
         "--slow",
         type=float,
@@ -116,10 +160,13 @@ def parse_args(argv=None):
     args.scene = args.scene or [str(SHARED_SCENES / f"{s}.npz") for s in DEFAULT_SCENES]
     args.widths = [w for w in WIDTHS if w * w <= args.max_rays]
     args.frame_rays = min(args.frame_rays, args.max_rays)
-    args.grid_sides = list(GRID_SIDES) + ([BIG_GRID_SIDE] if args.big else [])
+    if args.grid_sides is None:
+        args.grid_sides = list(GRID_SIDES) + (list(BIG_GRID_SIDES) if args.big else [])
     args.no_stats = True  # run_kind: no untimed stats=True traces
     if args.repeat < 1 or args.threads < 1 or args.frame_rays < 1:
         p.error("--repeat, --threads and --frame-rays must be positive")
+    if not args.grid_sides or min(args.grid_sides) < 1:
+        p.error("--grid-sides takes positive sides")
     if "rays" in args.figures and not args.widths and not args.replot:
         p.error(f"--max-rays {args.max_rays} is below the smallest image ({WIDTHS[0]}² rays)")
     return args
@@ -128,9 +175,9 @@ def parse_args(argv=None):
 # --- measuring: ray counts ------------------------------------------------------------------------
 
 
-def measure_scene(path: Path, args, engines, errors) -> dict:
+def measure_scene(path: Path, args, engines, errors, native=None) -> dict:
     """Trace-only and build + trace timings of every engine on primary rays at each width of
-    ``args``.
+    ``args``, and native Embree's frames when ``native`` is (anchor binary, scratch folder).
 
     The rays of each width are the ones bench.run's ablation (--resolutions) uses for the same seed.
     """
@@ -146,6 +193,8 @@ def measure_scene(path: Path, args, engines, errors) -> dict:
         rays = R.primary_rays(view, width, width, rng)
         log(f"{path.stem} {width}²: {rays.n_rays:,} primary rays")
         info = run_kind(rays, engines, vertices, faces, args, diag, errors)
+        label = f"{path.stem} {width}²"
+        info["native"] = native_runs(native, vertices, faces, rays, args, errors, label)
         points.append({"width": width, **info})
     return {
         "path": str(path),
@@ -170,21 +219,25 @@ def tile_mesh(
     """(vertices float32, faces int32) of side x side translated copies of a mesh on a grid.
 
     The copies step along world ``axes`` by the mesh's extent on that axis times (1 + gap).
+    The arrays are written copy by copy, so a 16M-triangle grid needs no float64 or int64 copy.
     """
     bounds = mesh_bounds(vertices, faces)
     step = (bounds[1] - bounds[0]) * (1.0 + gap)
-    offsets = np.zeros((side * side, 3))
-    ii, jj = np.divmod(np.arange(side * side), side)
+    copies = side * side
+    if copies * len(vertices) >= 2**31:
+        raise ValueError(f"{copies} copies of {len(vertices):,} vertices overflow int32 indices")
+    offsets = np.zeros((copies, 3))
+    ii, jj = np.divmod(np.arange(copies), side)
     offsets[:, axes[0]] = ii * step[axes[0]]
     offsets[:, axes[1]] = jj * step[axes[1]]
-    grid_v = (vertices[None, :, :].astype(np.float64) + offsets[:, None, :]).reshape(-1, 3)
-    grid_f = (
-        faces[None, :, :].astype(np.int64) + (np.arange(side * side) * len(vertices))[:, None, None]
-    )
-    return (
-        np.ascontiguousarray(grid_v, dtype=np.float32),
-        np.ascontiguousarray(grid_f.reshape(-1, 3), dtype=np.int32),
-    )
+    base_v = np.asarray(vertices, dtype=np.float64)
+    base_f = np.asarray(faces, dtype=np.int32)
+    grid_v = np.empty((copies, len(vertices), 3), dtype=np.float32)
+    grid_f = np.empty((copies, len(faces), 3), dtype=np.int32)
+    for c in range(copies):
+        grid_v[c] = base_v + offsets[c]  # offset in float64, rounded once to float32
+        grid_f[c] = base_f + np.int32(c * len(vertices))
+    return grid_v.reshape(-1, 3), grid_f.reshape(-1, 3)
 
 
 def grid_axes(view: dict) -> tuple[int, int]:
@@ -283,9 +336,9 @@ def frame_runs(engines, vertices, faces, rays: R.RaySet, args, errors, label: st
     return runs
 
 
-def measure_triangles(args, engines, errors) -> dict:
+def measure_triangles(args, engines, errors, native=None) -> dict:
     """Per-frame time at args.frame_rays primary rays, on k x k grids of copies of
-    args.grid_mesh."""
+    args.grid_mesh, with native Embree's frames when ``native`` is (binary, scratch folder)."""
     path = Path(args.grid_mesh)
     vertices, faces = load_mesh(path)
     _, like = load_view(path, mesh_bounds(vertices, faces))
@@ -312,9 +365,11 @@ def measure_triangles(args, engines, errors) -> dict:
                 "n_rays": rays.n_rays,
                 "view": view,
                 "runs": frame_runs(live, grid_v, grid_f, rays, args, errors, label),
+                "native": native_runs(native, grid_v, grid_f, rays, args, errors, label),
             }
         )
         engines = live
+        del grid_v, grid_f, rays  # free this grid before the next, larger one is made
     return {
         "mesh": str(path),
         "name": path.stem,
@@ -324,6 +379,43 @@ def measure_triangles(args, engines, errors) -> dict:
         "image": [width, height],
         "seconds": time.perf_counter() - start,
         "points": points,
+    }
+
+
+def native_runs(native, vertices, faces, rays: R.RaySet, args, errors, label) -> dict | None:
+    """Native Embree's frame of each quality and its best, in ms (the anchor's own timings: each
+    its minimum over its repetitions, build and trace apart), or None when it is left out."""
+    if native is None:
+        return None
+    binary, folder = native
+    try:
+        frames = anchor_frames(binary, folder, vertices, faces, rays, args.threads, args.repeat)
+    except Exception as exc:
+        errors.append(_error(label, NATIVE, "anchor", exc))
+        return None
+    qualities = {
+        quality: {
+            "build_ms": build_ms,
+            "trace_ms": trace_ms,
+            "frame_ms": round(build_ms + trace_ms, 3),  # the anchor prints 3 decimals
+            "hit": float(np.mean(np.isfinite(t))),
+        }
+        for quality, (build_ms, trace_ms, t) in frames.items()
+    }
+    best = best_quality(frames)
+    log(
+        f"  {label} {NATIVE}@{args.threads} frame ms: "
+        + ", ".join(f"{q} {v['frame_ms']:.3g}" for q, v in qualities.items())
+    )
+    return {
+        "family": NATIVE,
+        "name": NATIVE,
+        "threads": args.threads,
+        "reps": max(2, args.repeat),
+        "best": best,
+        "frame_ms": qualities[best]["frame_ms"],
+        "build_ms": qualities[best]["build_ms"],
+        "qualities": qualities,
     }
 
 
@@ -397,6 +489,30 @@ def _series(points: list[dict], value, frame: bool) -> list[dict]:
     return out
 
 
+def _native_series(points: list[dict]) -> list[dict]:
+    """Native Embree's best frame as one series (no band: each value is already a minimum), or none
+    when the anchor did not run."""
+    runs = [p.get("native") for p in points]
+    first = next((run for run in runs if run), None)
+    if first is None:
+        return []
+    y = [None if run is None else run["frame_ms"] for run in runs]
+    return [
+        {
+            "key": f"{NATIVE}@{first['threads']}",
+            "family": NATIVE,
+            "name": NATIVE,
+            "threads": first["threads"],
+            "label": NATIVE_LABEL,
+            "y": y,
+            "low": y,
+            "high": y,
+            "build_ms": [None if run is None else run["build_ms"] for run in runs],
+            "best": [None if run is None else run["best"] for run in runs],
+        }
+    ]
+
+
 def _trace_mrays(point, run):
     """Median Mrays/s of the trace-only runs, and the slowest and fastest run."""
     times = run["trace_s"]
@@ -421,17 +537,22 @@ def _count(n: int) -> str:
     return str(n)
 
 
-def _subtitle(machine: dict, args) -> str:
+def _subtitle(machine: dict, args, native: bool = False) -> str:
     runs = "1 run" if args.repeat == 1 else f"{args.repeat} runs, band = fastest to slowest"
-    return (
-        f"{machine['cpu_model']}, {machine['logical_cores']} logical cores; dacrt and Open3D at "
+    engines = "dacrt, Open3D and native Embree" if native else "dacrt and Open3D"
+    text = (
+        f"{machine['cpu_model']}, {machine['logical_cores']} logical cores; {engines} at "
         f"{args.threads} thread{'s' * (args.threads > 1)}; median of {runs}"
     )
+    if native:
+        text += f"; native Embree: fastest of {max(2, args.repeat)} repetitions"
+    return text
 
 
 def scene_figures(scene: dict, machine: dict, args) -> dict:
     """{file stem: figure} for mrays-vs-rays-<scene> and frame-vs-rays-<scene>."""
     pts = scene["points"]
+    native = _native_series(pts)
     title = f"{scene['name']} ({scene['triangles']:,} triangles), primary rays"
     common = {
         "x": [p["n_rays"] for p in pts],
@@ -450,16 +571,18 @@ def scene_figures(scene: dict, machine: dict, args) -> dict:
         },
         f"frame-vs-rays-{scene['name']}": {
             **common,
+            "subtitle": _subtitle(machine, args, native=bool(native)),
             "title": f"{title}: per frame (new scene + trace)",
             "y_label": "time per frame (ms)",
             "y_log": True,
-            "series": _series(pts, _frame_ms, frame=True),
+            "series": _series(pts, _frame_ms, frame=True) + native,
         },
     }
 
 
 def triangle_figure(tri: dict, machine: dict, args) -> dict:
     pts = tri["points"]
+    native = _native_series(pts)
     n_rays = pts[0]["n_rays"] if pts else args.frame_rays
     return {
         "frame-vs-triangles": {
@@ -470,10 +593,10 @@ def triangle_figure(tri: dict, machine: dict, args) -> dict:
             "title": (
                 f"Per frame (new scene + trace), {n_rays:,} primary rays, grids of {tri['name']}s"
             ),
-            "subtitle": _subtitle(machine, args),
+            "subtitle": _subtitle(machine, args, native=bool(native)),
             "y_label": "time per frame (ms)",
             "y_log": True,
-            "series": _series(pts, _frame_ms, frame=True),
+            "series": _series(pts, _frame_ms, frame=True) + native,
         }
     }
 
@@ -483,8 +606,9 @@ def triangle_figure(tri: dict, machine: dict, args) -> dict:
 DACRT_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#17becf")
 DACRT_MARKERS = ("o", "D", "v", "P", "*", "h")
 OTHER_STYLE = {
-    "embree": {"color": "black", "linestyle": (0, (5, 2)), "marker": "s"},
-    "open3d": {"color": "#8c564b", "linestyle": "-.", "marker": "^"},
+    "embree": {"color": "black", "linestyle": (0, (5, 2)), "marker": "s", "linewidth": 1.6},
+    "open3d": {"color": "#8c564b", "linestyle": "-.", "marker": "^", "linewidth": 1.6},
+    NATIVE: {"color": "black", "linestyle": "-", "marker": "X", "linewidth": 2.2},
 }
 
 
@@ -505,14 +629,8 @@ def _styles(series: list[dict]) -> list[dict]:
             )
             n_dacrt += 1
         else:
-            styles.append(
-                {
-                    **OTHER_STYLE.get(
-                        s["family"], {"color": "gray", "linestyle": ":", "marker": "x"}
-                    ),
-                    "linewidth": 1.6,
-                }
-            )
+            default = {"color": "gray", "linestyle": ":", "marker": "x", "linewidth": 1.6}
+            styles.append(dict(OTHER_STYLE.get(s["family"], default)))
     return styles
 
 
@@ -602,8 +720,23 @@ def main(argv=None) -> int:
         return 0
     started = time.perf_counter()
     engines, dacrt, missing = available_engines([args.threads], args.strategies, args.engines)
+    native = None
+    if NATIVE in args.engines:
+        try:
+            binary = build_anchor(ANCHOR, args.anchor_build_dir)
+            native = (binary, Path(tempfile.mkdtemp(prefix="plots-native-embree-")))
+        except AnchorUnavailable as exc:
+            missing[NATIVE] = str(exc)
     for family, reason in missing.items():
         log(f"{family} not available: {reason}")
+    try:
+        return measure_and_draw(args, out, engines, dacrt, missing, native, started)
+    finally:
+        if native is not None:
+            shutil.rmtree(native[1], ignore_errors=True)
+
+
+def measure_and_draw(args, out: Path, engines, dacrt, missing, native, started) -> int:
     res = {
         "machine": machine_info(),
         "loadavg_start": list(os.getloadavg()),
@@ -636,11 +769,12 @@ def main(argv=None) -> int:
             missing["dacrt"] = f"warmup failed: {type(exc).__name__}: {exc}"
             res["errors"].append(_error("-", "dacrt", "warmup", exc))
             engines = [e for e in engines if e.family != "dacrt"]
-    log(f"engines: {[key_of(e) for e in engines]}")
+    keys = [key_of(e) for e in engines] + ([f"{NATIVE}@{args.threads}"] if native else [])
+    log(f"engines: {keys}")
 
     if "rays" in args.figures:
         for scene_path in args.scene:
-            scene = measure_scene(Path(scene_path), args, engines, res["errors"])
+            scene = measure_scene(Path(scene_path), args, engines, res["errors"], native)
             res["scenes"].append(scene)
             figures = scene_figures(scene, res["machine"], args)
             res["figures"].update(figures)
@@ -648,7 +782,7 @@ def main(argv=None) -> int:
             draw_all(figures, out)
             log(f"{scene['name']}: {scene['seconds']:.0f} s")
     if "triangles" in args.figures:
-        res["triangles"] = measure_triangles(args, engines, res["errors"])
+        res["triangles"] = measure_triangles(args, engines, res["errors"], native)
         figures = triangle_figure(res["triangles"], res["machine"], args)
         res["figures"].update(figures)
         draw_all(figures, out)
