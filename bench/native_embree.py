@@ -8,6 +8,8 @@ checked against dacrt's (hit or not, and t), and a frame of each quality is its 
 minimum over its repetitions); Embree's best frame is the best of low, medium and refit, the
 choice a C++ user would make. dacrt's frame is ``dacrt.Scene`` + the query, the median and the
 minimum of ``--repeat`` frames on ``--threads`` threads, run between the anchor's runs.
+``--baseline DIR`` also times the ``dacrt`` package in DIR (an earlier copy of the engine),
+alternating with this one, and adds its frames and this engine's speed-up over it.
 
 ``--rays`` takes several counts (each its own rows, same seed); after the table, one summary row
 per count gives the geometric mean of Embree best / dacrt over the scenes and kinds.
@@ -21,8 +23,10 @@ per count gives the geometric mean of Embree best / dacrt over the scenes and ki
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -117,6 +121,17 @@ def dacrt_frame(dacrt, vertices, faces, rays: R.RaySet, threads: int):
     return (time.perf_counter() - start) * 1e3, t
 
 
+def load_baseline(folder: Path):
+    """The ``dacrt`` package in ``folder`` imported as ``dacrt_baseline``, beside this one."""
+    spec = importlib.util.spec_from_file_location(
+        "dacrt_baseline", folder / "__init__.py", submodule_search_locations=[str(folder)]
+    )
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["dacrt_baseline"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
 def agreement(ours: np.ndarray, theirs: np.ndarray, diagonal: float) -> float:
     """Fraction of rays with the same hit or miss and, for hits, t within 1e-4 of the diagonal."""
     same_hit = np.isfinite(ours) == np.isfinite(theirs)
@@ -137,6 +152,9 @@ def main(argv=None) -> int:
     parser.add_argument("--kinds", default=",".join(KINDS))
     parser.add_argument("--anchor", type=Path, default=ANCHOR)
     parser.add_argument("--build-dir", type=Path, default=BUILD_DIR)
+    parser.add_argument(
+        "--baseline", type=Path, default=None, help="a dacrt package folder to time alongside"
+    )
     args = parser.parse_args(argv)
     kinds = args.kinds.split(",")
     if not args.rays or min(args.rays) < 1:
@@ -144,15 +162,17 @@ def main(argv=None) -> int:
 
     import dacrt
 
+    baseline = load_baseline(args.baseline) if args.baseline else None
     try:
         binary = build_anchor(args.anchor, args.build_dir)
     except AnchorUnavailable as exc:
         raise SystemExit(str(exc)) from exc
+    extra = " baseline ms | baseline / dacrt |" if baseline else ""
     print(
         "| scene | kind | rays | dacrt ms (median, min) | Embree low | medium | refit "
-        "(build + trace ms) | Embree best / dacrt | agree |"
+        f"(build + trace ms) | Embree best / dacrt | agree |{extra}"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|" + ("---|---|" if baseline else ""))
     rows_of = {n: [] for n in args.rays}  # compare()'s answer for each row, by ray count
     for path in args.scenes:
         vertices, faces = load_mesh(path)
@@ -165,14 +185,20 @@ def main(argv=None) -> int:
         try:
             for n_rays in args.rays:
                 for rays in make_ray_sets(options, view, bounds, trace, n_rays, kinds):
-                    row = compare(dacrt, binary, folder, vertices, faces, rays, diagonal, args)
+                    row = compare(
+                        dacrt, binary, folder, vertices, faces, rays, diagonal, args, baseline
+                    )
                     rows_of[n_rays].append(row)
-                    ratio, agree, ours_ms, frames = row
+                    ratio, agree, ours_ms, frames, base_ms = row
                     cells = " | ".join(f"{b:.1f} + {t:.1f}" for b, t in frames.values())
+                    extra = ""
+                    if base_ms:
+                        speedup = np.median(base_ms) / np.median(ours_ms)
+                        extra = f" {np.median(base_ms):.1f} | {speedup:.2f} |"
                     print(
                         f"| {Path(path).stem} | {rays.kind} | {rays.n_rays} "
                         f"| {np.median(ours_ms):.1f}, {min(ours_ms):.1f} | {cells} "
-                        f"| {ratio:.2f} | {agree:.5f} |",
+                        f"| {ratio:.2f} | {agree:.5f} |{extra}",
                         flush=True,
                     )
         finally:
@@ -189,23 +215,29 @@ def main(argv=None) -> int:
     return 0
 
 
-def compare(dacrt, binary, folder, vertices, faces, rays: R.RaySet, diagonal, args):
-    """(Embree best / dacrt median, worst agreement, dacrt frame ms, {quality: (build, trace)})
-    of one ray set; dacrt's frames run between the anchor's runs."""
+def compare(dacrt, binary, folder, vertices, faces, rays: R.RaySet, diagonal, args, baseline):
+    """(Embree best / dacrt median, worst agreement, dacrt frame ms, {quality: (build, trace)},
+    baseline frame ms or None) of one ray set; dacrt's frames (and the baseline's, alternating,
+    whose answers must equal dacrt's) run between the anchor's runs."""
     write_inputs(folder, vertices, faces, rays)
-    dacrt_frame(dacrt, vertices, faces, rays, args.threads)  # compile, page in
+    ours_ms, base_ms, frames, agree = [], [], {}, []
+    engines = [(dacrt, ours_ms)] + ([(baseline, base_ms)] if baseline else [])
+    answers = [dacrt_frame(engine, vertices, faces, rays, args.threads)[1] for engine, _ in engines]
+    if baseline and not np.array_equal(answers[0], answers[1]):
+        raise SystemExit(f"the baseline's answers differ from dacrt's ({rays.kind})")
     reps = max(2, args.repeat)  # refit's first repetition is a fresh build: only later ones refit
-    ours_ms, frames, agree = [], {}, []
     for quality in QUALITIES:
-        ms, ours = dacrt_frame(dacrt, vertices, faces, rays, args.threads)
-        ours_ms.append(ms)
+        for engine, times in engines:
+            ms, ours = dacrt_frame(engine, vertices, faces, rays, args.threads)
+            times.append(ms)
         build_ms, trace_ms, theirs = run_anchor(binary, folder, quality, args.threads, reps)
         frames[quality] = (build_ms, trace_ms)
         agree.append(agreement(ours, theirs, diagonal))
     for _ in range(max(0, args.repeat - len(QUALITIES))):
-        ours_ms.append(dacrt_frame(dacrt, vertices, faces, rays, args.threads)[0])
+        for engine, times in engines:
+            times.append(dacrt_frame(engine, vertices, faces, rays, args.threads)[0])
     best = sum(frames[best_quality(frames)])
-    return best / np.median(ours_ms), min(agree), ours_ms, frames
+    return best / np.median(ours_ms), min(agree), ours_ms, frames, base_ms or None
 
 
 if __name__ == "__main__":

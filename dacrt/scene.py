@@ -19,8 +19,9 @@ from .chunks import (
     chunk_ids,
     count_chunks,
     from_one_point,
+    in_coherent_order,
     map_on_threads,
-    plan_chunks,
+    plan_slabs,
 )
 from .contracts import (
     FLOAT,
@@ -390,11 +391,12 @@ class Scene:
         # the choice of chunks poor, never wrong.
         with np.errstate(invalid="ignore", over="ignore"):
             coherent = from_one_point(origins, self._box)
-            n_chunks = count_chunks(n_rays, n_live, threads, coherent)
             # rayspace splits the rays by origin and direction itself: it keeps the input order.
-            plan = plan_chunks(
-                origins, n_chunks, coherent or ray_space, self._box, lambda: self._centre_counts
-            )
+            ordered = not coherent and not ray_space and in_coherent_order(origins)
+            n_chunks = count_chunks(n_rays, n_live, threads, coherent, ordered)
+            plan = None
+            if not (coherent or ordered or ray_space):
+                plan = plan_slabs(origins, n_chunks, self._box, lambda: self._centre_counts)
 
         def run(chunk):
             ray_ids = chunk_ids(plan, n_rays, n_chunks, chunk)

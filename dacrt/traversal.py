@@ -11,8 +11,8 @@ import numpy as np
 from .config import (
     AXIS_SAMPLE_RAYS,
     BOX_TO_TRIANGLE_COST,
-    LEAF_RAYS,
-    LEAF_TRIANGLES,
+    LEAF_C_R,
+    LEAF_C_T,
     MAX_DEPTH,
     MIN_OCCLUSION_RAYS_TO_SAMPLE,
     MIN_RAYS_TO_SAMPLE,
@@ -143,7 +143,7 @@ def trace_object_split(
         n_tris = tri_hi - tri_lo
         if n_rays == 0 or n_tris == 0:
             continue
-        if n_tris <= LEAF_TRIANGLES or n_rays <= LEAF_RAYS or depth >= MAX_DEPTH:
+        if n_rays * n_tris <= LEAF_C_R * n_rays + LEAF_C_T * n_tris or depth >= MAX_DEPTH:
             stats[STAT_LEAVES] += 1
             stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
                 flags,
@@ -390,7 +390,7 @@ def skip_threshold(n_child_tris):
 
     An inner child has two boxes to test (1 - C_bv / (2 C_bv) = 0.5, Eq. 6); a child that will
     be a leaf has its triangles, each a C_tri test, so skipping pays only at higher ratios."""
-    if n_child_tris > LEAF_TRIANGLES:
+    if n_child_tris > LEAF_C_R:
         return 0.5
     return 1.0 - BOX_TO_TRIANGLE_COST / n_child_tris
 
