@@ -1,9 +1,9 @@
 """Thread scheduling: how a batch is cut into chunks of rays, and the threads that trace them.
 
-Rays from about one point (a camera, a point light) go in contiguous chunks in input order, and
-so do rays whose input order is already coherent (rays from an image's hit points). Other rays
-go as one chunk per thread: slabs of origins along the axis where they spread most, cut so that
-each slab holds about the same work. Answers do not depend on the chunks.
+Rays from about one point (a camera, a point light) go in contiguous chunks in input order.
+Other rays go as one chunk per thread: contiguous runs when the input order is already coherent
+(rays from an image's hit points), else slabs of origins along the axis where they spread most,
+cut so that each slab holds about the same work. Answers do not depend on the chunks.
 """
 
 import functools
@@ -31,9 +31,6 @@ COHERENT_CHUNKS_PER_THREAD = 3
 # Input order counts as coherent when consecutive origins are closer than this fraction of the
 # distance between origins far apart in the batch (sampled).
 ORDERED_NEIGHBOUR_DISTANCE = 0.5
-# Rays in coherent input order go in contiguous chunks of at most this many, on one thread too:
-# a chunk's neighbouring rays reach the same boxes, and its records stay in cache.
-ORDERED_CHUNK_RAYS = 262144
 # Rays sampled for that test and to place the slabs' boundaries.
 CHUNK_SAMPLE_RAYS = 4096
 # A sample ray weighs sqrt(1 + the triangle centres in its origin's cell of a DENSITY_GRID^3 grid
@@ -133,13 +130,10 @@ def from_one_point(origins, box):
     return spread <= COHERENT_ORIGIN_SPREAD * size
 
 
-def count_chunks(n_rays, n_triangles, threads, coherent, ordered):
+def count_chunks(n_rays, n_triangles, threads, coherent):
     """How many chunks to cut a batch of n_rays into, for ``threads`` threads; ``coherent``:
-    the rays start from about one point (``from_one_point``); ``ordered``: their input order is
-    coherent (``in_coherent_order``)."""
+    the rays start from about one point (``from_one_point``)."""
     n_chunks = max(1, min(threads, n_rays // MIN_RAYS_PER_THREAD))
-    if ordered:
-        return max(n_chunks, -(-n_rays // ORDERED_CHUNK_RAYS))
     if not coherent:
         return n_chunks
     chunk_rays = COHERENT_CHUNK_RAYS
@@ -157,31 +151,25 @@ def count_chunks(n_rays, n_triangles, threads, coherent, ordered):
     return n_chunks
 
 
-def in_coherent_order(origins):
-    """Whether consecutive origins (sampled) are much closer than origins far apart in the
-    batch, as for rays from an image's hit points; False for batches too small to sample."""
-    step = max(1, len(origins) // CHUNK_SAMPLE_RAYS)
-    if step == 1:
-        return False
-    near = np.linalg.norm(origins[1::step] - origins[:-1:step], axis=1)  # input neighbours
-    sample = origins[::step]
-    far = np.linalg.norm(sample - sample[::-1], axis=1)
-    return bool(np.mean(near) < ORDERED_NEIGHBOUR_DISTANCE * np.mean(far))
-
-
-def plan_slabs(origins, n_chunks, box, density):
+def plan_chunks(origins, n_chunks, keep_order, box, density):
     """How the batch is cut into chunks (``chunk_ids``): None for contiguous runs in input
-    order (one chunk), else (values, cuts): slab k holds the rays whose values fall in it.
+    order, else (values, cuts): slab k holds the rays whose values fall in it.
 
     origins : (n, 3) float32; box : (6,) float32, the scene's; density : a function of no
     arguments returning the scene's ``centre_counts`` over DENSITY_GRID (called only when slabs
-    are cut). Slabs of about equal work along the axis where the origins spread most, cut at
-    weighted quantiles of a sample: a slab's rays start near each other, so the chunks repeat
-    less of each other's work."""
+    are cut). In input order when ``keep_order`` or when that order is already coherent
+    (consecutive origins much closer than origins far apart in the batch). Otherwise slabs of
+    about equal work along the axis where the origins spread most, cut at weighted quantiles of
+    a sample: a slab's rays start near each other, so the chunks repeat less of each other's
+    work."""
     step = max(1, len(origins) // CHUNK_SAMPLE_RAYS)
-    if n_chunks == 1 or step == 1:
+    if keep_order or n_chunks == 1 or step == 1:
         return None
     sample = origins[::step]
+    near = np.linalg.norm(origins[1::step] - origins[:-1:step], axis=1)  # input neighbours
+    far = np.linalg.norm(sample - sample[::-1], axis=1)
+    if np.mean(near) < ORDERED_NEIGHBOUR_DISTANCE * np.mean(far):
+        return None
     axis = int(np.argmax(sample.max(axis=0) - sample.min(axis=0)))
     weights = origin_weights(sample, density(), box, DENSITY_GRID)
     order = np.argsort(sample[:, axis], kind="stable")
@@ -192,7 +180,7 @@ def plan_slabs(origins, n_chunks, box, density):
 
 
 def chunk_ids(plan, n_rays, n_chunks, k):
-    """The ray ids (int32, increasing) of chunk k of n_chunks, as ``plan_slabs`` cut the
+    """The ray ids (int32, increasing) of chunk k of n_chunks, as ``plan_chunks`` cut the
     batch."""
     if plan is None:
         return np.arange(k * n_rays // n_chunks, (k + 1) * n_rays // n_chunks, dtype=INDEX)

@@ -25,8 +25,8 @@ MIN_OCCLUSION_RAYS_TO_SAMPLE = 10000
 # Fewer sample rays choose the split axis: it needs three means, not every candidate's counts.
 AXIS_SAMPLE_RAYS = 32
 # Afra's rule: use the cost function only when rays / triangles exceeds this, else split in the
-# middle (Afra: 1.5; a better split pays below that on every kind measured).
-RAYS_PER_TRIANGLE_FOR_COST = 0.2
+# middle.
+RAYS_PER_TRIANGLE_FOR_COST = 1.5
 # Leaves: brute force a node of R rays and T triangles when R*T <= LEAF_C_R*R + LEAF_C_T*T, its
 # R*T tests against what going on would cost, counted in tests: filtering each ray, binning and
 # partitioning each triangle. Always so at T <= LEAF_C_R or R <= LEAF_C_T.

@@ -19,9 +19,8 @@ from .chunks import (
     chunk_ids,
     count_chunks,
     from_one_point,
-    in_coherent_order,
     map_on_threads,
-    plan_slabs,
+    plan_chunks,
 )
 from .contracts import (
     FLOAT,
@@ -391,12 +390,11 @@ class Scene:
         # the choice of chunks poor, never wrong.
         with np.errstate(invalid="ignore", over="ignore"):
             coherent = from_one_point(origins, self._box)
+            n_chunks = count_chunks(n_rays, n_live, threads, coherent)
             # rayspace splits the rays by origin and direction itself: it keeps the input order.
-            ordered = not coherent and not ray_space and in_coherent_order(origins)
-            n_chunks = count_chunks(n_rays, n_live, threads, coherent, ordered)
-            plan = None
-            if not (coherent or ordered or ray_space):
-                plan = plan_slabs(origins, n_chunks, self._box, lambda: self._centre_counts)
+            plan = plan_chunks(
+                origins, n_chunks, coherent or ray_space, self._box, lambda: self._centre_counts
+            )
 
         def run(chunk):
             ray_ids = chunk_ids(plan, n_rays, n_chunks, chunk)

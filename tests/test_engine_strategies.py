@@ -247,48 +247,39 @@ def test_stats_count_every_ray_across_threads(threads, default_answers):
 
 
 def test_chunks_cover_every_ray_once_as_slabs_or_in_input_order():
-    """Incoherent batches go to threads as slabs of origins; a batch whose input order is
-    already coherent keeps it, in chunks of at most ORDERED_CHUNK_RAYS, on one thread too. Either
-    way every ray is in exactly one chunk, and chunks are balanced."""
-    from dacrt.chunks import (
-        ORDERED_CHUNK_RAYS,
-        chunk_ids,
-        count_chunks,
-        in_coherent_order,
-        plan_slabs,
-    )
+    """Incoherent batches go to threads as slabs of origins unless their input order is already
+    coherent; either way every ray is in exactly one chunk, and chunks are balanced."""
+    from dacrt.chunks import chunk_ids, plan_chunks
     from dacrt.scene import Scene
+
+    def chunks_of(origins, keep_order):
+        plan = plan_chunks(origins, 3, keep_order, scene._box, lambda: scene._centre_counts)
+        return [chunk_ids(plan, len(origins), 3, k) for k in range(3)]
 
     n = 50_000
     scattered = np.random.default_rng(46).uniform(-1, 1, (n, 3)).astype(np.float32)
     scattered[:, 1] *= 3  # y is the widest axis
     ordered = np.sort(scattered, axis=0)  # neighbours in input order start near each other
-    assert not in_coherent_order(scattered)
-    assert in_coherent_order(ordered)
     # One triangle away from every origin: all rays weigh the same (see the next test).
     scene = Scene([(np.array([[9, 9, 9], [10, 9, 9], [9, 10, 9]], np.float32), [[0, 1, 2]])])
-    slab_plan = plan_slabs(scattered, 3, scene._box, lambda: scene._centre_counts)
-    for plan in (slab_plan, None):
-        chunks = [chunk_ids(plan, n, 3, k) for k in range(3)]
+    for origins, expect_slabs in ((scattered, True), (ordered, False)):
+        chunks = chunks_of(origins, keep_order=False)
         assert np.array_equal(np.sort(np.concatenate(chunks)), np.arange(n))
         assert all((np.diff(chunk) > 0).all() for chunk in chunks)
         assert max(map(len, chunks)) < 1.1 * n / 3
         in_order = all(np.array_equal(c, np.arange(c[0], c[0] + len(c))) for c in chunks)
-        assert in_order == (plan is None)
-    slabs = [chunk_ids(slab_plan, n, 3, k) for k in range(3)]
+        assert in_order != expect_slabs
+    slabs = chunks_of(scattered, keep_order=False)
     for lower, upper in zip(slabs, slabs[1:]):
         assert scattered[lower, 1].max() <= scattered[upper, 1].min()
-    n_big = 4 * ORDERED_CHUNK_RAYS + 1
-    assert count_chunks(n_big, 1000, 1, coherent=False, ordered=True) == 5
-    assert count_chunks(n_big, 1000, 1, coherent=False, ordered=False) == 1
-    assert count_chunks(n_big, 1000, 2, coherent=False, ordered=False) == 2
+    assert np.array_equal(np.concatenate(chunks_of(scattered, keep_order=True)), np.arange(n))
 
 
 def test_slabs_hold_fewer_rays_where_the_triangles_are_dense():
     """Slab cuts weigh each ray by the triangles around its origin: with 20,000 small triangles
     in x < 0 and 40 in x > 0, the slab of x < 0 holds fewer rays; every ray is still in exactly
     one slab, and the slabs are ordered along x."""
-    from dacrt.chunks import chunk_ids, plan_slabs
+    from dacrt.chunks import chunk_ids, plan_chunks
     from dacrt.scene import Scene
 
     rng = np.random.default_rng(47)
@@ -303,7 +294,7 @@ def test_slabs_hold_fewer_rays_where_the_triangles_are_dense():
     )
     corners = np.repeat(centres, 3, axis=0) + rng.uniform(-0.01, 0.01, (3 * len(centres), 3))
     scene = Scene([(corners.astype(np.float32), np.arange(3 * len(centres)).reshape(-1, 3))])
-    plan = plan_slabs(origins, 2, scene._box, lambda: scene._centre_counts)
+    plan = plan_chunks(origins, 2, False, scene._box, lambda: scene._centre_counts)
     dense, sparse = (chunk_ids(plan, n, 2, k) for k in range(2))
     assert np.array_equal(np.sort(np.concatenate([dense, sparse])), np.arange(n))
     assert origins[dense, 0].max() <= origins[sparse, 0].min()
