@@ -51,7 +51,7 @@ from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
 from .rayspace import trace_ray_space
 from .results import finish_closest, finish_hits, unit_normals
 from .traversal import trace_object_split
-from .triangles import gather_triangles, triangle_boxes
+from .triangles import gather_triangles
 from .validation import (
     check_cull,
     check_masks,
@@ -100,22 +100,29 @@ class Scene:
         self.mesh_offsets[1:] = np.cumsum(counts)
         self.n_triangles = int(self.mesh_offsets[-1])
 
+        # Degenerate (zero-area) triangles never hit: they get no row, and no query sees them.
         tri_verts = np.empty((self.n_triangles, 9), FLOAT)
-        live = np.empty(self.n_triangles, np.bool_)
+        tri_bounds = np.empty((self.n_triangles, 6), FLOAT)
+        tri_global = np.empty(self.n_triangles, INDEX)
         corner_box = np.array([np.inf] * 3 + [-np.inf] * 3, FLOAT)
+        self._box = corner_box.copy()
+        n_live = 0
         for (vertices, faces), first_row in zip(checked, self.mesh_offsets):
-            gather_triangles(vertices, faces, first_row, tri_verts, live, corner_box)
-        # Degenerate (zero-area) triangles never hit: leave them out of every query.
-        if live.all():
-            self._tri_global = np.arange(self.n_triangles, dtype=INDEX)
-        else:
-            self._tri_global = np.flatnonzero(live).astype(INDEX)
-            tri_verts = tri_verts[live]
-        self._tri_verts = tri_verts
-        self._tri_bounds = np.empty((len(tri_verts), 6), FLOAT)
-        self._box = np.empty(6, FLOAT)
-        triangle_boxes(tri_verts, self._tri_bounds, self._box)
-        if not len(tri_verts):
+            n_live = gather_triangles(
+                vertices,
+                faces,
+                first_row,
+                n_live,
+                tri_verts,
+                tri_bounds,
+                tri_global,
+                corner_box,
+                self._box,
+            )
+        self._tri_verts = tri_verts[:n_live]
+        self._tri_bounds = tri_bounds[:n_live]
+        self._tri_global = tri_global[:n_live]
+        if not n_live:
             self._box[:] = 0
         # Bounds of the referenced vertices: every corner, degenerate triangles included.
         self.bounds = corner_box.reshape(2, 3) if self.n_triangles else np.zeros((2, 3), FLOAT)

@@ -6,7 +6,7 @@ nothing here outlives the Scene or depends on the rays.
 
 import numpy as np
 
-from .config import jit
+from .config import inline, jit
 from .geometry import triangle_normal
 
 
@@ -31,24 +31,43 @@ def all_finite(values):
 
 
 @jit
-def gather_triangles(vertices, faces, first_row, tri_verts, live, bounds):
-    """Write the corners of ``faces`` into rows ``first_row:`` of ``tri_verts`` (F, 9).
+def gather_triangles(
+    vertices, faces, first_row, n_live, tri_verts, tri_bounds, tri_global, corner_box, box
+):
+    """Append the triangles of ``faces`` that are not degenerate (edge cross product exactly
+    zero in float64) from row ``n_live`` on: their corners to ``tri_verts`` (F, 9), their boxes
+    to ``tri_bounds`` (F, 6) and ``box`` (6,), and their row in the meshes' numbering
+    (``first_row`` + face) to ``tri_global``. Returns the rows now filled.
 
-    live[row] is False for a degenerate triangle (its edge cross product is exactly zero in
-    float64). ``bounds`` (6,) grows to cover every corner, degenerate triangles included."""
+    ``corner_box`` (6,) grows to cover every corner, degenerate triangles included. One pass,
+    writing each row in place: no mask, no second copy of the corners."""
+    row = n_live
     for f in range(faces.shape[0]):
-        row = first_row + f
         for c in range(3):
             v = faces[f, c]
             for a in range(3):
                 x = vertices[v, a]
                 tri_verts[row, 3 * c + a] = x
-                if x < bounds[a]:
-                    bounds[a] = x
-                if x > bounds[a + 3]:
-                    bounds[a + 3] = x
+                corner_box[a] = min(corner_box[a], x)
+                corner_box[a + 3] = max(corner_box[a + 3], x)
         nx, ny, nz = triangle_normal(tri_verts, row)
-        live[row] = nx != 0.0 or ny != 0.0 or nz != 0.0
+        if nx != 0.0 or ny != 0.0 or nz != 0.0:
+            grow_triangle_box(tri_verts, row, tri_bounds, box)
+            tri_global[row] = first_row + f
+            row += 1
+    return row
+
+
+@inline
+def grow_triangle_box(tri_verts, row, tri_bounds, box):
+    """Box of triangle ``row`` into ``tri_bounds[row]``, and ``box`` (6,) grown to hold it."""
+    for a in range(3):
+        lo = min(tri_verts[row, a], tri_verts[row, 3 + a], tri_verts[row, 6 + a])
+        hi = max(tri_verts[row, a], tri_verts[row, 3 + a], tri_verts[row, 6 + a])
+        tri_bounds[row, a] = lo
+        tri_bounds[row, a + 3] = hi
+        box[a] = min(box[a], lo)
+        box[a + 3] = max(box[a + 3], hi)
 
 
 @jit
@@ -58,10 +77,4 @@ def triangle_boxes(tri_verts, tri_bounds, box):
         box[a] = np.inf
         box[a + 3] = -np.inf
     for row in range(tri_verts.shape[0]):
-        for a in range(3):
-            lo = min(tri_verts[row, a], tri_verts[row, 3 + a], tri_verts[row, 6 + a])
-            hi = max(tri_verts[row, a], tri_verts[row, 3 + a], tri_verts[row, 6 + a])
-            tri_bounds[row, a] = lo
-            tri_bounds[row, a + 3] = hi
-            box[a] = min(box[a], lo)
-            box[a + 3] = max(box[a + 3], hi)
+        grow_triangle_box(tri_verts, row, tri_bounds, box)
