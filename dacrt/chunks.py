@@ -18,6 +18,10 @@ from .contracts import INDEX
 N_CORES = os.cpu_count() or 1
 # Below this many rays a single thread is quicker than splitting the triangles' work twice.
 MIN_RAYS_PER_THREAD = 16384
+# A closest or occlusion batch of fewer rays than this per triangle, on several threads, splits
+# the triangles between two threads instead of the rays: each thread then does half the work
+# on the triangles, which such a batch spends most of its time on.
+SPLIT_TRIANGLES_RAYS_PER_TRIANGLE = 0.3
 # Origins within this fraction of the scene's size count as one point.
 COHERENT_ORIGIN_SPREAD = 0.1
 # Rays from one point go in chunks of at most this many: a chunk's records stay in cache.
@@ -128,6 +132,16 @@ def from_one_point(origins, box):
     spread = float(np.max(sample.max(axis=0) - sample.min(axis=0)))
     size = float(np.max(box[3:] - box[:3]))
     return spread <= COHERENT_ORIGIN_SPREAD * size
+
+
+def splits_triangles(n_rays, n_triangles, threads):
+    """Whether a closest or occlusion batch of n_rays goes to two threads as halves of the
+    triangles (``Scene._trace_halves``) rather than as chunks of rays."""
+    return (
+        threads > 1
+        and n_rays >= 2 * MIN_RAYS_PER_THREAD
+        and n_rays < SPLIT_TRIANGLES_RAYS_PER_TRIANGLE * n_triangles
+    )
 
 
 def count_chunks(n_rays, n_triangles, threads, coherent):

@@ -21,6 +21,7 @@ from .chunks import (
     from_one_point,
     map_on_threads,
     plan_chunks,
+    splits_triangles,
 )
 from .contracts import (
     FLOAT,
@@ -50,7 +51,7 @@ from .query import (
 from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
 from .rayspace import trace_ray_space
 from .results import finish_closest, finish_hits, unit_normals
-from .traversal import trace_object_split
+from .traversal import split_middle, trace_object_split
 from .triangles import gather_triangles
 from .validation import (
     check_cull,
@@ -393,6 +394,11 @@ class Scene:
             return Traced(best_t, answer, counters, origins, directions)
         code = STRATEGY_CODES[strategy]
         ray_space = code == RAYSPACE
+        if not ray_space and not flags & COLLECT and splits_triangles(n_rays, n_live, threads):
+            per_half = self._trace_halves(
+                code, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t
+            )
+            return Traced(best_t, answer, add_counters(counters, per_half), origins, directions)
         # The values are not checked yet (each chunk checks its own): a bad ray may make
         # the choice of chunks poor, never wrong.
         with np.errstate(invalid="ignore", over="ignore"):
@@ -452,9 +458,80 @@ class Scene:
         if any(chunk_stats is None for chunk_stats in per_chunk):
             explain_bad_rays(origins, directions, tmin, tmax)
             raise ValueError("the batch holds an invalid ray")  # explain_bad_rays names it
-        totals = np.sum(per_chunk, axis=0)
-        for i, name in enumerate(STAT_NAMES):
-            if i not in (STAT_RAYS, STAT_TRIANGLES):
-                counters[name] = int(totals[i])
-        counters["max_depth"] = int(max(c[STAT_NAMES.index("max_depth")] for c in per_chunk))
-        return Traced(best_t, answer, counters, origins, directions)
+        return Traced(best_t, answer, add_counters(counters, per_chunk), origins, directions)
+
+    def _trace_halves(
+        self, code, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t
+    ):
+        """Trace a closest or occlusion batch on two threads, each with every ray against one
+        half of the triangles (split at the middle of the scene's box); then each ray keeps the
+        better of its two answers, the smaller (t, row), as one trace would. Writes best_t and
+        ``answer``'s best_tri, hit_u and hit_v; returns each half's stats."""
+        n_rays = len(origins)
+        tri_ids = (
+            np.arange(len(self._tri_verts), dtype=INDEX)
+            if visible_rows is None
+            else visible_rows.copy()
+        )
+        boxes = np.empty((3, 6), FLOAT)  # the halves' boxes, and scratch for split_middle
+        _, tri_mid = split_middle(
+            tri_ids, 0, len(tri_ids), self._tri_bounds, self._box, boxes[2], boxes[0], boxes[1]
+        )
+        rays = new_records(n_rays)
+        ray_ids = np.arange(n_rays, dtype=INDEX)
+        if not pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
+            explain_bad_rays(origins, directions, tmin, tmax)
+            raise ValueError("the batch holds an invalid ray")  # explain_bad_rays names it
+        if uniform_origin(rays, n_rays):
+            flags |= FIXED_ORIGIN
+        records = (rays, rays.copy())  # each half permutes its own
+
+        def run(half):
+            half_rays = records[half]
+            half_ids = ray_ids.copy()
+            arrays = answer._replace(
+                best_tri=answer.best_tri if half == 0 else np.full(n_rays, NO_HIT, INDEX),
+                hit_u=answer.hit_u if half == 0 else np.zeros(n_rays, FLOAT),
+                hit_v=answer.hit_v if half == 0 else np.zeros(n_rays, FLOAT),
+                hit_mask=np.empty(n_rays, np.bool_),
+                tri_bins=np.empty(len(tri_ids), np.uint8),
+                stats=np.zeros(len(STAT_NAMES), np.int64),
+            )
+            lo, hi = (0, tri_mid) if half == 0 else (tri_mid, len(tri_ids))
+            trace_object_split(
+                code,
+                flags,
+                self._tri_verts,
+                self._tri_bounds,
+                boxes[half],
+                half_rays,
+                half_ids,
+                0,
+                n_rays,
+                tri_ids,
+                lo,
+                hi,
+                arrays,
+            )
+            t = np.empty(n_rays, FLOAT)
+            unpack_best_t(half_rays, half_ids, t)
+            return t, arrays
+
+        (t0, first), (t1, second) = map_on_threads(run, 2, 2)
+        # Where the second half's (t, row) is smaller, it is the answer.
+        take = (t1 < t0) | ((t1 == t0) & (second.best_tri < first.best_tri))
+        best_t[:] = np.where(take, t1, t0)
+        for name in ("best_tri", "hit_u", "hit_v"):
+            np.copyto(getattr(answer, name), getattr(second, name), where=take)
+        return [first.stats, second.stats]
+
+
+def add_counters(counters, per_chunk):
+    """``counters`` with the sums of the kernels' stats arrays (the deepest node's depth for
+    max_depth), one per chunk of the batch."""
+    totals = np.sum(per_chunk, axis=0)
+    for i, name in enumerate(STAT_NAMES):
+        if i not in (STAT_RAYS, STAT_TRIANGLES):
+            counters[name] = int(totals[i])
+    counters["max_depth"] = int(max(c[STAT_NAMES.index("max_depth")] for c in per_chunk))
+    return counters

@@ -4,7 +4,7 @@ import time
 
 import numpy as np
 
-from .chunks import MIN_RAYS_PER_THREAD
+from .chunks import MIN_RAYS_PER_THREAD, SPLIT_TRIANGLES_RAYS_PER_TRIANGLE, splits_triangles
 from .contracts import STRATEGIES
 from .scene import Scene
 
@@ -34,4 +34,16 @@ def warmup():
     scene.closest(scattered[:, :3].copy(), scattered[:, 3:].copy(), threads=2)
     scattered.flags.writeable = False
     scene.closest(scattered[:, :3], scattered[:, 3:], threads=2)
+    # Few rays a triangle on two threads: halves of the triangles (a grid of small quads).
+    side = int(np.sqrt(n_rays / SPLIT_TRIANGLES_RAYS_PER_TRIANGLE / 2)) + 1
+    ticks = np.arange(side + 1, dtype=np.float32) / side
+    grid = np.stack(np.meshgrid(ticks, ticks, indexing="ij"), axis=-1).reshape(-1, 2)
+    grid_vertices = np.hstack([grid, np.zeros((len(grid), 1), np.float32)])
+    corner = (np.arange(side)[:, None] * (side + 1) + np.arange(side)[None, :]).ravel()
+    quads = np.stack([corner, corner + 1, corner + side + 1, corner + side + 2], axis=1)
+    grid_faces = np.vstack([quads[:, [0, 1, 2]], quads[:, [1, 3, 2]]]).astype(np.int32)
+    grid_scene = Scene([(grid_vertices, grid_faces)])
+    assert splits_triangles(n_rays, grid_scene.n_triangles, 2)
+    grid_scene.closest(scattered[:, :3], scattered[:, 3:], threads=2)
+    grid_scene.occluded(scattered[:, :3], scattered[:, 3:], threads=2)
     return time.perf_counter() - start

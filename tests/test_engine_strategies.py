@@ -327,3 +327,46 @@ def test_warmup_compiles_what_an_incoherent_two_thread_query_needs():
     scene.closest(rays[:, :3], rays[:, 3:], threads=2)
     scene.closest(np.ascontiguousarray(rays[:, :3]), np.ascontiguousarray(rays[:, 3:]), threads=2)
     assert [len(kernel.signatures) for kernel in kernels] == before
+
+
+def _halves_scene(mirror):
+    """A dense soup of 120,000 triangles under a 4 x 4 grid whose middle column of vertices lies
+    exactly on the plane that halves the scene's box, and rays exactly through the grid's
+    vertices (ties between triangles on either side of that plane) among random rays: few
+    enough rays a triangle that two threads split the triangles, not the rays. The grid's lower
+    rows are on the low side of the plane, or with ``mirror`` on the high side, so a tie goes to
+    one half or the other."""
+    rng = np.random.default_rng(48)
+    soup = pg.triangle_soup(120_000, rng)
+    v, f = pg.grid(16, 4.0, alternate=True)
+    if mirror:
+        v[:, 0] = 4.0 - v[:, 0]
+    v = v + np.array([-1.5, -1.5, 2.0], np.float32)  # x in [-1.5, 2.5]: halved at x = 0.5
+    o1, d1, _ = pg.grid_rays(v, f, 16, "vertices", "exact_oblique")
+    o2, d2, _ = pg.grid_rays(v, f, 16, "midpoints", "normal")
+    n_random = 2 * dacrt.chunks.MIN_RAYS_PER_THREAD
+    o3 = rng.uniform(-0.5, 1.5, (n_random, 3)).astype(np.float32)
+    d3 = rng.normal(size=(n_random, 3)).astype(np.float32)
+    return [soup, (v, f)], np.concatenate([o1, o2, o3]), np.concatenate([d1, d2, d3])
+
+
+@pytest.mark.parametrize("mirror", [False, True])
+@pytest.mark.parametrize("cull", ["none", "back"])
+def test_triangle_halves_on_two_threads_answer_as_one_thread(cull, mirror):
+    """A batch of few rays a triangle goes to two threads as halves of the triangles; each ray
+    then takes the better of two answers, and that is bit for bit one thread's answer: closest
+    hits (ties across the halves included) and occlusion, with culling and mixed ray masks."""
+    meshes, o, d = _halves_scene(mirror)
+    scene = dacrt.Scene(meshes, masks=[1, 2])
+    assert dacrt.chunks.splits_triangles(len(o), scene.n_triangles, 2)
+    ray_masks = np.random.default_rng(49).integers(1, 4, len(o)).astype(np.uint32)
+    for mask in (None, ray_masks):
+        one = scene.closest(o, d, cull=cull, mask=mask, threads=1)
+        two = scene.closest(o, d, cull=cull, mask=mask, threads=2)
+        check.assert_bitwise_equal(two, one, f"closest, cull={cull}, masks={mask is not None}")
+        assert np.isfinite(one.t).sum() > len(o) // 4  # the rays do hit
+        blocked = scene.occluded(o, d, cull=cull, mask=mask, threads=1).occluded
+        assert np.array_equal(
+            scene.occluded(o, d, cull=cull, mask=mask, threads=2).occluded, blocked
+        )
+        assert np.array_equal(blocked, np.isfinite(one.t))
