@@ -24,13 +24,15 @@ MIN_RAYS_PER_THREAD = 16384
 SPLIT_TRIANGLES_RAYS_PER_TRIANGLE = 0.3
 # Origins within this fraction of the scene's size count as one point.
 COHERENT_ORIGIN_SPREAD = 0.1
-# Rays from one point go in chunks of at most this many: a chunk's records stay in cache.
+# Rays from one point go in chunks of at most this many: a chunk's records stay in cache ...
 COHERENT_CHUNK_RAYS = 262144
-# On one thread a chunk's records have the cache to themselves, so chunks may be larger ...
-COHERENT_CHUNK_RAYS_ONE_THREAD = 524288
-# ... and take this many rays a triangle: each chunk repeats the work on the triangles.
+# ... unless that leaves a chunk fewer than this many rays a triangle: each chunk repeats the
+# work on the triangles.
 COHERENT_RAYS_PER_TRIANGLE = 2
-# With several threads, at least this many chunks each: bands of an image differ in cost.
+# On one thread a chunk's records have the cache to themselves, so chunks may be larger.
+COHERENT_CHUNK_RAYS_ONE_THREAD = 524288
+# With several threads, at least this many chunks each (bands of an image differ in cost), while
+# each keeps COHERENT_RAYS_PER_TRIANGLE.
 COHERENT_CHUNKS_PER_THREAD = 3
 # Input order counts as coherent when consecutive origins are closer than this fraction of the
 # distance between origins far apart in the batch (sampled).
@@ -150,18 +152,22 @@ def count_chunks(n_rays, n_triangles, threads, coherent):
     n_chunks = max(1, min(threads, n_rays // MIN_RAYS_PER_THREAD))
     if not coherent:
         return n_chunks
-    chunk_rays = COHERENT_CHUNK_RAYS
+    # Each chunk repeats the work on the triangles: at least two rays a triangle in each.
+    chunk_rays = max(COHERENT_CHUNK_RAYS, COHERENT_RAYS_PER_TRIANGLE * n_triangles)
     if threads == 1:
-        chunk_rays = min(
-            COHERENT_CHUNK_RAYS_ONE_THREAD,
-            max(chunk_rays, COHERENT_RAYS_PER_TRIANGLE * n_triangles),
-        )
+        chunk_rays = min(COHERENT_CHUNK_RAYS_ONE_THREAD, chunk_rays)
     n_chunks = max(n_chunks, -(-n_rays // chunk_rays))
     if threads > 1:
         n_chunks = max(
             n_chunks,
-            min(threads * COHERENT_CHUNKS_PER_THREAD, n_rays // MIN_RAYS_PER_THREAD),
+            min(
+                threads * COHERENT_CHUNKS_PER_THREAD,
+                n_rays // MIN_RAYS_PER_THREAD,
+                n_rays // (COHERENT_RAYS_PER_TRIANGLE * n_triangles),
+            ),
         )
+        if n_chunks > threads:  # as many chunks on every thread
+            n_chunks = -(-n_chunks // threads) * threads
     return n_chunks
 
 
