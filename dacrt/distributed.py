@@ -52,6 +52,8 @@ MIN_SHARD_RAYS = 1 << 18
 MAX_SHARD_RAYS = 1 << 21
 #: Times a lost shard is sent again before the query gives up.
 RETRIES = 3
+#: Seconds before a shard's first resend, doubling for each later one (0.25 + 0.5 + 1 for three).
+RETRY_WAIT = 0.25
 
 _QUERIES = ("closest", "occluded", "hits", "count")
 
@@ -285,7 +287,9 @@ class DistributedScene:
         ]
 
         def lost(i, failure):
-            """Count a failed try of shard i; ClusterError past the retries."""
+            """Count a failed try of shard i; ClusterError past the retries. Waits longer
+            after each: until the scheduler notices that a worker is gone, it may place the
+            shard there again."""
             tries[i] += 1
             if tries[i] > self.retries:
                 raise ClusterError(
@@ -294,6 +298,7 @@ class DistributedScene:
                     f"{type(failure).__name__}: {failure}"
                 ) from failure
             self.resent += 1
+            time.sleep(RETRY_WAIT * 2 ** (tries[i] - 1))
 
         def send(i):
             """Scatter shard i and trace it there: each shard is traced as soon as it has
@@ -307,7 +312,6 @@ class DistributedScene:
                     break
                 except (OSError, KeyError) as exc:  # that worker went away
                     lost(i, exc)
-                    time.sleep(0.1 * tries[i])  # the scheduler has yet to notice
                 finally:
                     clock["send"] += time.perf_counter() - start
             future = client.submit(
