@@ -173,9 +173,16 @@ class DistributedScene:
         self.n_meshes = n_meshes
         self.n_triangles = sum(len(faces) for _, faces in checked)
         self.payload_bytes = sum(v.nbytes + f.nbytes for v, f in checked)
-        # One copy on every worker; workers that join later fetch it from a peer when a shard
-        # lands on them.
-        [self._payload] = client.scatter([(checked, masks, transforms)], broadcast=True, hash=False)
+        # The triangles stay here too: the cluster may lose them with a worker (dask's memory
+        # manager keeps one copy of what was broadcast), and then they are sent again.
+        self._triangles = (checked, masks, transforms)
+        self._payload = None
+        self._send_triangles()
+
+    def _send_triangles(self):
+        """Scatter the triangles to every worker; workers that join later fetch them from a
+        peer when a shard lands on them. The workers' Scenes are keyed by the scattered key."""
+        [self._payload] = self.client.scatter([self._triangles], broadcast=True, hash=False)
         self.key = self._payload.key
 
     def __repr__(self):
@@ -275,6 +282,8 @@ class DistributedScene:
         client = self.client
         if client.status != "running":
             raise ClusterError(f"the dask client is {client.status}, not connected")
+        if self._payload.status != "finished":
+            self._send_triangles()  # their only copy went with a worker
         answers = [None] * len(shards)
         tries = [0] * len(shards)
         clock = {"shards": len(shards), "send": 0.0, "trace": 0.0, "wall": time.perf_counter()}
@@ -304,6 +313,8 @@ class DistributedScene:
             """Scatter shard i and trace it there: each shard is traced as soon as it has
             arrived, while the next ones are sent. A shard sent again goes wherever the
             scheduler likes (its slot's worker may be gone)."""
+            if tries[i] and self._payload.status != "finished":
+                self._send_triangles()  # their only copy went with a worker
             while True:
                 start = time.perf_counter()
                 workers = [slots[i % len(slots)]] if slots and not tries[i] else None

@@ -203,6 +203,29 @@ def test_worker_killed_mid_batch(client, load_shared):
     remote.close()
 
 
+def test_triangles_lost_with_their_worker_are_sent_again(client, load_shared):
+    """dask's memory manager keeps one copy of what was broadcast; when the worker holding it
+    dies, the triangles are sent again and the query still answers exactly."""
+    vertices, faces = load_shared("sibenik")
+    rng = np.random.default_rng(8)
+    origins, directions = pg.random_rays(pg.bounds(vertices, faces), 200_000, rng)
+    expected = dacrt.Scene([(vertices, faces)]).closest(origins, directions)
+    remote = DistributedScene(
+        client, [(vertices, faces)], min_shard_rays=10_000, max_shard_rays=25_000
+    )
+    first_key = remote.key
+    deadline = time.monotonic() + 60
+    while len(client.who_has([remote._payload])[first_key]) > 1:
+        assert time.monotonic() < deadline, "dask kept every copy of the triangles"
+        time.sleep(0.1)
+    [holder] = client.who_has([remote._payload])[first_key]
+    os.kill(_worker_pids(client)[holder], signal.SIGKILL)
+    same(remote.closest(origins, directions), expected)
+    assert remote.key != first_key
+    client.wait_for_workers(2, timeout=60)
+    remote.close()
+
+
 def test_worker_killed_without_retries_is_a_clear_error(client, load_shared):
     vertices, faces = load_shared("sibenik")
     rng = np.random.default_rng(7)
