@@ -52,8 +52,6 @@ MIN_SHARD_RAYS = 1 << 18
 MAX_SHARD_RAYS = 1 << 21
 #: Times a lost shard is sent again before the query gives up.
 RETRIES = 3
-#: Seconds before a shard's first resend, doubling for each later one (0.25 + 0.5 + 1 for three).
-RETRY_WAIT = 0.25
 
 _QUERIES = ("closest", "occluded", "hits", "count")
 
@@ -176,7 +174,6 @@ class DistributedScene:
         # The triangles stay here too: the cluster may lose them with a worker (dask's memory
         # manager keeps one copy of what was broadcast), and then they are sent again.
         self._triangles = (checked, masks, transforms)
-        self._payload = None
         self._send_triangles()
 
     def _send_triangles(self):
@@ -282,8 +279,6 @@ class DistributedScene:
         client = self.client
         if client.status != "running":
             raise ClusterError(f"the dask client is {client.status}, not connected")
-        if self._payload.status != "finished":
-            self._send_triangles()  # their only copy went with a worker
         answers = [None] * len(shards)
         tries = [0] * len(shards)
         clock = {"shards": len(shards), "send": 0.0, "trace": 0.0, "wall": time.perf_counter()}
@@ -296,9 +291,7 @@ class DistributedScene:
         ]
 
         def lost(i, failure):
-            """Count a failed try of shard i; ClusterError past the retries. Waits longer
-            after each: until the scheduler notices that a worker is gone, it may place the
-            shard there again."""
+            """Count a failed try of shard i; ClusterError past the retries."""
             tries[i] += 1
             if tries[i] > self.retries:
                 raise ClusterError(
@@ -307,13 +300,12 @@ class DistributedScene:
                     f"{type(failure).__name__}: {failure}"
                 ) from failure
             self.resent += 1
-            time.sleep(RETRY_WAIT * 2 ** (tries[i] - 1))
 
         def send(i):
             """Scatter shard i and trace it there: each shard is traced as soon as it has
             arrived, while the next ones are sent. A shard sent again goes wherever the
             scheduler likes (its slot's worker may be gone)."""
-            if tries[i] and self._payload.status != "finished":
+            if self._payload.status != "finished":
                 self._send_triangles()  # their only copy went with a worker
             while True:
                 start = time.perf_counter()
@@ -323,6 +315,7 @@ class DistributedScene:
                     break
                 except (OSError, KeyError) as exc:  # that worker went away
                     lost(i, exc)
+                    time.sleep(0.1 * tries[i])  # the scheduler has yet to notice
                 finally:
                     clock["send"] += time.perf_counter() - start
             future = client.submit(
