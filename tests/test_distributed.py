@@ -4,10 +4,8 @@ time, not answers."""
 
 from __future__ import annotations
 
-import logging
 import os
 import signal
-import sys
 import threading
 import time
 
@@ -19,6 +17,8 @@ import sample_scenes
 
 distributed = pytest.importorskip("distributed")
 
+from clusters import two_worker_cluster  # noqa: E402
+
 import dacrt  # noqa: E402
 from dacrt.distributed import ClusterError, DistributedScene, shard_bounds  # noqa: E402
 
@@ -28,17 +28,8 @@ SMALL_SHARDS = {"min_shard_rays": 64, "max_shard_rays": 512}
 
 @pytest.fixture(scope="module")
 def client():
-    """One LocalCluster for the module: 2 worker processes of 1 thread. When this process files
-    Numba's kernels as the service does (``service.cache``, imported by the service tests), the
-    workers do too: they load the kernels compiled here rather than compile them again."""
-    cluster = distributed.LocalCluster(
-        n_workers=2,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=":0",  # never a fixed port: other clusters may run
-        silence_logs=logging.CRITICAL,
-        preload=["service"] if "service" in sys.modules else [],
-    )
+    """One cluster for the module (``clusters.two_worker_cluster``)."""
+    cluster = two_worker_cluster()
     client = distributed.Client(cluster, set_as_default=False)  # as the service's
     client.wait_for_workers(2)
     yield client

@@ -5,8 +5,6 @@ and a degraded /health."""
 
 from __future__ import annotations
 
-import logging
-import sys
 import time
 
 import in_process
@@ -20,21 +18,14 @@ from service.settings import Settings, SettingsError, load_settings
 
 distributed = pytest.importorskip("distributed")
 
+from clusters import two_worker_cluster  # noqa: E402
+
 MIN_RAYS = 2000
 
 
 @pytest.fixture(scope="module")
 def cluster():
-    """2 worker processes of 1 thread; they file Numba's kernels where this process does
-    (``service.cache``), so that they load the kernels compiled here rather than compile."""
-    cluster = distributed.LocalCluster(
-        n_workers=2,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=":0",  # never a fixed port: other clusters may run
-        silence_logs=logging.CRITICAL,
-        preload=["service"] if "service" in sys.modules else [],
-    )
+    cluster = two_worker_cluster()
     yield cluster
     cluster.close()
 
