@@ -100,9 +100,10 @@ def rays_array(
     origins: Any, directions: Any = None, tmin: Any = None, tmax: Any = None
 ) -> np.ndarray:
     """One (N, 6) or (N, 8) float32 ray array from origins + directions (+ tmin, tmax), or as
-    given."""
+    given. ValueError naming the argument for a shape the engine would refuse (one ray is
+    (1, 3), not (3,)): nothing is broadcast."""
     if directions is None:
-        rays = np.asarray(origins)
+        rays = _numbers(origins, "origins")
         if rays.ndim != 2 or rays.shape[1] not in (6, 8):
             raise ValueError(
                 f"without directions, origins must be (N, 6) or (N, 8) rays, got {rays.shape}"
@@ -113,14 +114,45 @@ def rays_array(
         if rays.shape[1] == 8:
             tmin = rays[:, 6] if tmin is None else tmin
             tmax = rays[:, 7] if tmax is None else tmax
-    origins, directions = np.asarray(origins), np.asarray(directions)
+    origins, directions = _ray_rows(origins, directions)
     has_t = tmin is not None or tmax is not None
     rays = np.empty((len(origins), 8 if has_t else 6), dtype="<f4")
     rays[:, 0:3], rays[:, 3:6] = origins, directions
     if has_t:
-        rays[:, 6] = 0.0 if tmin is None else tmin
-        rays[:, 7] = np.inf if tmax is None else tmax
+        rays[:, 6] = 0.0 if tmin is None else _ray_bound(tmin, len(rays), "tmin")
+        rays[:, 7] = np.inf if tmax is None else _ray_bound(tmax, len(rays), "tmax")
     return rays
+
+
+def _numbers(value: Any, name: str) -> np.ndarray:
+    """``value`` as a numeric array; ValueError naming ``name`` for strings, booleans, objects."""
+    array = np.asarray(value)
+    if array.dtype.kind not in "fiu":
+        raise ValueError(f"{name} must be numbers, got dtype {array.dtype}")
+    return array
+
+
+def _ray_rows(origins: Any, directions: Any) -> tuple[np.ndarray, np.ndarray]:
+    """origins and directions as (n, 3) arrays of one length, as the engine checks them."""
+    rows = []
+    for value, name in ((origins, "origins"), (directions, "directions")):
+        array = _numbers(value, name)
+        if array.ndim != 2 or array.shape[1] != 3:
+            raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
+        rows.append(array)
+    if len(rows[0]) != len(rows[1]):
+        raise ValueError(f"origins has {len(rows[0])} rows but directions has {len(rows[1])}")
+    return rows[0], rows[1]
+
+
+def _ray_bound(value: Any, n_rays: int, name: str) -> np.ndarray:
+    """tmin or tmax: a scalar (every ray) or (n_rays,); ValueError naming ``name`` otherwise."""
+    array = _numbers(value, name)
+    if array.ndim != 0 and array.shape != (n_rays,):
+        raise ValueError(
+            f"{name} must be a scalar or have shape ({n_rays},), one per ray, got {array.shape}"
+        )
+    return array
 
 
 class Client:
@@ -416,16 +448,16 @@ class Client:
     ) -> Answer:
         """A one-shot query on a mesh sent with the rays (nothing is stored); ``mask`` is one
         value or (N,) values, sent in the body."""
+        origins, directions = _ray_rows(origins, directions)
         arrays = {
             "vertices": np.asarray(vertices, dtype="<f4"),
             "faces": np.asarray(faces, dtype="<i4"),
             "origins": np.asarray(origins, dtype="<f4"),
             "directions": np.asarray(directions, dtype="<f4"),
         }
-        if tmin is not None:
-            arrays["tmin"] = np.asarray(tmin, dtype="<f4")
-        if tmax is not None:
-            arrays["tmax"] = np.asarray(tmax, dtype="<f4")
+        for name, bound in (("tmin", tmin), ("tmax", tmax)):
+            if bound is not None:
+                arrays[name] = np.asarray(_ray_bound(bound, len(origins), name), dtype="<f4")
         if mask is not None:
             arrays["mask"] = _mask_array(mask, len(arrays["origins"]))
         params = {"query": query, **_params(fields, strategy, stats, cull)}

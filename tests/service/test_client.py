@@ -565,6 +565,34 @@ def test_set_transform_and_mesh_masks_send_what_the_contract_says():
         client.put_mesh("s", "m", *quad(0, 1, 0, 1, 0), mask=-1)
 
 
+RAY = np.array([0, 1.5, -10.0]), np.array([0, 0, 1.0])
+TWO = np.zeros((2, 3)), np.tile([0, 0, 1.0], (2, 1))
+
+
+@pytest.mark.parametrize(
+    "call, phrase",
+    [
+        (lambda c: c.closest("s", *RAY), r"origins must have shape \(n, 3\), got \(3,\)"),
+        (lambda c: c.closest("s", np.zeros((2, 2)), TWO[1]), r"origins .* got \(2, 2\)"),
+        (lambda c: c.hits("s", TWO[0], np.array([0, 0, 1])), r"directions .* got \(3,\)"),
+        (lambda c: c.count("s", TWO[0], TWO[1][:1]), "origins has 2 rows but directions has 1"),
+        (lambda c: c.occluded("s", *TWO, tmin=[0, 1, 2]), r"tmin .* shape \(2,\).* got \(3,\)"),
+        (lambda c: c.closest("s", *TWO, tmax=np.ones((2, 1))), r"tmax .* got \(2, 1\)"),
+        (lambda c: c.closest("s", np.zeros((2, 6)), tmax=[1, 2, 3]), r"tmax .* got \(3,\)"),
+        (lambda c: c.closest("s", [["0", "0", "0"]], [[0, 0, 1]]), "origins must be numbers"),
+        (lambda c: c.closest("s", *TWO, mask=[1, 2, 3]), r"mask must have shape \(2,\)"),
+        (lambda c: c.trace(*quad(0, 1, 0, 1, 0), *RAY), r"origins .* got \(3,\)"),
+        (lambda c: c.trace(*quad(0, 1, 0, 1, 0), *TWO, tmin=np.zeros(5)), r"tmin .* got \(5,\)"),
+        (lambda c: c.trace(*quad(0, 1, 0, 1, 0), *TWO, mask=np.ones((2, 2), int)), "mask must"),
+    ],
+)
+def test_rays_of_a_wrong_shape_raise_naming_the_argument_and_send_nothing(call, phrase):
+    client, sent = recording_client({})
+    with pytest.raises(ValueError, match=phrase):
+        call(client)
+    assert sent == []
+
+
 def test_the_service_intersector_answers_as_the_in_process_one(app_client, teapot):
     import trimesh
 
