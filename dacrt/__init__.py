@@ -5,7 +5,14 @@ hits = scene.closest(origins, directions)
 blocked = scene.occluded(origins, directions, tmax=distances).occluded
 every = scene.hits(origins, directions, max_hits=16)      # CSR: every.offsets, every.t, ...
 crossings = scene.count(origins, directions).count
+
+The first queries of a process compile the engine's kernels with Numba (minutes, once per
+machine and version; a warning says so); ``dacrt.warmup()`` compiles them all up front, and
+``dacrt.cache.use_cache_dir(path)`` chooses where they are kept. Importing changes nothing
+outside the package.
 """
+
+from importlib.metadata import PackageNotFoundError, version
 
 from .contracts import MISS, STRATEGIES, Counts, HitList, Hits, Occlusion
 from .query import CULL_MODES
@@ -25,4 +32,8 @@ __all__ = [
     "warmup",
     "check_transform",
 ]
-__version__ = "0.1.0"
+
+try:
+    __version__: str = version("dacrt-service")  # pyproject.toml's, the one place it is written
+except PackageNotFoundError:  # sources on sys.path, not installed
+    __version__ = "0+unknown"

@@ -23,6 +23,7 @@ from .chunks import (
     plan_chunks,
     splits_triangles,
 )
+from .compiling import watch
 from .contracts import (
     FLOAT,
     INDEX,
@@ -87,6 +88,7 @@ class Scene:
     """
 
     def __init__(self, meshes, masks=None, transforms=None):
+        watch()  # the first compile in process says so (``compiling``)
         meshes = list(meshes)
         checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in enumerate(meshes)]
         if transforms is not None:

@@ -5,12 +5,15 @@ import time
 import numpy as np
 
 from .chunks import MIN_RAYS_PER_THREAD, SPLIT_TRIANGLES_RAYS_PER_TRIANGLE, splits_triangles
+from .compiling import warming_up
 from .contracts import STRATEGIES
 from .scene import Scene
 
 
-def warmup():
-    """Compile every kernel; returns the seconds it took."""
+@warming_up()
+def warmup() -> float:
+    """Compile every kernel (or load it from Numba's cache: ``dacrt.cache``); returns the seconds
+    it took."""
     start = time.perf_counter()
     vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float32)
     faces = np.array([[0, 1, 2], [1, 3, 2]], np.int32)

@@ -1,16 +1,27 @@
 """HTTP service of the dacrt ray caster: scenes of triangle meshes, queried with ray batches.
 
-Modules, in dependency order: ``cache`` (where Numba keeps compiled kernels), ``errors`` (domain
-errors -> statuses), ``settings`` (DACRT_* environment), ``wire`` (body formats; its docstring is
-the spec), ``store`` (scenes as immutable snapshots), ``persistence`` (the scenes' files),
-``tracing`` (the only caller of the engine), ``warmup`` (every kernel a request reaches),
-``metrics``, ``logs``, ``deps`` and ``timing`` (request plumbing), ``routes`` (thin handlers),
-``app`` (the ``create_app`` factory), ``cli`` (``dacrt-service``), ``client``.
+Importing the package does nothing but define: the server's start (``app``'s lifespan) chooses
+where Numba keeps the compiled kernels (``dacrt.cache.use_cache_dir``). Its modules, by role:
+
+- start and settings: ``cli`` (``dacrt-service``, ``python -m service`` through ``__main__``),
+  ``app`` (the ``create_app`` factory), ``settings`` (DACRT_* environment), ``logs``,
+  ``warmup`` (every kernel a request reaches), ``protocol`` (uvicorn's HTTP with deadlines);
+- requests: ``routes`` (thin handlers), ``params`` (path and query parameters), ``deps``
+  (dependencies), ``errors`` (domain errors -> statuses), ``openapi`` (what the document says
+  of bodies), ``timing`` (``Server-Timing``), ``responses`` (answers sent as buffers),
+  ``metrics`` (Prometheus);
+- bodies: ``wire`` (every body format; its docstring is the spec), ``sensor_requests`` (the JSON
+  bodies of the sensors);
+- scenes: ``store`` (immutable snapshots), ``persistence`` (DACRT_DATA_DIR's files);
+- the engine: ``tracing`` (queries), ``sensing``, ``cameras``, ``lidar`` and ``shading``
+  (pictures, depth cameras, lidar), ``cluster`` (DACRT_DASK_SCHEDULER);
+- clients: ``client`` (NumPy in, NumPy out), ``transport`` (its urllib3 transport),
+  ``intersector`` (trimesh's ray interface over HTTP).
 """
 
-from .cache import use_cache_dir
+from importlib.metadata import PackageNotFoundError, version
 
-__version__ = "0.1.0"
-
-#: Numba's compiled kernels, set before anything imports ``dacrt`` (see ``service.cache``).
-CACHE_DIR = use_cache_dir()
+try:
+    __version__ = version("dacrt-service")  # pyproject.toml's, the one place it is written
+except PackageNotFoundError:  # sources on sys.path, not installed
+    __version__ = "0+unknown"

@@ -16,7 +16,9 @@ from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
-from . import CACHE_DIR, __version__, errors, openapi, warmup, wire
+import dacrt.cache
+
+from . import __version__, errors, openapi, warmup, wire
 from .cluster import Cluster
 from .deps import Readiness, require_ready
 from .logs import configure_logging
@@ -43,6 +45,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        # Where kernels compile to, before the first one runs: DACRT_CACHE_DIR (``dacrt.cache``)
+        dacrt.cache.use_cache_dir(settings.cache_dir)
         if journal is not None:
             restore(store, journal)
         if settings.load_demo:
@@ -110,9 +114,8 @@ def open_data_dir(settings: Settings) -> DataDir | None:
 
 
 def warm_up(readiness: Readiness, threads: int | None = None) -> None:
-    """Compile every kernel a request can reach (1-3 minutes the first time, then seconds from
+    """Compile every kernel a request can reach (minutes the first time, then seconds from
     Numba's cache)."""
-    log.info("warm-up: compiled kernels are cached in %s", CACHE_DIR)
     try:
         seconds = warmup.warm_up(threads)
     except Exception as exc:  # report through /health rather than die in a thread

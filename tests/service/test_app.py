@@ -112,4 +112,4 @@ def test_the_factory_logs_as_python_m_service_does():
         server.stop()
     assert "INFO:     service: demo scene 'demo'" in output
     assert "INFO:     service: engine ready after" in output
-    assert "INFO:     service: warm-up: compiling the engine's kernels" in output
+    assert "INFO:     service: warm-up: the engine's kernels (dacrt.warmup) ready after" in output
