@@ -19,12 +19,13 @@ WORKDIR /app
 COPY pyproject.toml README.md ./
 COPY dacrt ./dacrt
 COPY service ./service
-RUN pip install . && rm -rf build *.egg-info
+RUN pip install ".[service]" && rm -rf build *.egg-info
 
 USER app
-# Compile every kernel a request reaches into the cache now, so that the container is ready in
-# seconds (on this CPU). From /app, as the server runs: Numba also keys its cache by source path.
-RUN python -c "from service.warmup import warm_up; print('warm-up', round(warm_up(), 1), 's')"
+# Compile every kernel a request reaches into DACRT_CACHE_DIR now, so that the container is ready
+# in seconds (on this CPU). The kernels are filed by a digest of the engine's sources, so the
+# server finds them whichever copy of the sources it imports.
+RUN python -m service.warmup
 
 VOLUME /data
 EXPOSE 8000

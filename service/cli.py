@@ -7,8 +7,12 @@ import argparse
 import os
 from collections.abc import Sequence
 
+from pydantic import ByteSize
+
 from . import __version__
-from .settings import LOG_LEVELS, load_settings_or_exit
+from .settings import LOG_LEVELS, GiB, KiB, MiB, Settings, load_settings_or_exit, variable
+
+UNITS = {"GiB": GiB, "MiB": MiB, "KiB": KiB, "": 1}
 
 #: option -> (setting, help); the default shown is the setting's
 OPTIONS = {
@@ -31,12 +35,32 @@ def parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="dacrt-service",
         description="The dacrt ray-casting HTTP service, with the demo scene (scene 'demo') "
-        "unless DACRT_LOAD_DEMO=false. Every DACRT_* setting is listed in the README.",
+        "unless DACRT_LOAD_DEMO=false. Stop it with Ctrl-C. The first start compiles the "
+        "engine's kernels (minutes; the log counts them); later starts load them from "
+        "DACRT_CACHE_DIR in seconds. The API's pages are at /docs, a viewer at /.",
+        epilog=settings_help(),
     )
     for option, (_, text) in OPTIONS.items():
         parser.add_argument(option, metavar=option.removeprefix("--").upper(), help=text)
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     return parser
+
+
+def settings_help() -> str:
+    """Every DACRT_* variable with its default, from ``Settings`` itself."""
+    shown = []
+    for field, info in Settings.model_fields.items():
+        default = "unset" if info.default is None else info.default
+        if info.annotation is ByteSize:
+            unit = next(u for u in ("GiB", "MiB", "KiB", "") if default % UNITS[u] == 0)
+            default = f"{default // UNITS[unit]}{unit}"
+        shown.append(f"{variable(field)}={default}")
+    return (
+        "Settings come from the environment; an option above wins over its variable, and a "
+        "DACRT_* name that is no setting stops the start. The variables and their defaults: "
+        + ", ".join(shown)
+        + " (DACRT_CACHE_DIR unset: ~/.cache/dacrt). Byte sizes take units (64MiB, 4GiB)."
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> None:

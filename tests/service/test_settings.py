@@ -22,6 +22,7 @@ from service.settings import (
     check_names,
     load_settings,
     load_settings_or_exit,
+    variable,
 )
 
 
@@ -226,6 +227,35 @@ def test_help_lists_every_option_and_starts_nothing():
     assert done.returncode == 0 and done.stdout.startswith("usage: dacrt-service")
     for option in ("--host", "--port", "--data-dir", "--token-file", "--threads", "--log-level"):
         assert option in done.stdout
+
+
+def test_help_names_every_setting_without_sending_to_the_readme():
+    done = subprocess.run(
+        [sys.executable, "-m", "service", "--help"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0
+    for field in Settings.model_fields:
+        assert variable(field) in done.stdout  # a pip user has no README
+    assert "README" not in done.stdout
+
+
+@pytest.mark.parametrize("package", ["uvicorn", "fastapi", "pydantic_settings"])
+def test_a_missing_web_stack_is_one_line_naming_the_extra(package):
+    hidden = f"import sys; sys.modules[{package!r}] = None; "  # as if not installed
+    done = subprocess.run(
+        [sys.executable, "-c", hidden + "from service.__main__ import main; main(['--help'])"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 1 and done.stdout == ""
+    assert done.stderr.count("\n") == 1
+    assert package in done.stderr and "pip install 'dacrt-service[service]'" in done.stderr
 
 
 def test_options_of_the_command_line_set_the_server(tmp_path):
