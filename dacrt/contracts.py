@@ -65,9 +65,9 @@ class Hits:
     u: np.ndarray
     v: np.ndarray
     normal: np.ndarray
-    stats: dict | None = None
+    stats: dict[str, int] | None = None
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.t)
 
 
@@ -80,9 +80,9 @@ class Occlusion:
     """
 
     occluded: np.ndarray
-    stats: dict | None = None
+    stats: dict[str, int] | None = None
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.occluded)
 
 
@@ -107,13 +107,13 @@ class HitList:
     v: np.ndarray
     normal: np.ndarray
     truncated: np.ndarray
-    stats: dict | None = None
+    stats: dict[str, int] | None = None
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.truncated)
 
     @property
-    def counts(self):
+    def counts(self) -> np.ndarray:
         """(n,) int64: the hits held for each ray."""
         return np.diff(self.offsets)
 
@@ -127,7 +127,7 @@ class Counts:
     """
 
     count: np.ndarray
-    stats: dict | None = None
+    stats: dict[str, int] | None = None
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.count)

@@ -1,4 +1,5 @@
-"""The public query surface: ``Scene``, ``Scene.closest`` and ``Scene.occluded``.
+"""The public query surface: ``Scene`` and its queries ``closest``, ``occluded``, ``hits`` and
+``count``.
 
 This is the only module that checks and converts input. A Scene keeps its triangles and what is
 O(F) and cheap to derive from them (gathered vertices, boxes); every query partitions rays and
@@ -8,8 +9,11 @@ over threads is ``chunks``.
 
 import functools
 from collections import namedtuple
+from collections.abc import Iterable, Sequence
+from typing import Literal
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .chunks import (
     DENSITY_GRID,
@@ -67,6 +71,10 @@ from .validation import (
     place_vertices,
 )
 
+#: The values of ``cull=`` and ``strategy=`` (``CULL_MODES``, ``STRATEGIES``).
+Cull = Literal["none", "back", "front"]
+Strategy = Literal["sampling", "sah", "middle", "rayspace"]
+
 Traced = namedtuple("Traced", ["best_t", "arrays", "counters", "origins", "directions"])
 Traced.__doc__ = """What the kernels leave of a query: each ray's best_t, the query's
 ``QueryArrays`` (without scratch), the counters (a dict), and the checked float32 origins and
@@ -87,7 +95,12 @@ class Scene:
         faces) arrays may be given several times, each with its own matrix and mask: instances.
     """
 
-    def __init__(self, meshes, masks=None, transforms=None):
+    def __init__(
+        self,
+        meshes: Iterable[tuple[ArrayLike, ArrayLike]],
+        masks: ArrayLike | int | None = None,
+        transforms: Sequence[ArrayLike | None] | None = None,
+    ) -> None:
         watch()  # the first compile in process says so (``compiling``)
         meshes = list(meshes)
         checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in enumerate(meshes)]
@@ -144,7 +157,7 @@ class Scene:
         return placed
 
     @property
-    def nbytes(self):
+    def nbytes(self) -> int:
         """Bytes held by the scene's arrays, with those derived on demand once they exist."""
         derived = [
             self.__dict__[name]
@@ -183,22 +196,22 @@ class Scene:
     _no_normals = np.empty((0, 3), FLOAT)
     _no_masks = np.empty(0, np.uint32)
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return f"Scene({self.n_meshes} meshes, {self.n_triangles} triangles)"
 
     def closest(
         self,
-        origins,
-        directions,
-        tmin=None,
-        tmax=None,
+        origins: ArrayLike,
+        directions: ArrayLike,
+        tmin: ArrayLike | float | None = None,
+        tmax: ArrayLike | float | None = None,
         *,
-        cull="none",
-        mask=None,
-        strategy="sampling",
-        threads=None,
-        stats=False,
-    ):
+        cull: Cull = "none",
+        mask: ArrayLike | int | None = None,
+        strategy: Strategy = "sampling",
+        threads: int | None = None,
+        stats: bool = False,
+    ) -> Hits:
         """Nearest hit of each ray ``origins + t * directions`` with tmin <= t <= tmax.
 
         origins, directions : (n, 3) float; directions need not be unit, t is in their units
@@ -244,17 +257,17 @@ class Scene:
 
     def occluded(
         self,
-        origins,
-        directions,
-        tmin=None,
-        tmax=None,
+        origins: ArrayLike,
+        directions: ArrayLike,
+        tmin: ArrayLike | float | None = None,
+        tmax: ArrayLike | float | None = None,
         *,
-        cull="none",
-        mask=None,
-        strategy="sampling",
-        threads=None,
-        stats=False,
-    ):
+        cull: Cull = "none",
+        mask: ArrayLike | int | None = None,
+        strategy: Strategy = "sampling",
+        threads: int | None = None,
+        stats: bool = False,
+    ) -> Occlusion:
         """Whether each ray hits anything with tmin <= t <= tmax (it stops at its first hit).
 
         Same arguments as ``closest``. Returns ``Occlusion``."""
@@ -265,18 +278,18 @@ class Scene:
 
     def hits(
         self,
-        origins,
-        directions,
-        tmin=None,
-        tmax=None,
+        origins: ArrayLike,
+        directions: ArrayLike,
+        tmin: ArrayLike | float | None = None,
+        tmax: ArrayLike | float | None = None,
         *,
-        max_hits=16,
-        cull="none",
-        mask=None,
-        strategy="sampling",
-        threads=None,
-        stats=False,
-    ):
+        max_hits: int = 16,
+        cull: Cull = "none",
+        mask: ArrayLike | int | None = None,
+        strategy: Strategy = "sampling",
+        threads: int | None = None,
+        stats: bool = False,
+    ) -> HitList:
         """Every hit of each ray with tmin <= t <= tmax, nearest first, at most ``max_hits``.
 
         Same arguments as ``closest``, and max_hits (a positive int). A ray through an edge or
@@ -326,17 +339,17 @@ class Scene:
 
     def count(
         self,
-        origins,
-        directions,
-        tmin=None,
-        tmax=None,
+        origins: ArrayLike,
+        directions: ArrayLike,
+        tmin: ArrayLike | float | None = None,
+        tmax: ArrayLike | float | None = None,
         *,
-        cull="none",
-        mask=None,
-        strategy="sampling",
-        threads=None,
-        stats=False,
-    ):
+        cull: Cull = "none",
+        mask: ArrayLike | int | None = None,
+        strategy: Strategy = "sampling",
+        threads: int | None = None,
+        stats: bool = False,
+    ) -> Counts:
         """How many triangles each ray crosses with tmin <= t <= tmax.
 
         Same arguments as ``closest``. A crossing through an edge or vertex shared by several
