@@ -103,7 +103,13 @@ def look_at(eye, target, up, fov_deg: float, width: int, height: int) -> Pinhole
     down = np.cross(forward, right)
     pose = np.eye(4)
     pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, down, forward, eye
-    focal = (height / 2) / math.tan(math.radians(fov_deg) / 2)
+    tangent = math.tan(math.radians(fov_deg) / 2)  # 0 for a subnormal fov_deg
+    focal = (height / 2) / tangent if tangent > 0 else math.inf
+    if not math.isfinite(focal):
+        raise CameraError(
+            f"fov_deg: {fov_deg!r} is too small: the focal length (height / 2) / tan(fov_deg / 2) "
+            "is not a finite number"
+        )
     return Pinhole(width, height, focal, focal, (width - 1) / 2, (height - 1) / 2, pose)
 
 

@@ -3,7 +3,9 @@
 ``parse`` reads a body into a model: a body that is not a JSON object, or that lacks a required
 key or has an unknown one, is 400 (API.md: "wrong keys"); a value of the wrong type or out of range
 is 422, naming the key (``pose[3][0]: ...``). Numbers must be JSON numbers (not strings or
-booleans) and finite; ``null`` stands for a default where the model says so.
+booleans), finite and within float32's range (the rays are float32); ``null`` stands for a default
+where the model says so. What the values make is checked here too, so that no request reaches the
+engine with rays it would refuse: a camera's focal length must keep its edge rays within float32.
 """
 
 from __future__ import annotations
@@ -11,7 +13,8 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+import numpy as np
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from . import wire
 from .cameras import CameraError, Pinhole, check_pose, look_at
@@ -23,15 +26,26 @@ from .shading import SHADINGS
 MAX_BEAMS = 1024
 MAX_RETURNS = 64
 
-Finite = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+#: The largest float32: every number of a sensor ends up in float32 rays or bounds.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def _within_float32(value: float) -> float:
+    if abs(value) > FLOAT32_MAX:
+        raise ValueError(f"{value!r} is beyond the float32 range (at most {FLOAT32_MAX:.7g})")
+    return value
+
+
+Float32 = AfterValidator(_within_float32)
+Finite = Annotated[float, Field(strict=True, allow_inf_nan=False), Float32]
 Vector3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 Matrix4 = Annotated[
     list[Annotated[list[Finite], Field(min_length=4, max_length=4)]],
     Field(min_length=4, max_length=4, description="4x4, row-major"),
 ]
 Pixels = Annotated[int, Field(strict=True, gt=0)]
-Positive = Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
-NonNegative = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
+Positive = Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False), Float32]
+NonNegative = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False), Float32]
 FieldOfView = Annotated[
     float,
     Field(strict=True, gt=0, lt=180, description="vertical field of view, degrees"),
@@ -104,6 +118,9 @@ class CameraRequest(Body):
             )
         if self.far is not None and self.far <= self.near:
             raise ValueError(f"far ({self.far}) must be greater than near ({self.near})")
+        intrinsics = (self.fx, self.cx, self.fy, self.cy)
+        if None not in intrinsics:  # else 400 for the missing keys (``parse``)
+            check_edge_rays(self.fx, self.cx, self.width, self.fy, self.cy, self.height)
         return self
 
     def missing(self) -> list[str]:
@@ -131,6 +148,29 @@ class CameraRequest(Body):
     @property
     def max_depth(self) -> float:
         return math.inf if self.far is None else self.far
+
+
+def edge_ray(focal: float, centre: float, pixels: int) -> float:
+    """The largest ``|k - centre| / focal`` over the pixel coordinates k of ``pixels``: the
+    camera-frame slope of the outermost rays (float64; inf when it overflows)."""
+    with np.errstate(over="ignore"):
+        return float(np.float64(max(abs(centre), abs(pixels - 1 - centre))) / np.float64(focal))
+
+
+def check_edge_rays(fx: float, cx: float, width: int, fy: float, cy: float, height: int) -> None:
+    """ValueError naming fx or fy if the rays of the picture's edge overflow float32: a direction
+    ``x * R[:, 0] + y * R[:, 1] + R[:, 2]`` (R a rotation) has components of at most
+    ``|x| + |y| + 1``, which must stay within FLOAT32_MAX."""
+    x, y = edge_ray(fx, cx, width), edge_ray(fy, cy, height)
+    if x + y + 1 <= FLOAT32_MAX:
+        return
+    key, focal, centre_key, centre, slope, along = (
+        ("fx", fx, "cx", cx, x, "column") if x >= y else ("fy", fy, "cy", cy, y, "row")
+    )
+    raise ValueError(
+        f"{key}: {focal!r} is too small for {centre_key} {centre!r}: the slope of the edge rays, "
+        f"({along} - {centre_key}) / {key}, reaches {slope:.3g}, beyond the float32 range"
+    )
 
 
 Elevation = Annotated[float, Field(strict=True, ge=-90, le=90, allow_inf_nan=False)]

@@ -171,3 +171,73 @@ def deep_json(key: str, depth: int) -> bytes:
     """``{key: [[[...]]], ...}`` nested ``depth`` lists deep, with the other ray key valid."""
     other = "directions" if key == "origins" else "origins"
     return (f'{{"{key}": ' + "[" * depth + "]" * depth + f', "{other}": [[0, 0, 1]]}}').encode()
+
+
+# ---- sensor bodies with one bad value
+
+LIDAR = {"pose": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]], "model": "VLP-16"}
+PINHOLE = {
+    "width": 4,
+    "height": 3,
+    "fx": 2,
+    "fy": 2,
+    "cx": 1.5,
+    "cy": 1,
+    "pose": [[1, 0, 0, 0], [0, 0, 1, -7], [0, -1, 0, 1], [0, 0, 0, 1]],
+}
+LOOK_AT = {"width": 4, "height": 3, "eye": [8, 6, 8], "target": [0, 1.5, 0]}
+NAN, INF = float("nan"), float("inf")
+
+
+def with_entry(rows: list, row: int, column: int, value: float) -> list:
+    """A copy of a list of lists with ``rows[row][column] = value``."""
+    copy = [list(r) for r in rows]
+    copy[row][column] = value
+    return copy
+
+
+#: (route, body, a phrase of the 422 detail that names the request's key) for values that are
+#: non-finite, beyond float32 (the rays are float32), negative, out of order, or focal lengths so
+#: small (subnormal, zero) that the rays overflow. json.dumps writes NaN and Infinity.
+BAD_SENSOR_VALUES = [
+    ("lidar", {**LIDAR, "pose": with_entry(LIDAR["pose"], 0, 3, 1e39)}, "pose[0][3]: 1e+39"),
+    ("lidar", {**LIDAR, "pose": with_entry(LIDAR["pose"], 1, 3, 3.5e38)}, "pose[1][3]: 3.5e+38"),
+    ("lidar", {**LIDAR, "pose": with_entry(LIDAR["pose"], 0, 0, 1e39)}, "pose[0][0]: 1e+39"),
+    ("lidar", {**LIDAR, "pose": with_entry(LIDAR["pose"], 2, 3, NAN)}, "pose[2][3]: Input should"),
+    ("lidar", {**LIDAR, "pose": with_entry(LIDAR["pose"], 2, 1, INF)}, "pose[2][1]: Input should"),
+    ("lidar", {**LIDAR, "min_range": 1e39}, "min_range: 1e+39"),
+    ("lidar", {**LIDAR, "max_range": 1e39}, "max_range: 1e+39"),
+    ("lidar", {**LIDAR, "min_range": NAN}, "min_range: Input should be a finite number"),
+    ("lidar", {**LIDAR, "max_range": INF}, "max_range: Input should be"),
+    ("lidar", {**LIDAR, "min_range": -1}, "min_range: Input should be greater than or equal to 0"),
+    ("lidar", {**LIDAR, "max_range": -1}, "max_range: Input should be greater than 0"),
+    ("lidar", {**LIDAR, "min_range": 5, "max_range": 2}, "max_range (2.0) must be greater than"),
+    (
+        "lidar",
+        {"pose": LIDAR["pose"], "vertical_angles_deg": [0, 1e39]},
+        "vertical_angles_deg[1]: Input should be less than or equal to 90",
+    ),
+    ("camera", {**PINHOLE, "fx": 1e-300}, "fx: 1e-300 is too small for cx 1.5"),
+    ("camera", {**PINHOLE, "fy": 5e-324}, "fy: 5e-324 is too small for cy 1"),
+    ("camera", {**PINHOLE, "fx": 1e-39, "cx": 10.0}, "fx: 1e-39 is too small for cx 10.0"),
+    ("camera", {**PINHOLE, "fx": 0}, "fx: Input should be greater than 0"),
+    ("camera", {**PINHOLE, "fy": -500}, "fy: Input should be greater than 0"),
+    ("camera", {**PINHOLE, "fx": 1e39}, "fx: 1e+39"),
+    ("camera", {**PINHOLE, "fx": NAN}, "fx: Input should be a finite number"),
+    ("camera", {**PINHOLE, "cx": 1e39}, "cx: 1e+39"),
+    ("camera", {**PINHOLE, "cy": -INF}, "cy: Input should be a finite number"),
+    ("camera", {**PINHOLE, "pose": with_entry(PINHOLE["pose"], 2, 3, -1e39)}, "pose[2][3]: -1e+39"),
+    ("camera", {**PINHOLE, "near": 1e39}, "near: 1e+39"),
+    ("camera", {**PINHOLE, "far": 1e39}, "far: 1e+39"),
+    ("camera", {**PINHOLE, "near": -1}, "near: Input should be greater than or equal to 0"),
+    ("camera", {**PINHOLE, "near": 5, "far": 2}, "far (2.0) must be greater than near (5.0)"),
+    ("camera", {**LOOK_AT, "eye": [1e39, 0, 0]}, "eye[0]: 1e+39"),
+    ("camera", {**LOOK_AT, "fov_deg": 5e-324}, "fov_deg: 5e-324 is too small"),
+    ("render", {**LOOK_AT, "eye": [0, 1e39, 0]}, "eye[1]: 1e+39"),
+    ("render", {**LOOK_AT, "target": [0, 0, INF]}, "target[2]: Input should be a finite number"),
+    ("render", {**LOOK_AT, "up": [0, -3.5e38, 0]}, "up[1]: -3.5e+38"),
+    ("render", {**LOOK_AT, "fov_deg": 5e-324}, "fov_deg: 5e-324 is too small"),
+    ("render", {**LOOK_AT, "fov_deg": 0}, "fov_deg: Input should be greater than 0"),
+]
+#: What a sensor's error must never name: the engine's arrays, which are not the request's keys.
+INTERNAL_NAMES = r"\b(origins|directions|tmin|tmax)\b"

@@ -1,10 +1,15 @@
 """Random JSON bodies for /render, /camera and /lidar on a scene that exists (the schema fuzzing of
 test_fuzz.py mostly meets unknown scenes): none gets a 5xx, every refusal is a ``{"detail": str}``
-with a 4xx the contract names, and a rejected request changes nothing."""
+with a 4xx the contract names and none names the engine's arrays, and a rejected request changes
+nothing. Every bad value of hostile_bodies.BAD_SENSOR_VALUES is a 422 naming its key."""
 
 from __future__ import annotations
 
+import json
+import re
+
 import pytest
+from hostile_bodies import BAD_SENSOR_VALUES, INTERNAL_NAMES
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sensor_helpers import put_room
@@ -13,6 +18,8 @@ numbers = st.one_of(
     st.integers(-3, 64),
     st.floats(-1e3, 1e3, allow_nan=False),
     st.sampled_from([0, 1e30, -1e30, 1e-30, 2**63, 0.5]),
+    # beyond float32, at its edge, and subnormal
+    st.sampled_from([1e39, -1e39, 3.5e38, 3.4e38, 1e-39, 1e-45, 5e-324, 1e-300]),
 )
 values = st.recursive(
     st.one_of(numbers, st.none(), st.booleans(), st.text(max_size=4)),
@@ -108,6 +115,26 @@ def test_no_body_gets_a_server_error(app_client, fuzz_room, route):
         assert response.status_code in (200, 400, 413, 422), (body, response.text[:300])
         if response.status_code != 200:
             assert list(response.json()) == ["detail"], response.text
+            assert not re.search(INTERNAL_NAMES, response.json()["detail"]), (body, response.text)
 
     call()
     assert app_client.get(f"/v1/scenes/{fuzz_room}").json()["version"] == version
+
+
+@pytest.mark.parametrize(
+    "route, body, phrase",
+    BAD_SENSOR_VALUES,
+    ids=[
+        f"{route}-{phrase.split(':')[0]}-{i}"
+        for i, (route, _, phrase) in enumerate(BAD_SENSOR_VALUES)
+    ],
+)
+def test_every_bad_sensor_value_is_a_422_naming_its_key(app_client, fuzz_room, route, body, phrase):
+    response = app_client.post(
+        f"/v1/scenes/{fuzz_room}/{route}",
+        content=json.dumps(body),  # NaN and Infinity as Python's json writes them
+        headers={"Content-Type": "application/json"},
+    )
+    detail = response.json()["detail"]
+    assert response.status_code == 422 and phrase in detail, detail
+    assert not re.search(INTERNAL_NAMES, detail), detail
