@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.embree import Embree
 from bench.rays import CLOSEST, RaySet
+from oracles.embree import Embree
 
 
 @dataclass
@@ -88,7 +88,7 @@ class DacrtEngine:
 
 
 class EmbreeEngine:
-    """Embree through embreex (``bench.embree``): ``run`` traces one ray at a time on one thread.
+    """Embree through embreex (``oracles.embree``): ``run`` traces one ray at a time on one thread.
 
     The scene is built from (F, 3, 3) float32 triangles; gathering them from (V, F) is part of the
     build. Embree's BVH build (on commit) uses its own thread pool on every core; embreex gives

@@ -41,7 +41,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 import dacrt  # noqa: E402
-from bench.embree import Embree  # noqa: E402
+from oracles.embree import Embree  # noqa: E402
 from service.client import Client  # noqa: E402
 
 

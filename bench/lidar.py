@@ -42,8 +42,8 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 import dacrt  # noqa: E402
-from bench.embree import Embree  # noqa: E402
 from bench.http_overhead import cpu_model, start_server  # noqa: E402
+from oracles.embree import Embree  # noqa: E402
 from service.client import Client  # noqa: E402
 from service.lidar import MODELS  # noqa: E402
 from service.timing import parse_server_timing  # noqa: E402

@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from bench import rays as R
-from bench.embree import Embree
 from bench.engines import add_engine_arguments, available_engines
 from bench.measure import (
     agreement,
@@ -37,6 +36,7 @@ from bench.measure import (
 )
 from bench.report import render
 from bench.scene_io import load_mesh, load_view, mesh_bounds
+from oracles.embree import Embree
 
 KINDS = ("primary", "shadow", "ao", "diffuse", "random")
 # fixed per-kind seed offsets, so adding a kind to --kinds changes no other kind's rays

@@ -322,7 +322,7 @@ def check_against_embree(
 ):
     """Agreement with Embree: hit/miss on >= ``min_agreement`` of rays, ``t`` on rays both hit.
 
-    ``oracle`` is a ``bench.embree.MeshHits`` for the same rays; vertices/faces the concatenated
+    ``oracle`` is an ``oracles.embree.MeshHits`` for the same rays; vertices/faces the concatenated
     scene.
     """
     n = len(origins)

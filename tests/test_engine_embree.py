@@ -15,7 +15,7 @@ import pytest
 import sample_scenes
 
 import dacrt
-from bench.embree import Embree
+from oracles.embree import Embree
 
 embreex = pytest.importorskip("embreex")
 

@@ -191,7 +191,7 @@ def test_open3d_lists_the_same_hits(name):
     """Open3D's count_intersections and list_intersections (sorted) equal count and hits on the
     rays whose crossings are apart in t (Open3D drops one of two crossings at one float32 t)."""
     pytest.importorskip("open3d")
-    import open3d_oracle
+    from oracles import open3d_hits as open3d_oracle
 
     meshes, v, f, offsets, o, d, tmin, tmax, full, window = generic(name)
     scene = dacrt.Scene(meshes)

@@ -14,7 +14,7 @@ import reference
 @pytest.mark.parametrize("seed", [0, 1])
 def test_reference_matches_embree_on_soup(seed):
     pytest.importorskip("embreex")
-    from bench.embree import Embree
+    from oracles.embree import Embree
 
     rng = np.random.default_rng(seed)
     v, f = pg.triangle_soup(800, rng)
@@ -167,7 +167,7 @@ def test_all_hits_agree_with_moller_trumbore_on_soup(seed):
 def test_all_hits_match_open3d(name, n_rays, load_shared):
     """Counts, t and triangles of every crossing equal Open3D's on random rays over real scenes."""
     pytest.importorskip("open3d")
-    import open3d_oracle
+    from oracles import open3d_hits as open3d_oracle
 
     v, f = load_shared(name)
     o, d = pg.mixed_rays(pg.bounds(v), n_rays, np.random.default_rng(7))

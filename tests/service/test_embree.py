@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from service_helpers import SHARED_SCENES, rays_at
 
-from bench.embree import Embree
+from oracles.embree import Embree
 
 pytest.importorskip("embreex")
 

@@ -1,0 +1,85 @@
+"""service.params: what the OpenAPI document declares of each parameter is what the service's own
+checks accept (names, masks, the engine's strategies and culling modes, the body formats), and
+the batch options reach the engine's options unchanged, the mask parsed."""
+
+from __future__ import annotations
+
+import re
+from typing import Any, get_args
+
+import pytest
+
+from service import params, tracing, wire
+from service.errors import Invalid
+from service.store import check_name
+
+
+def declared(parameter: Any) -> dict:
+    """The JSON-schema extras of an ``Annotated[..., Query(...)]`` or ``Path(...)``."""
+    return get_args(parameter)[1].json_schema_extra
+
+
+NAMES = ["demo", "a", "A-z_0.9", "x" * 64, "x" * 65, "", "bad/name", "sp ace", ".", "..", "é"]
+
+
+@pytest.mark.parametrize("parameter", [params.SceneName, params.MeshName])
+@pytest.mark.parametrize("name", NAMES)
+def test_every_name_the_store_accepts_matches_the_declared_pattern(parameter, name):
+    pattern = declared(parameter)["pattern"]
+    try:
+        check_name("scene", name)
+    except Invalid:
+        # refused: by the pattern, or ('.' and '..') by the store's one extra rule
+        assert not re.fullmatch(pattern, name) or name in (".", "..")
+    else:
+        assert re.fullmatch(pattern, name)
+
+
+MASKS = ["0", "255", "0xff", "0XFF", "0xFFFFFFFF", "4294967295", "-1", "1.5", "ff", "0x", "x1"]
+
+
+@pytest.mark.parametrize("text", MASKS)
+def test_every_mask_the_service_parses_matches_the_declared_pattern(text):
+    pattern = declared(params.RayMask)["pattern"]
+    try:
+        wire.parse_mask(text, "?mask")
+    except Invalid:
+        return
+    assert re.fullmatch(pattern, text)
+
+
+def test_the_declared_choices_are_the_engines_and_the_services():
+    assert declared(params.Strategy)["enum"] == list(tracing.strategies())
+    assert declared(params.Cull)["enum"] == list(tracing.CULL_MODES)
+    assert declared(params.QueryKind)["enum"] == [q.value for q in tracing.Query]
+    formats = {
+        params.RayFormat: wire.RAY_FORMATS,
+        params.MeshFormat: wire.MESH_FORMATS,
+        params.VertexFormat: wire.VERTEX_FORMATS,
+        params.FrameFormat: wire.FRAME_FORMATS,
+        params.TraceFormat: wire.TRACE_FORMATS,
+    }
+    for parameter, accepted in formats.items():
+        assert declared(parameter)["enum"] == list(accepted)
+
+
+def test_the_batch_options_default_to_the_engines_defaults():
+    options = params.batch_options()
+    assert options == params.BatchOptions(None, None, False, "none", None)
+    assert options.for_query("closest", threads=None) == tracing.make_options("closest")
+
+
+def test_the_batch_options_reach_the_engine_options_with_the_mask_parsed():
+    batch = params.batch_options(
+        fields="t", strategy="rayspace", stats=True, cull="back", mask="0x10"
+    )
+    options = batch.for_query("hits", threads=2, max_hits=3, max_hits_limit=8)
+    assert options == tracing.Options(
+        tracing.Query.HITS, ("offsets", "t"), "rayspace", True, 2, "back", 3, 0x10
+    )
+
+
+@pytest.mark.parametrize("mask", ["0x1FFFFFFFF", "-1", "twelve"])
+def test_a_bad_mask_is_a_422_naming_the_query_parameter(mask):
+    with pytest.raises(Invalid, match=r"\?mask="):
+        params.batch_options(mask=mask).for_query("count", threads=None)

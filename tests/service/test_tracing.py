@@ -1,0 +1,140 @@
+"""service.tracing: what a query may ask (options with their defaults, and 422s that name the
+choices), and how a stored scene version answers it: the engine's answer under the meshes'
+stable indices, only the fields asked for, at the version traced."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from service_helpers import quad
+
+from service import tracing, wire
+from service.errors import Invalid
+from service.store import Store
+
+QUERIES = list(tracing.Query)
+
+
+@pytest.mark.parametrize("query", QUERIES)
+def test_defaults_ask_for_every_field_with_the_first_strategy(query):
+    options = tracing.make_options(query.value)
+    assert options.query is query and options.fields == tracing.FIELDS[query]
+    assert options.strategy == tracing.strategies()[0] == "sampling"
+    assert options.cull == "none" and not options.stats and options.mask is None
+    assert options.max_hits == (tracing.DEFAULT_MAX_HITS if query is tracing.Query.HITS else None)
+
+
+def test_fields_come_in_answer_order_whatever_order_they_are_asked_in():
+    options = tracing.make_options("closest", fields=" normal, t ,mesh")
+    assert options.fields == ("t", "mesh", "normal")
+
+
+def test_hits_fields_of_one_value_per_hit_bring_their_offsets():
+    assert tracing.make_options("hits", fields="prim,t").fields == ("offsets", "t", "prim")
+    assert tracing.make_options("hits", fields="truncated").fields == ("truncated",)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "named"),
+    [
+        ({"query": "nearest"}, ["closest", "occluded", "hits", "count"]),
+        ({"query": "closest", "fields": "t,colour"}, ["'colour'", "t, mesh, prim"]),
+        ({"query": "occluded", "fields": " , "}, ["no field", "occluded"]),
+        ({"query": "closest", "strategy": "bvh"}, ["'bvh'", "sampling, sah, middle, rayspace"]),
+        ({"query": "count", "cull": "both"}, ["'both'", "none, back, front"]),
+        ({"query": "closest", "max_hits": 4}, ["max_hits", "hits query only"]),
+        ({"query": "hits", "max_hits": 0}, ["max_hits", "at least 1"]),
+        ({"query": "hits", "max_hits": 65, "max_hits_limit": 64}, ["1 to 64 (DACRT_MAX_HITS)"]),
+        ({"query": "hits", "max_hits": True}, ["max_hits must be an integer"]),
+    ],
+)
+def test_an_unknown_choice_is_a_422_that_names_the_choices(kwargs, named):
+    with pytest.raises(Invalid) as raised:
+        tracing.make_options(**kwargs)
+    for words in named:
+        assert words in str(raised.value)
+
+
+def test_a_csr_answer_cannot_be_one_npy():
+    assert "npy" not in tracing.make_options("hits").answer_formats
+    assert "npy" not in tracing.make_options("hits", fields="t").answer_formats
+    assert "npy" in tracing.make_options("hits", fields="truncated").answer_formats
+    assert tracing.make_options("closest").answer_formats == wire.ANSWER_FORMATS
+
+
+def rays(origins, directions, **extra) -> wire.Rays:
+    return wire.Rays(
+        np.asarray(origins, np.float32), np.asarray(directions, np.float32), None, None, **extra
+    )
+
+
+#: Three rays straight down on x = 0.5 + 2k: at the quads of meshes "a" (x in [0, 1]), "b" (x in
+#: [2, 3]) and nothing.
+DOWN = rays([[0.5, 0.5, 1], [2.5, 0.5, 1], [4.5, 0.5, 1]], [[0, 0, -1]] * 3)
+
+
+@pytest.fixture
+def store() -> Store:
+    store = Store(2**20, 2**30)
+    for name, x in (("a", 0), ("b", 2)):
+        store.put_mesh("s", name, wire.mesh_arrays(*quad(x, x + 1, 0, 1, 0)))
+    return store
+
+
+def test_answers_name_the_meshes_by_their_stable_indices(store):
+    before = tracing.trace(store.snapshot("s"), DOWN, tracing.make_options("closest"))
+    assert before.arrays["mesh"].tolist() == [0, 1, -1]
+    store.delete_mesh("s", "a")  # "b" is now the engine's first mesh, and keeps its index
+    snapshot = store.snapshot("s")
+    after = tracing.trace(snapshot, DOWN, tracing.make_options("closest"))
+    assert after.arrays["mesh"].tolist() == [-1, 1, -1]
+    assert after.version == snapshot.version > before.version
+    assert np.array_equal(after.arrays["prim"], [-1, before.arrays["prim"][1], -1])
+
+
+def test_an_answer_holds_the_fields_asked_for_and_stats_say_where(store):
+    options = tracing.make_options("closest", fields="t", stats=True, strategy="sah")
+    answer = tracing.trace(store.snapshot("s"), DOWN, options)
+    assert list(answer.arrays) == ["t"]
+    np.testing.assert_array_equal(answer.arrays["t"], [1, 1, np.inf])
+    assert answer.stats["strategy"] == "sah" and answer.stats["where"] == "process"
+    assert answer.stats["rays"] == 3 and answer.where == "process"
+
+
+@pytest.mark.parametrize("query", QUERIES)
+def test_every_query_answers_on_a_stored_scene(store, query):
+    answer = tracing.trace(store.snapshot("s"), DOWN, tracing.make_options(query.value))
+    assert tuple(answer.arrays) == tracing.FIELDS[query]
+    hit = {"closest": "t", "occluded": "occluded", "hits": "truncated", "count": "count"}
+    assert len(answer.arrays[hit[query.value]]) == 3
+
+
+def test_the_masks_of_a_batch_come_from_the_body_or_the_query_string_not_both(store):
+    options = tracing.make_options("occluded", mask=0x2)
+    masked = rays(DOWN.origins, DOWN.directions, mask=np.array([1, 1, 1], np.uint32))
+    with pytest.raises(Invalid, match="in the body and in \\?mask= too"):
+        tracing.trace(store.snapshot("s"), masked, options)
+    hidden = tracing.trace(store.snapshot("s"), DOWN, options)  # meshes of mask 0xFFFFFFFF
+    assert hidden.arrays["occluded"].tolist() == [True, True, False]
+
+
+def test_a_bad_ray_is_a_422_from_the_engines_words(store):
+    bad = rays([[0.5, 0.5, np.nan]], [[0, 0, -1]])
+    with pytest.raises(Invalid, match=r"origins\[0\]"):  # the caller's key and row
+        tracing.trace(store.snapshot("s"), bad, tracing.make_options("closest"))
+
+
+def test_a_one_shot_trace_is_version_0_of_mesh_0():
+    answer = tracing.trace_once(
+        wire.mesh_arrays(*quad(0, 1, 0, 1, 0)), DOWN, tracing.make_options("closest")
+    )
+    assert answer.version == 0 and answer.arrays["mesh"].tolist() == [0, -1, -1]
+
+
+def test_meshes_without_triangles_are_left_out_of_the_engine_scene():
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    engine = tracing.build_engine_scene(
+        [(0, vertices, faces[:0]), (4, vertices, faces), (7, vertices[:0], faces[:0])]
+    )
+    assert engine.scene.n_meshes == 1
+    assert engine.map_mesh(np.array([0, -1])).tolist() == [4, -1]

@@ -1,0 +1,143 @@
+"""dacrt.chunks: however a batch is cut, its chunks hold every ray exactly once, in increasing
+order; the counts of chunks and threads follow their rules; the density grid counts every
+triangle once."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from dacrt import chunks
+
+MIN = chunks.MIN_RAYS_PER_THREAD
+
+
+def box_of(points: np.ndarray) -> np.ndarray:
+    return np.concatenate([points.min(axis=0), points.max(axis=0)]).astype(np.float32)
+
+
+def scattered(n: int, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(-1, 1, (n, 3)).astype(np.float32)
+
+
+def every_chunk(plan, n_rays: int, n_chunks: int) -> list[np.ndarray]:
+    return [chunks.chunk_ids(plan, n_rays, n_chunks, k) for k in range(n_chunks)]
+
+
+def assert_a_partition(parts: list[np.ndarray], n_rays: int) -> None:
+    """Every ray id in exactly one chunk, each chunk increasing int32."""
+    for ids in parts:
+        assert ids.dtype == np.int32 and np.all(np.diff(ids) > 0)
+    joined = np.concatenate(parts)
+    assert len(joined) == n_rays and np.array_equal(np.sort(joined), np.arange(n_rays))
+
+
+@pytest.mark.parametrize("n_chunks", [1, 2, 3, 7])
+@pytest.mark.parametrize("n_rays", [0, 1, 5, 1000])
+def test_contiguous_runs_hold_every_ray_once(n_rays, n_chunks):
+    parts = every_chunk(None, n_rays, n_chunks)
+    assert_a_partition(parts, n_rays)
+    assert max(map(len, parts)) - min(map(len, parts)) <= 1  # as even as can be
+
+
+@pytest.mark.parametrize("n_chunks", [2, 3, 8])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_slabs_of_scattered_origins_hold_every_ray_once(n_chunks, seed):
+    origins = scattered(50_000, seed)
+    box = box_of(origins)
+    triangles = np.hstack([origins[:500], origins[:500]])  # boxes of zero size, for the density
+    plan = chunks.plan_chunks(
+        origins,
+        n_chunks,
+        keep_order=False,
+        box=box,
+        density=lambda: chunks.centre_counts(triangles, box, chunks.DENSITY_GRID),
+    )
+    assert plan is not None  # scattered in input order: slabs, not runs
+    values, cuts = plan
+    assert len(cuts) == n_chunks - 1 and np.all(np.diff(cuts) >= 0)
+    parts = every_chunk(plan, len(origins), n_chunks)
+    assert_a_partition(parts, len(origins))
+    for k, ids in enumerate(parts):  # slab k: cuts[k-1] <= value < cuts[k]
+        if k > 0:
+            assert np.all(values[ids] >= cuts[k - 1])
+        if k < n_chunks - 1:
+            assert np.all(values[ids] < cuts[k])
+
+
+def test_origins_in_a_coherent_order_keep_their_order():
+    # a scan line by line: consecutive origins are close, the first and last far apart
+    line = np.linspace(-1, 1, 250, dtype=np.float32)
+    y, x = np.meshgrid(line, line, indexing="ij")
+    origins = np.stack([x.ravel(), y.ravel(), np.zeros(x.size, np.float32)], axis=1)
+    plan = chunks.plan_chunks(origins, 4, False, box_of(origins), density=None)
+    assert plan is None  # density is not even asked for
+
+
+def test_keep_order_and_one_chunk_cut_no_slabs():
+    origins = scattered(50_000)
+    for keep_order, n_chunks in ((True, 4), (False, 1)):
+        assert chunks.plan_chunks(origins, n_chunks, keep_order, box_of(origins), None) is None
+
+
+def test_nan_values_fall_in_the_first_slab():
+    values = np.array([0.5, np.nan, -1.0, 2.0], np.float32)
+    cuts = np.array([0.0, 1.0], np.float32)
+    slabs = [list(chunks.slab_ids(values, cuts, k)) for k in range(3)]
+    assert slabs == [[1, 2], [0], [3]]
+
+
+@pytest.mark.parametrize("threads", [1, 2, 4])
+@pytest.mark.parametrize("n_rays", [1, MIN - 1, 2 * MIN, 5 * MIN + 3, 10**6])
+@pytest.mark.parametrize("n_triangles", [10, 10**5])
+def test_chunk_counts(threads, n_rays, n_triangles):
+    scattered_chunks = chunks.count_chunks(n_rays, n_triangles, threads, coherent=False)
+    assert 1 <= scattered_chunks <= threads  # one chunk per thread at most
+    assert scattered_chunks == 1 or n_rays // scattered_chunks >= MIN
+    coherent_chunks = chunks.count_chunks(n_rays, n_triangles, threads, coherent=True)
+    assert coherent_chunks >= scattered_chunks
+    if threads > 1 and coherent_chunks > threads:
+        assert coherent_chunks % threads == 0  # as many chunks on every thread
+
+
+def test_triangles_are_split_only_for_few_rays_a_triangle_on_several_threads():
+    rule = chunks.SPLIT_TRIANGLES_RAYS_PER_TRIANGLE
+    many_triangles = int(4 * MIN / rule) + 1
+    assert chunks.splits_triangles(2 * MIN, many_triangles, 2)
+    assert not chunks.splits_triangles(2 * MIN, many_triangles, 1)  # one thread
+    assert not chunks.splits_triangles(2 * MIN - 1, many_triangles, 2)  # too few rays
+    assert not chunks.splits_triangles(2 * MIN, int(2 * MIN / rule), 2)  # enough rays a triangle
+
+
+def test_rays_from_one_point_are_told_from_scattered_ones():
+    box = np.array([-10, -10, -10, 10, 10, 10], np.float32)
+    camera = np.tile(np.float32([1, 2, 3]), (1000, 1))
+    assert chunks.from_one_point(camera + scattered(1000) * 1e-3, box)
+    assert not chunks.from_one_point(scattered(1000) * 10, box)
+
+
+def test_the_density_grid_counts_every_triangle_once_in_its_centres_cell():
+    bounds = np.array([[0, 0, 0, 0.1, 0.1, 0.1], [0.9, 0.9, 0.9, 1, 1, 1], [0, 0, 0, 1, 1, 1]])
+    box = np.array([0, 0, 0, 1, 1, 1], np.float32)
+    counts = chunks.centre_counts(bounds.astype(np.float32), box, 4)
+    assert counts.shape == (64,) and counts.sum() == 3
+    assert counts[0] == 1 and counts[63] == 1  # the corners' cells
+    assert counts[(2 * 4 + 2) * 4 + 2] == 1  # the centre (0.5, 0.5, 0.5) is in cell (2, 2, 2)
+    points = np.array([[0.05, 0.05, 0.05], [2, 2, 2], [np.nan, 0, 0]], np.float32)
+    weights = chunks.origin_weights(points, counts, box, 4)
+    assert np.array_equal(weights, [np.sqrt(2.0), 1.0, 1.0])  # outside the box (or NaN): 1
+
+
+@pytest.mark.parametrize("n_workers", [1, 3])
+def test_map_on_threads_answers_in_order(n_workers):
+    seen = set()
+
+    def work(k):
+        seen.add(threading.current_thread().name)
+        return k * k
+
+    assert chunks.map_on_threads(work, 20, n_workers) == [k * k for k in range(20)]
+    if n_workers == 1:
+        assert seen == {threading.current_thread().name}  # in the caller's thread
