@@ -12,36 +12,24 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .config import inline, jit
+from .config import (
+    CHUNK_SAMPLE_RAYS,
+    COHERENT_CHUNK_RAYS,
+    COHERENT_CHUNK_RAYS_ONE_THREAD,
+    COHERENT_CHUNKS_PER_THREAD,
+    COHERENT_ORIGIN_SPREAD,
+    COHERENT_RAYS_PER_TRIANGLE,
+    DENSITY_GRID,
+    MIN_RAYS_PER_THREAD,
+    ORDERED_NEIGHBOUR_DISTANCE,
+    ORIGIN_SPREAD_SAMPLE_RAYS,
+    SPLIT_TRIANGLES_RAYS_PER_TRIANGLE,
+    inline,
+    jit,
+)
 from .contracts import INDEX
 
 N_CORES = os.cpu_count() or 1
-# Below this many rays a single thread is quicker than splitting the triangles' work twice.
-MIN_RAYS_PER_THREAD = 16384
-# A closest or occlusion batch of fewer rays than this per triangle, on several threads, splits
-# the triangles between two threads instead of the rays: each thread then does half the work
-# on the triangles, which such a batch spends most of its time on.
-SPLIT_TRIANGLES_RAYS_PER_TRIANGLE = 0.3
-# Origins within this fraction of the scene's size count as one point.
-COHERENT_ORIGIN_SPREAD = 0.1
-# Rays from one point go in chunks of at most this many: a chunk's records stay in cache ...
-COHERENT_CHUNK_RAYS = 262144
-# ... unless that leaves a chunk fewer than this many rays a triangle: each chunk repeats the
-# work on the triangles.
-COHERENT_RAYS_PER_TRIANGLE = 2
-# On one thread a chunk's records have the cache to themselves, so chunks may be larger.
-COHERENT_CHUNK_RAYS_ONE_THREAD = 524288
-# With several threads, at least this many chunks each (bands of an image differ in cost), while
-# each keeps COHERENT_RAYS_PER_TRIANGLE.
-COHERENT_CHUNKS_PER_THREAD = 3
-# Input order counts as coherent when consecutive origins are closer than this fraction of the
-# distance between origins far apart in the batch (sampled).
-ORDERED_NEIGHBOUR_DISTANCE = 0.5
-# Rays sampled for that test and to place the slabs' boundaries.
-CHUNK_SAMPLE_RAYS = 4096
-# A sample ray weighs sqrt(1 + the triangle centres in its origin's cell of a DENSITY_GRID^3 grid
-# over the scene): a ray that starts among many triangles costs more.
-DENSITY_GRID = 16
 
 
 @inline
@@ -128,9 +116,9 @@ def map_on_threads(fn, n_items, n_workers):
 
 
 def from_one_point(origins, box):
-    """Whether the rays (a sample of up to 1024) start within COHERENT_ORIGIN_SPREAD of the
-    size of ``box`` (6,) of each other."""
-    sample = origins[:: max(1, len(origins) // 1024)]
+    """Whether the rays (a sample of up to ORIGIN_SPREAD_SAMPLE_RAYS) start within
+    COHERENT_ORIGIN_SPREAD of the size of ``box`` (6,) of each other."""
+    sample = origins[:: max(1, len(origins) // ORIGIN_SPREAD_SAMPLE_RAYS)]
     spread = float(np.max(sample.max(axis=0) - sample.min(axis=0)))
     size = float(np.max(box[3:] - box[:3]))
     return spread <= COHERENT_ORIGIN_SPREAD * size

@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from .config import MAX_SHARD_RAYS, MIN_SHARD_RAYS, SHARD_RETRIES
 from .contracts import STAT_NAMES, Counts, HitList, Hits, Occlusion
 from .scene import Scene
 from .validation import (
@@ -42,16 +43,6 @@ try:
 except ImportError as exc:  # pragma: no cover - the message is the point
     raise ImportError('dacrt.distributed needs dask.distributed: pip install ".[dask]"') from exc
 
-#: Fewest rays in a shard (but for a batch smaller than this): a worker's DACRT gains with rays
-#: per node, and one thread traces shards of this size at 0.4 to 0.7 of its rate on shards of 1 Mi
-#: rays (docs/cluster.md has the figures); smaller shards would leave threads idle on batches of
-#: a few million rays instead.
-MIN_SHARD_RAYS = 1 << 18
-#: Most rays in a shard: bounds a worker's memory per shard (about 60 bytes a ray in and out for
-#: closest) and the work sent again when a worker is lost.
-MAX_SHARD_RAYS = 1 << 21
-#: Times a lost shard is sent again before the query gives up.
-RETRIES = 3
 
 _QUERIES = ("closest", "occluded", "hits", "count")
 
@@ -144,7 +135,7 @@ class DistributedScene:
         masks=None,
         transforms=None,
         *,
-        retries=RETRIES,
+        retries=SHARD_RETRIES,
         timeout=None,
         min_shard_rays=MIN_SHARD_RAYS,
         max_shard_rays=MAX_SHARD_RAYS,

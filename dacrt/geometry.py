@@ -5,15 +5,13 @@ Both are inlined into the traversal loops. They take scalars, so the callers dec
 
 import numpy as np
 
-from .config import CULL_MARGIN, SLAB_GROWTH, inline
+from .config import CULL_MARGIN, EDGE_ON_TOLERANCE, SLAB_GROWTH, inline
 from .contracts import INF32
 from .query import CULL_BACK, CULL_FRONT
 
 # float32 constants keep the box test in float32, so loops over rays vectorise.
 _GROWTH32 = np.float32(SLAB_GROWTH - 1.0)
 _MARGIN32 = np.float32(CULL_MARGIN)
-# Relative size of det below which a triangle counts as edge-on (float64 edge functions).
-_EDGE_ON_TOLERANCE = 1e-12
 
 
 @inline
@@ -173,7 +171,7 @@ def woop_edges(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz):
     # would be t. det within the edge functions' rounding error counts as zero (a miss).
     noise = (
         abs(cx * by) + abs(cy * bx) + abs(ax * cy) + abs(ay * cx) + abs(bx * ay) + abs(by * ax)
-    ) * _EDGE_ON_TOLERANCE
+    ) * EDGE_ON_TOLERANCE
     scaled_t = e0 * (sz * az) + e1 * (sz * bz) + e2 * (sz * cz)
     return e0, e1, e2, det, noise, scaled_t
 

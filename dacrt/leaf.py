@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from .config import inline
+from .config import BY_RAYS_MAX_TRIANGLES, BY_RAYS_MIN_RAYS, LANES, LEAF_BLOCK, inline
 from .contracts import NAN32, NEG_INF32
 from .geometry import (
     corners_from_origin,
@@ -22,18 +22,10 @@ from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN, ORIGIN_QUAD, TMIN, 
 FILTERS = CULL_BACK | CULL_FRONT | MASKED
 # best_tri of a ray with no hit yet: larger than any triangle, so the tie rule needs no branch.
 NO_HIT = np.iinfo(np.int32).max
-# Triangles a leaf gathers at a time into float64 rows (see intersect_leaf).
-LEAF_BLOCK = 64
-# Lanes of the vectorised loops (8 float64 with AVX-512): a block of triangles is padded to a
-# multiple of this, because the loop's scalar remainder costs several times a vectorised test.
-LANES = 8
 # Rows 2-8 of a block of rays' scratch (``block_rows``): its rays' ox, oy, oz, dx, dy, dz and
 # tmin, copied from the records once and read by the loop of each of the leaf's triangles, which
 # then needs no shuffles to read the records' quads.
 RAY_ROWS = 7
-# A leaf of fewer than 8 triangles goes by rays from this many rays: a block of rays copied to
-# rows pays for itself from there.
-BY_RAYS_MIN_RAYS = 16
 
 
 @inline
@@ -203,7 +195,7 @@ def intersect_leaf(
 
     The tests run as vectorised loops, over triangles (a few rays) or over rays (a few
     triangles, at least BY_RAYS_MIN_RAYS rays); the order of tests changes no answer."""
-    by_rays = tri_hi - tri_lo < 8 and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS
+    by_rays = tri_hi - tri_lo < BY_RAYS_MAX_TRIANGLES and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS
     if flags & COLLECT and by_rays:
         return collect_leaf_by_rays(
             flags,

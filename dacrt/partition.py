@@ -6,14 +6,10 @@ the caller owns the scratch arrays. Triangle bounds are rows [x0, y0, z0, x1, y1
 
 import numpy as np
 
-from .config import inline
+from .config import BIN_SHRINK, PARTITION_BLOCK, inline
 from .contracts import ONE32
 from .geometry import cull_distance, intersect_box
 from .rays import DIRECTION_QUAD, ORIGIN_QUAD, quad_view, swap_rays
-
-_BIN_SHRINK = 1.0 - 1e-6
-# Records per block of partition_by_mask: the fastest of 32-256 measured (docs/benchmarks.md).
-PARTITION_BLOCK = 128
 
 
 @inline
@@ -36,7 +32,7 @@ def bin_of(c, c_min, scale, n_bins):
 
 @inline
 def bin_scale(c_min, c_max, n_bins):
-    return n_bins * _BIN_SHRINK / (c_max - c_min)
+    return n_bins * BIN_SHRINK / (c_max - c_min)
 
 
 @inline

@@ -20,7 +20,7 @@ shuffles (a lane chosen at run time makes it gather).
 
 import numpy as np
 
-from .config import inline, jit
+from .config import PACK_BLOCK, ROW_ALIGN, ROW_SKEW, UNIFORM_CHECK_BLOCK, inline, jit
 
 ORIGIN_QUAD = 0
 DIRECTION_QUAD = 1
@@ -29,15 +29,6 @@ ORIGIN = 0
 TMIN = 3
 DIRECTION = 4
 BEST_T = 7
-# Rays per block of pack_rays: the fastest of 16-256 measured (docs/benchmarks.md).
-PACK_BLOCK = 32
-# Records per block of uniform_origin's check.
-UNIFORM_CHECK_BLOCK = 256
-# Rows are padded to a whole number of 4 KiB plus a few cache lines. Rows of exactly a power of
-# two put a record's quads at the same low 12 address bits and in the same cache set; a swap's
-# loads then wait on the stores before them.
-ROW_ALIGN = 1024
-ROW_SKEW = 16
 
 
 def new_records(n):

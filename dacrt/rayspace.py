@@ -11,6 +11,7 @@ dimensions and pushes both halves with the surviving triangles.
 import numpy as np
 
 from .config import (
+    COMPARE_BLOCK,
     MAX_DEPTH,
     RAYSPACE_C_G,
     RAYSPACE_C_R,
@@ -18,6 +19,7 @@ from .config import (
     RAYSPACE_LEAF_TRIANGLES,
     RAYSPACE_MIN_DEPTH_TO_GIVE_UP,
     RAYSPACE_ORIGIN_SPREAD_TO_GIVE_UP,
+    RAYSPACE_TOLERANCE,
     inline,
     jit,
 )
@@ -43,8 +45,6 @@ _U = 6
 _V = 8
 _S = 10
 _FRUSTUM_SIZE = 12
-# Rays per block of partition_rays' comparisons.
-COMPARE_BLOCK = 256
 
 
 @inline
@@ -286,7 +286,7 @@ def trace_ray_space(flags, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_
             abs(np.float64(scene_box[a])),
             abs(np.float64(scene_box[a + 3])),
         )
-    tolerance = 1e-5 * scene_size
+    tolerance = RAYSPACE_TOLERANCE * scene_size
     # Group rays by dominant axis and sign (a counting pass per group, in place).
     records = quad_view(rays)
     group_start = np.zeros(7, np.int64)
