@@ -9,7 +9,8 @@ where Numba keeps the compiled kernels (``dacrt.cache.use_cache_dir``). Its modu
 - requests: ``routes`` (thin handlers), ``params`` (path and query parameters), ``deps``
   (dependencies), ``errors`` (domain errors -> statuses), ``openapi`` (what the document says
   of bodies), ``timing`` (``Server-Timing``), ``responses`` (answers sent as buffers),
-  ``metrics`` (Prometheus);
+  ``metrics`` (Prometheus), ``admission`` (the budget of bytes the requests in flight hold) and
+  ``footprint`` (what a request holds at its peak);
 - bodies: ``wire`` (every body format; its docstring is the spec), ``sensor_requests`` (the JSON
   bodies of the sensors);
 - scenes: ``store`` (immutable snapshots), ``persistence`` (DACRT_DATA_DIR's files);

@@ -67,13 +67,13 @@ class Progress:
             return f"warm-up: compiling kernel {compiled} ({kernel}), {elapsed:.0f} s so far"
         # Kernels differ tenfold in compile time: a rate means something after a quarter of them.
         left = (
-            f"~{elapsed / compiled * (EXPECTED_COMPILES - compiled):.0f} s left"
+            f", ~{elapsed / compiled * (EXPECTED_COMPILES - compiled):.0f} s left"
             if compiled >= EXPECTED_COMPILES / 4
-            else f"a first start takes {COLD_START}"
+            else ""
         )
         return (
             f"warm-up: compiling kernel {compiled} of about {EXPECTED_COMPILES} ({kernel}), "
-            f"{elapsed:.0f} s so far, {left}"
+            f"{elapsed:.0f} s so far{left}"
         )
 
     @contextmanager

@@ -1,2 +1,3 @@
 """HTTP routes, a few lines each: ``meshes`` (meshes and their scenes), ``queries`` (ray batches),
-``ops`` (health, metrics, capabilities)."""
+``pictures`` (sensors: ``/render``, ``/camera``, ``/lidar``), ``ops`` (the viewer, health,
+metrics, capabilities)."""

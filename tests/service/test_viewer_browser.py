@@ -163,6 +163,38 @@ def test_a_new_version_of_the_scene_is_shown_and_new_scenes_are_listed(
     assert_is_the_render_of_its_camera(url, scene_name + "-more", camera, png)
 
 
+def test_without_a_scene_in_its_address_the_page_opens_the_demo(driver, url, scene_name):
+    with Client(url) as api:  # this server loads no demo: a scene of that name stands for it
+        api.put_mesh("demo", "box", *MESHES["box"])
+        api.put_mesh("0-sorts-first-" + scene_name, "box", *MESHES["box"])
+    driver.get("about:blank")
+    driver.get(f"{url}/")
+    browser.wait_for_picture(driver)
+    assert driver.find_element("id", "scene").get_attribute("value") == "demo"
+    camera, png, _ = shown(driver)
+    assert_is_the_render_of_its_camera(url, "demo", camera, png)
+
+
+def test_when_its_scene_goes_the_page_shows_the_last_changed(driver, url, room, scene_name):
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    open_viewer(driver, url, room)
+    later = "z-changed-" + scene_name  # neither the demo nor the first listed
+    with Client(url) as api:
+        api.put_mesh(later, "box", *MESHES["box"])
+
+        def lists(d):
+            return later in [
+                o.get_attribute("value") for o in d.find_elements("css selector", "#scene option")
+            ]
+
+        WebDriverWait(driver, 30, poll_frequency=0.05).until(lists)
+        api.delete(room)
+    WebDriverWait(driver, 30, poll_frequency=0.05).until(
+        lambda d: d.find_element("id", "scene").get_attribute("value") == later
+    )
+
+
 def test_on_a_server_with_a_token_the_page_asks_for_it(driver):
     from selenium.webdriver.support.ui import WebDriverWait
 
