@@ -41,7 +41,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     configure_logging(settings.log_level)
     journal = open_data_dir(settings)
     store = Store(settings.max_triangles_per_scene, settings.max_scene_bytes, journal)
-    metrics = Metrics(lambda: store.nbytes, lambda: len(store.snapshots()))
+    metrics = Metrics(lambda: store.nbytes, lambda: len(store.snapshots()), journal)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -101,15 +101,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 def open_data_dir(settings: Settings) -> DataDir | None:
-    """The data folder of DACRT_DATA_DIR (created if needed); an unusable one ends the process
-    with one line."""
+    """The data folder of DACRT_DATA_DIR (created if needed); one that cannot be created or
+    written (read-only, no permission, failing) ends the process with one line. A full one is
+    opened: reads are served and /health says degraded until a change succeeds."""
     if settings.data_dir is None:
         return None
     try:
         return DataDir(settings.data_dir.expanduser())
     except OSError as exc:
         raise SystemExit(
-            f"dacrt-service: DACRT_DATA_DIR={str(settings.data_dir)!r}: {exc}"
+            f"dacrt-service: DACRT_DATA_DIR={str(settings.data_dir)!r}: the data folder cannot "
+            f"be written: {exc}"
         ) from None
 
 

@@ -73,6 +73,16 @@ class TooManyConnections(ServiceError):
     """The server holds as many connections as DACRT_MAX_CONNECTIONS allows."""
 
 
+class DataDirUnavailable(ServiceError):
+    """The data folder (DACRT_DATA_DIR) cannot be written: read-only, no permission, I/O error.
+    Nothing was changed."""
+
+
+class InsufficientStorage(DataDirUnavailable):
+    """The data folder (DACRT_DATA_DIR) is full (no space, or over its quota). Nothing was
+    changed."""
+
+
 STATUS: dict[type[ServiceError], int] = {
     BadBody: 400,
     Unauthorized: 401,
@@ -85,6 +95,8 @@ STATUS: dict[type[ServiceError], int] = {
     Invalid: 422,
     NotReady: 503,
     TooManyConnections: 503,
+    DataDirUnavailable: 503,
+    InsufficientStorage: 507,
 }
 
 

@@ -1,4 +1,5 @@
-"""Prometheus metrics: requests, rays traced, trace seconds, scene memory.
+"""Prometheus metrics: requests, rays traced, trace seconds, scene memory, the data folder's
+failed writes.
 
 Each app gets its own registry, so several apps (tests) can live in one process.
 """
@@ -7,8 +8,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
+from prometheus_client.registry import Collector
+
+if TYPE_CHECKING:
+    from .persistence import DataDir
 
 _SECONDS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60)
 
@@ -16,7 +23,12 @@ _SECONDS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 
 class Metrics:
     """The service's metrics in their own registry (served by GET /metrics)."""
 
-    def __init__(self, scene_bytes: Callable[[], float], scene_count: Callable[[], float]) -> None:
+    def __init__(
+        self,
+        scene_bytes: Callable[[], float],
+        scene_count: Callable[[], float],
+        data_dir: DataDir | None = None,
+    ) -> None:
         self.registry = CollectorRegistry()
         self.requests = Counter(
             "dacrt_requests",
@@ -47,10 +59,35 @@ class Metrics:
             registry=self.registry,
         ).set_function(scene_bytes)
         Gauge("dacrt_scenes", "Scenes held", registry=self.registry).set_function(scene_count)
+        if data_dir is not None:
+            self.registry.register(DataDirCollector(data_dir))
 
     def traced(self, query: str, n_rays: int, seconds: float) -> None:
         self.rays.labels(query).inc(n_rays)
         self.trace_seconds.labels(query).observe(seconds)
+
+
+class DataDirCollector(Collector):
+    """The data folder's state, read from it at each scrape: its failed changes by OS error
+    (``dacrt_data_dir_errors_total{errno="ENOSPC"}``) and whether it takes writes."""
+
+    def __init__(self, data_dir: DataDir) -> None:
+        self.data_dir = data_dir
+
+    def collect(self):
+        errors = CounterMetricFamily(
+            "dacrt_data_dir_errors",
+            "Changes the data folder (DACRT_DATA_DIR) failed to write, by OS error",
+            labels=("errno",),
+        )
+        for name, count in sorted(dict(self.data_dir.errors).items()):
+            errors.add_metric((name,), count)
+        yield errors
+        yield GaugeMetricFamily(
+            "dacrt_data_dir_writable",
+            "1 while the data folder takes writes, 0 after a change failed (until one succeeds)",
+            value=float(self.data_dir.fault is None),
+        )
 
 
 class MetricsMiddleware:

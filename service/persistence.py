@@ -19,15 +19,25 @@ manifest, never the faces). The newest manifest's number is the scene's last ver
 its content cannot be read, so versions are never reused; a deleted scene keeps a manifest
 ``{"deleted": true}`` for that reason. A manifest names each array's shape and CRC-32: a
 truncated or corrupted file is reported in the log and its scene skipped, never loaded.
+
+A folder that cannot be written is refused at start (a probe file is created, fsynced and
+removed), unless it is only full: then the service starts and serves what it holds. A change
+that fails (a full disk, a read-only or failing file system) removes what it wrote, changes
+nothing in memory and raises ``InsufficientStorage`` (507: ENOSPC, EDQUOT) or
+``DataDirUnavailable`` (503: any other OS error) naming the folder and the OS error; the folder's
+``fault`` says why until a change succeeds again. Temporary files left by a crash are removed at
+start.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import suppress
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import MappingProxyType
@@ -40,7 +50,7 @@ try:
 except ImportError:  # pragma: no cover - isal is a dependency; zlib gives the same checksums
     from zlib import crc32
 
-from .errors import Invalid
+from .errors import DataDirUnavailable, InsufficientStorage, Invalid
 from .store import Geometry, Mesh, Snapshot, owned_transform, placed, referenced_bounds
 from .wire import check_matrix, parse_mask
 
@@ -50,6 +60,8 @@ MANIFEST = re.compile(r"scene\.([0-9]+)\.json")
 TEMPORARY = ".tmp"
 FORMAT = 2  #: the manifest format this module writes
 READ_FORMATS = (1, 2)  #: the manifest formats it reads (1: no masks, transforms or instances)
+PROBE = ".write-probe" + TEMPORARY  #: written and removed at start to check the folder
+FULL = frozenset({errno.ENOSPC, errno.EDQUOT})  #: OS errors that mean "full": 507, not 503
 
 
 @dataclass(frozen=True)
@@ -79,13 +91,19 @@ MeshFiles = tuple[ArrayFile, ...]
 
 def write_file(path: Path, write) -> None:
     """``write(file)`` into ``path`` atomically: a temporary file, fsync, rename (the folder is
-    fsynced by the caller, once for all the files of a change)."""
+    fsynced by the caller, once for all the files of a change). On failure the temporary file is
+    removed and ``path`` is untouched."""
     temporary = path.with_name(path.name + TEMPORARY)
-    with open(temporary, "wb") as file:
-        write(file)
-        file.flush()
-        os.fsync(file.fileno())
-    os.replace(temporary, path)
+    try:
+        with open(temporary, "wb") as file:
+            write(file)
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        with suppress(OSError):  # a file system that failed the write may fail this too
+            temporary.unlink(missing_ok=True)
+        raise
 
 
 def sync_folder(folder: Path) -> None:
@@ -106,8 +124,30 @@ def checksum(array: np.ndarray) -> int:
     return crc32(memoryview(np.ascontiguousarray(array)).cast("B"))
 
 
+def os_error_text(exc: OSError) -> str:
+    """``[Errno 28] No space left on device``: the OS error without the file it names."""
+    return f"[Errno {exc.errno}] {exc.strerror}" if exc.strerror else str(exc)
+
+
+def errno_name(exc: OSError) -> str:
+    """``ENOSPC``: the symbolic name of an OS error's number (``unknown`` without one)."""
+    return errno.errorcode.get(exc.errno, "unknown") if exc.errno is not None else "unknown"
+
+
+@dataclass(frozen=True)
+class Fault:
+    """Why the data folder cannot be written, as the last failed change found it."""
+
+    errno: str  #: the OS error's name, e.g. ``ENOSPC``
+    detail: str  #: the message the change's caller read
+
+
 class DataDir:
-    """The scenes' files under ``root``. Changes are called by the store under its lock."""
+    """The scenes' files under ``root``. Changes are called by the store under its lock.
+
+    Opening checks that ``root`` can be written (OSError if not), except that a full folder is
+    opened with its ``fault`` set: reads are served, changes answer 507 until space returns.
+    """
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
@@ -117,56 +157,130 @@ class DataDir:
         #: scene -> mesh name -> its array files in the current version
         self._files: dict[str, dict[str, MeshFiles]] = {}
         self._current: dict[str, Snapshot] = {}  #: the snapshot each scene's files hold
+        #: why the last change failed, until one succeeds: None while the folder takes writes
+        self.fault: Fault | None = None
+        #: failed changes by OS error name (``ENOSPC``...), since start
+        self.errors: dict[str, int] = {}
+        try:
+            self._probe()
+        except OSError as exc:
+            if exc.errno not in FULL:
+                raise
+            self._failed(exc, [])
+            log.warning("data: %s is full at start: reads are served, changes answer 507", root)
+
+    def _probe(self) -> None:
+        """Create, fsync and remove a file in ``root``: OSError unless the folder takes writes
+        (a read-only mount, no permission, a failing disk)."""
+        path = self.root / PROBE
+        write_file(path, lambda file: file.write(b"dacrt"))
+        path.unlink()
+        sync_folder(self.root)
 
     # ---- writing
 
     def write(self, snapshot: Snapshot) -> None:
-        """Make ``snapshot`` durable: its new arrays, then its manifest (the commit point)."""
-        folder = self._folder(snapshot.scene)
+        """Make ``snapshot`` durable: its new arrays, then its manifest (the commit point).
+        On failure what it wrote is removed and InsufficientStorage/DataDirUnavailable raised."""
         old = self._current.get(snapshot.scene)
         old_files = self._files.get(snapshot.scene, {})
-        files: dict[str, MeshFiles] = {}
-        for name, mesh in snapshot.meshes.items():
-            if mesh.instance_of is not None:
-                files[name] = ()  # the source's files hold its arrays
-                continue
-            before = old.meshes.get(name) if old is not None else None
-            kept = old_files.get(name)
-            if before is None or not kept:
-                vertices_file = faces_file = None
-            else:
-                vertices_file = kept[0] if before.vertices is mesh.vertices else None
-                faces_file = kept[1] if before.faces is mesh.faces else None
-            files[name] = (
-                vertices_file or self._write_array(folder, mesh, "vertices", snapshot.version),
-                faces_file or self._write_array(folder, mesh, "faces", snapshot.version),
-            )
-        sync_folder(folder)  # the arrays' names are durable before a manifest names them
-        self._write_manifest(folder, snapshot.version, self._manifest(snapshot, files))
+        created: list[Path] = []  # what to remove if the change fails
+        try:
+            folder = self._folder(snapshot.scene, created)
+            files: dict[str, MeshFiles] = {}
+            for name, mesh in snapshot.meshes.items():
+                if mesh.instance_of is not None:
+                    files[name] = ()  # the source's files hold its arrays
+                    continue
+                before = old.meshes.get(name) if old is not None else None
+                kept = old_files.get(name)
+                if before is None or not kept:
+                    vertices_file = faces_file = None
+                else:
+                    vertices_file = kept[0] if before.vertices is mesh.vertices else None
+                    faces_file = kept[1] if before.faces is mesh.faces else None
+                files[name] = (
+                    vertices_file
+                    or self._write_array(folder, mesh, "vertices", snapshot.version, created),
+                    faces_file
+                    or self._write_array(folder, mesh, "faces", snapshot.version, created),
+                )
+            sync_folder(folder)  # the arrays' names are durable before a manifest names them
+            record = self._manifest(snapshot, files)
+            self._write_manifest(folder, snapshot.version, record, created)
+        except OSError as exc:
+            raise self._failed(exc, created) from None
+        self.fault = None
         self._forget(folder, old_files, files, old, snapshot.version)
         self._files[snapshot.scene], self._current[snapshot.scene] = files, snapshot
 
     def delete(self, scene: str, version: int) -> None:
-        """Mark ``scene`` deleted at ``version`` (its last), then remove its arrays."""
-        folder = self._folder(scene)
+        """Mark ``scene`` deleted at ``version`` (its last), then remove its arrays. On failure
+        its current manifest stands and InsufficientStorage/DataDirUnavailable is raised."""
         record = {"format": FORMAT, "scene": scene, "version": version, "deleted": True}
-        self._write_manifest(folder, version, record)
-        old_files = self._files.pop(scene, {})
-        old = self._current.pop(scene, None)
+        old = self._current.get(scene)
+        old_files = self._files.get(scene, {})
+        created: list[Path] = []
+        try:
+            folder = self._folder(scene, created)
+            self._write_manifest(folder, version, record, created)
+        except OSError as exc:
+            undo: Callable[[], None] | None = None
+            replaced = old is not None and old.version == version  # the current manifest
+            if replaced and created and created[-1].name == f"scene.{version}.json":
+                # the record replaced the current manifest, then the folder's fsync failed
+                created.pop()
+                current = self._manifest(old, old_files)
+                undo = lambda: self._write_manifest(folder, version, current, [])  # noqa: E731
+            raise self._failed(exc, created, undo) from None
+        self.fault = None
+        self._files.pop(scene, None)
+        self._current.pop(scene, None)
         self._forget(folder, old_files, {}, old, version)
 
-    def _folder(self, scene: str) -> Path:
+    def _failed(
+        self, exc: OSError, created: list[Path], undo: Callable[[], None] | None = None
+    ) -> DataDirUnavailable:
+        """Remove what a failed change wrote (``created``, newest first; or ``undo`` it), note
+        the fault and count it: the error the change's caller gets."""
+        for path in reversed(created):
+            try:
+                path.rmdir() if path.is_dir() else path.unlink(missing_ok=True)
+                sync_folder(path.parent)
+            except OSError as cleanup:
+                log.error("data: cannot remove %s after a failed change: %s", path, cleanup)
+        if undo is not None:
+            try:
+                undo()
+            except OSError as cleanup:
+                log.error("data: cannot restore the manifest after a failed change: %s", cleanup)
+        name = errno_name(exc)
+        kind = InsufficientStorage if exc.errno in FULL else DataDirUnavailable
+        error = kind(
+            f"the data folder {self.root} (DACRT_DATA_DIR) cannot be written: "
+            f"{os_error_text(exc)}; nothing was changed"
+        )
+        self.fault = Fault(name, error.detail)
+        self.errors[name] = self.errors.get(name, 0) + 1
+        log.error("data: cannot write in %s: %s (%s)", self.root, exc, name)
+        return error
+
+    def _folder(self, scene: str, created: list[Path]) -> Path:
         folder = self.scenes / scene
         if not folder.is_dir():
             folder.mkdir()
+            created.append(folder)
             sync_folder(self.scenes)
         return folder
 
     @staticmethod
-    def _write_array(folder: Path, mesh: Mesh, kind: str, version: int) -> ArrayFile:
+    def _write_array(
+        folder: Path, mesh: Mesh, kind: str, version: int, created: list[Path]
+    ) -> ArrayFile:
         name = f"{mesh.index}.{version}.{kind}.npy"
         array = getattr(mesh, kind)
         write_file(folder / name, lambda file: np.save(file, array, allow_pickle=False))
+        created.append(folder / name)
         return ArrayFile(name, array.shape, checksum(array))
 
     @staticmethod
@@ -199,28 +313,42 @@ class DataDir:
         }
 
     @staticmethod
-    def _write_manifest(folder: Path, version: int, record: dict[str, Any]) -> None:
+    def _write_manifest(
+        folder: Path, version: int, record: dict[str, Any], created: list[Path]
+    ) -> None:
         text = json.dumps(record, separators=(",", ":")).encode()
         write_file(folder / f"scene.{version}.json", lambda file: file.write(text))
+        created.append(folder / f"scene.{version}.json")
         sync_folder(folder)
 
     @staticmethod
     def _forget(folder: Path, old_files, new_files, old: Snapshot | None, version: int) -> None:
-        """Remove what the new manifest no longer names (a crash here leaves only orphans)."""
+        """Remove what the new manifest no longer names (a crash or a failure here leaves only
+        orphans, removed at the next start: the change is made)."""
         kept = {file.name for pair in new_files.values() for file in pair}
-        for name in {file.name for pair in old_files.values() for file in pair} - kept:
-            (folder / name).unlink(missing_ok=True)
+        names = {file.name for pair in old_files.values() for file in pair} - kept
         if old is not None and old.version != version:
-            (folder / f"scene.{old.version}.json").unlink(missing_ok=True)
+            names.add(f"scene.{old.version}.json")
+        for name in names:
+            try:
+                (folder / name).unlink(missing_ok=True)
+            except OSError as exc:
+                log.warning("data: cannot remove %s, left for the next start: %s", name, exc)
 
     # ---- reading
 
     def restore(self) -> Restored:
-        """Every scene's newest version; a scene whose files are damaged is logged and skipped."""
+        """Every scene's newest version; a scene whose files are damaged is logged and skipped.
+        Temporary files are removed everywhere, and a scene folder without a manifest (its
+        first change failed) once it is empty."""
         snapshots, last_versions = [], {}
+        self._remove_temporary(self.root)
         for folder in sorted(p for p in self.scenes.iterdir() if p.is_dir()):
+            self._remove_temporary(folder)
             manifests = sorted(self._manifests(folder), reverse=True)
             if not manifests:
+                with suppress(OSError):  # not empty: kept as it is, and never loaded
+                    folder.rmdir()
                 continue
             version, path = manifests[0]
             last_versions[folder.name] = version
@@ -324,6 +452,13 @@ class DataDir:
         array = np.ascontiguousarray(array)
         array.setflags(write=False)
         return array
+
+    @staticmethod
+    def _remove_temporary(folder: Path) -> None:
+        """Remove the temporary files of writes that a crash or a failure interrupted."""
+        for path in folder.glob("*" + TEMPORARY):
+            if path.is_file():
+                path.unlink(missing_ok=True)
 
     @staticmethod
     def _clean(folder: Path, manifest: Path, files: dict[str, MeshFiles]) -> None:

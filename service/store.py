@@ -4,7 +4,9 @@ A scene's whole state is one frozen ``Snapshot``; a change builds a new snapshot
 lock and swaps it in with one assignment, so a reader that took a snapshot keeps one consistent
 version however many changes follow. Arrays are owned by the store and read-only. Every change
 checks the limits and the request first and swaps last: a rejected change leaves nothing behind.
-With a journal (``persistence.DataDir``), a version is durable before it is swapped in.
+With a journal (``persistence.DataDir``), a version is durable before it is swapped in; a change
+the journal cannot write (507 or 503, naming the data folder) is not swapped in, and only uses up
+its version number.
 
 A mesh is its arrays (a ``Geometry``) placed in the scene by a ``transform`` and seen by rays
 through its ``mask``. An instance is a mesh whose ``Geometry`` is its source's own object: the

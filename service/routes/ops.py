@@ -1,13 +1,20 @@
-"""Operations: the start page / (the viewer), /health, /metrics (no token), /v1/capabilities."""
+"""Operations: the start page / (the viewer), /health, /metrics (no token), /v1/capabilities.
+
+/health answers everyone its status; its details (the dask scheduler's address and error, the
+warm-up's error, the data folder and its OS error) only a request that may read /v1: with the
+bearer token, or any request when no DACRT_TOKEN is set.
+"""
 
 from __future__ import annotations
 
+import secrets
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, JSONResponse, PlainTextResponse
+from fastapi.security import HTTPAuthorizationCredentials
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from dacrt.chunks import N_CORES
@@ -19,9 +26,11 @@ from ..deps import (
     ReadinessDep,
     SettingsDep,
     StoreDep,
+    bearer,
     reject_unknown_query,
     require_token,
 )
+from ..persistence import DataDir
 
 
 def get_cluster(request: Request) -> Cluster | None:
@@ -30,6 +39,41 @@ def get_cluster(request: Request) -> Cluster | None:
 
 #: The dask cluster of DACRT_DASK_SCHEDULER, or None.
 ClusterDep = Annotated[Cluster | None, Depends(get_cluster)]
+
+
+#: What /health answers a request without the token: nothing that names an address, a path or
+#: an error.
+PUBLIC_HEALTH = ("status", "service", "scenes", "warmup_seconds")
+
+
+def may_see_details(
+    settings: SettingsDep,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
+) -> bool:
+    """Whether the request may read what /health knows beyond its status: no DACRT_TOKEN is set,
+    or it presents the token ``deps.require_token`` accepts (a wrong or missing one is no error
+    here: probes need no token)."""
+    if settings.token is None:
+        return True
+    if credentials is None or not credentials.credentials.strip():
+        return False
+    presented = credentials.credentials.strip().encode()
+    return secrets.compare_digest(presented, settings.token.get_secret_value().encode())
+
+
+def data_dir_health(journal: DataDir) -> dict[str, Any]:
+    """The data folder for /health: ``ok``, or ``unwritable`` with the last failed change's OS
+    error (cleared by the next change that succeeds)."""
+    fault = journal.fault
+    if fault is None:
+        return {"status": "ok", "path": str(journal.root)}
+    return {
+        "status": "unwritable",
+        "path": str(journal.root),
+        "errno": fault.errno,
+        "detail": fault.detail,
+    }
+
 
 router = APIRouter(tags=["operations"])
 unauthenticated = [Depends(reject_unknown_query)]
@@ -68,13 +112,20 @@ async def start_page() -> HTMLResponse:
         ),
     },
 )
-async def health(ready: ReadinessDep, store: StoreDep, cluster: ClusterDep) -> JSONResponse:
+async def health(
+    ready: ReadinessDep,
+    store: StoreDep,
+    cluster: ClusterDep,
+    details: Annotated[bool, Depends(may_see_details)],
+) -> JSONResponse:
     # one string, so that the OpenAPI description stays one line
     (
         """200 ``{"status": "ok", ...}`` once the engine is compiled (``degraded``: its dask """
-        """cluster is unreachable); 503 ``starting``/``error`` before."""
+        """cluster is unreachable or its data folder cannot be written); 503 """
+        """``starting``/``error`` before. Details (``detail``, ``cluster``, ``data_dir``) only """
+        """with the bearer token when DACRT_TOKEN is set."""
     )
-    body = {
+    body: dict[str, Any] = {
         "status": ready.status,
         "service": __version__,
         "scenes": len(store.snapshots()),
@@ -83,10 +134,17 @@ async def health(ready: ReadinessDep, store: StoreDep, cluster: ClusterDep) -> J
         body["warmup_seconds"] = round(ready.seconds, 3)
     if ready.error:
         body["detail"] = ready.error
+    degraded = False
     if cluster is not None:
         body["cluster"] = await run_in_threadpool(cluster.describe)
-        if ready.status == "ok" and body["cluster"]["status"] != "ok":
-            body["status"] = "degraded"
+        degraded = body["cluster"]["status"] != "ok"
+    if store.journal is not None:
+        body["data_dir"] = data_dir_health(store.journal)
+        degraded = degraded or body["data_dir"]["status"] != "ok"
+    if ready.status == "ok" and degraded:
+        body["status"] = "degraded"
+    if not details:  # addresses, paths and error texts are for those who may use /v1
+        body = {key: body[key] for key in PUBLIC_HEALTH if key in body}
     return JSONResponse(body, status_code=503 if ready.status in ("starting", "error") else 200)
 
 

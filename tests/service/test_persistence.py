@@ -1,18 +1,23 @@
 """Scenes in a data folder (``service.persistence``) in-process: every change kind is read back
 with its version, versions go on after a restart, a vertex update writes one array, a rejected
-or failed change writes nothing that is loaded, and damaged files are logged and skipped."""
+or failed change writes nothing that is loaded and leaves no file behind, a folder that cannot
+be written is refused when opened, and damaged files are logged and skipped."""
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from faults import fail_in_write
 from service_helpers import grid, quad
 
-from service.errors import Conflict, TooLarge
+from service import persistence
+from service.errors import Conflict, DataDirUnavailable, InsufficientStorage, TooLarge
 from service.persistence import DataDir
 from service.store import Store
 from service.wire import FrameChange, MeshArrays
@@ -131,13 +136,117 @@ def test_a_failed_write_changes_nothing_served_and_burns_its_version(tmp_path, m
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr("service.persistence.np.save", full_disk)
-    with pytest.raises(OSError):
+    with pytest.raises(InsufficientStorage):
         store.update_vertices("s", "a", grid(4, z=1.0)[0])
     assert store.snapshot("s").version == 1
     np.testing.assert_array_equal(store.snapshot("s").meshes["a"].vertices, grid(4)[0])
     monkeypatch.undo()
     assert store.update_vertices("s", "a", grid(4, z=1.0)[0]).version == 3
     assert open_store(tmp_path).snapshot("s").version == 3
+
+
+CHANGES = {
+    "new mesh": lambda s: s.put_mesh("s", "b", MeshArrays(*grid(3))),
+    "new scene": lambda s: s.put_mesh("t", "a", MeshArrays(*grid(3))),
+    "vertices": lambda s: s.update_vertices("s", "a", grid(4, z=1.0)[0]),
+    "transform": lambda s: s.set_transform("s", "a", turn(5)),
+    "mask": lambda s: s.set_mask("s", "a", 7),
+    "frame": lambda s: s.apply_frame("s", {"a": (grid(4, z=2.0)[0], None), "c": grid(2)}),
+    "instance": lambda s: s.put_instance("s", "i", "a", turn(9)),
+    "delete mesh": lambda s: s.delete_mesh("s", "a"),
+    "delete scene": lambda s: s.delete_scene("s"),
+}
+
+
+@pytest.mark.parametrize("only", ["", "scene."], ids=["first file", "manifest"])
+@pytest.mark.parametrize("change", CHANGES.values(), ids=CHANGES.keys())
+def test_a_change_on_a_full_disk_leaves_the_files_and_the_store_as_they_were(
+    tmp_path, monkeypatch, change, only
+):
+    store = open_store(tmp_path)
+    store.put_mesh("s", "a", MeshArrays(*grid(4)))
+    before, info = files(tmp_path), store.snapshot("s").info()
+    fail_in_write(monkeypatch, errno.ENOSPC, only)
+    with pytest.raises(InsufficientStorage) as failed:
+        change(store)
+    assert failed.value.detail == (
+        f"the data folder {tmp_path} (DACRT_DATA_DIR) cannot be written: "
+        "[Errno 28] No space left on device; nothing was changed"
+    )
+    assert files(tmp_path) == before  # no temporary file, no array of the failed version
+    assert store.snapshot("s").info() == info
+    assert store.journal.fault.errno == "ENOSPC" and store.journal.errors == {"ENOSPC": 1}
+    assert open_store(tmp_path).snapshot("s").info() == info
+    monkeypatch.undo()
+    change(store)  # space is back
+    assert store.journal.fault is None
+    assert_same_scenes(open_store(tmp_path), store)
+
+
+@pytest.mark.parametrize(
+    "code, error",
+    [
+        (errno.ENOSPC, InsufficientStorage),
+        (errno.EDQUOT, InsufficientStorage),
+        (errno.EROFS, DataDirUnavailable),
+        (errno.EACCES, DataDirUnavailable),
+        (errno.EIO, DataDirUnavailable),
+    ],
+)
+def test_a_full_folder_is_507_and_any_other_os_error_503(tmp_path, monkeypatch, code, error):
+    store = open_store(tmp_path)
+    fail_in_write(monkeypatch, code)
+    with pytest.raises(error) as failed:
+        store.put_mesh("s", "a", MeshArrays(*grid(2)))
+    assert type(failed.value) is error
+    assert f"[Errno {code}] {os.strerror(code)}; nothing was changed" in failed.value.detail
+    assert store.journal.errors == {errno.errorcode[code]: 1}
+    assert not (tmp_path / "scenes" / "s").exists()  # the new scene's folder is removed too
+
+
+def test_a_manifest_renamed_then_not_synced_is_undone(tmp_path, monkeypatch):
+    """The folder's fsync after the manifest's rename fails (an I/O error): the manifest is
+    removed (a delete's, which replaced the current one, is written back)."""
+    store = open_store(tmp_path)
+    store.put_mesh("s", "a", MeshArrays(*grid(4)))
+    info, original = store.snapshot("s").info(), persistence.sync_folder
+
+    def sync_folder(folder: Path) -> None:
+        if any(folder.glob("scene.*.json")) and not any(folder.glob("*.tmp")):
+            if sync_folder.armed:
+                sync_folder.armed = False
+                raise OSError(errno.EIO, os.strerror(errno.EIO))
+        original(folder)
+
+    monkeypatch.setattr(persistence, "sync_folder", sync_folder)
+    for change in (CHANGES["transform"], CHANGES["delete scene"]):
+        sync_folder.armed = True
+        with pytest.raises(DataDirUnavailable):
+            change(store)
+        assert not sync_folder.armed
+        assert open_store(tmp_path).snapshot("s").info() == info
+    assert store.snapshot("s").info() == info
+
+
+@pytest.mark.parametrize("code", [errno.EROFS, errno.EACCES, errno.EIO])
+def test_a_folder_that_cannot_be_written_is_refused_when_opened(tmp_path, monkeypatch, code):
+    fail_in_write(monkeypatch, code)
+    with pytest.raises(OSError) as failed:
+        DataDir(tmp_path)
+    assert failed.value.errno == code
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scenes"]  # no probe left
+
+
+def test_a_full_folder_is_opened_with_its_fault(tmp_path, monkeypatch):
+    open_store(tmp_path).put_mesh("s", "a", MeshArrays(*grid(4)))
+    fail_in_write(monkeypatch, errno.ENOSPC)
+    store = open_store(tmp_path)
+    assert store.journal.fault.errno == "ENOSPC"
+    assert store.snapshot("s").version == 1  # reads are served
+    with pytest.raises(InsufficientStorage):
+        store.set_mask("s", "a", 3)
+    monkeypatch.undo()
+    assert store.set_mask("s", "a", 3).version == 3 and store.journal.fault is None
 
 
 def damage_truncate(path: Path) -> None:
@@ -190,6 +299,33 @@ def test_leftovers_of_a_crash_are_ignored_and_removed(tmp_path):
     assert_same_scenes(restored, store)
     assert sorted(p.name for p in folder.iterdir()) == ["0.1.faces.npy", "0.1.vertices.npy"] + [
         "scene.1.json"
+    ]
+
+
+def test_temporary_files_are_removed_at_start_wherever_they_are(tmp_path, caplog):
+    """In a scene folder without a manifest (its first change failed), in a scene skipped as
+    damaged, and the start's probe: all removed; the damaged scene's own files are kept."""
+    store = open_store(tmp_path)
+    store.put_mesh("hurt", "a", MeshArrays(*grid(4)))
+    [manifest] = (tmp_path / "scenes" / "hurt").glob("scene.*.json")
+    damage_garbage(manifest)
+    first = tmp_path / "scenes" / "first"
+    first.mkdir()
+    leftovers = [
+        first / "0.1.vertices.npy.tmp",
+        tmp_path / "scenes" / "hurt" / "0.2.faces.npy.tmp",
+        tmp_path / persistence.PROBE,
+    ]
+    for path in leftovers:
+        path.write_bytes(b"half")
+    with caplog.at_level(logging.ERROR, logger="service"):
+        assert open_store(tmp_path).snapshots() == []
+    assert not any(path.exists() for path in leftovers)
+    assert not first.exists()  # nothing but a temporary file: not a scene
+    assert sorted(p.name for p in (tmp_path / "scenes" / "hurt").iterdir()) == [
+        "0.1.faces.npy",
+        "0.1.vertices.npy",
+        "scene.1.json",
     ]
 
 
