@@ -19,6 +19,7 @@ from fastapi.staticfiles import StaticFiles
 import dacrt.cache
 
 from . import __version__, errors, openapi, warmup, wire
+from .admission import Admission, AdmissionMiddleware
 from .cluster import Cluster
 from .deps import Readiness, require_ready
 from .logs import configure_logging
@@ -41,7 +42,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     configure_logging(settings.log_level)
     journal = open_data_dir(settings)
     store = Store(settings.max_triangles_per_scene, settings.max_scene_bytes, journal)
-    metrics = Metrics(lambda: store.nbytes, lambda: len(store.snapshots()), journal)
+    metrics = Metrics(store.held_bytes, lambda: len(store.snapshots()), journal)
+    admission = Admission(settings.inflight_budget(), settings.admission_wait)
+    metrics.watch_admission(admission)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -70,7 +73,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         docs_url=None,  # served below from local files
     )
     app.state.settings, app.state.store, app.state.metrics = settings, store, metrics
-    app.state.readiness = Readiness()
+    app.state.readiness, app.state.admission = Readiness(), admission
     app.state.cluster = (
         Cluster(settings.dask_scheduler, settings.dask_min_rays)
         if settings.dask_scheduler is not None
@@ -95,6 +98,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             swagger_favicon_url="/static/swagger-ui/favicon-32x32.png",
         )
 
+    app.add_middleware(AdmissionMiddleware, admission=admission)  # a ticket for each request
     app.add_middleware(errors.CatchAll)  # inside the metrics, so that they count its 500s
     app.add_middleware(MetricsMiddleware, metrics=metrics)
     return app

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import difflib
 import secrets
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -12,6 +13,8 @@ from fastapi import Depends, Request
 from fastapi.routing import APIRoute
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from . import wire
+from .admission import Ticket
 from .errors import Invalid, NotReady, TooLarge, Unauthorized
 from .metrics import Metrics
 from .settings import Settings
@@ -108,18 +111,36 @@ def query_parameters(route: APIRoute) -> tuple[str, ...]:
     return tuple(names)
 
 
-async def read_body(request: Request, limit: int) -> memoryview:
+#: Body bytes a ticket grows by at a time while a body of unknown length (chunked) arrives.
+UNKNOWN_LENGTH_STEP = 8 * 2**20
+
+#: The peak bytes of a request whose body has this many bytes, in this format (None: not known
+#: from Content-Type yet): ``service.footprint``'s estimates.
+Estimate = Callable[[int, str | None], int]
+
+
+async def read_body(request: Request, limit: int, estimate: Estimate) -> memoryview:
     """The whole body (a read-only ``wire.BodyBuffer``), refused (413) as soon as it is known to
-    exceed ``limit``, DACRT_MAX_BODY_BYTES."""
+    exceed ``limit``, DACRT_MAX_BODY_BYTES. Before a byte is read, the request's ticket holds
+    ``estimate(length, format)`` bytes of the in-flight budget (``service.admission``); a body
+    of unknown length holds more as it arrives."""
     declared = request.headers.get("content-length")
     expected = int(declared) if declared is not None and declared.isdigit() else None
     if expected is not None and expected > limit:
         raise TooLarge(
             f"body of {expected} bytes is over the limit of {limit} bytes (DACRT_MAX_BODY_BYTES)"
         )
+    ticket: Ticket = request.state.ticket
+    fmt = wire.declared_format(request.headers.get("content-type"))
+    what = f"{request.method} {request.url.path} with a body of {{}} bytes"
+    held = expected if expected is not None else UNKNOWN_LENGTH_STEP
+    await ticket.hold(estimate(held, fmt), what.format(held))
     body = BodyBuffer(expected)
     async for chunk in request.stream():
         if body.size + len(chunk) > limit:
             raise TooLarge(f"body is over the limit of {limit} bytes (DACRT_MAX_BODY_BYTES)")
+        if body.size + len(chunk) > held:
+            held = body.size + len(chunk) + UNKNOWN_LENGTH_STEP
+            await ticket.hold(estimate(held, fmt), what.format(held))
         body.add(chunk)
     return body.finish()

@@ -73,6 +73,13 @@ class TooManyConnections(ServiceError):
     """The server holds as many connections as DACRT_MAX_CONNECTIONS allows."""
 
 
+class Overloaded(ServiceError):
+    """The requests in flight hold the memory budget (DACRT_MAX_INFLIGHT_BYTES) for longer than
+    DACRT_ADMISSION_WAIT."""
+
+    headers = {"Retry-After": "2"}  #: seconds; budgets free up as answers are sent
+
+
 class DataDirUnavailable(ServiceError):
     """The data folder (DACRT_DATA_DIR) cannot be written: read-only, no permission, I/O error.
     Nothing was changed."""
@@ -95,6 +102,7 @@ STATUS: dict[type[ServiceError], int] = {
     Invalid: 422,
     NotReady: 503,
     TooManyConnections: 503,
+    Overloaded: 503,
     DataDirUnavailable: 503,
     InsufficientStorage: 507,
 }

@@ -15,6 +15,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 
 if TYPE_CHECKING:
+    from .admission import Admission
     from .persistence import DataDir
 
 _SECONDS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60)
@@ -55,12 +56,31 @@ class Metrics:
         )
         Gauge(
             "dacrt_scene_memory_bytes",
-            "Bytes of vertices and faces held over all scenes",
+            "Bytes held by all scenes: vertices and faces, and each version's engine scene once "
+            "queried",
             registry=self.registry,
         ).set_function(scene_bytes)
         Gauge("dacrt_scenes", "Scenes held", registry=self.registry).set_function(scene_count)
         if data_dir is not None:
             self.registry.register(DataDirCollector(data_dir))
+
+    def watch_admission(self, admission: Admission) -> None:
+        """Gauges of the in-flight budget (``service.admission``) and a count of its refusals."""
+        Gauge(
+            "dacrt_inflight_bytes",
+            "Bytes the requests in flight hold in the budget DACRT_MAX_INFLIGHT_BYTES",
+            registry=self.registry,
+        ).set_function(lambda: admission.held)
+        Gauge(
+            "dacrt_inflight_budget_bytes",
+            "DACRT_MAX_INFLIGHT_BYTES in force",
+            registry=self.registry,
+        ).set_function(lambda: admission.budget)
+        admission.on_refused = Counter(
+            "dacrt_admission_refused",
+            "Requests answered 503 for lack of room in the in-flight budget",
+            registry=self.registry,
+        ).inc
 
     def traced(self, query: str, n_rays: int, seconds: float) -> None:
         self.rays.labels(query).inc(n_rays)

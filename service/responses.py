@@ -15,18 +15,23 @@ from .wire import Buffer
 
 class BuffersResponse(Response):
     """``Response`` with ``parts`` (``length`` bytes in all) as its body, never joined into one
-    buffer; each part is taken from ``parts`` only once the one before has been handed over."""
+    buffer; each part is taken from ``parts`` only once the one before has been handed over.
+    ``length`` None sends the body chunked."""
 
     def __init__(
         self,
         parts: Iterable[Buffer],
-        length: int,
+        length: int | None,
         media_type: str,
         headers: Mapping[str, str],
         status_code: int = 200,
     ) -> None:
         self.parts = parts
-        super().__init__(b"", status_code, {**headers, "Content-Length": str(length)}, media_type)
+        super().__init__(b"", status_code, headers, media_type)
+        # without a Content-Length (a JSON answer written as it goes) the body goes chunked
+        del self.headers["content-length"]
+        if length is not None:
+            self.headers["content-length"] = str(length)
 
     async def __call__(self, scope, receive, send) -> None:
         await send(

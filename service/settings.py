@@ -19,6 +19,8 @@ from typing import Annotated, Literal
 from pydantic import ByteSize, Field, PositiveInt, SecretStr, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from .admission import default_budget
+
 KiB, MiB, GiB = 2**10, 2**20, 2**30
 
 Bytes = Annotated[ByteSize, Field(gt=0)]
@@ -45,9 +47,11 @@ class Settings(BaseSettings):
     #: most pixels (width x height) of one picture or depth image (render, camera)
     max_image_pixels: PositiveInt = 4 * MiB
     max_triangles_per_scene: PositiveInt = 32 * MiB  #: most triangles in one scene
-    max_scene_bytes: Bytes = 4 * GiB  #: total bytes of vertices and faces over all scenes
+    #: total bytes of all scenes: vertices and faces, and the engine's 80 bytes a placed triangle
+    max_scene_bytes: Bytes = 4 * GiB
     max_hits: PositiveInt = 1024  #: largest ``max_hits`` of a hits query
-    #: largest hit buffers of one hits query: rays x (max_hits + 1) x 16 bytes
+    #: largest hit buffers of one hits query: rays x (max_hits + 1) x 48 bytes
+    #: (``footprint.HIT_SLOT_BYTES``: the engine's lists and the answer's keys of a filled slot)
     max_hits_bytes: Bytes = 2 * GiB
     threads: int | None = Field(None, gt=0)  #: engine threads per query (None: every core)
     #: .npz (vertices, faces) for the demo scene; None: the teapot shipped with the package
@@ -56,18 +60,29 @@ class Settings(BaseSettings):
     load_demo: bool = False  #: load the demo scene at start (``python -m service`` turns it on)
     header_timeout: Seconds = 10  #: seconds a connection has to send a request's headers
     body_timeout: Seconds = 600  #: seconds a request has to send its whole body
-    max_connections: PositiveInt = 100  #: open connections; more are answered 503
+    #: seconds a request's body may go without a byte while the server reads it
+    body_idle_timeout: Seconds = 30
+    #: open connections; more are answered 503, except GET /health and /metrics
+    max_connections: PositiveInt = 100
+    #: open connections from one client address; more are answered 503, except GET /health and
+    #: /metrics (behind a reverse proxy every client has the proxy's address)
+    max_connections_per_client: PositiveInt = 32
     #: folder where every scene change is made durable before it is acknowledged; None: memory only
     data_dir: Path | None = None
     #: file holding the bearer token (instead of DACRT_TOKEN); read by ``load_settings``
     token_file: Path | None = None
-    #: Numba's compiled kernels (read by ``service.cache`` before the engine is imported)
+    #: Numba's compiled kernels (``dacrt.cache.use_cache_dir``, at the server's start)
     cache_dir: Path | None = None
     log_level: Literal[LOG_LEVELS] = "info"  #: the service's and uvicorn's log level
     #: address of a dask scheduler (``tcp://host:8786``): queries of at least ``dask_min_rays``
     #: rays are traced on its workers (needs the ``dask`` extra); None: every query in process
     dask_scheduler: str | None = None
     dask_min_rays: PositiveInt = 1 * MiB  #: fewest rays of a query traced on the dask cluster
+    #: bytes that all requests in flight may hold at their peak (bodies, rays, the engine's work,
+    #: answers); None: a quarter of the machine's memory (``service.admission``)
+    max_inflight_bytes: Bytes | None = None
+    #: seconds a request waits for room in that budget before it is answered 503
+    admission_wait: Annotated[float, Field(ge=0)] = 5
 
     @field_validator("dask_scheduler", mode="before")
     @classmethod
@@ -104,7 +119,12 @@ class Settings(BaseSettings):
             "max_scene_bytes": self.max_scene_bytes,
             "max_hits": self.max_hits,
             "max_hits_bytes": self.max_hits_bytes,
+            "max_inflight_bytes": self.inflight_budget(),
         }
+
+    def inflight_budget(self) -> int:
+        """DACRT_MAX_INFLIGHT_BYTES, or its default: a quarter of the machine's memory."""
+        return self.max_inflight_bytes or default_budget()
 
 
 class SettingsError(ValueError):

@@ -29,6 +29,7 @@ import numpy as np
 from dacrt.validation import place_vertices
 
 from .errors import Conflict, Invalid, NotFound, TooLarge
+from .footprint import TRIANGLE_BYTES
 from .wire import FrameChange, MeshArrays, json_ready
 from .wire.arrays import engine_errors
 
@@ -218,10 +219,22 @@ class Snapshot:
         return sum(m.n_triangles for m in self.meshes.values())
 
     @property
-    def nbytes(self) -> int:
+    def array_bytes(self) -> int:
         """Bytes of vertices and faces held, each array once however many meshes share it."""
         arrays = {id(a): a.nbytes for m in self.meshes.values() for a in (m.vertices, m.faces)}
         return sum(arrays.values())
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the version holds once queried: its arrays, and the engine's scene of every
+        placed triangle (an instance's again), footprint.TRIANGLE_BYTES each at the most."""
+        return self.array_bytes + self.n_triangles * TRIANGLE_BYTES
+
+    @property
+    def held_bytes(self) -> int:
+        """Bytes the version holds now: its arrays, and the engine's scene if one was built."""
+        engine = self._cache.get("dacrt")
+        return self.array_bytes + (engine.scene.nbytes if engine is not None else 0)
 
     @property
     def bounds(self) -> np.ndarray:
@@ -279,8 +292,13 @@ class Store:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of vertices and faces held over all scenes."""
+        """Bytes all scenes may hold once queried (``Snapshot.nbytes``): what
+        DACRT_MAX_SCENE_BYTES bounds."""
         return self._nbytes
+
+    def held_bytes(self) -> int:
+        """Bytes all scenes hold now (``Snapshot.held_bytes``), for /metrics."""
+        return sum(snapshot.held_bytes for snapshot in self.snapshots())
 
     def snapshot(self, scene: str) -> Snapshot:
         """The current version of a scene (404 if there is none)."""
@@ -495,8 +513,9 @@ class Store:
         nbytes = self._nbytes - (old.nbytes if old else 0) + snapshot.nbytes
         if nbytes > self.max_scene_bytes:
             raise TooLarge(
-                f"scenes would hold {nbytes} bytes of vertices and faces, over the limit "
-                f"of {self.max_scene_bytes} bytes (DACRT_MAX_SCENE_BYTES)"
+                f"scenes would hold {nbytes} bytes (vertices and faces, and the engine's "
+                f"{TRIANGLE_BYTES} bytes a placed triangle), over the limit of "
+                f"{self.max_scene_bytes} bytes (DACRT_MAX_SCENE_BYTES)"
             )
         if self.journal is not None:
             self._last_version[scene] = version  # a failed write still uses up its version

@@ -17,6 +17,7 @@ import numpy as np
 
 import dacrt
 
+from . import footprint
 from .errors import Invalid
 from .store import Snapshot
 from .wire import ANSWER_FORMATS, MeshArrays, Rays
@@ -46,10 +47,6 @@ FIELDS: dict[Query, tuple[str, ...]] = {
 PER_HIT_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")
 #: ``max_hits`` of a hits query that does not give it (API.md).
 DEFAULT_MAX_HITS = 16
-#: The measure of a hits query's memory that DACRT_MAX_HITS_BYTES bounds: this many bytes per ray
-#: and slot, rays x (max_hits + 1) slots (the engine's lists hold t and a triangle, 8 bytes a
-#: slot, and the answer up to 32 bytes a hit).
-HIT_BUFFER_BYTES = 16
 
 
 def strategies() -> tuple[str, ...]:
@@ -78,7 +75,7 @@ class Options:
         """Bytes of the engine's hit buffers for ``n_rays`` rays (0 but for hits)."""
         if self.query is not Query.HITS:
             return 0
-        return n_rays * (self.max_hits + 1) * HIT_BUFFER_BYTES
+        return n_rays * (self.max_hits + 1) * footprint.HIT_SLOT_BYTES
 
     @property
     def answer_formats(self) -> tuple[str, ...]:

@@ -9,7 +9,7 @@ import numpy as np
 from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request, Response
 
-from .. import openapi, wire
+from .. import footprint, openapi, wire
 from ..deps import SettingsDep, StoreDep, read_body, reject_unknown_query, require_token
 from ..errors import Invalid
 from ..params import FrameFormat, Mask, MeshFormat, MeshName, SceneName, VertexFormat
@@ -72,7 +72,7 @@ async def put_mesh(
     scene, sharing its arrays."""
     check_name("scene", scene), check_name("mesh", mesh)
     mask_value = None if mask is None else wire.parse_mask(mask, "?mask")
-    body = await read_body(request, settings.max_body_bytes)
+    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
     fmt = wire.resolve_format(
         request.headers.get("content-type"),
         format,
@@ -121,7 +121,7 @@ async def put_vertices(
     """New vertex positions for a mesh, same count (409 otherwise); faces are kept."""
     check_name("scene", scene), check_name("mesh", mesh)
     store.snapshot(scene).mesh(mesh)  # 404 before reading the body
-    body = await read_body(request, settings.max_body_bytes)
+    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
     fmt = wire.resolve_format(
         request.headers.get("content-type"),
         format,
@@ -164,7 +164,7 @@ async def put_mask(
 
 async def _json_body(request: Request, settings: SettingsDep, key: str, what: str) -> dict:
     """The JSON object ``{key: ...}`` of a small body (415 for another Content-Type)."""
-    body = await read_body(request, settings.max_body_bytes)
+    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
     wire.resolve_format(request.headers.get("content-type"), None, ("json",), body, what)
     doc = wire.read_json(body, key)
     wire.check_keys(doc, (key,))
@@ -182,7 +182,7 @@ async def post_frame(
     """Change several meshes in one version, atomically: their vertices, faces, transforms and
     masks, and new instances."""
     check_name("scene", scene)
-    body = await read_body(request, settings.max_body_bytes)
+    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
     fmt = wire.resolve_format(
         request.headers.get("content-type"),
         format,

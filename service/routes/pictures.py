@@ -6,11 +6,12 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 
+from anyio import from_thread
 from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 
-from .. import openapi, sensing, shading, wire
+from .. import footprint, openapi, sensing, shading, wire
 from ..deps import MetricsDep, SettingsDep, StoreDep, read_body, reject_unknown_query, require_token
 from ..errors import NotAcceptable, TooLarge
 from ..metrics import Metrics
@@ -73,10 +74,11 @@ async def render(
     options = sensing.SensorOptions((), strategy, stats, settings.threads, cull)
     options.closest()  # 422 for an unknown strategy or cull before the body is read
 
-    def work(body: memoryview, timing: ServerTiming):
+    def work(body: memoryview, timing: ServerTiming, admit: Callable):
         with timing("decode"):
             wanted = parse(RenderRequest, body, "render")
             check_pixels(wanted.width, wanted.height, settings)
+            admit(wanted.width * wanted.height, "png")
             pinhole = wanted.pinhole()
         with timing("trace"):
             pixels, result = sensing.render(store.snapshot(scene), pinhole, wanted.shading, options)
@@ -116,10 +118,11 @@ async def camera(
     options.closest()  # 422 for an unknown strategy or cull before the body is read
     answer_format = wire.negotiate(request.headers.get("accept"), "json")
 
-    def work(body: memoryview, timing: ServerTiming):
+    def work(body: memoryview, timing: ServerTiming, admit: Callable):
         with timing("decode"):
             wanted = parse(CameraRequest, body, "camera")
             check_pixels(wanted.width, wanted.height, settings)
+            admit(wanted.width * wanted.height, answer_format)
             pinhole = wanted.pinhole()
         with timing("trace"):
             result = sensing.depth_camera(
@@ -162,10 +165,11 @@ async def lidar(
     options.closest()  # 422 for an unknown strategy or cull before the body is read
     answer_format = wire.negotiate(request.headers.get("accept"), "json")
 
-    def work(body: memoryview, timing: ServerTiming):
+    def work(body: memoryview, timing: ServerTiming, admit: Callable):
         with timing("decode"):
             wanted = parse(LidarRequest, body, "lidar")
             check_rays(wanted.n_rays * wanted.max_returns, settings, "beams x steps x max_returns")
+            admit(wanted.n_rays, answer_format, wanted.max_returns)
             scan = wanted.scan()
         with timing("trace"):
             result = sensing.lidar_scan(store.snapshot(scene), scan, wanted.max_returns, options)
@@ -185,12 +189,25 @@ async def answer(
     sensor: str,
     work: Callable,
 ) -> Response:
-    """Read a sensor's JSON body, then decode, trace and encode it with ``work(body, timing)`` off
-    the event loop; the answer carries X-Scene-Version, Server-Timing (and X-Trace-Stats)."""
+    """Read a sensor's JSON body, then decode, trace and encode it with ``work(body, timing,
+    admit)`` off the event loop, where ``admit(n_rays, answer_format, max_returns=1)`` waits for
+    the sensor's memory in the in-flight budget once its rays are known; the answer carries
+    X-Scene-Version, Server-Timing (and X-Trace-Stats)."""
     timing = ServerTiming()
     store.snapshot(check_name("scene", scene))  # 404 before reading the body
     with timing("receive"):
-        body = await read_body(request, settings.max_body_bytes)
+        body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
+    ticket = request.state.ticket
+
+    def admit(n_rays: int, answer_format: str, max_returns: int = 1) -> None:
+        nbytes = (
+            len(body)
+            + footprint.sensor_bytes(n_rays, max_returns)
+            + footprint.answer_bytes(answer_format)
+        )
+        what = f"POST /v1/scenes/{scene}/{sensor} of {n_rays} rays"
+        from_thread.run(ticket.hold, nbytes, what)
+
     wire.resolve_format(
         request.headers.get("content-type"),
         format,
@@ -198,7 +215,7 @@ async def answer(
         body,
         f"POST /v1/scenes/{{scene}}/{sensor}",
     )
-    result, content, length, media = await run_sync(work, body, timing)
+    result, content, length, media = await run_sync(work, body, timing, admit)
     metrics.traced(sensor, result.n_rays, result.seconds)
     headers = {
         "X-Scene-Version": str(result.version),

@@ -7,7 +7,7 @@ import json
 from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request
 
-from .. import openapi, tracing, wire
+from .. import footprint, openapi, tracing, wire
 from ..deps import (
     MetricsDep,
     SettingsDep,
@@ -162,8 +162,26 @@ async def answer(
     timing = ServerTiming()
     if scene is not None:
         store.snapshot(check_name("scene", scene))  # 404 before reading the body
+    accept = request.headers.get("accept")
+    declared = format or wire.declared_format(request.headers.get("content-type"))
+    answer_format = negotiate(accept, declared or "npz", options)  # again once the body is read
+    max_rays = settings.max_rays_per_request
+
+    def peak(n_body: int, fmt: str | None, n_rays: int | None = None) -> int:
+        """The request's peak bytes: its body decoded, its rays traced, its answer written."""
+        if n_rays is None:
+            n_rays = footprint.most_rays(n_body, fmt, max_rays)
+        mesh = n_body * footprint.TRIANGLE_BYTES // 36 if scene is None else 0  # /trace's mesh
+        work = footprint.query_bytes(n_rays, options.query.value, options.fields, options.max_hits)
+        return (
+            footprint.decode_bytes(n_body, fmt)
+            + mesh
+            + work
+            + footprint.answer_bytes(answer_format)
+        )
+
     with timing("receive"):
-        body = await read_body(request, settings.max_body_bytes)
+        body = await read_body(request, settings.max_body_bytes, peak)
     fmt = wire.resolve_format(
         request.headers.get("content-type"),
         format,
@@ -171,16 +189,22 @@ async def answer(
         body,
         f"POST {request.url.path}",
     )
-    answer_format = negotiate(request.headers.get("accept"), fmt, options)
-    limits = {"max_rays": settings.max_rays_per_request, "max_bytes": settings.max_body_bytes}
+    answer_format = negotiate(accept, fmt, options)
+    what = f"{request.method} {request.url.path}"
+    await request.state.ticket.hold(peak(len(body), fmt), f"{what} with a {fmt} body")
+    limits = {"max_rays": max_rays, "max_bytes": settings.max_body_bytes}
 
-    def work():
+    def decode():
         with timing("decode"):
             if scene is None:
-                mesh, rays = wire.decode_trace(body, fmt, **limits)
-            else:
-                rays = wire.decode_rays(body, fmt, **limits)
-        check_hit_buffers(len(rays), options, settings.max_hits_bytes)
+                return wire.decode_trace(body, fmt, **limits)
+            return None, wire.decode_rays(body, fmt, **limits)
+
+    mesh, rays = await run_sync(decode)
+    check_hit_buffers(len(rays), options, settings.max_hits_bytes)
+    await request.state.ticket.hold(peak(len(body), None, len(rays)), f"{what} of {len(rays)} rays")
+
+    def work():
         with timing("trace"):
             result = (
                 tracing.trace(store.snapshot(scene), rays, options, request.app.state.cluster)
@@ -189,10 +213,10 @@ async def answer(
             )
         with timing("encode"):
             content, length, media = wire.encode_answer(result.arrays, answer_format)
-        return result, len(rays), content, length, media
+        return result, content, length, media
 
-    result, n_rays, content, length, media = await run_sync(work)
-    metrics.traced(options.query.value, n_rays, result.seconds)
+    result, content, length, media = await run_sync(work)
+    metrics.traced(options.query.value, len(rays), result.seconds)
     if result.where != "process":  # e.g. cluster;dur=...: traced on the dask cluster
         timing.seconds[result.where] = result.seconds
     headers = {"X-Scene-Version": str(result.version), "Server-Timing": timing.header()}
@@ -221,6 +245,6 @@ def check_hit_buffers(n_rays: int, options: tracing.Options, limit: int) -> None
     if needed > limit:
         raise TooLarge(
             f"{n_rays} rays with max_hits={options.max_hits} need {needed} bytes of hit buffers "
-            f"({n_rays} x ({options.max_hits} + 1) x {tracing.HIT_BUFFER_BYTES}), over the limit "
+            f"({n_rays} x ({options.max_hits} + 1) x {footprint.HIT_SLOT_BYTES}), over the limit "
             f"of {limit} bytes (DACRT_MAX_HITS_BYTES); send fewer rays or a smaller max_hits"
         )

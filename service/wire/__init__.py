@@ -137,6 +137,7 @@ from .formats import (
     TRACE_FORMATS,
     VERTEX_FORMATS,
     Buffer,
+    declared_format,
     resolve_format,
 )
 from .npy import array_bytes, npy_header, read_npy
@@ -190,5 +191,6 @@ __all__ = [
     "read_mapping",
     "read_npy",
     "read_npz",
+    "declared_format",
     "resolve_format",
 ]

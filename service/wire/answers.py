@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -46,22 +46,24 @@ def negotiate(
     )
 
 
-def encode_answer(arrays: Mapping[str, np.ndarray], fmt: str) -> tuple[Iterable[Buffer], int, str]:
+def encode_answer(
+    arrays: Mapping[str, np.ndarray], fmt: str
+) -> tuple[Iterable[Buffer], int | None, str]:
     """(body as buffers to send in order, its length, Content-Type) of an answer: npz, npy or json.
 
     The buffers of npy and npz bodies are mostly the answer arrays' own memory: nothing is copied.
-    An npz body takes each member's CRC as it is sent (``NpzBody``).
+    An npz body takes each member's CRC as it is sent (``NpzBody``). A JSON body is written piece
+    by piece as it is sent, in bounded memory; its length is not known in advance (None).
     """
     if fmt == "npz":
         body = NpzBody(arrays)
         return body, body.length, NPZ
     if fmt == "npy":
-        parts, media = npy_parts(arrays), NPY
-    elif fmt == "json":
-        parts, media = [encode_json(arrays)], JSON
-    else:
-        raise ValueError(f"unknown answer format {fmt!r}")
-    return parts, sum(len(part) for part in parts), media
+        parts = npy_parts(arrays)
+        return parts, sum(len(part) for part in parts), NPY
+    if fmt == "json":
+        return json_pieces(arrays), None, JSON
+    raise ValueError(f"unknown answer format {fmt!r}")
 
 
 def npy_parts(arrays: Mapping[str, np.ndarray]) -> list[Buffer]:
@@ -83,6 +85,28 @@ def encode_json(arrays: Mapping[str, np.ndarray]) -> bytes:
         separators=(",", ":"),
         allow_nan=False,
     ).encode()
+
+
+#: Items (array rows) a piece of a JSON answer holds at the most: its text and lists stay
+#: within tens of MiB however large the answer (``footprint.JSON_ANSWER_BYTES``).
+JSON_PIECE_ITEMS = 16384
+
+
+def json_pieces(arrays: Mapping[str, np.ndarray]) -> Iterator[bytes]:
+    """``encode_json(arrays)`` as consecutive pieces of at most JSON_PIECE_ITEMS rows each."""
+    separator = "{"
+    for key, array in arrays.items():
+        yield f"{separator}{json.dumps(key)}:[".encode()
+        for start in range(0, len(array), JSON_PIECE_ITEMS):
+            piece = json.dumps(
+                json_ready(array[start : start + JSON_PIECE_ITEMS]),
+                separators=(",", ":"),
+                allow_nan=False,
+            )
+            yield (piece[1:-1] if start == 0 else "," + piece[1:-1]).encode()
+        yield b"]"
+        separator = ","
+    yield b"}" if arrays else b"{}"
 
 
 def json_ready(array: np.ndarray) -> Any:

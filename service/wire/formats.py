@@ -56,6 +56,11 @@ _SNIFF = (
 )
 
 
+def declared_format(content_type: str | None) -> str | None:
+    """The format a ``Content-Type`` names (None if it names none we know)."""
+    return CONTENT_TYPES.get((content_type or "").split(";", 1)[0].strip().lower())
+
+
 def resolve_format(
     content_type: str | None,
     format: str | None,

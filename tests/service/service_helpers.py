@@ -15,7 +15,7 @@ SECURE_LIMITS = {
     "DACRT_MAX_BODY_BYTES": "64KiB",
     "DACRT_MAX_RAYS_PER_REQUEST": "1000",
     "DACRT_MAX_TRIANGLES_PER_SCENE": "1000",
-    "DACRT_MAX_SCENE_BYTES": "40000",
+    "DACRT_MAX_SCENE_BYTES": "200000",
 }
 #: The hostile corpus server's body limit: a zip bomb under it could inflate to gigabytes.
 HOSTILE_BODY_LIMIT = "4MiB"

@@ -196,7 +196,7 @@ def test_vertex_count_change_is_409_and_changes_nothing(app_client, app_api, qua
     assert state(app_api, quad_scene) == before
 
 
-# ---- 413: limits (on the secure server: 64 KiB bodies, 1000 rays, 1000 triangles, 40000 bytes)
+# ---- 413: limits (on the secure server: 64 KiB bodies, 1000 rays, 1000 triangles, 200000 bytes)
 
 
 @pytest.fixture
@@ -237,7 +237,7 @@ def test_too_many_triangles_is_413_and_changes_nothing(limited, scene_name):
 
 
 def test_total_scene_memory_over_the_limit_is_413(limited, scene_name):
-    mesh = grid(20)  # 441 vertices and 800 faces: 14892 bytes
+    mesh = grid(20)  # 441 vertices and 800 faces: 14892 bytes, and 800 x 80 of engine scene
     limited.put_mesh(scene_name + "-1", "m", *mesh)
     limited.put_mesh(scene_name + "-2", "m", *mesh)
     try:

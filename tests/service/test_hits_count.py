@@ -383,8 +383,8 @@ def test_bad_rays_are_422_naming_the_first(app_api, teapot_scene):
 
 @pytest.fixture(scope="module")
 def small_hits_api():
-    """A client of an app whose hit buffers are limited to 100 kB (and max_hits to 64)."""
-    settings = Settings(token=None, load_demo=False, max_hits=64, max_hits_bytes=100_000)
+    """A client of an app whose hit buffers are limited to 300 kB (and max_hits to 64)."""
+    settings = Settings(token=None, load_demo=False, max_hits=64, max_hits_bytes=300_000)
     with in_process.serve(settings) as http:
         yield Client(http=http)
 
@@ -392,14 +392,14 @@ def small_hits_api():
 def test_hit_buffers_over_the_limit_are_413_naming_it(small_hits_api, scene_name, teapot):
     small_hits_api.put_mesh(scene_name, "teapot", *teapot)
     origins, directions = rays_at(*teapot, 1000, seed=10)
-    # 1000 rays x (5 + 1) x 16 bytes = 96000: within the limit
+    # 1000 rays x (5 + 1) x 48 bytes = 288000: within the limit
     assert len(small_hits_api.hits(scene_name, origins, directions, max_hits=5).truncated) == 1000
     with pytest.raises(APIError) as caught:
         small_hits_api.hits(scene_name, origins, directions, max_hits=6)
     assert caught.value.status == 413
     assert caught.value.detail == (
-        "1000 rays with max_hits=6 need 112000 bytes of hit buffers (1000 x (6 + 1) x 16), "
-        "over the limit of 100000 bytes (DACRT_MAX_HITS_BYTES); send fewer rays or a smaller "
+        "1000 rays with max_hits=6 need 336000 bytes of hit buffers (1000 x (6 + 1) x 48), "
+        "over the limit of 300000 bytes (DACRT_MAX_HITS_BYTES); send fewer rays or a smaller "
         "max_hits"
     )
     with pytest.raises(APIError) as over:

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 from service_helpers import grid, quad
 
+from service import tracing
 from service.errors import Conflict, Invalid, NotFound, TooLarge
+from service.footprint import TRIANGLE_BYTES
 from service.store import Store, check_name, referenced_bounds
 from service.wire import FrameChange, MeshArrays
 
@@ -116,14 +118,39 @@ def test_limits_name_their_setting(store):
         TooLarge, match="1800 triangles, over the limit of 1000 .*DACRT_MAX_TRIANGLES_PER_SCENE"
     ):
         store.put_mesh("s", "big", MeshArrays(*grid(30)))
-    small = MeshArrays(*grid(20))  # 800 triangles, 441 vertices: 14892 bytes
-    for i in range(6):
+    small = MeshArrays(*grid(10))  # 200 triangles, 121 vertices: 3852 bytes of arrays
+    for i in range(5):  # and 200 x 80 bytes of engine scene: 19852 bytes each
         store.put_mesh(f"s{i}", "m", small)
     with pytest.raises(TooLarge, match="over the limit of 100000 bytes .*DACRT_MAX_SCENE_BYTES"):
-        store.put_mesh("s6", "m", small)
-    assert store.nbytes == 6 * 14892
+        store.put_mesh("s5", "m", small)
+    assert store.nbytes == 5 * (3852 + 200 * TRIANGLE_BYTES)
     with pytest.raises(NotFound):
-        store.snapshot("s6")
+        store.snapshot("s5")
+
+
+def test_the_scene_limit_counts_the_engines_placed_triangles():
+    """Instances share their source's arrays but the engine places each one's triangles: the
+    limit counts them (7 instances of a mesh whose arrays alone fit)."""
+    store = Store(max_triangles_per_scene=100_000, max_scene_bytes=390_000)
+    store.put_mesh("s", "car", MeshArrays(*grid(20)))  # 14892 bytes, 800 triangles
+    for i in range(4):
+        store.put_instance("s", f"car{i}", "car", np.eye(4))
+    assert store.nbytes == 14892 + 5 * 800 * TRIANGLE_BYTES
+    with pytest.raises(TooLarge, match="engine's 80 bytes a placed triangle.*DACRT_MAX_SCENE_"):
+        store.put_instance("s", "car4", "car", np.eye(4))
+    assert store.snapshot("s").array_bytes == 14892
+
+
+def test_held_bytes_count_the_engine_scene_once_built(store):
+    """What /metrics shows: the arrays, then the engine's scene once a query built it, within
+    the estimate the limit counts."""
+    store.put_mesh("s", "a", MeshArrays(*grid(10)))
+    store.put_instance("s", "b", "a", np.eye(4))
+    snapshot = store.snapshot("s")
+    assert store.held_bytes() == snapshot.array_bytes == 3852
+    engine = snapshot.cached("dacrt", tracing._snapshot_engine)
+    assert engine.scene.nbytes >= 400 * 64  # corners, box and row of each placed triangle
+    assert store.held_bytes() == 3852 + engine.scene.nbytes <= store.nbytes
 
 
 def test_memory_accounting_returns_to_zero(store):
@@ -254,7 +281,7 @@ def test_a_transform_that_leaves_the_float32_range_is_422(store):
 
 
 def test_instances_share_their_sources_arrays_counted_once():
-    store = Store(max_triangles_per_scene=10_000, max_scene_bytes=20_000)
+    store = Store(max_triangles_per_scene=10_000, max_scene_bytes=500_000)
     source, _ = store.put_mesh("s", "car", MeshArrays(*grid(20)))  # 14892 bytes
     for i in range(5):
         store.put_instance("s", f"car{i}", "car", turn(10 * i, shift=(i, 0, 0)), mask=i + 1)
@@ -263,9 +290,10 @@ def test_instances_share_their_sources_arrays_counted_once():
         made = snapshot.meshes[f"car{i}"]
         assert made.vertices is source.vertices and made.faces is source.faces
         assert (made.instance_of, made.mask, made.index) == ("car", i + 1, i + 1)
-    assert store.nbytes == snapshot.nbytes == 14892 and snapshot.n_triangles == 6 * 800
+    assert snapshot.array_bytes == 14892 and snapshot.n_triangles == 6 * 800
+    assert store.nbytes == snapshot.nbytes == 14892 + 6 * 800 * TRIANGLE_BYTES
     store.delete_mesh("s", "car0")
-    assert store.nbytes == 14892
+    assert store.nbytes == 14892 + 5 * 800 * TRIANGLE_BYTES
 
 
 def test_instances_follow_their_sources_arrays(store):
@@ -280,7 +308,7 @@ def test_instances_follow_their_sources_arrays(store):
     store.put_mesh("s", "car", MeshArrays(*grid(2)))
     twin = store.snapshot("s").meshes["twin"]
     assert twin.n_triangles == 8 and twin.vertices is store.snapshot("s").meshes["car"].vertices
-    assert store.nbytes == store.snapshot("s").meshes["car"].nbytes
+    assert store.snapshot("s").array_bytes == store.snapshot("s").meshes["car"].nbytes
 
 
 def test_an_instance_of_an_instance_shares_the_first_source(store):

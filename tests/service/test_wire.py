@@ -569,11 +569,8 @@ def test_npz_body_takes_each_crc_when_its_member_is_reached(monkeypatch):
 
 
 def test_encode_answer_names_the_content_type_and_length():
-    assert wire.encode_answer({"occluded": np.array([True])}, "json") == (
-        [b'{"occluded":[true]}'],
-        19,
-        wire.JSON,
-    )
+    parts, length, media = wire.encode_answer({"occluded": np.array([True])}, "json")
+    assert (b"".join(parts), length, media) == (b'{"occluded":[true]}', None, wire.JSON)
     parts, length, media = wire.encode_answer({"occluded": np.array([True])}, "npy")
     assert media == wire.NPY and length == sum(map(len, parts)) == 129
 
@@ -720,3 +717,23 @@ def test_json_faces_refuse_booleans_floats_strings_and_huge_integers(faces, mess
     body = b'{"vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "faces": ' + faces.encode() + b"}"
     with pytest.raises(Invalid, match=re.escape(message)):
         wire.decode_mesh(body, "json")
+
+
+@pytest.mark.parametrize("n", [0, 1, 5, 6, 7, 20])
+def test_json_answer_in_pieces_is_the_whole_document(monkeypatch, n):
+    """A JSON answer is written JSON_PIECE_ITEMS rows at a time (bounded memory), and the pieces
+    make the same document as encoding it whole: empty, one piece, several, a piece boundary."""
+    monkeypatch.setattr(wire.answers, "JSON_PIECE_ITEMS", 3)
+    rng = np.random.default_rng(n)
+    t = rng.uniform(0, 10, n).astype(np.float32)
+    t[::4] = np.inf
+    arrays = {
+        "t": t,
+        "mesh": rng.integers(-1, 5, n).astype(np.int32),
+        "normal": rng.normal(size=(n, 3)).astype(np.float32),
+        "occluded": rng.random(n) < 0.5,
+    }
+    pieces = list(wire.encode_answer(arrays, "json")[0])
+    assert len(pieces) == len(arrays) * (2 + -(-n // 3)) + 1  # per key: "[", its pieces, "]"
+    assert b"".join(pieces) == wire.encode_json(arrays)
+    assert json.loads(b"".join(pieces))["mesh"] == arrays["mesh"].tolist()

@@ -1,0 +1,152 @@
+"""Admission: a budget of bytes that the requests in flight may hold at their peak.
+
+Every request holds a ``Ticket`` from its start to the last byte of its answer. Before a request
+reads its body or builds its answer it says how many bytes it will hold at its peak
+(``service.footprint`` estimates them from what it asks); the ticket is admitted when those bytes
+fit in DACRT_MAX_INFLIGHT_BYTES beside what the other requests hold. Requests wait in arrival
+order for at most DACRT_ADMISSION_WAIT seconds, then get 503 with Retry-After; a request that
+would not fit in the whole budget is 413. So N concurrent heavy requests hold at most the budget,
+never the machine's memory.
+
+Tickets are taken and changed on the event loop only (between the work done in threads), so the
+budget needs no lock.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+
+from .errors import Overloaded, TooLarge
+
+#: Share of the machine's memory (or of its cgroup's limit) that requests may hold by default.
+DEFAULT_SHARE = 0.25
+
+
+def machine_memory() -> int:
+    """Bytes of memory this process may use: the machine's, or its cgroup's limit if lower."""
+    physical = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    for limit_file in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            text = Path(limit_file).read_text().strip()
+        except OSError:
+            continue
+        if text.isdigit():
+            physical = min(physical, int(text))
+    return physical
+
+
+def default_budget() -> int:
+    """DACRT_MAX_INFLIGHT_BYTES when it is not set: a quarter of the machine's memory."""
+    return int(machine_memory() * DEFAULT_SHARE)
+
+
+class Ticket:
+    """The bytes one request holds in the budget (0 until it asks for some)."""
+
+    def __init__(self, admission: Admission) -> None:
+        self.admission = admission
+        self.nbytes = 0
+
+    async def hold(self, nbytes: int, what: str) -> None:
+        """Hold ``nbytes`` in all from now on (more or fewer than before): waits in line for
+        them, then 503; 413 if they exceed the whole budget. ``what`` names the request's load
+        in the caller's terms (``"1048576 rays of closest as npz"``)."""
+        await self.admission.resize(self, int(nbytes), what)
+
+    def release(self) -> None:
+        self.admission.resize_now(self, 0)
+
+
+class Admission:
+    """The in-flight budget of one app."""
+
+    def __init__(self, budget: int, wait: float) -> None:
+        self.budget = budget  #: DACRT_MAX_INFLIGHT_BYTES
+        self.wait = wait  #: DACRT_ADMISSION_WAIT
+        self.held = 0  #: bytes held by admitted tickets
+        self.on_refused: Callable[[], None] = lambda: None  #: called for each 503 (metrics)
+        self._line: deque[asyncio.Future] = deque()
+
+    def ticket(self) -> Ticket:
+        return Ticket(self)
+
+    async def resize(self, ticket: Ticket, nbytes: int, what: str) -> None:
+        extra = nbytes - ticket.nbytes
+        if extra <= 0:
+            self.resize_now(ticket, nbytes)
+            return
+        if nbytes > self.budget:
+            raise TooLarge(
+                f"{what} would hold about {mib(nbytes)} of server memory, over the budget of "
+                f"{mib(self.budget)} for all requests in flight (DACRT_MAX_INFLIGHT_BYTES); "
+                "send it in smaller batches (or .npy/.npz rather than JSON)"
+            )
+        if not self._line and self.held + extra <= self.budget:
+            self.resize_now(ticket, nbytes)
+            return
+        turn = asyncio.get_running_loop().create_future()
+        self._line.append(turn)
+        try:
+            async with asyncio.timeout(self.wait):
+                while self._line[0] is not turn or self.held + extra > self.budget:
+                    await asyncio.shield(turn)
+                    turn = self._renew(turn)
+        except TimeoutError:
+            self.on_refused()
+            raise Overloaded(
+                f"the server is busy: {what} needs about {mib(nbytes)} of memory and the "
+                f"requests in flight hold {mib(self.held)} of {mib(self.budget)} "
+                f"(DACRT_MAX_INFLIGHT_BYTES); retry after {Overloaded.headers['Retry-After']} s"
+            ) from None
+        finally:
+            self._line.remove(turn)
+            self._wake()
+        self.resize_now(ticket, nbytes)
+
+    def resize_now(self, ticket: Ticket, nbytes: int) -> None:
+        """Change a ticket's bytes without waiting (a release, or bytes known to fit)."""
+        freed = ticket.nbytes > nbytes
+        self.held += nbytes - ticket.nbytes
+        ticket.nbytes = nbytes
+        if freed:
+            self._wake()
+
+    def _renew(self, turn: asyncio.Future) -> asyncio.Future:
+        """A fresh future in ``turn``'s place in line (a woken waiter that must wait again)."""
+        if not turn.done():
+            return turn
+        fresh = asyncio.get_running_loop().create_future()
+        self._line[self._line.index(turn)] = fresh
+        return fresh
+
+    def _wake(self) -> None:
+        """Tell the first in line to look again: bytes were freed, or the line moved."""
+        if self._line and not self._line[0].done():
+            self._line[0].set_result(None)
+
+
+def mib(nbytes: int) -> str:
+    return f"{nbytes / 2**20:.1f} MiB"
+
+
+class AdmissionMiddleware:
+    """ASGI middleware: each HTTP request gets a ticket (``scope["state"]["ticket"]``), released
+    once its answer is sent or it fails."""
+
+    def __init__(self, app, admission: Admission) -> None:
+        self.app = app
+        self.admission = admission
+
+    async def __call__(self, scope, receive, send) -> None:
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        ticket = self.admission.ticket()
+        scope.setdefault("state", {})["ticket"] = ticket
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            ticket.release()

@@ -1,0 +1,94 @@
+"""What a request holds in server memory at its peak, estimated from what it asks.
+
+``service.admission`` admits a request only when this estimate fits in the in-flight budget. The
+estimates are upper bounds of peaks measured on a real server (peak RSS over idle, one request at
+a time, two threads; docs/limits.md gives the figures): each constant is the measured bytes with a
+margin. A body counts its own bytes, what decoding it costs (a parsed JSON document or mesh file is
+many times its text), and what the work and the answer hold per ray, pixel or hit.
+"""
+
+from __future__ import annotations
+
+#: Bytes per ray of a query's work beyond its body: the checked copies of origins, directions,
+#: tmin and tmax, and the engine's ray ids and bounds (measured 32-48).
+RAY_WORK_BYTES = 48
+#: Bytes per ray of each answer key as the engine returns it.
+FIELD_BYTES = {
+    "t": 4,
+    "mesh": 4,
+    "prim": 4,
+    "u": 4,
+    "v": 4,
+    "normal": 12,
+    "occluded": 1,
+    "count": 4,
+    "offsets": 8,
+    "truncated": 1,
+}
+#: Bytes per slot of a hits query, rays x (max_hits + 1) slots: the engine's lists (t and a
+#: triangle) and every answer key of a filled slot (measured 40.1 with every slot filled).
+HIT_SLOT_BYTES = 48
+#: Bytes per ray or pixel of a sensor (rays made, traced, the answer's arrays; measured 94 for a
+#: picture, 118 for a depth camera, 149 for one lidar return).
+SENSOR_RAY_BYTES = 192
+#: Bytes of engine scene per triangle of a one-shot /trace (corners, box, row, normal, mask).
+TRIANGLE_BYTES = 80
+#: Peak bytes per body byte while a JSON body is parsed (measured 3.7-15.5: a digit is an 8-byte
+#: list slot, a float a 24-byte object).
+JSON_PARSE_FACTOR = 16
+#: Peak bytes per body byte while a mesh file is read (measured 7.6-16.4 for OBJ, PLY, STL, OFF
+#: and GLB through trimesh and NumPy).
+MESH_FILE_FACTOR = 20
+#: Peak bytes per body byte of a binary (npy, npz) array body: the body and owned copies.
+ARRAY_FACTOR = 2
+#: Bytes held by a JSON answer while it is written: it is written in pieces of this many bytes of
+#: arrays at the most (``wire.JSON_PIECE_ITEMS``), each piece's text and lists at about 600 bytes
+#: an item (measured 456-605).
+JSON_ANSWER_BYTES = 16 * 2**20
+#: The smallest bytes of one ray in a body of each format (npz counted as stored), for the most
+#: rays a body can hold before it is decoded.
+MIN_RAY_BYTES = {"npy": 24, "npz": 24, "json": 16}
+
+
+def decode_bytes(n_body: int, fmt: str | None) -> int:
+    """Peak bytes of a body of ``n_body`` bytes in format ``fmt`` while it is decoded (with the
+    body itself); None: a format not known yet (counted as binary)."""
+    if fmt == "json":
+        return n_body * (1 + JSON_PARSE_FACTOR)
+    if fmt in ("obj", "ply", "stl", "glb", "off"):
+        return n_body * (1 + MESH_FILE_FACTOR)
+    return n_body * ARRAY_FACTOR
+
+
+def most_rays(n_body: int, fmt: str | None, max_rays: int) -> int:
+    """The most rays a body of ``n_body`` bytes can hold (a compressed npz may hold more: its
+    rays are counted again once decoded)."""
+    return min(max_rays, n_body // MIN_RAY_BYTES.get(fmt or "npy", 24))
+
+
+def mesh_scene_bytes(n_body: int) -> int:
+    """The most bytes of engine scene a mesh sent in a body of ``n_body`` bytes can make (a
+    triangle takes at least a face's 12 bytes)."""
+    return n_body // 12 * TRIANGLE_BYTES
+
+
+def answer_bytes(fmt: str) -> int:
+    """Bytes held beyond the answer's arrays while it is written in ``fmt``."""
+    return JSON_ANSWER_BYTES if fmt == "json" else 0
+
+
+def query_bytes(n_rays: int, query: str, fields: tuple[str, ...], max_hits: int | None) -> int:
+    """Peak bytes of tracing ``n_rays`` rays for ``query`` and holding its answer's ``fields``."""
+    if query == "hits":
+        return n_rays * (RAY_WORK_BYTES + FIELD_BYTES["offsets"] + (max_hits + 1) * HIT_SLOT_BYTES)
+    per_ray = sum(FIELD_BYTES[name] for name in fields)
+    if query == "closest":  # the engine writes every key, then the answer picks
+        per_ray = sum(FIELD_BYTES[name] for name in ("t", "mesh", "prim", "u", "v", "normal"))
+    return n_rays * (RAY_WORK_BYTES + per_ray)
+
+
+def sensor_bytes(n_rays: int, max_returns: int = 1) -> int:
+    """Peak bytes of a sensor of ``n_rays`` rays (pixels, or beams x steps) and its answer."""
+    if max_returns > 1:
+        return n_rays * (SENSOR_RAY_BYTES + (max_returns + 1) * HIT_SLOT_BYTES)
+    return n_rays * SENSOR_RAY_BYTES

@@ -1,0 +1,322 @@
+"""Admission: the requests in flight hold at most DACRT_MAX_INFLIGHT_BYTES at their peak.
+
+The budget itself (``service.admission``) in process: who waits, in what order, who is refused.
+Then a real server with a small budget: concurrent requests of the largest legal size all answer,
+none a 5xx, and the server's peak RSS stays under its idle RSS + the budget + MARGIN; the same
+requests on a server with no effective budget go past it (what the budget prevents).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from server_process import ServerProcess
+
+from service import footprint
+from service.admission import Admission
+from service.errors import Overloaded, TooLarge
+
+MiB = 2**20
+NPY = "application/x-npy"
+
+# ---- the budget
+
+
+def run(coroutine):
+    return asyncio.run(coroutine)
+
+
+def test_tickets_within_the_budget_are_admitted_at_once():
+    async def scenario():
+        admission = Admission(100, wait=0)
+        first, second = admission.ticket(), admission.ticket()
+        await first.hold(60, "first")
+        await second.hold(40, "second")
+        assert admission.held == 100
+        await first.hold(10, "first, less")  # giving back never waits
+        assert admission.held == 50
+        first.release()
+        second.release()
+        assert admission.held == 0
+
+    run(scenario())
+
+
+def test_a_ticket_waits_until_bytes_are_released():
+    async def scenario():
+        admission = Admission(100, wait=5)
+        first, second = admission.ticket(), admission.ticket()
+        await first.hold(80, "first")
+        waiting = asyncio.create_task(second.hold(50, "second"))
+        await asyncio.sleep(0)
+        assert not waiting.done() and admission.held == 80
+        first.release()
+        await asyncio.wait_for(waiting, 5)
+        assert admission.held == 50
+
+    run(scenario())
+
+
+def test_waiting_tickets_are_admitted_in_arrival_order():
+    """A small request does not pass a large one waiting before it (no starvation)."""
+
+    async def scenario():
+        admission = Admission(100, wait=5)
+        holder, large, small = admission.ticket(), admission.ticket(), admission.ticket()
+        order = []
+        await holder.hold(90, "holder")
+
+        async def hold(ticket, nbytes, name):
+            await ticket.hold(nbytes, name)
+            order.append(name)
+
+        tasks = [asyncio.create_task(hold(large, 80, "large"))]
+        await asyncio.sleep(0)
+        tasks.append(asyncio.create_task(hold(small, 5, "small")))
+        await asyncio.sleep(0)
+        assert order == []  # small would fit (95 <= 100), but large came first
+        holder.release()
+        await asyncio.wait_for(asyncio.gather(*tasks), 5)
+        assert order == ["large", "small"] and admission.held == 85
+
+    run(scenario())
+
+
+def test_a_ticket_that_waits_too_long_is_refused_and_holds_nothing():
+    async def scenario():
+        admission = Admission(100, wait=0.05)
+        refusals = []
+        admission.on_refused = lambda: refusals.append(1)
+        first, second = admission.ticket(), admission.ticket()
+        await first.hold(70, "first")
+        with pytest.raises(Overloaded, match="DACRT_MAX_INFLIGHT_BYTES") as refused:
+            await second.hold(50, "POST /v1/scenes/s/closest of 9 rays")
+        assert "POST /v1/scenes/s/closest of 9 rays" in refused.value.detail
+        assert refused.value.headers["Retry-After"]
+        assert admission.held == 70 and second.nbytes == 0 and refusals == [1]
+        first.release()
+        await second.hold(50, "again")  # the line is empty again
+        assert admission.held == 50
+
+    run(scenario())
+
+
+def test_a_ticket_over_the_whole_budget_is_413():
+    async def scenario():
+        admission = Admission(100, wait=5)
+        with pytest.raises(TooLarge, match=r"over the budget .*\(DACRT_MAX_INFLIGHT_BYTES\)"):
+            await admission.ticket().hold(101, "a body of 101 bytes")
+        assert admission.held == 0
+
+    run(scenario())
+
+
+# ---- a real server
+
+#: Largest legal request of the servers below: DACRT_MAX_RAYS_PER_REQUEST rays.
+MAX_RAYS = 1 << 21
+BUDGET = 320 * MiB  # one such closest request (about 256 MiB estimated) at a time
+CONCURRENT = 6
+#: What the allocator and the event loop may hold beyond the budget at the peak (bytes a
+#: finished request freed but the allocator keeps, a socket's buffers).
+MARGIN = 160 * MiB
+SCENE = Path(__file__).resolve().parents[3] / "shared" / "scenes" / "sibenik.npz"
+
+
+def rss(pid: int, key: str) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) * 1024
+    raise KeyError(key)
+
+
+def reset_peak(pid: int) -> None:
+    """Start VmHWM again from the current RSS (Linux, /proc/PID/clear_refs)."""
+    try:
+        Path(f"/proc/{pid}/clear_refs").write_text("5")
+    except OSError as error:
+        pytest.skip(f"cannot reset the server's peak RSS: {error}")
+
+
+def rays_body(n_rays: int = MAX_RAYS) -> bytes:
+    """An .npy body of ``n_rays`` rays from the middle of Sibenik's nave: nearly all hit."""
+    rng = np.random.default_rng(7)
+    origins = np.zeros((n_rays, 3), np.float32)
+    directions = rng.normal(size=(n_rays, 3)).astype(np.float32)
+    buffer = io.BytesIO()
+    np.save(buffer, np.hstack([origins, directions]))
+    return buffer.getvalue()
+
+
+def server_with(budget: int, wait: float) -> ServerProcess:
+    return ServerProcess(
+        {
+            "DACRT_MAX_RAYS_PER_REQUEST": str(MAX_RAYS),
+            "DACRT_MAX_INFLIGHT_BYTES": str(budget),
+            "DACRT_ADMISSION_WAIT": str(wait),
+            "DACRT_THREADS": "2",
+            "DACRT_LOAD_DEMO": "true",
+            "DACRT_DEMO_SCENE": str(SCENE),
+        }
+    )
+
+
+@pytest.fixture(scope="module")
+def servers():
+    if not SCENE.is_file():
+        pytest.skip(f"needs {SCENE} (the shared folder beside the repository)")
+    processes = {
+        "budget": server_with(BUDGET, wait=120),
+        "refusing": server_with(BUDGET, wait=0),
+        "unbounded": server_with(64 * 2**30, wait=0),
+    }
+    try:
+        for process in processes.values():
+            process.wait_ready()
+        yield processes
+    finally:
+        for process in processes.values():
+            process.stop()
+
+
+def concurrent_closest(server: ServerProcess, body: bytes) -> tuple[list[httpx.Response], int]:
+    """CONCURRENT closest requests of ``body`` at once: their answers, and the server's peak RSS
+    over its RSS before them."""
+    url = f"{server.url}/v1/scenes/demo/closest"
+    with httpx.Client(timeout=300) as client:  # one warm request: nothing lazy is left
+        warm = client.post(url, content=rays_body(1024), headers={"content-type": NPY})
+        assert warm.status_code == 200
+    idle = rss(server.process.pid, "VmRSS")
+    reset_peak(server.process.pid)
+
+    def post(_):
+        with httpx.Client(timeout=300) as client:
+            return client.post(url, content=body, headers={"content-type": NPY})
+
+    with ThreadPoolExecutor(CONCURRENT) as pool:
+        answers = list(pool.map(post, range(CONCURRENT)))
+    return answers, rss(server.process.pid, "VmHWM") - idle
+
+
+def test_concurrent_largest_requests_stay_within_the_budget(servers):
+    body = rays_body()
+    answers, peak = concurrent_closest(servers["budget"], body)
+    print(f"budget {BUDGET / MiB:.0f} MiB: peak RSS +{peak / MiB:.0f} MiB over idle")
+    assert [a.status_code for a in answers] == [200] * CONCURRENT
+    first = np.load(io.BytesIO(answers[0].content))
+    assert len(first["t"]) == MAX_RAYS and np.isfinite(first["t"]).mean() > 0.99
+    assert all(a.content == answers[0].content for a in answers)
+    assert peak <= BUDGET + MARGIN, f"peak RSS +{peak / MiB:.0f} MiB over idle"
+
+
+def test_without_the_budget_the_same_requests_go_past_it(servers):
+    """What the budget prevents: the same load on a server whose budget admits everything."""
+    answers, peak = concurrent_closest(servers["unbounded"], rays_body())
+    print(f"no budget: peak RSS +{peak / MiB:.0f} MiB over idle")
+    assert [a.status_code for a in answers] == [200] * CONCURRENT
+    assert peak > BUDGET + MARGIN, f"peak RSS +{peak / MiB:.0f} MiB over idle"
+
+
+def test_requests_beyond_the_budget_are_503_with_retry_after(servers):
+    answers, peak = concurrent_closest(servers["refusing"], rays_body())
+    statuses = sorted(a.status_code for a in answers)
+    assert set(statuses) <= {200, 503} and statuses[0] == 200 and statuses[-1] == 503
+    for refused in (a for a in answers if a.status_code == 503):
+        assert refused.headers["retry-after"]
+        assert "DACRT_MAX_INFLIGHT_BYTES" in refused.json()["detail"]
+    assert peak <= BUDGET + MARGIN
+    metrics = httpx.get(f"{servers['refusing'].url}/metrics").text
+    refused = statuses.count(503)
+    assert f"dacrt_admission_refused_total {float(refused)}" in metrics
+    assert "dacrt_inflight_bytes 0.0" in metrics
+
+
+def test_a_request_over_the_whole_budget_is_413_before_its_body_is_read(servers):
+    """A JSON body of 40 MiB would cost about 17 times its size to parse: over the budget."""
+    url = f"{servers['budget'].url}/v1/scenes/demo/closest"
+    body = b'{"origins": [' + b"[0,0,0]," * (5 * MiB) + b'[0,0,0]], "directions": []}'
+    answer = httpx.post(url, content=body, headers={"content-type": "application/json"})
+    assert answer.status_code == 413
+    assert "DACRT_MAX_INFLIGHT_BYTES" in answer.json()["detail"]
+    assert "smaller batches" in answer.json()["detail"]
+
+
+def layers(n_layers: int) -> bytes:
+    """An npz mesh of ``n_layers`` squares of 2000 x 2000 at z = 0, 1, ...: a ray along z from
+    below crosses them all."""
+    corners = np.float32([[-1000, -1000], [1000, -1000], [1000, 1000], [-1000, 1000]])
+    vertices = np.concatenate(
+        [np.column_stack([corners, np.full(4, z, np.float32)]) for z in range(n_layers)]
+    )
+    base = 4 * np.arange(n_layers, dtype=np.int32)[:, None]
+    faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]]).astype(np.int32)
+    buffer = io.BytesIO()
+    np.savez(buffer, vertices=vertices, faces=faces)
+    return buffer.getvalue()
+
+
+def through_layers(n_rays: int) -> bytes:
+    rng = np.random.default_rng(3)
+    rays = np.zeros((n_rays, 6), np.float32)
+    rays[:, :2] = rng.uniform(-500, 500, (n_rays, 2))
+    rays[:, 2], rays[:, 5] = -1, 1
+    buffer = io.BytesIO()
+    np.save(buffer, rays)
+    return buffer.getvalue()
+
+
+def peak_of(server: ServerProcess, method: str, path: str, **kwargs) -> tuple[httpx.Response, int]:
+    """One request's answer, and the server's peak RSS over its RSS before it."""
+    pid = server.process.pid
+    idle = rss(pid, "VmRSS")
+    reset_peak(pid)
+    answer = httpx.request(method, server.url + path, timeout=300, **kwargs)
+    return answer, rss(pid, "VmHWM") - idle
+
+
+def test_the_hits_limit_bounds_the_real_peak(servers):
+    """DACRT_MAX_HITS_BYTES counts rays x (max_hits + 1) x HIT_SLOT_BYTES: more than a hits
+    query holds at its peak with every slot filled (1024 layers)."""
+    server = servers["unbounded"]
+    put = httpx.put(
+        f"{server.url}/v1/scenes/layers/meshes/stack",
+        content=layers(1024),
+        headers={"content-type": "application/x-npz"},
+    )
+    assert put.status_code in (200, 201)
+    n_rays = 4096
+    answer, peak = peak_of(
+        server,
+        "POST",
+        "/v1/scenes/layers/hits?max_hits=1024&fields=t",
+        content=through_layers(n_rays),
+        headers={"content-type": NPY},
+    )
+    assert answer.status_code == 200
+    assert np.diff(np.load(io.BytesIO(answer.content))["offsets"]).min() == 1024
+    counted = n_rays * 1025 * footprint.HIT_SLOT_BYTES
+    assert peak <= counted, f"peak +{peak / MiB:.0f} MiB, counted {counted / MiB:.0f} MiB"
+
+
+def test_a_json_answer_is_written_in_bounded_memory(servers):
+    """A JSON answer is written piece by piece: its peak is the query's own plus the pieces',
+    never the whole document's lists (about 460 bytes a ray)."""
+    n_rays = 1 << 18
+    server = servers["unbounded"]
+    answer, peak = peak_of(
+        server,
+        "POST",
+        "/v1/scenes/demo/closest",
+        content=rays_body(n_rays),
+        headers={"content-type": NPY, "accept": "application/json"},
+    )
+    assert answer.status_code == 200 and "content-length" not in answer.headers
+    assert len(answer.json()["t"]) == n_rays
+    bound = footprint.query_bytes(n_rays, "closest", ("t",), None) + footprint.JSON_ANSWER_BYTES
+    assert peak <= 24 * n_rays + bound, f"peak +{peak / MiB:.0f} MiB"
