@@ -1,11 +1,17 @@
-"""uvicorn's HTTP/1.1 protocol (httptools) with deadlines for slow clients and a connection bound.
+"""uvicorn's HTTP/1.1 protocol (httptools) with deadlines for slow clients and connection bounds.
 
 uvicorn waits forever for a request's headers and body; a client that sends nothing, or one byte at
 a time, would hold its connection (and a slot of the server) for good. This protocol gives every
 request ``header_timeout`` seconds from its first byte (or from the connection's opening) to
-complete its headers and ``body_timeout`` seconds from then to complete its body; past a deadline
-it answers 408 where it still can and closes the connection. Connections opened while
-``max_connections`` others are open get a 503 with ``Retry-After`` to their first request.
+complete its headers, ``body_timeout`` seconds from then to complete its body, and
+``body_idle_timeout`` seconds between two reads of its body (the clock stops while the server
+itself does not read: the app has not asked for more, or the client waits for ``100 Continue``);
+past a deadline it answers 408 where it still can and closes the connection.
+
+A connection opened while ``max_connections`` others are open, or while its client address holds
+``max_connections_per_client``, is over a bound: its bodiless ``GET``/``HEAD`` of ``/health`` and
+``/metrics`` are served (and the connection then closed), so that a monitor can always see a full
+server; any other request gets 503 with ``Retry-After`` naming the setting.
 
 ``python -m service`` uses it; with uvicorn's CLI, pass
 ``--http service.protocol:GuardedHttpProtocol`` (it then reads the DACRT_* environment).
@@ -16,14 +22,24 @@ from __future__ import annotations
 import asyncio
 import functools
 import json
+import weakref
+from collections import Counter
+from collections.abc import Callable
 from typing import Any, ClassVar
 
+from uvicorn.protocols.http.flow_control import FlowControl
 from uvicorn.protocols.http.httptools_impl import STATUS_LINE, HttpToolsProtocol
+from uvicorn.server import ServerState
 
 from .errors import ServiceError, TimedOut, TooManyConnections, status_of
 from .settings import Settings, load_settings_or_exit
 
 RETRY_AFTER_SECONDS = 1  # connections free up as soon as requests finish
+#: What a connection over a bound may still ask: cheap, bodiless, what monitors poll.
+PROBE_METHODS, PROBE_PATHS = ("GET", "HEAD"), ("/health", "/metrics")
+
+#: Open connections per client address, per server (its ServerState).
+_PER_CLIENT: weakref.WeakKeyDictionary[ServerState, Counter[str]] = weakref.WeakKeyDictionary()
 
 
 def guarded_protocol(settings: Settings) -> type[GuardedHttpProtocol]:
@@ -62,8 +78,52 @@ def refusal_app(error: ServiceError, extra: dict[str, str]):
     return refuse
 
 
+def is_probe(scope) -> bool:
+    """A bodiless GET or HEAD of /health or /metrics."""
+    has_body = any(
+        (name == b"content-length" and value.strip() not in (b"", b"0"))
+        or name == b"transfer-encoding"
+        for name, value in scope["headers"]
+    )
+    return scope["method"] in PROBE_METHODS and scope["path"] in PROBE_PATHS and not has_body
+
+
+def reserve_app(app, error: ServiceError, extra: dict[str, str]):
+    """The app of a connection over a bound: ``app`` for probes (``is_probe``), answered with
+    ``Connection: close``; 503 ``error`` for anything else."""
+    refuse = refusal_app(error, extra)
+
+    async def serve(scope, receive, send) -> None:
+        if not is_probe(scope):
+            await refuse(scope, receive, send)
+            return
+
+        async def send_and_close(message) -> None:
+            if message["type"] == "http.response.start":
+                headers = [*message.get("headers", []), (b"connection", b"close")]
+                message = {**message, "headers": headers}
+            await send(message)
+
+        await app(scope, receive, send_and_close)
+
+    return serve
+
+
+class WatchedFlow(FlowControl):
+    """uvicorn's read/write flow control, calling ``on_resume`` when reading resumes."""
+
+    def __init__(self, transport: asyncio.Transport, on_resume: Callable[[], None]) -> None:
+        super().__init__(transport)
+        self.on_resume = on_resume
+
+    def resume_reading(self) -> None:
+        if self.read_paused:
+            self.on_resume()
+        super().resume_reading()
+
+
 class GuardedHttpProtocol(HttpToolsProtocol):
-    """HttpToolsProtocol with a header deadline, a body deadline and a bound on connections."""
+    """HttpToolsProtocol with header and body deadlines and bounds on connections."""
 
     #: None: the settings of the environment (for ``uvicorn --http service.protocol:...``)
     settings: ClassVar[Settings | None] = None
@@ -72,27 +132,60 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         super().__init__(*args, **kwargs)
         settings = self.settings or environment_settings()
         self.header_timeout, self.body_timeout = settings.header_timeout, settings.body_timeout
+        self.body_idle_timeout = settings.body_idle_timeout
         self.max_connections = settings.max_connections
+        self.max_per_client = settings.max_connections_per_client
         self.header_deadline: asyncio.TimerHandle | None = None
         self.body_deadline: asyncio.TimerHandle | None = None
+        self.body_idle_check: asyncio.TimerHandle | None = None
+        self.body_active_at = 0.0  # loop time of the body's last byte, or of reading resumed
         self.request_begun = False  # a byte of the awaited request has arrived
+        self.client_host: str | None = None  # counted in _PER_CLIENT while open
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
-        if len(self.connections) > self.max_connections:  # the set includes this connection
-            # uvicorn starts ``self.app`` for each request of this connection: refuse them all
-            self.app = refusal_app(
-                TooManyConnections(
-                    f"the server holds its limit of {self.max_connections} connections "
-                    "(DACRT_MAX_CONNECTIONS); retry shortly"
-                ),
-                {"retry-after": str(RETRY_AFTER_SECONDS)},
+        self.flow = WatchedFlow(transport, self.body_read_resumed)
+        per_client = _PER_CLIENT.setdefault(self.server_state, Counter())
+        if self.client:  # a Unix socket has no client address
+            self.client_host = self.client[0]
+            per_client[self.client_host] += 1
+        # both counts include this connection
+        if self.client_host is not None and per_client[self.client_host] > self.max_per_client:
+            refusal = TooManyConnections(
+                f"client address {self.client_host} holds its limit of {self.max_per_client} "
+                "connections (DACRT_MAX_CONNECTIONS_PER_CLIENT); retry shortly"
             )
+        elif len(self.connections) > self.max_connections:
+            refusal = TooManyConnections(
+                f"the server holds its limit of {self.max_connections} connections "
+                "(DACRT_MAX_CONNECTIONS); retry shortly"
+            )
+        else:
+            refusal = None
+        if refusal is not None:
+            # uvicorn starts ``self.app`` for each request of this connection
+            self.app = reserve_app(self.app, refusal, {"retry-after": str(RETRY_AFTER_SECONDS)})
         self.header_deadline = self.loop.call_later(self.header_timeout, self.headers_too_slow)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.cancel_deadlines()
+        self.uncount_client()
         super().connection_lost(exc)
+
+    def handle_websocket_upgrade(self) -> None:
+        self.cancel_deadlines()
+        self.uncount_client()  # the websocket protocol takes the connection over
+        super().handle_websocket_upgrade()
+
+    def uncount_client(self) -> None:
+        if self.client_host is None:
+            return
+        per_client = _PER_CLIENT.get(self.server_state)
+        if per_client is not None:
+            per_client[self.client_host] -= 1
+            if per_client[self.client_host] <= 0:
+                del per_client[self.client_host]
+        self.client_host = None
 
     def on_message_begin(self) -> None:
         super().on_message_begin()
@@ -107,22 +200,34 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         super().on_headers_complete()
 
     def _start_asgi_task(self, cycle, app) -> None:
-        # a pipelined request's body is read only from here on, so its deadline starts here
+        # a pipelined request's body is read only from here on, so its deadlines start here
         super()._start_asgi_task(cycle, app)
         if cycle.more_body:
             self.body_deadline = self.loop.call_later(self.body_timeout, self.body_too_slow, cycle)
+            self.body_active_at = self.loop.time()
+            self.body_idle_check = self.loop.call_later(
+                self.body_idle_timeout, self.body_stalled, cycle
+            )
+
+    def on_body(self, body: bytes) -> None:
+        self.body_active_at = self.loop.time()
+        super().on_body(body)
+
+    def body_read_resumed(self) -> None:
+        self.body_active_at = self.loop.time()  # the client could not send while we did not read
 
     def on_message_complete(self) -> None:
-        if self.body_deadline is not None:
-            self.body_deadline.cancel()
-            self.body_deadline = None
+        for deadline in (self.body_deadline, self.body_idle_check):
+            if deadline is not None:
+                deadline.cancel()
+        self.body_deadline = self.body_idle_check = None
         super().on_message_complete()
 
     def cancel_deadlines(self) -> None:
-        for deadline in (self.header_deadline, self.body_deadline):
+        for deadline in (self.header_deadline, self.body_deadline, self.body_idle_check):
             if deadline is not None:
                 deadline.cancel()
-        self.header_deadline = self.body_deadline = None
+        self.header_deadline = self.body_deadline = self.body_idle_check = None
 
     def headers_too_slow(self) -> None:
         self.header_deadline = None
@@ -142,6 +247,39 @@ class GuardedHttpProtocol(HttpToolsProtocol):
 
     def body_too_slow(self, cycle) -> None:
         self.body_deadline = None
+        self.cut_off_body(
+            cycle,
+            TimedOut(
+                f"request body not received within {self.body_timeout:g} s (DACRT_BODY_TIMEOUT)"
+            ),
+        )
+
+    def body_stalled(self, cycle) -> None:
+        """Cut the body off if no byte came for ``body_idle_timeout`` seconds while we read."""
+        self.body_idle_check = None
+        now = self.loop.time()
+        if self.flow.read_paused or cycle.waiting_for_100_continue:
+            self.body_active_at = now  # the client may not send now: not its stall
+        idle = now - self.body_active_at
+        if idle < self.body_idle_timeout:
+            self.body_idle_check = self.loop.call_later(
+                self.body_idle_timeout - idle, self.body_stalled, cycle
+            )
+            return
+        self.cut_off_body(
+            cycle,
+            TimedOut(
+                f"request body stalled: no byte for {self.body_idle_timeout:g} s "
+                "(DACRT_BODY_IDLE_TIMEOUT)"
+            ),
+        )
+
+    def cut_off_body(self, cycle, error: ServiceError) -> None:
+        """End a request whose body came too slowly: 408 unless its answer has begun; close."""
+        for deadline in (self.body_deadline, self.body_idle_check):
+            if deadline is not None:
+                deadline.cancel()
+        self.body_deadline = self.body_idle_check = None
         if self.transport.is_closing():
             return
         if cycle.response_started:
@@ -149,11 +287,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
             return
         cycle.disconnected = True  # the app's receive() sees a disconnect and its send() is mute
         cycle.message_event.set()
-        self.answer_and_close(
-            TimedOut(
-                f"request body not received within {self.body_timeout:g} s (DACRT_BODY_TIMEOUT)"
-            )
-        )
+        self.answer_and_close(error)
 
     def answer_and_close(self, error: ServiceError) -> None:
         """Write ``error`` as a whole response outside any ASGI cycle, then close."""

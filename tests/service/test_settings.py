@@ -157,6 +157,18 @@ def test_load_settings_reads_the_environment_and_overrides(environ):
     assert settings.header_timeout == 10  # the default
 
 
+def test_slow_client_settings_default_under_a_minute_and_a_share_of_the_connections(environ):
+    defaults = load_settings()
+    assert 0 < defaults.body_idle_timeout <= 60  # nginx closes a body idle for 60 s
+    assert defaults.max_connections_per_client < defaults.max_connections
+    environ(DACRT_BODY_IDLE_TIMEOUT="1.5", DACRT_MAX_CONNECTIONS_PER_CLIENT="4")
+    settings = load_settings()
+    assert (settings.body_idle_timeout, settings.max_connections_per_client) == (1.5, 4)
+    environ(DACRT_BODY_IDLE_TIMEOUT="0")
+    with pytest.raises(SettingsError, match="DACRT_BODY_IDLE_TIMEOUT='0'"):
+        load_settings()
+
+
 def test_launchers_exit_with_the_message(environ):
     environ(DACRT_PORT="x")
     with pytest.raises(SystemExit) as exited:
