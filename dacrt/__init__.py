@@ -17,10 +17,11 @@ from importlib.metadata import PackageNotFoundError, version
 from .contracts import MISS, STRATEGIES, Counts, HitList, Hits, Occlusion
 from .query import CULL_MODES
 from .scene import Scene
-from .validation import check_transform
+from .validation import InputError, check_transform
 from .warmup import warmup
 
 __all__ = [
+    "InputError",
     "Scene",
     "Hits",
     "Occlusion",

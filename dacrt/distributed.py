@@ -27,6 +27,7 @@ from .config import MAX_SHARD_RAYS, MIN_SHARD_RAYS, SHARD_RETRIES
 from .contracts import STAT_NAMES, Counts, HitList, Hits, Occlusion
 from .scene import Scene
 from .validation import (
+    InputError,
     check_cull,
     check_masks,
     check_max_hits,
@@ -147,7 +148,7 @@ class DistributedScene:
         if transforms is not None:
             transforms = list(transforms)
             if len(transforms) != n_meshes:
-                raise ValueError(f"transforms has {len(transforms)} entries for {n_meshes} meshes")
+                raise InputError(f"transforms has {len(transforms)} entries for {n_meshes} meshes")
             for i, matrix in enumerate(transforms):
                 if matrix is not None:
                     check_transform(matrix, f"transforms[{i}]")

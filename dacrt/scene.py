@@ -59,6 +59,7 @@ from .results import finish_closest, finish_hits, unit_normals
 from .traversal import split_middle, trace_object_split
 from .triangles import gather_triangles
 from .validation import (
+    InputError,
     check_cull,
     check_masks,
     check_max_hits,
@@ -147,7 +148,7 @@ class Scene:
     def _placed(checked, transforms):
         """The checked meshes with their vertices placed by ``transforms`` (one per mesh)."""
         if len(transforms) != len(checked):
-            raise ValueError(f"transforms has {len(transforms)} entries for {len(checked)} meshes")
+            raise InputError(f"transforms has {len(transforms)} entries for {len(checked)} meshes")
         placed = []
         for i, ((vertices, faces), matrix) in enumerate(zip(checked, transforms)):
             if matrix is not None:
@@ -472,7 +473,7 @@ class Scene:
         per_chunk = map_on_threads(run, n_chunks, min(threads, n_chunks))
         if any(chunk_stats is None for chunk_stats in per_chunk):
             explain_bad_rays(origins, directions, tmin, tmax)
-            raise ValueError("the batch holds an invalid ray")  # explain_bad_rays names it
+            raise InputError("the batch holds an invalid ray")  # explain_bad_rays names it
         return Traced(best_t, answer, add_counters(counters, per_chunk), origins, directions)
 
     def _trace_halves(
@@ -496,7 +497,7 @@ class Scene:
         ray_ids = np.arange(n_rays, dtype=INDEX)
         if not pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
             explain_bad_rays(origins, directions, tmin, tmax)
-            raise ValueError("the batch holds an invalid ray")  # explain_bad_rays names it
+            raise InputError("the batch holds an invalid ray")  # explain_bad_rays names it
         if uniform_origin(rays, n_rays):
             flags |= FIXED_ORIGIN
         records = (rays, rays.copy())  # each half permutes its own

@@ -10,11 +10,16 @@ from .query import CULL_MODES
 from .triangles import all_finite, faces_in_range
 
 
+class InputError(ValueError):
+    """Input the engine refuses: the message names the argument (and the first bad index), in
+    the caller's terms. A ``ValueError``, so callers that catch that keep working."""
+
+
 def _first_bad(bad, what, reason, total_label):
-    """Raise ValueError for a boolean mask ``bad`` if any entry is set."""
+    """Raise InputError for a boolean mask ``bad`` if any entry is set."""
     bad_rows = np.flatnonzero(bad)
     if len(bad_rows):
-        raise ValueError(f"{what}[{bad_rows[0]}] {reason} ({len(bad_rows)} {total_label})")
+        raise InputError(f"{what}[{bad_rows[0]}] {reason} ({len(bad_rows)} {total_label})")
 
 
 def as_float_rows(array, name, width=3, check_finite=True, contiguous=True):
@@ -23,9 +28,9 @@ def as_float_rows(array, name, width=3, check_finite=True, contiguous=True):
     finite values required."""
     array = np.asarray(array)
     if array.ndim != 2 or array.shape[1] != width:
-        raise ValueError(f"{name} must have shape (n, {width}), got {array.shape}")
+        raise InputError(f"{name} must have shape (n, {width}), got {array.shape}")
     if array.dtype.kind not in "fiu" or array.dtype.kind == "b":
-        raise ValueError(f"{name} must be a float array, got dtype {array.dtype}")
+        raise InputError(f"{name} must be a float array, got dtype {array.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
         converted = (
             np.ascontiguousarray(array, dtype=FLOAT)
@@ -48,17 +53,17 @@ def check_mesh(index, vertices, faces):
     vertices = np.asarray(vertices)
     faces = np.asarray(faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3:
-        raise ValueError(f"{label}: vertices must have shape (V, 3), got {vertices.shape}")
+        raise InputError(f"{label}: vertices must have shape (V, 3), got {vertices.shape}")
     if faces.ndim != 2 or faces.shape[1] != 3:
         if faces.size == 0:
             faces = faces.reshape(0, 3)
         else:
-            raise ValueError(f"{label}: faces must have shape (F, 3), got {faces.shape}")
+            raise InputError(f"{label}: faces must have shape (F, 3), got {faces.shape}")
     if faces.dtype.kind not in "iu":
         if faces.size == 0:
             faces = faces.astype(np.int64)
         else:
-            raise ValueError(f"{label}: faces must be an integer array, got dtype {faces.dtype}")
+            raise InputError(f"{label}: faces must be an integer array, got dtype {faces.dtype}")
     vertices = as_float_rows(vertices, f"{label}: vertices", check_finite=False)
     if not all_finite(vertices):
         explain_bad_vertices(vertices, f"{label}: vertices")
@@ -76,7 +81,7 @@ def explain_bad_vertices(vertices, name="vertices"):
     there are (a slow path, for an array known to hold one); does nothing if all are finite."""
     rows = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
     if len(rows):
-        raise ValueError(
+        raise InputError(
             f"{name}[{rows[0]}] is not finite ({vertices[rows[0]].tolist()}); "
             f"{rows.size} of {len(vertices)} vertices are not finite"
         )
@@ -90,7 +95,7 @@ def explain_bad_faces(faces, n_vertices, name="faces"):
     if len(rows):
         row = faces[rows[0]]
         value = row[(row < 0) | (row >= n_vertices)][0]
-        raise ValueError(
+        raise InputError(
             f"{name}[{rows[0]}] refers to vertex {value}, but there are {n_vertices} "
             f"vertices; {rows.size} of {len(faces)} faces are out of range"
         )
@@ -105,7 +110,7 @@ def check_rays(origins, directions, tmin, tmax):
     directions = as_float_rows(directions, "directions", check_finite=False, contiguous=False)
     n = len(origins)
     if len(directions) != n:
-        raise ValueError(f"origins has {n} rows but directions has {len(directions)}")
+        raise InputError(f"origins has {n} rows but directions has {len(directions)}")
     tmin = _ray_range(tmin, 0.0, n, "tmin")
     tmax = _ray_range(tmax, np.inf, n, "tmax")
     return origins, directions, tmin, tmax
@@ -128,18 +133,18 @@ def _ray_range(value, default, n, name):
         return np.full(n, default, FLOAT)
     value = np.asarray(value)
     if value.dtype.kind not in "fiu" or value.dtype.kind == "b":
-        raise ValueError(f"{name} must be a number or a float array, got dtype {value.dtype}")
+        raise InputError(f"{name} must be a number or a float array, got dtype {value.dtype}")
     if value.ndim == 0:
         return np.full(n, value, FLOAT)
     if value.shape != (n,):
-        raise ValueError(f"{name} must be a scalar or have shape ({n},), got {value.shape}")
+        raise InputError(f"{name} must be a scalar or have shape ({n},), got {value.shape}")
     with np.errstate(over="ignore"):
         return np.ascontiguousarray(value, dtype=FLOAT)
 
 
 def check_strategy(strategy):
     if strategy not in STRATEGIES:
-        raise ValueError(f"unknown strategy {strategy!r}; use one of {', '.join(STRATEGIES)}")
+        raise InputError(f"unknown strategy {strategy!r}; use one of {', '.join(STRATEGIES)}")
     return strategy
 
 
@@ -147,7 +152,7 @@ def check_threads(threads, n_cores):
     if threads is None:
         return n_cores
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
+        raise InputError(f"threads must be a positive integer or None, got {threads!r}")
     return int(threads)
 
 
@@ -157,18 +162,18 @@ def check_transform(matrix, name="matrix"):
     try:
         matrix = np.array(matrix, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a 4x4 array of numbers") from None
+        raise InputError(f"{name} must be a 4x4 array of numbers") from None
     if matrix.shape != (4, 4):
-        raise ValueError(f"{name} must have shape (4, 4), got {matrix.shape}")
+        raise InputError(f"{name} must have shape (4, 4), got {matrix.shape}")
     if not np.isfinite(matrix).all():
-        raise ValueError(f"{name} has a non-finite entry")
+        raise InputError(f"{name} has a non-finite entry")
     if not np.array_equal(matrix[3], [0.0, 0.0, 0.0, 1.0]):
-        raise ValueError(f"{name} is not affine: its last row must be [0, 0, 0, 1]")
+        raise InputError(f"{name} is not affine: its last row must be [0, 0, 0, 1]")
     linear = matrix[:3, :3]
     # Singular up to rounding: the determinant against the scale of the rows.
     scale = np.prod(np.linalg.norm(linear, axis=1))
     if not abs(np.linalg.det(linear)) > 1e-12 * scale:
-        raise ValueError(f"{name} is singular: its 3x3 part has no inverse")
+        raise InputError(f"{name} is singular: its 3x3 part has no inverse")
     return matrix
 
 
@@ -180,7 +185,7 @@ def place_vertices(vertices, matrix, name):
         placed = placed.astype(FLOAT)
     bad = np.flatnonzero(~np.isfinite(placed).all(axis=1))
     if len(bad):
-        raise ValueError(
+        raise InputError(
             f"{name} places vertex {bad[0]} beyond the float32 range ({len(bad)} vertices)"
         )
     return placed
@@ -189,13 +194,13 @@ def place_vertices(vertices, matrix, name):
 def check_max_hits(max_hits):
     """``max_hits`` as an int: a positive integer, not a bool."""
     if isinstance(max_hits, bool) or not isinstance(max_hits, int | np.integer) or max_hits < 1:
-        raise ValueError(f"max_hits must be a positive integer, got {max_hits!r}")
+        raise InputError(f"max_hits must be a positive integer, got {max_hits!r}")
     return int(max_hits)
 
 
 def check_cull(cull):
     if cull not in CULL_MODES:
-        raise ValueError(f"unknown cull {cull!r}; use one of {', '.join(CULL_MODES)}")
+        raise InputError(f"unknown cull {cull!r}; use one of {', '.join(CULL_MODES)}")
     return cull
 
 
@@ -204,11 +209,11 @@ def check_masks(masks, n, name, what):
     integer array with values in [0, 2**32); ``what`` names the items in the error."""
     masks = np.asarray(masks)
     if masks.dtype.kind not in "iu":
-        raise ValueError(f"{name} must be an integer (uint32) array, got dtype {masks.dtype}")
+        raise InputError(f"{name} must be an integer (uint32) array, got dtype {masks.dtype}")
     if masks.ndim == 0:
         masks = np.full(n, masks)
     if masks.shape != (n,):
-        raise ValueError(
+        raise InputError(
             f"{name} must be a scalar or have shape ({n},), one per {what}, got {masks.shape}"
         )
     if masks.dtype != np.uint32:

@@ -24,14 +24,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dacrt import InputError
+
 #: |sin| of the angle between up and the view direction below which they count as parallel.
 PARALLEL_SINE = 1e-6
 #: Largest |R^T R - I| entry of a pose whose rotation counts as orthonormal (float32 input).
 ROTATION_TOLERANCE = 1e-4
 
 
-class CameraError(ValueError):
-    """A camera that cannot make an image (the message names the problem)."""
+class CameraError(InputError):
+    """A camera that cannot make an image (the message names the problem): the engine's
+    InputError, so a request's is 422 by ``errors``' one table."""
 
 
 @dataclass(frozen=True)

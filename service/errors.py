@@ -128,6 +128,8 @@ def install(app) -> None:
     from starlette.exceptions import HTTPException
     from starlette.requests import ClientDisconnect
 
+    from dacrt import InputError
+
     async def on_service_error(request, exc: ServiceError):
         return JSONResponse({"detail": exc.detail}, status_code=status_of(exc), headers=exc.headers)
 
@@ -149,7 +151,11 @@ def install(app) -> None:
         )
         return Response(status_code=CLIENT_GONE)
 
+    async def on_input_error(request, exc: InputError):
+        return JSONResponse({"detail": str(exc)}, status_code=STATUS[Invalid])
+
     app.add_exception_handler(ServiceError, on_service_error)
+    app.add_exception_handler(InputError, on_input_error)  # the engine's: it names the argument
     app.add_exception_handler(ClientDisconnect, on_client_gone)
     app.add_exception_handler(HTTPException, on_http_error)
     app.add_exception_handler(RequestValidationError, on_validation_error)

@@ -129,6 +129,13 @@ def os_error_text(exc: OSError) -> str:
     return f"[Errno {exc.errno}] {exc.strerror}" if exc.strerror else str(exc)
 
 
+def write_npy(file, array: np.ndarray) -> None:
+    """``np.save``'s bytes, the data written through ``file`` (np.save's own ``tofile`` reports
+    a full disk as a short write without an errno, which would read as another fault)."""
+    np.lib.format.write_array_header_1_0(file, np.lib.format.header_data_from_array_1_0(array))
+    file.write(np.ascontiguousarray(array).reshape(-1).view(np.uint8).data)
+
+
 def errno_name(exc: OSError) -> str:
     """``ENOSPC``: the symbolic name of an OS error's number (``unknown`` without one)."""
     return errno.errorcode.get(exc.errno, "unknown") if exc.errno is not None else "unknown"
@@ -279,7 +286,7 @@ class DataDir:
     ) -> ArrayFile:
         name = f"{mesh.index}.{version}.{kind}.npy"
         array = getattr(mesh, kind)
-        write_file(folder / name, lambda file: np.save(file, array, allow_pickle=False))
+        write_file(folder / name, lambda file: write_npy(file, array))
         created.append(folder / name)
         return ArrayFile(name, array.shape, checksum(array))
 

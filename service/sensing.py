@@ -90,6 +90,7 @@ class SensorResult:
     seconds: float  #: engine build (if not cached) + trace + the answer's arithmetic
     n_rays: int
     headers: dict[str, str]
+    where: str = "process"  #: sensors trace in process
 
 
 def _closest(

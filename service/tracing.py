@@ -2,20 +2,22 @@
 
 The only module that runs the engine's queries. It builds one ``dacrt.Scene`` per scene version
 (cached in the snapshot), maps the engine's mesh positions to the meshes' stable indices, and
-turns the engine's ``ValueError`` (bad rays, named by the engine) into a 422.
+lets the engine's ``InputError`` (bad rays, named by the engine) through: ``errors`` maps it to
+422.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import Enum
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 import dacrt
+from dacrt.validation import check_cull, check_strategy
 
 from . import footprint
 from .errors import Invalid
@@ -97,7 +99,8 @@ def make_options(
     mask: int | None = None,
     max_hits_limit: int | None = None,
 ) -> Options:
-    """Options from query-string values; 422 naming the choices for an unknown value.
+    """Options from query-string values; 422 naming the choices for an unknown value (the
+    engine's checks for strategy and cull).
 
     ``max_hits`` (hits only; default DEFAULT_MAX_HITS) must lie in [1, ``max_hits_limit``]."""
     try:
@@ -125,12 +128,9 @@ def make_options(
         max_hits = check_max_hits(max_hits, max_hits_limit)
     elif max_hits is not None:
         raise Invalid(f"max_hits applies to the hits query only, not to {query.value}")
-    if strategy is None:
-        strategy = strategies()[0]
-    elif strategy not in strategies():
-        raise Invalid(f"unknown strategy {strategy!r}; choose from {', '.join(strategies())}")
-    if cull not in CULL_MODES:
-        raise Invalid(f"unknown cull {cull!r}; choose from {', '.join(CULL_MODES)}")
+    # the engine's own checks, before the body is read: its InputError is 422 (errors.STATUS)
+    strategy = strategies()[0] if strategy is None else check_strategy(strategy)
+    cull = check_cull(cull)
     return Options(query, chosen, strategy, stats, threads, cull, max_hits, mask)
 
 
@@ -170,14 +170,11 @@ def build_engine_scene(meshes: Iterable[tuple], scene_type: Any = dacrt.Scene) -
     indices = np.array([mesh[0] for mesh in kept] + [-1], dtype=np.int32)
     masks = np.array([mesh[3] if len(mesh) > 3 else 0xFFFFFFFF for mesh in kept], np.uint32)
     transforms = [mesh[4] if len(mesh) > 4 else None for mesh in kept]
-    try:
-        scene = scene_type(
-            [(mesh[1], mesh[2]) for mesh in kept],
-            masks=None if (masks == 0xFFFFFFFF).all() else masks,
-            transforms=None if all(t is None for t in transforms) else transforms,
-        )
-    except ValueError as exc:
-        raise Invalid(str(exc)) from None
+    scene = scene_type(
+        [(mesh[1], mesh[2]) for mesh in kept],
+        masks=None if (masks == 0xFFFFFFFF).all() else masks,
+        transforms=None if all(t is None for t in transforms) else transforms,
+    )
     identity = np.array_equal(indices[:-1], np.arange(len(kept)))
     return EngineScene(scene, None if identity else indices)
 
@@ -198,6 +195,7 @@ class TraceResult:
     stats: dict[str, Any] | None
     seconds: float  #: engine build (if not cached) + trace
     where: str = "process"  #: where it was traced: "process", or "cluster" (``service.cluster``)
+    headers: dict[str, str] = field(default_factory=dict)  #: none: a sensor's answer has some
 
 
 def trace(
@@ -214,7 +212,7 @@ def trace(
             remote = cluster.engine_for(snapshot, len(rays), _snapshot_engine)
             if remote is not None:
                 return _run(remote, rays, options, snapshot.version, start, "cluster")
-        except Invalid:  # the query's fault: the same 422 in process
+        except (Invalid, dacrt.InputError):  # the query's fault: the same 422 in process
             raise
         except Exception as exc:  # the cluster's: lost, unreachable, too slow
             cluster.failed(exc)
@@ -257,10 +255,8 @@ def _run(
     if options.query is Query.HITS:
         kwargs["max_hits"] = options.max_hits
     query = getattr(engine.scene, options.query.value)
-    try:
-        answer = query(rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs)
-    except ValueError as exc:  # the engine names the first bad ray and how many there are
-        raise Invalid(str(exc)) from None
+    # a bad ray is the engine's InputError, naming the first and how many: 422 (errors.STATUS)
+    answer = query(rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs)
     stats = answer.stats
     arrays = {name: getattr(answer, name) for name in options.fields}
     if "mesh" in arrays:

@@ -3,7 +3,6 @@ lidar (``/lidar``), each a JSON body of a few numbers whose rays the server make
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 
 from anyio import from_thread
@@ -12,14 +11,15 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 
 from .. import footprint, openapi, sensing, shading, wire
-from ..deps import MetricsDep, SettingsDep, StoreDep, read_body, reject_unknown_query, require_token
-from ..errors import NotAcceptable, TooLarge
+from ..deps import MetricsDep, SettingsDep, StoreDep, reject_unknown_query, require_token
+from ..errors import TooLarge
 from ..metrics import Metrics
 from ..params import BatchOptionsDep, Cull, SceneName, Stats, Strategy, body_format
+from ..pipeline import receive, respond
 from ..responses import BuffersResponse
 from ..sensor_requests import CameraRequest, LidarRequest, RenderRequest, parse
 from ..settings import Settings
-from ..store import Store, check_name
+from ..store import Store
 from ..timing import ServerTiming
 
 router = APIRouter(
@@ -70,7 +70,7 @@ async def render(
 ) -> Response:
     """A picture of the scene, traced by the engine: pixel (0, 0) is the top-left, ``fov_deg`` the
     vertical field of view (docs/sensors.md)."""
-    check_accepts_png(request.headers.get("accept"))
+    wire.check_accepts(request.headers.get("accept"), PNG)
     options = sensing.SensorOptions((), strategy, stats, settings.threads, cull)
     options.closest()  # 422 for an unknown strategy or cull before the body is read
 
@@ -189,42 +189,22 @@ async def answer(
     sensor: str,
     work: Callable,
 ) -> Response:
-    """Read a sensor's JSON body, then decode, trace and encode it with ``work(body, timing,
+    """Receive a sensor's JSON body, then decode, trace and encode it with ``work(body, timing,
     admit)`` off the event loop, where ``admit(n_rays, answer_format, max_returns=1)`` waits for
-    the sensor's memory in the in-flight budget once its rays are known; the answer carries
-    X-Scene-Version, Server-Timing (and X-Trace-Stats)."""
-    timing = ServerTiming()
-    store.snapshot(check_name("scene", scene))  # 404 before reading the body
-    with timing("receive"):
-        body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
-    ticket = request.state.ticket
+    the sensor's memory in the in-flight budget once its rays are known."""
+    got = await receive(request, settings, store, scene, format, ("json",), footprint.decode_bytes)
 
     def admit(n_rays: int, answer_format: str, max_returns: int = 1) -> None:
         nbytes = (
-            len(body)
+            len(got.body)
             + footprint.sensor_bytes(n_rays, max_returns)
             + footprint.answer_bytes(answer_format)
         )
         what = f"POST /v1/scenes/{scene}/{sensor} of {n_rays} rays"
-        from_thread.run(ticket.hold, nbytes, what)
+        from_thread.run(got.ticket.hold, nbytes, what)
 
-    wire.resolve_format(
-        request.headers.get("content-type"),
-        format,
-        ("json",),
-        body,
-        f"POST /v1/scenes/{{scene}}/{sensor}",
-    )
-    result, content, length, media = await run_sync(work, body, timing, admit)
-    metrics.traced(sensor, result.n_rays, result.seconds)
-    headers = {
-        "X-Scene-Version": str(result.version),
-        "Server-Timing": timing.header(),
-        **result.headers,
-    }
-    if result.stats is not None:
-        headers["X-Trace-Stats"] = json.dumps(result.stats, separators=(",", ":"))
-    return BuffersResponse(content, length, media, headers)
+    result, *encoded = await run_sync(work, got.body, got.timing, admit)
+    return respond(metrics, sensor, result, result.n_rays, encoded, got.timing)
 
 
 def check_pixels(width: int, height: int, settings: Settings) -> None:
@@ -244,26 +224,3 @@ def check_rays(n_rays: int, settings: Settings, what: str) -> None:
             f"{what} = {n_rays} rays is over the limit of {settings.max_rays_per_request} rays "
             "per request (DACRT_MAX_RAYS_PER_REQUEST)"
         )
-
-
-def check_accepts_png(accept: str | None) -> None:
-    """406 unless ``Accept`` (if any) admits image/png."""
-    if not accept or not accept.strip():
-        return
-    for part in accept.split(","):
-        media, *params = [p.strip().lower() for p in part.split(";")]
-        if media in (PNG, "image/*", "*/*") and quality(params) > 0:
-            return
-    raise NotAcceptable(f"Accept: {accept} does not admit {PNG}, the only answer of render")
-
-
-def quality(params: list[str]) -> float:
-    """The q-value of an Accept entry's parameters (1 if absent, 0 if unreadable)."""
-    for param in params:
-        name, _, value = param.partition("=")
-        if name.strip() == "q":
-            try:
-                return float(value)
-            except ValueError:
-                return 0.0
-    return 1.0

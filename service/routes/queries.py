@@ -2,27 +2,18 @@
 
 from __future__ import annotations
 
-import json
-
 from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request
 
 from .. import footprint, openapi, tracing, wire
-from ..deps import (
-    MetricsDep,
-    SettingsDep,
-    StoreDep,
-    read_body,
-    reject_unknown_query,
-    require_token,
-)
-from ..errors import NotAcceptable, TooLarge
+from ..deps import MetricsDep, SettingsDep, StoreDep, reject_unknown_query, require_token
+from ..errors import TooLarge
 from ..metrics import Metrics
 from ..params import BatchOptionsDep, MaxHits, QueryKind, RayFormat, SceneName, TraceFormat
+from ..pipeline import receive, respond
 from ..responses import BuffersResponse
 from ..settings import Settings
-from ..store import Store, check_name
-from ..timing import ServerTiming
+from ..store import Store
 from ..tracing import Query
 
 router = APIRouter(
@@ -157,11 +148,8 @@ async def answer(
     scene: str | None,
     format: str | None,
 ) -> BuffersResponse:
-    """Read, decode, trace and encode one batch on ``scene`` of ``store`` (or a one-shot /trace
-    when ``scene`` is None); the last three off the event loop."""
-    timing = ServerTiming()
-    if scene is not None:
-        store.snapshot(check_name("scene", scene))  # 404 before reading the body
+    """Receive, decode, trace and encode one batch on ``scene`` of ``store`` (or a one-shot
+    /trace when ``scene`` is None); the last three off the event loop."""
     accept = request.headers.get("accept")
     declared = format or wire.declared_format(request.headers.get("content-type"))
     answer_format = negotiate(accept, declared or "npz", options)  # again once the body is read
@@ -171,72 +159,51 @@ async def answer(
         """The request's peak bytes: its body decoded, its rays traced, its answer written."""
         if n_rays is None:
             n_rays = footprint.most_rays(n_body, fmt, max_rays)
-        mesh = n_body * footprint.TRIANGLE_BYTES // 36 if scene is None else 0  # /trace's mesh
+        mesh = footprint.mesh_scene_bytes(n_body) if scene is None else 0  # /trace's mesh
         work = footprint.query_bytes(n_rays, options.query.value, options.fields, options.max_hits)
-        return (
-            footprint.decode_bytes(n_body, fmt)
-            + mesh
-            + work
-            + footprint.answer_bytes(answer_format)
-        )
+        answer = footprint.answer_bytes(answer_format)
+        return footprint.decode_bytes(n_body, fmt) + mesh + work + answer
 
-    with timing("receive"):
-        body = await read_body(request, settings.max_body_bytes, peak)
-    fmt = wire.resolve_format(
-        request.headers.get("content-type"),
-        format,
-        wire.RAY_FORMATS if scene is not None else wire.TRACE_FORMATS,
-        body,
-        f"POST {request.url.path}",
-    )
-    answer_format = negotiate(accept, fmt, options)
-    what = f"{request.method} {request.url.path}"
-    await request.state.ticket.hold(peak(len(body), fmt), f"{what} with a {fmt} body")
+    formats = wire.RAY_FORMATS if scene is not None else wire.TRACE_FORMATS
+    got = await receive(request, settings, store, scene, format, formats, peak)
+    answer_format = negotiate(accept, got.fmt, options)
     limits = {"max_rays": max_rays, "max_bytes": settings.max_body_bytes}
 
     def decode():
-        with timing("decode"):
+        with got.timing("decode"):
             if scene is None:
-                return wire.decode_trace(body, fmt, **limits)
-            return None, wire.decode_rays(body, fmt, **limits)
+                return wire.decode_trace(got.body, got.fmt, **limits)
+            return None, wire.decode_rays(got.body, got.fmt, **limits)
 
     mesh, rays = await run_sync(decode)
     check_hit_buffers(len(rays), options, settings.max_hits_bytes)
-    await request.state.ticket.hold(peak(len(body), None, len(rays)), f"{what} of {len(rays)} rays")
+    what = f"{request.method} {request.url.path} of {len(rays)} rays"
+    await got.ticket.hold(peak(len(got.body), None, len(rays)), what)
 
     def work():
-        with timing("trace"):
+        with got.timing("trace"):
             result = (
                 tracing.trace(store.snapshot(scene), rays, options, request.app.state.cluster)
                 if scene is not None
                 else tracing.trace_once(mesh, rays, options)
             )
-        with timing("encode"):
-            content, length, media = wire.encode_answer(result.arrays, answer_format)
-        return result, content, length, media
+        with got.timing("encode"):
+            return result, wire.encode_answer(result.arrays, answer_format)
 
-    result, content, length, media = await run_sync(work)
-    metrics.traced(options.query.value, len(rays), result.seconds)
-    if result.where != "process":  # e.g. cluster;dur=...: traced on the dask cluster
-        timing.seconds[result.where] = result.seconds
-    headers = {"X-Scene-Version": str(result.version), "Server-Timing": timing.header()}
-    if result.stats is not None:
-        headers["X-Trace-Stats"] = json.dumps(result.stats, separators=(",", ":"))
-    return BuffersResponse(content, length, media, headers)
+    result, encoded = await run_sync(work)
+    return respond(metrics, options.query.value, result, len(rays), encoded, got.timing)
 
 
 def negotiate(accept: str | None, request_format: str, options: tracing.Options) -> str:
     """The answer format, among those the query's answer can be written in (406 naming them)."""
-    try:
-        return wire.negotiate(accept, request_format, options.answer_formats)
-    except NotAcceptable:
-        if options.answer_formats == wire.ANSWER_FORMATS:
-            raise
-        raise NotAcceptable(
-            f"Accept: {accept} names no format a {options.query.value} answer with "
-            f"{', '.join(options.fields)} is written in: its arrays have different lengths (CSR), "
-            f"so use {wire.NPZ} or {wire.JSON}, or ?fields=truncated for an .npy"
-        ) from None
+    why_not = (
+        None
+        if options.answer_formats == wire.ANSWER_FORMATS
+        else f"a {options.query.value} answer with {', '.join(options.fields)} is written in: its "
+        f"arrays have different lengths (CSR), so use {wire.NPZ} or {wire.JSON}, or "
+        "?fields=truncated for an .npy"
+    )
+    return wire.negotiate(accept, request_format, options.answer_formats, why_not)
 
 
 def check_hit_buffers(n_rays: int, options: tracing.Options, limit: int) -> None:

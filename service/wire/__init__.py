@@ -97,7 +97,14 @@ Answers (``negotiate`` and ``encode_answer``)
          null.
 """
 
-from .answers import encode_answer, encode_json, json_ready, negotiate, npy_parts
+from .answers import (
+    check_accepts,
+    encode_answer,
+    encode_json,
+    json_ready,
+    negotiate,
+    npy_parts,
+)
 from .arrays import (
     MeshArrays,
     Rays,
@@ -167,6 +174,7 @@ __all__ = [
     "array_bytes",
     "check_faces",
     "check_keys",
+    "check_accepts",
     "check_matrix",
     "check_vertices",
     "decode_frame",

@@ -15,13 +15,42 @@ from .npz_writer import NpzBody
 
 
 def negotiate(
-    accept: str | None, request_format: str, formats: tuple[str, ...] = ANSWER_FORMATS
+    accept: str | None,
+    request_format: str,
+    formats: tuple[str, ...] = ANSWER_FORMATS,
+    why_not: str | None = None,
 ) -> str:
     """The answer format for an ``Accept`` header: one of ``formats`` (npz, npy or json; 406 if
-    none fits)."""
+    none fits, with ``why_not`` saying why the answer has no other format)."""
     default = "json" if request_format == "json" else "npz"
     if not accept or not accept.strip():
         return default
+    for media in ranked_media(accept):
+        if media in ("*/*", "application/*"):
+            return default
+        fmt = CONTENT_TYPES.get(media)
+        if fmt in formats:
+            return fmt
+    raise NotAcceptable(
+        f"Accept: {accept} names no format {why_not}"
+        if why_not
+        else f"Accept: {accept} names no answer format this service writes; use {NPZ}, {NPY} or "
+        f"{JSON}"
+    )
+
+
+def check_accepts(accept: str | None, media: str) -> None:
+    """406 unless ``Accept`` (if any) admits ``media``, the only answer of its route (a PNG)."""
+    if not accept or not accept.strip():
+        return
+    kind = media.split("/", 1)[0]
+    if any(m in (media, f"{kind}/*", "*/*") for m in ranked_media(accept)):
+        return
+    raise NotAcceptable(f"Accept: {accept} does not admit {media}, the only answer of this route")
+
+
+def ranked_media(accept: str) -> list[str]:
+    """The media types an ``Accept`` header admits (q > 0), most wanted first, lower case."""
     ranked = []
     for position, part in enumerate(accept.split(",")):
         media, *params = [p.strip() for p in part.split(";")]
@@ -35,15 +64,7 @@ def negotiate(
                     q = 0.0
         if q > 0:
             ranked.append((-q, position, media.lower()))
-    for _, _, media in sorted(ranked):
-        if media in ("*/*", "application/*"):
-            return default
-        fmt = CONTENT_TYPES.get(media)
-        if fmt in formats:
-            return fmt
-    raise NotAcceptable(
-        f"Accept: {accept} names no answer format this service writes; use {NPZ}, {NPY} or {JSON}"
-    )
+    return [media for _, _, media in sorted(ranked)]
 
 
 def encode_answer(

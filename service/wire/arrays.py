@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from dacrt.validation import explain_bad_faces, explain_bad_vertices
+from dacrt.validation import InputError, explain_bad_faces, explain_bad_vertices
 
 from ..errors import Invalid
 
@@ -190,8 +190,9 @@ def mesh_arrays(vertices: Any, faces: Any, prefix: str = "") -> MeshArrays:
 
 @contextmanager
 def engine_errors() -> Iterator[None]:
-    """The engine's ValueError (its message names the problem) as a 422."""
+    """The engine's InputError (its message names the problem) as the service's 422, for
+    callers of ``wire`` outside a request (the client, the store)."""
     try:
         yield
-    except ValueError as exc:
+    except InputError as exc:
         raise Invalid(str(exc)) from None

@@ -17,7 +17,7 @@ import os
 import subprocess
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 import anyio
@@ -258,11 +258,10 @@ def fill(disk: Path, leave: int = 0) -> Path:
     """Write a file until the disk is full, then give ``leave`` bytes back; answers the file
     (remove it to give the space back)."""
     filler = disk / "filler"
-    with open(filler, "wb") as file:
+    with open(filler, "wb", buffering=0) as file:  # unbuffered: close has nothing to flush
         try:
             while True:
                 file.write(b"\0" * 4096)
-                file.flush()
         except OSError as exc:
             assert exc.errno == errno.ENOSPC
     os.truncate(filler, max(0, filler.stat().st_size - leave))
@@ -294,11 +293,13 @@ FULL_DETAIL = "cannot be written: [Errno 28] No space left on device; nothing wa
 
 
 def test_a_real_server_on_a_full_then_read_only_disk(small_disk):
+    stack = ExitStack()  # closes the first server's client
     data = small_disk / "data"
     env = {"DACRT_DATA_DIR": str(data), "DACRT_TOKEN": TOKEN}
     first = ServerProcess(env)
     try:
         http = httpx.Client(base_url=first.wait_ready(), headers=AUTH, timeout=30)
+        stack.callback(http.close)
         upload(http, "s", "a")
         answer, scenes = closest(http), http.get("/v1/scenes").json()
         filler = fill(small_disk)
@@ -309,7 +310,8 @@ def test_a_real_server_on_a_full_then_read_only_disk(small_disk):
                 FULL_DETAIL
             )
         filler = fill(small_disk, leave=256 * 1024)  # a mesh of 1.4 MB fails half-written
-        assert http.put("/v1/scenes/s/meshes/big", **mesh_body(200)).status_code == 507
+        big = http.put("/v1/scenes/s/meshes/big", **mesh_body(200))
+        assert big.status_code == 507, big.text
         assert http.get("/v1/scenes").json() == scenes
         assert closest(http).keys() == answer.keys()
         for key, values in closest(http).items():
@@ -333,6 +335,7 @@ def test_a_real_server_on_a_full_then_read_only_disk(small_disk):
         assert http.get("/health").json()["data_dir"]["errno"] == "EROFS"
         first.kill()
     finally:
+        stack.close()
         first.stop()
 
     second = ServerProcess(env)  # on the read-only disk: refused in one line
@@ -350,8 +353,8 @@ def test_a_real_server_on_a_full_then_read_only_disk(small_disk):
     remount(small_disk, "rw")
     third = ServerProcess(env)
     try:
-        http = httpx.Client(base_url=third.wait_ready(), headers=AUTH, timeout=30)
-        assert http.get("/v1/scenes").json() == acknowledged
+        with httpx.Client(base_url=third.wait_ready(), headers=AUTH, timeout=30) as http:
+            assert http.get("/v1/scenes").json() == acknowledged
         assert temporary_files(data) == []
     finally:
         third.stop()

@@ -439,7 +439,7 @@ def test_bad_rays_are_422_naming_the_first_one_and_the_count(app_client, quad_sc
         ({"fields": ","}, "no field"),
         ({"strategy": "magic"}, "unknown strategy 'magic'"),
         ({"stats": "maybe"}, "query parameter 'stats'"),
-        ({"cull": "sideways"}, "unknown cull 'sideways'; choose from none, back, front"),
+        ({"cull": "sideways"}, "unknown cull 'sideways'; use one of none, back, front"),
     ],
 )
 def test_bad_options_are_422(app_client, quad_scene, params, message):

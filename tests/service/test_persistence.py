@@ -135,7 +135,7 @@ def test_a_failed_write_changes_nothing_served_and_burns_its_version(tmp_path, m
     def full_disk(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr("service.persistence.np.save", full_disk)
+    monkeypatch.setattr("service.persistence.write_npy", full_disk)
     with pytest.raises(InsufficientStorage):
         store.update_vertices("s", "a", grid(4, z=1.0)[0])
     assert store.snapshot("s").version == 1
