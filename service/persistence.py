@@ -60,7 +60,7 @@ MANIFEST = re.compile(r"scene\.([0-9]+)\.json")
 TEMPORARY = ".tmp"
 FORMAT = 2  #: the manifest format this module writes
 READ_FORMATS = (1, 2)  #: the manifest formats it reads (1: no masks, transforms or instances)
-PROBE = ".write-probe" + TEMPORARY  #: written and removed at start to check the folder
+PROBE = ".write-probe"  #: written (through PROBE.tmp) and removed at start to check the folder
 FULL = frozenset({errno.ENOSPC, errno.EDQUOT})  #: OS errors that mean "full": 507, not 503
 
 
@@ -350,6 +350,7 @@ class DataDir:
         first change failed) once it is empty."""
         snapshots, last_versions = [], {}
         self._remove_temporary(self.root)
+        (self.root / PROBE).unlink(missing_ok=True)  # renamed, then the start failed
         for folder in sorted(p for p in self.scenes.iterdir() if p.is_dir()):
             self._remove_temporary(folder)
             manifests = sorted(self._manifests(folder), reverse=True)

@@ -315,6 +315,7 @@ def test_temporary_files_are_removed_at_start_wherever_they_are(tmp_path, caplog
         first / "0.1.vertices.npy.tmp",
         tmp_path / "scenes" / "hurt" / "0.2.faces.npy.tmp",
         tmp_path / persistence.PROBE,
+        tmp_path / (persistence.PROBE + persistence.TEMPORARY),
     ]
     for path in leftovers:
         path.write_bytes(b"half")
