@@ -124,7 +124,12 @@ HEALTH = {
         "cluster": {
             "type": "object",
             "description": "the dask cluster of DACRT_DASK_SCHEDULER, when set (degraded: "
-            "unreachable, queries traced in process)",
+            "unreachable, queries traced in process); with the token only",
+        },
+        "data_dir": {
+            "type": "object",
+            "description": "the data folder of DACRT_DATA_DIR, when set: status ok or unwritable "
+            "(with errno and detail); with the token only",
         },
     },
 }
@@ -140,7 +145,9 @@ ERROR_STATUSES = {
     413: "over a configured limit",
     415: "unsupported Content-Type",
     422: "invalid values or parameters",
-    503: "the engine is still compiling (Retry-After says when to try again)",
+    503: "the engine is still compiling, or the requests in flight hold the memory budget "
+    "(Retry-After says when to try again), or the data folder cannot be written",
+    507: "the data folder (DACRT_DATA_DIR) is full: the change is not made",
 }
 
 

@@ -43,7 +43,7 @@ FRAME_BODY = openapi.request_body(
     "MESH.vertices (and MESH.faces), MESH.transform, MESH.mask (and, in JSON, MESH.instance_of) "
     "for several meshes",
 )
-CHANGE_ERRORS = openapi.errors(400, 401, 404, 408, 409, 413, 415, 422)
+CHANGE_ERRORS = openapi.errors(400, 401, 404, 408, 409, 413, 415, 422, 503, 507)
 READ_ERRORS = openapi.errors(401, 404, 422)
 
 
@@ -211,14 +211,16 @@ async def get_mesh(scene: SceneName, mesh: MeshName, store: StoreDep) -> dict:
     return store.snapshot(scene).mesh(mesh).info(scene)
 
 
-@router.delete("/{scene}", status_code=204, responses=READ_ERRORS)
+@router.delete("/{scene}", status_code=204, responses=openapi.errors(401, 404, 422, 503, 507))
 async def delete_scene(scene: SceneName, store: StoreDep) -> Response:
     store.delete_scene(check_name("scene", scene))
     return Response(status_code=204)
 
 
 @router.delete(
-    "/{scene}/meshes/{mesh}", status_code=204, responses=openapi.errors(401, 404, 409, 422)
+    "/{scene}/meshes/{mesh}",
+    status_code=204,
+    responses=openapi.errors(401, 404, 409, 422, 503, 507),
 )
 async def delete_mesh(scene: SceneName, mesh: MeshName, store: StoreDep) -> Response:
     check_name("scene", scene), check_name("mesh", mesh)
