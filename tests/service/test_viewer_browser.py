@@ -20,6 +20,19 @@ from service.client import Client
 pytestmark = pytest.mark.skipif(browser.missing() is not None, reason=str(browser.missing()))
 
 
+def _rebuilt() -> tuple[type[Exception], ...]:
+    """What a poll may meet while the page rebuilds its list of scenes: an element it found is
+    replaced before it is read (a stale reference), so the poll looks again."""
+    try:
+        from selenium.common.exceptions import StaleElementReferenceException
+    except ImportError:  # the tests that poll are skipped without selenium
+        return ()
+    return (StaleElementReferenceException,)
+
+
+REBUILT = _rebuilt()
+
+
 @pytest.fixture(scope="module")
 def url():
     server = ServerProcess({})
@@ -141,7 +154,9 @@ def test_a_new_version_of_the_scene_is_shown_and_new_scenes_are_listed(
 
     from selenium.webdriver.support.ui import WebDriverWait
 
-    WebDriverWait(driver, 30, poll_frequency=0.05).until(shows_the_new_version)
+    WebDriverWait(driver, 30, poll_frequency=0.05, ignored_exceptions=REBUILT).until(
+        shows_the_new_version
+    )
     again, second, _ = shown(driver)
     assert again == camera  # the camera stays; the scene moved
     assert not np.array_equal(pixels(first), pixels(second))
@@ -152,7 +167,9 @@ def test_a_new_version_of_the_scene_is_shown_and_new_scenes_are_listed(
         options = d.find_elements("css selector", "#scene option")
         return any(o.get_attribute("value") == scene_name + "-more" for o in options)
 
-    WebDriverWait(driver, 30, poll_frequency=0.1).until(lists_the_new_scene)
+    WebDriverWait(driver, 30, poll_frequency=0.1, ignored_exceptions=REBUILT).until(
+        lists_the_new_scene
+    )
     # choosing it (here through the page's address) shows it
     count = browser.wait_for_picture(driver, 0)
     driver.execute_script("location.hash = arguments[0]", f"scene={scene_name}-more&up=z")
@@ -188,9 +205,9 @@ def test_when_its_scene_goes_the_page_shows_the_last_changed(driver, url, room, 
                 o.get_attribute("value") for o in d.find_elements("css selector", "#scene option")
             ]
 
-        WebDriverWait(driver, 30, poll_frequency=0.05).until(lists)
+        WebDriverWait(driver, 30, poll_frequency=0.05, ignored_exceptions=REBUILT).until(lists)
         api.delete(room)
-    WebDriverWait(driver, 30, poll_frequency=0.05).until(
+    WebDriverWait(driver, 30, poll_frequency=0.05, ignored_exceptions=REBUILT).until(
         lambda d: d.find_element("id", "scene").get_attribute("value") == later
     )
 
@@ -204,7 +221,9 @@ def test_on_a_server_with_a_token_the_page_asks_for_it(driver):
         driver.get("about:blank")
         driver.get(f"{url}/")
         form = driver.find_element("id", "token-form")
-        WebDriverWait(driver, 30, poll_frequency=0.05).until(lambda d: form.is_displayed())
+        WebDriverWait(driver, 30, poll_frequency=0.05, ignored_exceptions=REBUILT).until(
+            lambda d: form.is_displayed()
+        )
         assert "token" in driver.find_element("id", "error").text
         driver.find_element("id", "token").send_keys("viewer-token-7")
         form.submit()
