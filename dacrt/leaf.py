@@ -181,10 +181,8 @@ def update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows):
 
 
 @inline
-def intersect_leaf(
-    flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
-):
-    """Test rays ``ray_lo:ray_hi`` against triangles ``tri_ids[tri_lo:tri_hi]``.
+def intersect_leaf(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch):
+    """Test rays ``ray_lo:ray_hi`` against triangles ``tris.ids[tri_lo:tri_hi]`` (``Triangles``).
 
     Keeps, per ray, the hit with the smallest (t, triangle index) in [tmin, best_t]; best_t
     lives in the ray record, the rest in ``arrays`` (``QueryArrays``) indexed by ray id. With
@@ -198,62 +196,34 @@ def intersect_leaf(
     by_rays = tri_hi - tri_lo < BY_RAYS_MAX_TRIANGLES and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS
     if flags & COLLECT and by_rays:
         return collect_leaf_by_rays(
-            flags,
-            tri_verts,
-            rays,
-            ray_ids,
-            ray_lo,
-            ray_hi,
-            tri_ids,
-            tri_lo,
-            tri_hi,
-            arrays,
-            scratch,
+            flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
         )
     if flags & COLLECT:
         return collect_leaf(
-            flags,
-            tri_verts,
-            rays,
-            ray_ids,
-            ray_lo,
-            ray_hi,
-            tri_ids,
-            tri_lo,
-            tri_hi,
-            arrays,
-            scratch,
+            flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
         )
     # Closest and occluded test culling and masks by triangles only, outside the vectorised
     # loops: a test in those loops slows every query.
     if by_rays and (flags & FILTERS) == 0:
         return intersect_leaf_by_rays(
-            flags,
-            tri_verts,
-            rays,
-            ray_ids,
-            ray_lo,
-            ray_hi,
-            tri_ids,
-            tri_lo,
-            tri_hi,
-            arrays,
-            scratch,
+            flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
         )
     return intersect_leaf_by_triangles(
-        flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
+        flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
     )
 
 
 @inline
 def intersect_leaf_by_rays(
-    flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
+    flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
 ):
     """intersect_leaf for few triangles: blocks of LEAF_BLOCK rays, each against every
     triangle in one vectorised loop that keeps the block's best (t, triangle, u, v); then
     the rays whose best changed take it. The loop keeps u and v with t, so no better hit needs
     the scalar test again, and starts with no triangle, so no ray's best is gathered first."""
     _, t_block, tri_block, block_rows, _, _ = scratch
+    tri_verts = tris.verts
+    tri_ids = tris.ids
     best_tri = arrays.best_tri
     hit_u = arrays.hit_u
     hit_v = arrays.hit_v
@@ -289,12 +259,14 @@ def intersect_leaf_by_rays(
 
 @inline
 def intersect_leaf_by_triangles(
-    flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
+    flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
 ):
     """intersect_leaf for few rays: triangles go in blocks of LEAF_BLOCK, copied to float64
     rows (``corners``), so each ray's tests over a block run as one vectorised loop; the
     winner's u, v then come from the scalar test, which is the same arithmetic."""
     corners, t_block, _, _, _, _ = scratch
+    tri_verts = tris.verts
+    tri_ids = tris.ids
     # Arrays are taken from the record once: each access in a loop would count a reference.
     best_tri = arrays.best_tri
     hit_u = arrays.hit_u
@@ -400,7 +372,7 @@ def ray_frame(rays, r):
 
 @inline
 def collect_leaf_by_rays(
-    flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
+    flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
 ):
     """collect_leaf for few triangles, at least BY_RAYS_MIN_RAYS rays: blocks of LEAF_BLOCK
     rays, a block's distances to one triangle in one vectorised loop
@@ -408,6 +380,8 @@ def collect_leaf_by_rays(
     confirmed by the half-open ``crossing``, its mask and culling, and the block's crossings
     go to ``record_crossings``."""
     _, t_block, found_tri, block_rows, found_at, found_t = scratch
+    tri_verts = tris.verts
+    tri_ids = tris.ids
     n_hits = arrays.n_hits
     list_t = arrays.list_t
     list_tri = arrays.list_tri
@@ -505,13 +479,13 @@ def block_crossing_distances(n, tri_verts, tri, block_rows, t_block):
 
 
 @inline
-def collect_leaf(
-    flags, tri_verts, rays, ray_ids, ray_lo, ray_hi, tri_ids, tri_lo, tri_hi, arrays, scratch
-):
+def collect_leaf(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch):
     """intersect_leaf of ``count`` and ``hits`` (COLLECT) by triangles: blocks of triangles as
     for ``intersect_leaf_by_triangles``; a ray's crossings of a block (``collect_hits``) go to
     ``record_crossings``. Its own function, so the closest-hit leaf stays as small."""
     corners, t_block, found_tri, _, found_at, found_t = scratch
+    tri_verts = tris.verts
+    tri_ids = tris.ids
     ray_masks = arrays.ray_masks
     tri_masks = arrays.tri_masks
     n_hits = arrays.n_hits

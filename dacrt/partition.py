@@ -1,7 +1,8 @@
 """Partitioning: binning, split choice helpers, and in-place partition of index ranges.
 
 Every function works on a half-open range ``[lo, hi)`` of an index array and allocates nothing;
-the caller owns the scratch arrays. Triangle bounds are rows [x0, y0, z0, x1, y1, z1].
+the caller owns the scratch arrays. Triangles come as one ``Triangles`` record: the range is of
+``tris.ids``, and ``tris.bounds`` holds each kernel row's box [x0, y0, z0, x1, y1, z1].
 """
 
 import numpy as np
@@ -36,14 +37,15 @@ def bin_scale(c_min, c_max, n_bins):
 
 
 @inline
-def centroid_bounds(tri_ids, lo, hi, tri_bounds, out):
-    """Box of the triangles' centroids into ``out`` (6,).
+def centroid_bounds(tris, lo, hi, out):
+    """Box of the centroids of triangles ``tris.ids[lo:hi]`` into ``out`` (6,).
 
     Running bounds in locals, since LLVM cannot keep a float32 ``out`` in registers. Rounded
     once at the end, which gives what rounding each update would (rounding is monotonic)."""
+    tri_bounds = tris.bounds
     x0 = y0 = z0 = np.inf
     x1 = y1 = z1 = -np.inf
-    for tri_id in tri_ids[lo:hi]:
+    for tri_id in tris.ids[lo:hi]:
         tri = np.uint32(tri_id)  # unsigned: no index wraparound (see partition_by_mask)
         cx = centroid(tri_bounds, tri, 0)
         cy = centroid(tri_bounds, tri, 1)
@@ -58,11 +60,12 @@ def centroid_bounds(tri_ids, lo, hi, tri_bounds, out):
 
 
 @inline
-def triangle_bounds(tri_ids, lo, hi, tri_bounds, out):
-    """Box of the triangles ``tri_ids[lo:hi]`` into ``out`` (6,), in locals as above."""
+def triangle_bounds(tris, lo, hi, out):
+    """Box of the triangles ``tris.ids[lo:hi]`` into ``out`` (6,), in locals as above."""
+    tri_bounds = tris.bounds
     x0 = y0 = z0 = np.float32(np.inf)
     x1 = y1 = z1 = np.float32(-np.inf)
-    for tri_id in tri_ids[lo:hi]:
+    for tri_id in tris.ids[lo:hi]:
         tri = np.uint32(tri_id)  # unsigned: no index wraparound
         x0, y0, z0, x1, y1, z1 = grow_box(x0, y0, z0, x1, y1, z1, tri_bounds, tri)
     set_box(out, x0, y0, z0, x1, y1, z1)
@@ -89,15 +92,15 @@ def box_area(box):
 
 
 @inline
-def bin_triangles(
-    tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, bin_count, bin_box, tri_bins
-):
-    """Count triangles per bin and the box of each bin's triangles; each position's bin goes to
-    ``tri_bins[lo:hi]``, for ``partition_binned``.
+def bin_triangles(tris, lo, hi, axis, c_min, scale, n_bins, bin_count, bin_box, tri_bins):
+    """Count triangles ``tris.ids[lo:hi]`` per bin and the box of each bin's triangles; each
+    position's bin goes to ``tri_bins[lo:hi]``, for ``partition_binned``.
 
     A run of triangles in one bin (the usual case: ranges keep much of the mesh's spatial order)
     is bounded in locals and added to its bin when the run ends; updating the bin's box for every
     triangle made each wait on the previous one's store."""
+    tri_ids = tris.ids
+    tri_bounds = tris.bounds
     for b in range(n_bins):
         bin_count[b] = 0
         for a in range(3):
@@ -163,14 +166,14 @@ def sweep_bins(n_bins, bin_count, bin_box, left_count, left_box, right_count, ri
 
 
 @inline
-def partition_triangles(
-    tri_ids, lo, hi, tri_bounds, axis, c_min, scale, n_bins, split_bin, box_left, box_right
-):
-    """Move triangles whose bin is <= split_bin to the front; returns the first right index.
+def partition_triangles(tris, lo, hi, axis, c_min, scale, n_bins, split_bin, box_left, box_right):
+    """Move triangles of ``tris.ids[lo:hi]`` whose bin is <= split_bin to the front; returns the
+    first right index.
 
     The boxes of both sides go to ``box_left`` and ``box_right`` (6,), bounded in the same pass
     (each triangle is looked at once) instead of two more passes over the triangles."""
-    ids = tri_ids[lo:hi]
+    tri_bounds = tris.bounds
+    ids = tris.ids[lo:hi]
     one = np.uint64(1)
     i = np.uint64(0)
     j = np.uint64(hi - lo)
@@ -193,11 +196,12 @@ def partition_triangles(
 
 
 @inline
-def partition_binned(tri_ids, tri_bins, lo, hi, split_bin):
-    """Move triangles whose bin (``tri_bins``, from ``bin_triangles``) is <= split_bin to the
-    front; returns the first right index. The same moves as ``partition_triangles``, so the same
-    order, but each triangle's bin is read, not derived again from its box; the sides' boxes
-    are the split's candidate boxes (``sweep_bins``)."""
+def partition_binned(tris, tri_bins, lo, hi, split_bin):
+    """Move triangles of ``tris.ids[lo:hi]`` whose bin (``tri_bins``, from ``bin_triangles``)
+    is <= split_bin to the front; returns the first right index. The same moves as
+    ``partition_triangles``, so the same order, but each triangle's bin is read, not derived
+    again from its box; the sides' boxes are the split's candidate boxes (``sweep_bins``)."""
+    tri_ids = tris.ids
     i = lo
     j = hi
     while i < j:

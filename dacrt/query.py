@@ -9,6 +9,8 @@ from collections import namedtuple
 
 import numpy as np
 
+from .config import inline
+
 # Bits of the flags word.
 # A ray stops at its first hit (occluded); else it keeps its closest hit.
 ANY_HIT = 1
@@ -27,6 +29,9 @@ COUNT = 64
 # The kinds that keep more than one hit a ray, and so count a crossing through a shared edge or
 # vertex once (``geometry.crossing``).
 COLLECT = ALL_HITS | COUNT
+# Bits 7-8: the strategy's code (``contracts.STRATEGY_CODES``): ``strategy_of``, ``with_strategy``.
+STRATEGY_SHIFT = 7
+STRATEGY_BITS = 3 << STRATEGY_SHIFT
 
 CULL_MODES = ("none", "back", "front")
 CULL_FLAGS = {"none": 0, "back": CULL_BACK, "front": CULL_FRONT}
@@ -63,3 +68,16 @@ hit_mask : (m,) bool scratch, one entry per record of the chunk
 tri_bins : (F,) uint8 scratch, each triangle's bin from binning to partition
 stats : (len(STAT_NAMES),) int64 counters
 """
+
+
+@inline
+def strategy_of(flags):
+    """The strategy's code (``contracts.MIDDLE``, ``SAH``, ``SAMPLING``, ``RAYSPACE``) of a
+    flags word."""
+    return (flags >> STRATEGY_SHIFT) & 3
+
+
+@inline
+def with_strategy(flags, code):
+    """``flags`` with the strategy ``code`` in place of its own."""
+    return (flags & ~STRATEGY_BITS) | (code << STRATEGY_SHIFT)

@@ -34,7 +34,7 @@ from .contracts import (
 from .geometry import cull_distance, pick
 from .leaf import intersect_leaf, leaf_scratch
 from .partition import partition_by_mask, partition_scratch, triangle_bounds
-from .query import ANY_HIT, FIXED_ORIGIN
+from .query import ANY_HIT, FIXED_ORIGIN, with_strategy
 from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN_QUAD, field, quad_view, swap_rays
 from .traversal import trace_object_split
 
@@ -119,14 +119,16 @@ def slope_range(o_lo, o_hi, s_lo, s_hi, lo, hi):
 
 
 @jit
-def cull_triangles(tri_ids, lo, hi, tri_bounds, frustum, axis, negative, tolerance, keep, bounds):
-    """Move the triangles whose boxes a ray of the frustum can pass through to the front;
-    returns how many they are.
+def cull_triangles(tris, lo, hi, frustum, axis, negative, tolerance, keep, bounds):
+    """Move the triangles of ``tris.ids[lo:hi]`` (``Triangles``) whose boxes a ray of the
+    frustum can pass through to the front; returns how many they are.
 
     Conservative: interval arithmetic over the five ray dimensions and the distance range,
     ``tolerance`` (world units) absorbing rounding. ``keep`` (one entry per triangle) and
     ``bounds`` (6 float32 rows of as many) are scratch: the boxes are gathered into rows first,
     so the tests, written with selects only, run as one vectorised loop."""
+    tri_ids = tris.ids
+    tri_bounds = tris.bounds
     a1 = (axis + 1) % 3
     a2 = (axis + 2) % 3
     n = hi - lo
@@ -264,36 +266,16 @@ def drop_finished_rays(rays, ray_ids, lo, hi, fixed_origin):
     return i
 
 
-@jit
-def trace_ray_space(flags, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_ids, arrays):
-    """Trace the ray records ``rays`` against triangles ``tri_ids`` (both permuted in place).
-
-    ``flags`` and ``arrays`` (``QueryArrays``) are the query's, as for ``trace_object_split``.
-    A node the termination rule makes a leaf but that still holds many triangles (incoherent
-    rays the frustum cannot cull for) goes to the object-split driver, with ray sampling,
-    instead of a brute force over all of them."""
-    hit_mask = arrays.hit_mask
-    stats = arrays.stats
-    any_hit = (flags & ANY_HIT) != 0
-    fixed_origin = (flags & FIXED_ORIGIN) != 0
-    n_rays_all = ray_ids.shape[0]
-    n_tris_all = tri_ids.shape[0]
-    scene_size = 0.0
-    for a in range(3):
-        scene_size = max(
-            scene_size,
-            np.float64(scene_box[a + 3] - scene_box[a]),
-            abs(np.float64(scene_box[a])),
-            abs(np.float64(scene_box[a + 3])),
-        )
-    tolerance = RAYSPACE_TOLERANCE * scene_size
-    # Group rays by dominant axis and sign (a counting pass per group, in place).
+@inline
+def group_by_direction(rays, ray_ids, fixed_origin, group_start):
+    """Sort the records into the six groups of ``dominant_class`` (a counting pass per group,
+    in place); group g's records are group_start[g]:group_start[g + 1] of ``group_start`` (7,)."""
     records = quad_view(rays)
-    group_start = np.zeros(7, np.int64)
+    n_rays = ray_ids.shape[0]
     lo = 0
     for g in range(6):
         group_start[g] = lo
-        j = n_rays_all
+        j = n_rays
         i = lo
         while i < j:
             if (
@@ -309,7 +291,59 @@ def trace_ray_space(flags, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_
                 j -= 1
                 swap_rays(records, ray_ids, i, j, fixed_origin)
         lo = i
-    group_start[6] = n_rays_all
+    group_start[6] = n_rays
+
+
+@inline
+def widest_dimension(frustum, scene_size):
+    """The dimension (0-2: origin x, y, z; 3, 4: slopes u, v) along which a node's rays spread
+    most, and its middle: (dim, split), dim -1 when they are alike in every dimension. Slopes
+    are weighed by the distance they travel across the scene, so both kinds are in world
+    units."""
+    spread = 0.0
+    dim = -1
+    for d in range(5):
+        if d < 3:
+            extent = frustum[_O_MAX + d] - frustum[_O_MIN + d]
+        else:
+            k = _U if d == 3 else _V
+            extent = (frustum[k + 1] - frustum[k]) * scene_size
+        if extent > spread:
+            spread = extent
+            dim = d
+    if dim < 0:
+        return dim, 0.0
+    if dim < 3:
+        return dim, 0.5 * (frustum[_O_MIN + dim] + frustum[_O_MAX + dim])
+    k = _U if dim == 3 else _V
+    return dim, 0.5 * (frustum[k] + frustum[k + 1])
+
+
+@jit
+def trace_ray_space(flags, tris, scene_box, rays, ray_ids, arrays):
+    """Trace the ray records ``rays`` against the triangles ``tris.ids`` (``Triangles``), whose
+    box is ``scene_box`` (both permuted in place).
+
+    ``flags`` and ``arrays`` (``QueryArrays``) are the query's, as for ``trace_object_split``.
+    A node the termination rule makes a leaf but that still holds many triangles (incoherent
+    rays the frustum cannot cull for) goes to the object-split driver, with ray sampling,
+    instead of a brute force over all of them."""
+    hit_mask = arrays.hit_mask
+    stats = arrays.stats
+    any_hit = (flags & ANY_HIT) != 0
+    fixed_origin = (flags & FIXED_ORIGIN) != 0
+    n_tris_all = tris.ids.shape[0]
+    scene_size = 0.0
+    for a in range(3):
+        scene_size = max(
+            scene_size,
+            np.float64(scene_box[a + 3] - scene_box[a]),
+            abs(np.float64(scene_box[a])),
+            abs(np.float64(scene_box[a + 3])),
+        )
+    tolerance = RAYSPACE_TOLERANCE * scene_size
+    group_start = np.zeros(7, np.int64)
+    group_by_direction(rays, ray_ids, fixed_origin, group_start)
 
     n_stack = MAX_DEPTH + 2
     stack = np.empty((n_stack, 5), np.int64)  # ray_lo, ray_hi, tri_lo, tri_hi, depth
@@ -350,16 +384,7 @@ def trace_ray_space(flags, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_
             n_tris_before = tri_hi - tri_lo
             stats[STAT_BOX_TESTS] += n_tris_before
             tri_hi = tri_lo + cull_triangles(
-                tri_ids,
-                tri_lo,
-                tri_hi,
-                tri_bounds,
-                frustum,
-                axis,
-                negative,
-                tolerance,
-                keep,
-                bounds,
+                tris, tri_lo, tri_hi, frustum, axis, negative, tolerance, keep, bounds
             )
             n_tris = tri_hi - tri_lo
             if n_tris == 0:
@@ -378,28 +403,12 @@ def trace_ray_space(flags, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_
                 or depth >= MAX_DEPTH
                 or incoherent
             )
+            ray_mid = ray_lo
             if not stop:
-                # Split the rays at the middle of their widest dimension; slopes are weighed by
-                # the distance they travel across the scene, so both kinds are in world units.
-                spread = 0.0
-                dim = -1
-                for d in range(5):
-                    if d < 3:
-                        extent = frustum[_O_MAX + d] - frustum[_O_MIN + d]
-                    else:
-                        k = _U if d == 3 else _V
-                        extent = (frustum[k + 1] - frustum[k]) * scene_size
-                    if extent > spread:
-                        spread = extent
-                        dim = d
-                # Rays alike in every dimension leave nothing to divide.
-                stop = True
+                # Split the rays at the middle of their widest dimension; rays alike in every
+                # dimension leave nothing to divide.
+                dim, split = widest_dimension(frustum, scene_size)
                 if dim >= 0:
-                    if dim < 3:
-                        split = 0.5 * (frustum[_O_MIN + dim] + frustum[_O_MAX + dim])
-                    else:
-                        k = _U if dim == 3 else _V
-                        split = 0.5 * (frustum[k] + frustum[k + 1])
                     ray_mid = partition_rays(
                         rays,
                         ray_ids,
@@ -413,22 +422,19 @@ def trace_ray_space(flags, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_
                         lanes,
                         fixed_origin,
                     )
-                    stop = not ray_lo < ray_mid < ray_hi
+                stop = not ray_lo < ray_mid < ray_hi
             if stop:
                 # Finish the node here: brute force, or object splits for many triangles.
                 if n_tris > RAYSPACE_LEAF_TRIANGLES:
-                    triangle_bounds(tri_ids, tri_lo, tri_hi, tri_bounds, node_box)
+                    triangle_bounds(tris, tri_lo, tri_hi, node_box)
                     trace_object_split(
-                        SAMPLING,
-                        flags,
-                        tri_verts,
-                        tri_bounds,
+                        with_strategy(flags, SAMPLING),
+                        tris,
                         node_box,
                         rays,
                         ray_ids,
                         ray_lo,
                         ray_hi,
-                        tri_ids,
                         tri_lo,
                         tri_hi,
                         arrays,
@@ -436,17 +442,7 @@ def trace_ray_space(flags, tri_verts, tri_bounds, scene_box, rays, ray_ids, tri_
                 else:
                     stats[STAT_LEAVES] += 1
                     stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
-                        flags,
-                        tri_verts,
-                        rays,
-                        ray_ids,
-                        ray_lo,
-                        ray_hi,
-                        tri_ids,
-                        tri_lo,
-                        tri_hi,
-                        arrays,
-                        leaf,
+                        flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, leaf
                     )
                 continue
             for half in range(2):

@@ -51,13 +51,14 @@ from .query import (
     CULL_FLAGS,
     FIXED_ORIGIN,
     MASKED,
+    STRATEGY_SHIFT,
     QueryArrays,
 )
 from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
 from .rayspace import trace_ray_space
 from .results import finish_closest, finish_hits, unit_normals
 from .traversal import split_middle, trace_object_split
-from .triangles import gather_triangles
+from .triangles import Triangles, gather_triangles
 from .validation import (
     InputError,
     check_cull,
@@ -409,10 +410,11 @@ class Scene:
             explain_bad_rays(origins, directions, tmin, tmax)  # no kernel will check them
             return Traced(best_t, answer, counters, origins, directions)
         code = STRATEGY_CODES[strategy]
+        flags |= code << STRATEGY_SHIFT
         ray_space = code == RAYSPACE
         if not ray_space and not flags & COLLECT and splits_triangles(n_rays, n_live, threads):
             per_half = self._trace_halves(
-                code, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t
+                flags, origins, directions, tmin, tmax, visible_rows, answer, best_t
             )
             return Traced(best_t, answer, add_counters(counters, per_half), origins, directions)
         # The values are not checked yet (each chunk checks its own): a bad ray may make
@@ -434,6 +436,7 @@ class Scene:
             tri_ids = (
                 np.arange(n_live, dtype=INDEX) if visible_rows is None else visible_rows.copy()
             )
+            tris = Triangles(self._tri_verts, self._tri_bounds, tri_ids)
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
             arrays = answer._replace(
                 hit_mask=np.empty(len(ray_ids), np.bool_),
@@ -441,31 +444,10 @@ class Scene:
                 stats=chunk_stats,
             )
             if ray_space:
-                trace_ray_space(
-                    chunk_flags,
-                    self._tri_verts,
-                    self._tri_bounds,
-                    self._box,
-                    rays,
-                    ray_ids,
-                    tri_ids,
-                    arrays,
-                )
+                trace_ray_space(chunk_flags, tris, self._box, rays, ray_ids, arrays)
             else:
                 trace_object_split(
-                    code,
-                    chunk_flags,
-                    self._tri_verts,
-                    self._tri_bounds,
-                    self._box,
-                    rays,
-                    ray_ids,
-                    0,
-                    len(ray_ids),
-                    tri_ids,
-                    0,
-                    n_live,
-                    arrays,
+                    chunk_flags, tris, self._box, rays, ray_ids, 0, len(ray_ids), 0, n_live, arrays
                 )
             unpack_best_t(rays, ray_ids, best_t)
             return chunk_stats
@@ -476,9 +458,7 @@ class Scene:
             raise InputError("the batch holds an invalid ray")  # explain_bad_rays names it
         return Traced(best_t, answer, add_counters(counters, per_chunk), origins, directions)
 
-    def _trace_halves(
-        self, code, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t
-    ):
+    def _trace_halves(self, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t):
         """Trace a closest or occlusion batch on two threads, each with every ray against one
         half of the triangles (split at the middle of the scene's box); then each ray keeps the
         better of its two answers, the smaller (t, row), as one trace would. Writes best_t and
@@ -489,10 +469,9 @@ class Scene:
             if visible_rows is None
             else visible_rows.copy()
         )
+        tris = Triangles(self._tri_verts, self._tri_bounds, tri_ids)
         boxes = np.empty((3, 6), FLOAT)  # the halves' boxes, and scratch for split_middle
-        _, tri_mid = split_middle(
-            tri_ids, 0, len(tri_ids), self._tri_bounds, self._box, boxes[2], boxes[0], boxes[1]
-        )
+        _, tri_mid = split_middle(tris, 0, len(tri_ids), self._box, boxes)
         rays = new_records(n_rays)
         ray_ids = np.arange(n_rays, dtype=INDEX)
         if not pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
@@ -515,19 +494,7 @@ class Scene:
             )
             lo, hi = (0, tri_mid) if half == 0 else (tri_mid, len(tri_ids))
             trace_object_split(
-                code,
-                flags,
-                self._tri_verts,
-                self._tri_bounds,
-                boxes[half],
-                half_rays,
-                half_ids,
-                0,
-                n_rays,
-                tri_ids,
-                lo,
-                hi,
-                arrays,
+                flags, tris, boxes[half], half_rays, half_ids, 0, n_rays, lo, hi, arrays
             )
             t = np.empty(n_rays, FLOAT)
             unpack_best_t(half_rays, half_ids, t)

@@ -4,10 +4,20 @@ This is all a Scene derives from its meshes (O(F), a few milliseconds per 100K t
 nothing here outlives the Scene or depends on the rays.
 """
 
+from collections import namedtuple
+
 import numpy as np
 
 from .config import inline, jit
 from .geometry import triangle_normal
+
+Triangles = namedtuple("Triangles", ["verts", "bounds", "ids"])
+Triangles.__doc__ = """The triangles of one trace, as the kernels receive them: one record.
+
+verts : (F, 9) float32, each kernel row's corners p0, p1, p2
+bounds : (F, 6) float32, each kernel row's box [x0, y0, z0, x1, y1, z1]
+ids : (k,) int32, the kernel rows traced; the partitions permute them in place
+"""
 
 
 @jit

@@ -13,6 +13,7 @@ from dacrt.geometry import corners_from_origin, crossing, intersect_triangle, wa
 from dacrt.leaf import NO_HIT, intersect_leaf, leaf_scratch
 from dacrt.query import ALL_HITS, ANY_HIT, COUNT, QueryArrays
 from dacrt.rays import BEST_T, new_records, pack_rays
+from dacrt.triangles import Triangles
 
 MODE_CLOSEST = 0
 MODE_OCCLUDED = ANY_HIT
@@ -63,8 +64,9 @@ def run_leaf(mode, tri_verts, origins, directions, tmin, tmax, tri_ids):
         tri_bins=np.empty(len(tri_verts), np.uint8),
         stats=np.zeros(len(STAT_NAMES), np.int64),
     )
+    tris = Triangles(tri_verts, np.empty((len(tri_verts), 6), np.float32), tri_ids)
     n_tests = intersect_leaf(
-        mode, tri_verts, rays, ray_ids, 0, n, tri_ids, 0, len(tri_ids), arrays, leaf_scratch()
+        mode, tris, rays, ray_ids, 0, n, 0, len(tri_ids), arrays, leaf_scratch()
     )
     # Every pair is tested, but an occlusion ray skips the blocks after its first hit.
     assert n_tests == n * len(tri_ids) if mode != MODE_OCCLUDED else n_tests <= n * len(tri_ids)

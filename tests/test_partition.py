@@ -21,10 +21,17 @@ from dacrt.partition import (
 )
 from dacrt.rays import new_records, pack_rays
 from dacrt.rayspace import compare_scratch, partition_rays
-from dacrt.triangles import triangle_boxes
+from dacrt.triangles import Triangles, triangle_boxes
 
 N_BINS = 16
 SEEDS = (0, 1, 2)
+NO_CORNERS = np.empty((0, 9), np.float32)  # the partitions of triangles read boxes only
+
+
+def triangles(tri_bounds, ids):
+    """The ``Triangles`` record of boxes ``tri_bounds`` and ids ``ids`` (ids are permuted in
+    place)."""
+    return Triangles(NO_CORNERS, tri_bounds, ids)
 
 
 def soup_bounds(seed, n=600):
@@ -65,11 +72,11 @@ def test_centroid_and_triangle_bounds_match_numpy(seed, axis):
     lo, hi = 17, 17 + 300 + 50 * axis
     sub = ids[lo:hi]
     out = np.empty(6, np.float32)
-    centroid_bounds(ids, lo, hi, tri_bounds, out)
+    centroid_bounds(triangles(tri_bounds, ids), lo, hi, out)
     centres = 0.5 * (tri_bounds[sub, :3].astype(np.float64) + tri_bounds[sub, 3:])
     expected = np.concatenate([centres.min(axis=0), centres.max(axis=0)]).astype(np.float32)
     np.testing.assert_array_equal(out, expected)
-    triangle_bounds(ids, lo, hi, tri_bounds, out)
+    triangle_bounds(triangles(tri_bounds, ids), lo, hi, out)
     np.testing.assert_array_equal(out, numpy_box(tri_bounds, sub))
 
 
@@ -82,7 +89,8 @@ def test_bins_and_sweep_match_numpy(seed, axis):
     bin_count = np.empty(N_BINS, np.int64)
     bin_box = np.empty((N_BINS, 6), np.float32)
     tri_bins = np.zeros(len(ids), np.uint8)
-    bin_triangles(ids, lo, hi, tri_bounds, axis, c_min, scale, N_BINS, bin_count, bin_box, tri_bins)
+    tris = triangles(tri_bounds, ids)
+    bin_triangles(tris, lo, hi, axis, c_min, scale, N_BINS, bin_count, bin_box, tri_bins)
     bins = numpy_bins(tri_bounds, ids[lo:hi], axis, c_min, scale, N_BINS)
     np.testing.assert_array_equal(tri_bins[lo:hi], bins)
     np.testing.assert_array_equal(bin_count, np.bincount(bins, minlength=N_BINS))
@@ -112,7 +120,16 @@ def test_triangle_partitions_keep_the_ids_and_put_each_on_its_side(seed, split):
     box_left = np.empty(6, np.float32)
     box_right = np.empty(6, np.float32)
     mid = partition_triangles(
-        by_box, lo, hi, tri_bounds, axis, c_min, scale, N_BINS, split, box_left, box_right
+        triangles(tri_bounds, by_box),
+        lo,
+        hi,
+        axis,
+        c_min,
+        scale,
+        N_BINS,
+        split,
+        box_left,
+        box_right,
     )
     bins = numpy_bins(tri_bounds, ids[lo:hi], axis, c_min, scale, N_BINS)
     assert mid - lo == np.count_nonzero(bins <= split)
@@ -128,10 +145,9 @@ def test_triangle_partitions_keep_the_ids_and_put_each_on_its_side(seed, split):
     by_bin = ids.copy()
     tri_bins = np.zeros(len(ids), np.uint8)
     bin_triangles(
-        by_bin,
+        triangles(tri_bounds, by_bin),
         lo,
         hi,
-        tri_bounds,
         axis,
         c_min,
         scale,
@@ -140,7 +156,7 @@ def test_triangle_partitions_keep_the_ids_and_put_each_on_its_side(seed, split):
         np.empty((N_BINS, 6), np.float32),
         tri_bins,
     )
-    assert partition_binned(by_bin, tri_bins, lo, hi, split) == mid
+    assert partition_binned(triangles(tri_bounds, by_bin), tri_bins, lo, hi, split) == mid
     np.testing.assert_array_equal(by_bin, by_box)
 
 
