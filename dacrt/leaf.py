@@ -191,57 +191,108 @@ def intersect_leaf(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, a
     faces and triangles a ray's mask does not see never hit (CULL_BACK, CULL_FRONT, MASKED).
     ``scratch`` is ``leaf_scratch()``. Returns the ray-triangle tests made.
 
-    The tests run as vectorised loops, over triangles (a few rays) or over rays (a few
-    triangles, at least BY_RAYS_MIN_RAYS rays); the order of tests changes no answer."""
+    The tests run as vectorised loops, over rays (a few triangles, at least BY_RAYS_MIN_RAYS
+    rays: ``leaf_by_rays``) or over triangles (``leaf_by_triangles``); each is compiled twice, for
+    one best hit and for collecting every crossing (COLLECT), by a constant argument. The order
+    of tests changes no answer."""
     by_rays = tri_hi - tri_lo < BY_RAYS_MAX_TRIANGLES and ray_hi - ray_lo >= BY_RAYS_MIN_RAYS
-    if flags & COLLECT and by_rays:
-        return collect_leaf_by_rays(
-            flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
-        )
     if flags & COLLECT:
-        return collect_leaf(
-            flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
+        if by_rays:
+            return leaf_by_rays(
+                True, flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
+            )
+        return leaf_by_triangles(
+            True, flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
         )
     # Closest and occluded test culling and masks by triangles only, outside the vectorised
     # loops: a test in those loops slows every query.
     if by_rays and (flags & FILTERS) == 0:
-        return intersect_leaf_by_rays(
-            flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
+        return leaf_by_rays(
+            False, flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
         )
-    return intersect_leaf_by_triangles(
-        flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
+    return leaf_by_triangles(
+        False, flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
     )
 
 
 @inline
-def intersect_leaf_by_rays(
-    flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
+def leaf_by_rays(
+    collect, flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
 ):
-    """intersect_leaf for few triangles: blocks of LEAF_BLOCK rays, each against every
-    triangle in one vectorised loop that keeps the block's best (t, triangle, u, v); then
-    the rays whose best changed take it. The loop keeps u and v with t, so no better hit needs
-    the scalar test again, and starts with no triangle, so no ray's best is gathered first."""
-    _, t_block, tri_block, block_rows, _, _ = scratch
+    """intersect_leaf for few triangles: blocks of LEAF_BLOCK rays, their fields copied to rows
+    once (``rays_to_rows``), each block against every triangle in one vectorised loop.
+
+    For one best hit (``collect`` false, no culling or masks) that loop keeps the block's best
+    (t, triangle, u, v) (``update_block``), starting with no triangle, so no ray's best is
+    gathered first; then the rays whose best changed take it. The loop keeps u and v with t, so
+    no better hit needs the scalar test again.
+    Collecting (``collect`` true), it gives each ray's distance (``block_crossing_distances``);
+    a distance in the ray's [tmin, best_t] is a candidate, confirmed by the half-open
+    ``crossing``, the ray's mask and culling, and the block's crossings go to
+    ``record_crossings``. ``collect`` is a constant at each call: each variant compiles alone."""
+    _, t_block, tri_block, block_rows, found_at, found_t = scratch
     tri_verts = tris.verts
     tri_ids = tris.ids
+    # Arrays are taken from the record once: each access in a loop would count a reference.
     best_tri = arrays.best_tri
     hit_u = arrays.hit_u
     hit_v = arrays.hit_v
+    ray_masks = arrays.ray_masks
+    tri_masks = arrays.tri_masks
+    n_hits = arrays.n_hits
+    list_t = arrays.list_t
+    list_tri = arrays.list_tri
     any_hit = (flags & ANY_HIT) != 0
+    count_only = (flags & ALL_HITS) == 0
+    masked = (flags & MASKED) != 0
+    cull_side = culled_side(flags)
     n_tests = 0
     for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, ray_hi - block_lo)
-        # The block starts from each ray's best t, with no triangle: a tie with that t is
-        # settled against the ray's triangle afterwards, only for the rays that have one.
-        # The block's fields go to rows once, read by every triangle's loop.
         rays_to_rows(rays, block_lo, n, block_rows)
-        for i in range(n):
-            t_block[i] = field(rays, BEST_T, block_lo + i)
-            tri_block[i] = NO_HIT
+        n_found = 0
+        if not collect:
+            # The block starts from each ray's best t, with no triangle: a tie with that t is
+            # settled against the ray's triangle afterwards, only for the rays that have one.
+            for i in range(n):
+                t_block[i] = field(rays, BEST_T, block_lo + i)
+                tri_block[i] = NO_HIT
         for k in range(tri_lo, tri_hi):
             n_tests += n
             tri = tri_ids[k]
-            update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows)
+            if not collect:
+                update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows)
+                continue
+            block_crossing_distances(n, tri_verts, tri, block_rows, t_block)
+            for i in range(n):
+                t = t_block[i]
+                if not (t >= block_rows[8, i]):
+                    continue
+                r = block_lo + i
+                if not (t <= field(rays, BEST_T, r)):
+                    continue
+                if masked and (tri_masks[tri] & ray_masks[ray_ids[r]]) == 0:
+                    continue
+                kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_frame(rays, r)
+                ax, ay, az, bx, by, bz, cx, cy, cz = corners_from_origin(
+                    tri_verts, tri, okx, oky, okz, kx, ky, kz
+                )
+                hit, det = crossing(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
+                if not hit or det * cull_side > 0.0:
+                    continue
+                found_at[n_found] = r
+                tri_block[n_found] = tri
+                found_t[n_found] = t
+                n_found += 1
+            # The next triangle finds at most LEAF_BLOCK more.
+            if n_found > LEAF_BLOCK or (n_found and k == tri_hi - 1):
+                record_crossings(
+                    count_only, n_hits, list_t, list_tri, rays, ray_ids, scratch, n_found
+                )
+                n_found = 0
+        if collect:
+            continue
+        # The rays whose best the block's beats take it.
         for i in range(n):
             r = block_lo + i
             ray = ray_ids[r]
@@ -258,12 +309,17 @@ def intersect_leaf_by_rays(
 
 
 @inline
-def intersect_leaf_by_triangles(
-    flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
+def leaf_by_triangles(
+    collect, flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
 ):
     """intersect_leaf for few rays: triangles go in blocks of LEAF_BLOCK, copied to float64
-    rows (``corners``), so each ray's tests over a block run as one vectorised loop; the
-    winner's u, v then come from the scalar test, which is the same arithmetic."""
+    rows (``corners``), so each ray's distances to a block come from one vectorised loop
+    (``block_distances``); triangles its mask does not see become misses.
+
+    For one best hit (``collect`` false) the nearest distance wins, and the winner's u, v then
+    come from the scalar test, which is the same arithmetic. Collecting (``collect`` true), the
+    ray's crossings of the block (``collect_hits``) go to ``record_crossings``. ``collect`` is a
+    constant at each call."""
     corners, t_block, _, _, _, _ = scratch
     tri_verts = tris.verts
     tri_ids = tris.ids
@@ -273,18 +329,24 @@ def intersect_leaf_by_triangles(
     hit_v = arrays.hit_v
     ray_masks = arrays.ray_masks
     tri_masks = arrays.tri_masks
+    n_hits = arrays.n_hits
+    list_t = arrays.list_t
+    list_tri = arrays.list_tri
     any_hit = (flags & ANY_HIT) != 0
+    count_only = (flags & ALL_HITS) == 0
     cull_side = culled_side(flags)
     masked = (flags & MASKED) != 0
     n_tests = 0
     for block_lo in range(tri_lo, tri_hi, LEAF_BLOCK):
         n = min(LEAF_BLOCK, tri_hi - block_lo)
         gather_block(tri_verts, tri_ids, block_lo, n, corners)
+        n_found = 0
         for r in range(ray_lo, ray_hi):
             best = field(rays, BEST_T, r)
-            if best == -np.inf:
+            if not collect and best == -np.inf:
                 continue  # an occlusion ray that has already hit
-            kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_frame(rays, r)
+            frame = ray_frame(rays, r)
+            kx, ky, kz, sx, sy, sz, okx, oky, okz = frame
             n_tests += n
             # Padding lanes hold stale corners; their distances are never read.
             block_distances(
@@ -306,12 +368,24 @@ def intersect_leaf_by_triangles(
                 hide_unseen(ray_masks[ray], tri_masks, tri_ids, block_lo, n, t_block)
             # Ranges and ties are decided on the float32 t that is reported.
             t_lo = field(rays, TMIN, r)
+            if collect:
+                n_found += collect_hits(
+                    n_found, scratch, tri_ids, block_lo, n, t_lo, best, r, frame, cull_side
+                )
+                # The next ray finds at most LEAF_BLOCK more.
+                if n_found > LEAF_BLOCK or (n_found and r == ray_hi - 1):
+                    record_crossings(
+                        count_only, n_hits, list_t, list_tri, rays, ray_ids, scratch, n_found
+                    )
+                    n_found = 0
+                continue
+            # The smallest (t, triangle) below (best, the ray's triangle) wins; with any_hit, the
+            # first such hit. Only a hit that would win is checked for culling: few are.
             winner = -1
             winner_tri = best_tri[ray]
             for k in range(n):
                 t = t_block[k]
                 if t >= t_lo and (t < best or (t == best and tri_ids[block_lo + k] < winner_tri)):
-                    # Only a hit that would win is checked for culling: few are.
                     if cull_side != 0.0 and culled(
                         tri_verts,
                         tri_ids[block_lo + k],
@@ -371,75 +445,6 @@ def ray_frame(rays, r):
 
 
 @inline
-def collect_leaf_by_rays(
-    flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
-):
-    """collect_leaf for few triangles, at least BY_RAYS_MIN_RAYS rays: blocks of LEAF_BLOCK
-    rays, a block's distances to one triangle in one vectorised loop
-    (``block_crossing_distances``); each distance in its ray's [tmin, best_t] is a candidate,
-    confirmed by the half-open ``crossing``, its mask and culling, and the block's crossings
-    go to ``record_crossings``."""
-    _, t_block, found_tri, block_rows, found_at, found_t = scratch
-    tri_verts = tris.verts
-    tri_ids = tris.ids
-    n_hits = arrays.n_hits
-    list_t = arrays.list_t
-    list_tri = arrays.list_tri
-    ray_masks = arrays.ray_masks
-    tri_masks = arrays.tri_masks
-    count_only = (flags & ALL_HITS) == 0
-    masked = (flags & MASKED) != 0
-    cull_side = culled_side(flags)
-    n_tests = 0
-    for block_lo in range(ray_lo, ray_hi, LEAF_BLOCK):
-        n = min(LEAF_BLOCK, ray_hi - block_lo)
-        rays_to_rows(rays, block_lo, n, block_rows)
-        n_found = 0
-        for k in range(tri_lo, tri_hi):
-            n_tests += n
-            tri = tri_ids[k]
-            block_crossing_distances(n, tri_verts, tri, block_rows, t_block)
-            for i in range(n):
-                t = t_block[i]
-                if not (t >= block_rows[8, i]):
-                    continue
-                r = block_lo + i
-                best = field(rays, BEST_T, r)
-                if not (t <= best):
-                    continue
-                ray = ray_ids[r]
-                if masked and (tri_masks[tri] & ray_masks[ray]) == 0:
-                    continue
-                kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_frame(rays, r)
-                ax, ay, az, bx, by, bz, cx, cy, cz = corners_from_origin(
-                    tri_verts, tri, okx, oky, okz, kx, ky, kz
-                )
-                hit, det = crossing(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz)
-                if not hit or det * cull_side > 0.0:
-                    continue
-                found_at[n_found] = r
-                found_tri[n_found] = tri
-                found_t[n_found] = t
-                n_found += 1
-            # The next triangle finds at most LEAF_BLOCK more.
-            if n_found > LEAF_BLOCK or (n_found and k == tri_hi - 1):
-                record_crossings(
-                    count_only,
-                    n_hits,
-                    list_t,
-                    list_tri,
-                    rays,
-                    ray_ids,
-                    found_at,
-                    found_tri,
-                    found_t,
-                    n_found,
-                )
-                n_found = 0
-    return n_tests
-
-
-@inline
 def block_crossing_distances(n, tri_verts, tri, block_rows, t_block):
     """t_block[i] = the distance (``woop_hit``, NaN for a miss) of ray i of a block of rays
     (rows 2-7 of ``block_rows``) to triangle ``tri``: one vectorised loop."""
@@ -479,89 +484,6 @@ def block_crossing_distances(n, tri_verts, tri, block_rows, t_block):
 
 
 @inline
-def collect_leaf(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch):
-    """intersect_leaf of ``count`` and ``hits`` (COLLECT) by triangles: blocks of triangles as
-    for ``intersect_leaf_by_triangles``; a ray's crossings of a block (``collect_hits``) go to
-    ``record_crossings``. Its own function, so the closest-hit leaf stays as small."""
-    corners, t_block, found_tri, _, found_at, found_t = scratch
-    tri_verts = tris.verts
-    tri_ids = tris.ids
-    ray_masks = arrays.ray_masks
-    tri_masks = arrays.tri_masks
-    n_hits = arrays.n_hits
-    list_t = arrays.list_t
-    list_tri = arrays.list_tri
-    count_only = (flags & ALL_HITS) == 0
-    cull_side = culled_side(flags)
-    masked = (flags & MASKED) != 0
-    n_tests = 0
-    for block_lo in range(tri_lo, tri_hi, LEAF_BLOCK):
-        n = min(LEAF_BLOCK, tri_hi - block_lo)
-        gather_block(tri_verts, tri_ids, block_lo, n, corners)
-        n_found = 0
-        for r in range(ray_lo, ray_hi):
-            kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_frame(rays, r)
-            n_tests += n
-            block_distances(
-                corners,
-                min(LEAF_BLOCK, -(-n // LANES) * LANES),
-                okx,
-                oky,
-                okz,
-                kx,
-                ky,
-                kz,
-                sx,
-                sy,
-                sz,
-                t_block,
-            )
-            ray = ray_ids[r]
-            if masked:
-                hide_unseen(ray_masks[ray], tri_masks, tri_ids, block_lo, n, t_block)
-            n_found += collect_hits(
-                n_found,
-                corners,
-                tri_ids,
-                block_lo,
-                n,
-                t_block,
-                field(rays, TMIN, r),
-                field(rays, BEST_T, r),
-                r,
-                okx,
-                oky,
-                okz,
-                kx,
-                ky,
-                kz,
-                sx,
-                sy,
-                sz,
-                cull_side,
-                found_at,
-                found_tri,
-                found_t,
-            )
-            # The next ray finds at most LEAF_BLOCK more.
-            if n_found > LEAF_BLOCK or (n_found and r == ray_hi - 1):
-                record_crossings(
-                    count_only,
-                    n_hits,
-                    list_t,
-                    list_tri,
-                    rays,
-                    ray_ids,
-                    found_at,
-                    found_tri,
-                    found_t,
-                    n_found,
-                )
-                n_found = 0
-    return n_tests
-
-
-@inline
 def hide_unseen(ray_mask, tri_masks, tri_ids, block_lo, n, t_block):
     """Turn into misses (NaN) the distances of a block's triangles that a ray of mask
     ``ray_mask`` does not see."""
@@ -571,35 +493,14 @@ def hide_unseen(ray_mask, tri_masks, tri_ids, block_lo, n, t_block):
 
 
 @inline
-def collect_hits(
-    first,
-    corners,
-    tri_ids,
-    block_lo,
-    n,
-    t_block,
-    t_lo,
-    best,
-    r,
-    okx,
-    oky,
-    okz,
-    kx,
-    ky,
-    kz,
-    sx,
-    sy,
-    sz,
-    cull_side,
-    found_at,
-    found_tri,
-    found_t,
-):
-    """The crossings of record ``r`` with a block's triangles, whose corners are ``corners`` (as
-    for ``block_distances``) and distances ``t_block``, into ``found_at`` (r), ``found_tri`` and
-    ``found_t`` from index ``first`` on; returns how many. A distance in [t_lo, best] is a
-    candidate, confirmed by the half-open ``crossing`` (a subset of the inclusive test that gave
-    it), then by culling."""
+def collect_hits(first, scratch, tri_ids, block_lo, n, t_lo, best, r, frame, cull_side):
+    """The crossings of record ``r`` with a block of triangles (``leaf_by_triangles``: corners
+    and distances in ``scratch``), into the found rows of ``scratch`` (record, triangle, t) from
+    index ``first`` on; returns how many. A distance in [t_lo, best] is a candidate, confirmed
+    by the half-open ``crossing`` (a subset of the inclusive test that gave it), then by
+    culling. ``frame`` is the ray's ``ray_frame``."""
+    corners, t_block, found_tri, _, found_at, found_t = scratch
+    kx, ky, kz, sx, sy, sz, okx, oky, okz = frame
     n_found = first
     for k in range(n):
         t = t_block[k]
@@ -629,15 +530,15 @@ def collect_hits(
 
 
 @inline
-def record_crossings(
-    count_only, n_hits, list_t, list_tri, rays, ray_ids, found_at, found_tri, found_t, n_found
-):
-    """Record a block's ``n_found`` crossings (record, triangle, t): count them
-    (``count_only``), or insert each into its ray's list, kept sorted by (t, kernel row) and at
-    most as long as the lists' rows (the farthest falls off). A ray's best_t stays tmax while its
-    list has room, then becomes its last entry's t, which bounds the boxes it still visits.
-    Crossings are gathered and recorded by the dozen: a call per crossing would count
-    references to its arrays each time."""
+def record_crossings(count_only, n_hits, list_t, list_tri, rays, ray_ids, scratch, n_found):
+    """Record a block's ``n_found`` crossings (the found rows of ``scratch``: record, triangle,
+    t): count them in ``n_hits`` (``count_only``), or insert each into its ray's list
+    (``list_t``, ``list_tri``), kept sorted by (t, kernel row) and at most as long as the lists'
+    rows (the farthest falls off). A ray's best_t stays tmax while its list has room,
+    then becomes its last entry's t, which bounds the boxes it still visits. Crossings are
+    gathered and recorded by the dozen: a call per crossing would count references to its
+    arrays each time."""
+    _, _, found_tri, _, found_at, found_t = scratch
     list_size = list_t.shape[1]
     last = list_size - 1
     for j in range(n_found):
