@@ -48,8 +48,9 @@ class AnchorUnavailable(RuntimeError):
 
 
 def build_anchor(source: Path = ANCHOR, build_dir: Path = BUILD_DIR) -> Path:
-    """The anchor's executable, compiled from ``source`` unless it is there and newer."""
-    binary = build_dir / "embree_native"
+    """The anchor's executable (named as ``source``'s stem: ``embree_native``,
+    ``embree_instances``), compiled from ``source`` unless it is there and newer."""
+    binary = build_dir / source.stem
     if not source.exists():
         if binary.exists():
             return binary
