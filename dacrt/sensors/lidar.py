@@ -478,6 +478,6 @@ def _elevations(values) -> np.ndarray:
     bad = np.flatnonzero(~(np.abs(array) <= 90))
     if len(bad):
         raise InputError(
-            f"vertical_angles_deg[{bad[0]}] must be in [-90, 90], got {array[bad[0]]!r}"
+            f"vertical_angles_deg[{bad[0]}] must be in [-90, 90], got {array[bad[0]].item()!r}"
         )
     return array

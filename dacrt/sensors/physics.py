@@ -56,19 +56,21 @@ class Materials:
             if values.dtype.kind not in "fiu" or values.ndim > 1:
                 raise InputError(f"reflectivity must be numbers, one per mesh, got {values!r}")
             values = values.astype(np.float64)
-            bad = np.flatnonzero(~((values >= 0) & (values <= 1)))
+            bad = np.flatnonzero(~((values >= 0) & (values <= 1)).reshape(-1))
             if len(bad):
                 raise InputError(
-                    f"reflectivity must be in [0, 1], got {values.reshape(-1)[bad[0]]!r}"
+                    f"reflectivity must be in [0, 1], got {values.reshape(-1)[bad[0]].item()!r}"
                 )
             object.__setattr__(self, "reflectivity", values)
         if self.label is not None:
             values = np.asarray(self.label)
             if values.dtype.kind not in "iu" or values.ndim > 1:
                 raise InputError(f"label must be integers, one per mesh, got {values!r}")
-            bad = np.flatnonzero((values < 0) | (values > LABEL_MAX))
+            bad = np.flatnonzero(((values < 0) | (values > LABEL_MAX)).reshape(-1))
             if len(bad):
-                raise InputError(f"label must be in [0, {LABEL_MAX}], got {values[bad[0]]!r}")
+                raise InputError(
+                    f"label must be in [0, {LABEL_MAX}], got {values.reshape(-1)[bad[0]].item()!r}"
+                )
             object.__setattr__(self, "label", values.astype(np.uint32))
 
     def per_mesh(self, n_meshes: int) -> tuple[np.ndarray, np.ndarray]:
