@@ -287,16 +287,16 @@ class Lidar:
             ring = np.zeros(n, np.int16) if self.pattern.channel is None else self.pattern.channel
             time = None if self.pattern.time_s is None else self.pattern.time_s.astype(np.float32)
             return Beams(
-                pose,
-                pose[:3, 3].astype(np.float32),
-                beam_directions(pose, azimuth, elevation),
-                azimuth,
-                elevation,
-                ring,
-                azimuth.astype(np.float32),
-                elevation.astype(np.float32),
-                time,
-                None,
+                pose=pose,
+                origin=pose[:3, 3].astype(np.float32),
+                directions=beam_directions(pose, azimuth, elevation),
+                azimuth=azimuth,
+                elevation=elevation,
+                ring=ring,
+                azimuth_out=azimuth.astype(np.float32),
+                elevation_out=elevation.astype(np.float32),
+                time=time,
+                layout=None,
             )
         scan = make_scan(pose, self.elevations_deg, self.horizontal_steps, 0.0, math.inf)
         origins, directions = scan.rays()
@@ -304,16 +304,16 @@ class Lidar:
         ring = np.repeat(np.arange(scan.n_rings), scan.steps)
         step = np.tile(np.arange(scan.steps), scan.n_rings)
         return Beams(
-            pose,
-            origins[0],
-            directions,
-            azimuth[step],
-            elevation[ring],
-            ring.astype(np.int16),
-            azimuth.astype(np.float32)[step],
-            elevation.astype(np.float32)[ring],
-            None,
-            (scan.n_rings, scan.steps),
+            pose=pose,
+            origin=origins[0],
+            directions=directions,
+            azimuth=azimuth[step],
+            elevation=elevation[ring],
+            ring=ring.astype(np.int16),
+            azimuth_out=azimuth.astype(np.float32)[step],
+            elevation_out=elevation.astype(np.float32)[ring],
+            time=None,
+            layout=(scan.n_rings, scan.steps),
         )
 
     def _points(
