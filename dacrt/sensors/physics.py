@@ -167,14 +167,16 @@ def subray_directions(
     lean, around = subray_offsets(divergence_deg, samples)
     ca, sa = np.cos(azimuth)[:, None], np.sin(azimuth)[:, None]
     ce, se = np.cos(elevation)[:, None], np.sin(elevation)[:, None]
-    zero = np.zeros_like(ca)
-    axis = np.stack([ce * ca, ce * sa, se + zero], axis=-1)  # (n, 1, 3) in the sensor frame
-    u = np.stack([-sa, ca, zero], axis=-1)
-    v = np.stack([-se * ca, -se * sa, ce], axis=-1)
-    local = np.cos(lean)[None, :, None] * axis + np.sin(lean)[None, :, None] * (
-        np.cos(around)[None, :, None] * u + np.sin(around)[None, :, None] * v
-    )
-    directions = (local @ pose[:3, :3].T).astype(np.float32)
+    r0, r1, r2 = pose[:3, 0], pose[:3, 1], pose[:3, 2]
+    # the axis and its two perpendiculars, turned into the scene once a beam
+    axis = (ce * ca) * r0 + (ce * sa) * r1 + se * r2
+    u = -sa * r0 + ca * r1
+    v = (-se * ca) * r0 + (-se * sa) * r1 + ce * r2
+    weights = np.cos(lean), np.sin(lean) * np.cos(around), np.sin(lean) * np.sin(around)
+    directions = weights[0][None, :, None] * axis[:, None, :]
+    directions += weights[1][None, :, None] * u[:, None, :]
+    directions += weights[2][None, :, None] * v[:, None, :]
+    directions = directions.astype(np.float32)
     directions[:, 0] = axes
     return directions.reshape(-1, 3)
 
@@ -213,24 +215,27 @@ def group_returns(
 ) -> Returns:
     """The returns of hits (module docstring): hit i of sub-ray ``subray[i]`` of ``beam[i]`` at
     ``t[i]``; with one sub-ray every hit is a return (hits given beam by beam, nearest first)."""
+    n = len(t)
     if samples == 1:
-        order = np.arange(len(t))
-        start = np.ones(len(t), bool)
+        order = np.arange(n)
+        start = np.ones(n, bool)
     else:
-        order = np.lexsort((subray, t, beam))
+        # one integer key: the beam above the bits of t (t >= 0: its bits order as t does;
+        # adding 0 turns -0.0 into 0.0); the hits come nearly sorted, beam by beam
+        bits = (t + np.float32(0)).view(np.uint32).astype(np.uint64)
+        order = np.argsort((beam.astype(np.uint64) << np.uint64(32)) | bits, kind="stable")
         sorted_beam, sorted_t = beam[order], t[order].astype(np.float64)
-        start = np.ones(len(t), bool)
+        start = np.ones(n, bool)
         start[1:] = (sorted_beam[1:] != sorted_beam[:-1]) | (
             sorted_t[1:] - sorted_t[:-1] > resolution
         )
     group = np.cumsum(start) - 1
-    n_groups = int(group[-1]) + 1 if len(group) else 0
+    n_groups = int(group[-1]) + 1 if n else 0
     intensity = np.bincount(group, contribution[order], minlength=n_groups) / samples
     # the hit of the lowest sub-ray reports its return (the nearest of that sub-ray's hits)
-    by_subray = np.lexsort((subray[order], group))
-    first = np.ones(len(group), bool)
-    first[1:] = group[by_subray][1:] != group[by_subray][:-1]
-    hit = order[by_subray[first]]
+    code = subray[order].astype(np.int64) * max(n, 1) + np.arange(n)
+    firsts = np.minimum.reduceat(code, np.flatnonzero(start)) % n if n else np.zeros(0, np.int64)
+    hit = order[firsts]
     group_beam = beam[hit]
     beam_start = np.ones(n_groups, bool)
     beam_start[1:] = group_beam[1:] != group_beam[:-1]
