@@ -2,6 +2,7 @@
 Embree in process.
 
     python -m bench.lidar [SCENE.npz] [--model HDL-64E] [--steps 2048] [--frames 10] [--view NAME]
+    python -m bench.lidar --physics [SCENE.npz] [--threads 2] ...   the physics, in process
 
 One frame is one revolution of a 64-beam sensor at 2048 steps (131,072 rays), the sensor moved
 along the scene's view (eye toward target in ``scenes/views.json``) and turned a little every frame.
@@ -22,6 +23,16 @@ frame of each):
 
 embreex traces on one thread; the server and ``dacrt`` use every core. Every frame checks that
 /lidar's points are /closest's hits of the same rays.
+
+With ``--physics``, in process only (``--threads``, default 2), side by side the same way:
+
+  closest       ``Scene.closest`` on the lidar's rays: the trace alone
+  geometry      the rays, ``closest`` and the points as the /lidar route makes them today
+                (``dacrt.sensors.lidar.points``: no intensity)
+  scan          ``dacrt.sensors.Lidar(model).scan``: the same points with intensity and label
+  noise         scan with range and angle noise
+  all 2         return mode ``all``, two returns (``Scene.hits``)
+  dual 3, dual 7   return mode ``dual`` with beam divergence (0.2 degrees) and 3 or 7 sub-rays
 """
 
 from __future__ import annotations
@@ -43,9 +54,12 @@ sys.path.insert(0, str(REPO))
 
 import dacrt  # noqa: E402
 from bench.http_overhead import cpu_model, start_server  # noqa: E402
+from dacrt.sensors import Lidar, Materials  # noqa: E402
+from dacrt.sensors.lidar import make_scan  # noqa: E402
+from dacrt.sensors.lidar import points as route_points  # noqa: E402
+from dacrt.sensors.models import MODELS  # noqa: E402
 from oracles.embree import Embree  # noqa: E402
 from service.client import Client  # noqa: E402
-from service.lidar import MODELS  # noqa: E402
 from service.timing import parse_server_timing  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "scenes"
@@ -112,6 +126,8 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=10)
     parser.add_argument("--view", default=None, help="entry of scenes/views.json (default: stem)")
     parser.add_argument("--fields", default=None, help="?fields= of /lidar (default: all)")
+    parser.add_argument("--physics", action="store_true", help="the physics' cost, in process")
+    parser.add_argument("--threads", type=int, default=2, help="engine threads of --physics")
     args = parser.parse_args()
 
     with np.load(args.scene) as archive:
@@ -125,6 +141,9 @@ def main() -> None:
 
     dacrt.warmup()
     scene = dacrt.Scene([(vertices, faces)])
+    if args.physics:
+        physics(args, scene, poses, len(faces))
+        return
     embree = Embree([(vertices, faces)])
     embree.commit()
     process, url = start_server({"DACRT_MAX_RAYS_PER_REQUEST": str(max(n_rays, 1))})
@@ -221,6 +240,63 @@ def main() -> None:
         f"  request body: lidar {sizes['lidar'][0]} bytes, closest {sizes['closest'][0]} bytes; "
         f"answer: lidar {sizes['lidar'][1]} bytes, closest {sizes['closest'][1]} bytes"
     )
+
+
+#: The lidars of ``--physics`` beside the plain scan, by kind.
+PHYSICS = {
+    "scan": {},
+    "noise": {"noise": {"range_sigma": 0.02, "range_sigma_per_m": 0.001, "angle_sigma_deg": 0.01}},
+    "all 2": {"return_mode": "all", "max_returns": 2},
+    "dual 3": {"return_mode": "dual", "beam_divergence_deg": 0.2, "beam_samples": 3},
+    "dual 7": {"return_mode": "dual", "beam_divergence_deg": 0.2, "beam_samples": 7},
+}
+
+
+def physics(args, scene, poses, n_triangles: int) -> None:
+    """Per frame, in process: the trace, today's geometric points, and each physics option."""
+    elevations = MODELS[args.model].vertical_angles_deg
+    lidars = {
+        kind: Lidar(args.model, horizontal_steps=args.steps, **o) for kind, o in PHYSICS.items()
+    }
+    materials = Materials(0.5, 0)
+    threads = args.threads
+
+    def run(kind, pose):
+        if kind == "closest":
+            rays = lidars["scan"].shot(pose).rays
+            return scene.closest(rays.origins, rays.directions, threads=threads)
+        if kind == "geometry":
+            scan = make_scan(pose, elevations, args.steps, 0.0, np.inf)
+            origins, directions = scan.rays()
+            hits = scene.closest(origins, directions, threads=threads)
+            ray = np.flatnonzero(np.isfinite(hits.t)).astype(np.int32)
+            return route_points(scan, origins, directions, ray, hits.t[ray], hits.normal[ray])
+        return lidars[kind].scan(scene, pose, materials, threads=threads)
+
+    kinds = ["closest", "geometry", *PHYSICS]
+    seconds = {kind: [] for kind in kinds}
+    counts = {kind: [] for kind in kinds}
+    for kind in kinds:  # one untimed frame of each
+        run(kind, poses[0])
+    for frame, pose in enumerate(poses[1:]):
+        turn = frame % len(kinds)
+        for kind in kinds[turn:] + kinds[:turn]:
+            start = time.perf_counter()
+            answer = run(kind, pose)
+            seconds[kind].append(time.perf_counter() - start)
+            counts[kind].append(len(answer["range"]) if kind not in ("closest",) else 0)
+    n_rays = len(elevations) * args.steps
+    print(f"machine: {os.cpu_count()} cores, {cpu_model()}; numpy {np.__version__}")
+    print(
+        f"scene: {Path(args.scene).name} ({n_triangles} triangles); {args.model} x {args.steps} "
+        f"steps = {n_rays} beams a frame; {threads} threads; medians of {args.frames} frames"
+    )
+    plain = statistics.median(seconds["scan"])
+    for kind in kinds:
+        ms = 1000 * statistics.median(seconds[kind])
+        points = int(statistics.median(counts[kind])) if kind != "closest" else "-"
+        ratio = statistics.median(seconds[kind]) / plain
+        print(f"  {kind:<10} {ms:8.1f} ms a frame  {ratio:5.2f} x scan  points {points}")
 
 
 if __name__ == "__main__":

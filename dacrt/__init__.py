@@ -5,6 +5,7 @@ hits = scene.closest(origins, directions)
 blocked = scene.occluded(origins, directions, tmax=distances).occluded
 every = scene.hits(origins, directions, max_hits=16)      # CSR: every.offsets, every.t, ...
 crossings = scene.count(origins, directions).count
+points = dacrt.sensors.Lidar("HDL-64E", horizontal_steps=2048).scan(scene, pose)  # a lidar
 
 The first queries of a process compile the engine's kernels with Numba (minutes, once per
 machine and version; a warning says so); ``dacrt.warmup()`` compiles them all up front, and
@@ -14,6 +15,7 @@ outside the package.
 
 from importlib.metadata import PackageNotFoundError, version
 
+from . import sensors
 from .contracts import MISS, STRATEGIES, Counts, HitList, Hits, Occlusion
 from .query import CULL_MODES
 from .scene import Scene
@@ -32,6 +34,7 @@ __all__ = [
     "CULL_MODES",
     "warmup",
     "check_transform",
+    "sensors",
 ]
 
 try:

@@ -1,0 +1,113 @@
+"""Sensors traced as one batch: the rays of every sensor concatenated into one ``Scene.closest``
+call (and one ``Scene.hits`` call for sensors that see through surfaces), the answers split back
+per sensor. A sensor alone is a batch of one; a ray's answer does not depend on the other rays of
+its batch, so a sensor answers the same alone and in a rig."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .physics import Materials
+
+
+@dataclass(frozen=True)
+class Rays:
+    """One sensor's rays and how to trace them."""
+
+    origins: np.ndarray  #: (n, 3) float32
+    directions: np.ndarray  #: (n, 3) float32
+    tmin: float
+    tmax: float
+    max_hits: int | None = None  #: None: each ray's closest hit; else its first max_hits hits
+
+
+@dataclass(frozen=True)
+class Traced:
+    """One sensor's hits. For closest: one entry per ray (t inf, mesh and prim -1 on a miss) and
+    ``offsets`` None; for hits: ray i's hits are entries offsets[i]:offsets[i + 1], nearest
+    first."""
+
+    t: np.ndarray  #: float32
+    mesh: np.ndarray  #: int32
+    prim: np.ndarray  #: int32
+    normal: np.ndarray  #: (., 3) float32, unit
+    offsets: np.ndarray | None  #: (n + 1,) int64 for hits
+    stats: dict | None  #: the counters of the call that traced these rays (shared in a batch)
+
+
+@dataclass(frozen=True)
+class Shot:
+    """A sensor at a pose, ready to trace: its rays, and what makes its answer of their hits and
+    the scene's materials."""
+
+    rays: Rays
+    finish: Callable[[Traced, Any], Any]
+
+
+def capture(scene, shots: list[Shot], materials: Materials | None, **query) -> list:
+    """Every shot's answer, its rays traced in one batch (``trace``); ``materials`` (None for
+    the defaults) are those of ``scene``'s meshes."""
+    per_mesh = (materials or Materials()).per_mesh(scene.n_meshes)
+    traced = trace(scene, [shot.rays for shot in shots], **query)
+    return [shot.finish(hits, per_mesh) for shot, hits in zip(shots, traced)]
+
+
+def trace(scene, batch: list[Rays], **query) -> list[Traced]:
+    """Every sensor's hits, in ``batch`` order; ``query`` goes to ``Scene.closest`` and
+    ``Scene.hits`` (strategy, threads, cull, mask, stats)."""
+    answers: list[Traced | None] = [None] * len(batch)
+    closest = [k for k, rays in enumerate(batch) if rays.max_hits is None]
+    seeing_through = [k for k, rays in enumerate(batch) if rays.max_hits is not None]
+    if closest:
+        _trace_closest(scene, batch, closest, answers, query)
+    if seeing_through:
+        _trace_hits(scene, batch, seeing_through, answers, query)
+    return answers
+
+
+def _joined(scene_rays: list[Rays]):
+    """(origins, directions, tmin, tmax, bounds): the rays end to end, each window a scalar when
+    every sensor has the same one, else per ray; sensor k's rays are bounds[k]:bounds[k + 1]."""
+    bounds = np.cumsum([0] + [len(rays.origins) for rays in scene_rays])
+    origins = np.concatenate([rays.origins for rays in scene_rays])
+    directions = np.concatenate([rays.directions for rays in scene_rays])
+    windows = {(rays.tmin, rays.tmax) for rays in scene_rays}
+    if len(windows) == 1:
+        tmin, tmax = windows.pop()
+    else:
+        counts = np.diff(bounds)
+        tmin = np.repeat([rays.tmin for rays in scene_rays], counts).astype(np.float32)
+        tmax = np.repeat([rays.tmax for rays in scene_rays], counts).astype(np.float32)
+    return origins, directions, tmin, tmax, bounds
+
+
+def _trace_closest(scene, batch, chosen, answers, query) -> None:
+    origins, directions, tmin, tmax, bounds = _joined([batch[k] for k in chosen])
+    hits = scene.closest(origins, directions, tmin, tmax, **query)
+    for k, lo, hi in zip(chosen, bounds[:-1], bounds[1:]):
+        part = slice(lo, hi)
+        answers[k] = Traced(
+            hits.t[part], hits.mesh[part], hits.prim[part], hits.normal[part], None, hits.stats
+        )
+
+
+def _trace_hits(scene, batch, chosen, answers, query) -> None:
+    origins, directions, tmin, tmax, bounds = _joined([batch[k] for k in chosen])
+    largest = max(batch[k].max_hits for k in chosen)
+    every = scene.hits(origins, directions, tmin, tmax, max_hits=largest, **query)
+    for k, lo, hi in zip(chosen, bounds[:-1], bounds[1:]):
+        # a sensor keeps each ray's nearest max_hits of the (nearest first) list
+        counts = np.minimum(np.diff(every.offsets[lo : hi + 1]), batch[k].max_hits)
+        first = np.repeat(every.offsets[lo:hi], counts)
+        rank = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        rows = first + rank
+        offsets = np.zeros(hi - lo + 1, np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        answers[k] = Traced(
+            every.t[rows], every.mesh[rows], every.prim[rows], every.normal[rows], offsets,
+            every.stats,
+        )  # fmt: skip

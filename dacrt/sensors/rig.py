@@ -1,0 +1,47 @@
+"""Rigs: several sensors on one scene, their rays traced as one batch (``batch``); each answers
+what it answers alone."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from ..validation import InputError
+from .batch import capture
+from .cameras import Camera, CameraImage
+from .lidar import Lidar, LidarPoints
+from .physics import Materials
+
+
+class Rig:
+    """Named sensors (``Camera`` or ``Lidar``): ``Rig({"roof": lidar, "front": camera})``."""
+
+    def __init__(self, sensors: Mapping[str, Camera | Lidar]):
+        if not sensors:
+            raise InputError("sensors: name at least one sensor")
+        for name, sensor in sensors.items():
+            if not isinstance(sensor, (Camera, Lidar)):
+                raise InputError(
+                    f"sensors.{name} must be a dacrt.sensors.Camera or Lidar, got {sensor!r}"
+                )
+        self.sensors = dict(sensors)
+
+    def capture(
+        self, scene, poses: Mapping[str, object], materials: Materials | None = None, **query
+    ) -> dict[str, CameraImage | LidarPoints]:
+        """{name: answer} of every sensor at its pose in ``poses`` (4x4 sensor-to-scene), traced
+        together; ``materials`` and ``query`` as for a sensor alone."""
+        missing = [name for name in self.sensors if name not in poses]
+        unknown = [name for name in poses if name not in self.sensors]
+        if missing or unknown:
+            raise InputError(
+                f"poses must name every sensor of the rig ({', '.join(self.sensors)}): "
+                f"missing {missing}, unknown {unknown}"
+            )
+        shots = []
+        for name, sensor in self.sensors.items():
+            try:
+                shots.append(sensor.shot(poses[name]))
+            except InputError as error:
+                raise InputError(f"sensors.{name}: {error}") from None
+        answers = capture(scene, shots, materials, **query)
+        return dict(zip(self.sensors, answers))

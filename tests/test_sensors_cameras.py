@@ -1,0 +1,89 @@
+"""dacrt.sensors.Camera: its rays are bit for bit docs/sensors.md's (re-derived in
+``sensor_reference``), for intrinsics and a pose and for a look-at camera; its images are
+``Scene.closest``'s answers for those rays."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sensor_reference import look_at, pinhole_rays
+from sensor_scenes import ROOM
+
+import dacrt
+from dacrt.sensors import Camera, look_at_pose
+
+POSE = np.array([[1, 0, 0, 0], [0, 0, 1, -7], [0, -1, 0, 1], [0, 0, 0, 1]], np.float64)
+LOOK_ATS = [
+    ((8.0, -6.0, 4.0), (0.0, 0.0, 1.0), (0.0, 0.0, 1.0), 45.0, 64, 48),
+    ((-3.0, 2.5, 1.0), (3.0, 1.0, 1.0), (0.0, 0.3, 2.0), 70.0, 33, 21),
+]
+
+
+@pytest.fixture(scope="module")
+def room():
+    return dacrt.Scene(ROOM)
+
+
+def test_intrinsics_and_a_pose_make_the_documented_rays():
+    camera = Camera(64, 48, fx=50.0, fy=52.0, cx=31.5, cy=23.0, near=0.1, far=50.0)
+    rays = camera.shot(POSE).rays
+    origins, directions = pinhole_rays(50.0, 52.0, 31.5, 23.0, POSE, 64, 48)
+    np.testing.assert_array_equal(rays.directions, directions)
+    np.testing.assert_array_equal(rays.origins, origins)
+    assert (rays.tmin, rays.tmax) == (0.1, 50.0)
+
+
+@pytest.mark.parametrize("view", LOOK_ATS)
+def test_a_look_at_camera_makes_the_documented_rays(view):
+    eye, target, up, fov, width, height = view
+    rays = Camera.from_fov(width, height, fov).shot(look_at_pose(eye, target, up)).rays
+    pose, focal = look_at(eye, target, up, fov, height)
+    origins, directions = pinhole_rays(
+        focal, focal, (width - 1) / 2, (height - 1) / 2, pose, width, height
+    )
+    np.testing.assert_array_equal(rays.directions, directions)
+    np.testing.assert_array_equal(rays.origins, origins)
+
+
+@pytest.mark.parametrize("view", LOOK_ATS)
+def test_the_image_is_closests_answer(room, view):
+    eye, target, up, fov, width, height = view
+    image = Camera.from_fov(width, height, fov, near=0.5).capture(
+        room, look_at_pose(eye, target, up)
+    )
+    pose, focal = look_at(eye, target, up, fov, height)
+    origins, directions = pinhole_rays(
+        focal, focal, (width - 1) / 2, (height - 1) / 2, pose, width, height
+    )
+    hits = room.closest(origins, directions, 0.5, np.inf)
+    shape = (height, width)
+    length = np.linalg.norm(directions.astype(np.float64), axis=1)
+    np.testing.assert_array_equal(image["depth"], hits.t.reshape(shape))
+    np.testing.assert_array_equal(
+        image["range"], (hits.t * length).astype(np.float32).reshape(shape)
+    )
+    np.testing.assert_array_equal(image["mesh"], hits.mesh.reshape(shape))
+    np.testing.assert_array_equal(image["prim"], hits.prim.reshape(shape))
+    np.testing.assert_array_equal(image["normal"], hits.normal.reshape(*shape, 3))
+    assert np.isfinite(image["depth"]).mean() > 0.3
+
+
+@pytest.mark.parametrize(
+    ("make", "words"),
+    [
+        (lambda: Camera(0, 4, 1.0, 1.0, 0.0, 0.0), "width must be >= 1"),
+        (lambda: Camera(4, 4, -1.0, 1.0, 0.0, 0.0), "fx must be > 0"),
+        (lambda: Camera(4, 4, 1.0, 1.0, np.inf, 0.0), "cx must be a finite number"),
+        (lambda: Camera(4, 4, 1.0, 1.0, 0.0, 0.0, near=-1), "near must be >= 0"),
+        (lambda: Camera(4, 4, 1.0, 1.0, 0.0, 0.0, near=2, far=1), "far must be > 2"),
+        (lambda: Camera(4, 4, 1e-300, 1.0, 0.0, 0.0), "fx: 1e-300 is too small"),
+        (lambda: Camera.from_fov(4, 4, 180.0), "fov_deg must be between 0 and 180"),
+        (lambda: look_at_pose((0, 0, 0), (0, 0, 0), (0, 1, 0)), "eye and target"),
+        (lambda: look_at_pose((0, 0, 0), (0, 1, 0), (0, 2, 0)), "parallel"),
+        (lambda: Camera(4, 4, 1.0, 1.0, 0.0, 0.0).shot(np.diag([1, 1, -1, 1])), "pose[:3, :3]"),
+    ],
+)
+def test_a_bad_camera_is_refused_naming_its_key(make, words):
+    with pytest.raises(dacrt.InputError) as error:
+        make()
+    assert words in str(error.value)

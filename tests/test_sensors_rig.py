@@ -1,0 +1,59 @@
+"""dacrt.sensors.Rig: several sensors traced as one batch answer bit for bit what each answers
+alone."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sensor_reference import rigid_pose
+from sensor_scenes import POSES, ROOM
+
+import dacrt
+from dacrt.sensors import Camera, Lidar, Materials, Rig, look_at_pose
+
+SENSORS = {
+    "roof": Lidar("VLP-16", horizontal_steps=120, return_mode="dual", beam_divergence_deg=2.0,
+                  beam_samples=7, noise={"range_sigma": 0.01, "angle_sigma_deg": 0.05},
+                  dropout={"rate": 0.1, "seed": 3}),
+    "front": Camera.from_fov(40, 30, fov_deg=50, near=0.5),
+    "bumper": Lidar(vertical_angles_deg=[-5.0, 0.0, 5.0], horizontal_steps=200,
+                    return_mode="all", max_returns=3, min_range=0.3, max_range=9.0),
+    "side": Camera(32, 24, fx=30.0, fy=31.0, cx=15.0, cy=12.5, far=20.0),
+    "grid": Lidar("VLP-16", horizontal_steps=60, organized=True),
+}  # fmt: skip
+POSE_OF = {
+    "roof": POSES[0],
+    "front": look_at_pose((0.0, -6.0, 2.0), (0.0, 0.0, 1.0), (0.0, 0.0, 1.0)),
+    "bumper": POSES[1],
+    "side": rigid_pose(90, 0, (0.0, -2.0, 1.0))
+    @ np.array([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64),
+    "grid": POSES[1],
+}
+MATERIALS = Materials(reflectivity=[0.2, 0.7, 0.95], label=[4, 5, 6])
+
+
+def test_a_rig_answers_what_each_sensor_answers_alone():
+    scene = dacrt.Scene(ROOM)
+    together = Rig(SENSORS).capture(scene, POSE_OF, MATERIALS)
+    assert list(together) == list(SENSORS)
+    for name, sensor in SENSORS.items():
+        if isinstance(sensor, Lidar):
+            alone = sensor.scan(scene, POSE_OF[name], MATERIALS)
+        else:
+            alone = sensor.capture(scene, POSE_OF[name])
+        assert list(together[name]) == list(alone), name
+        for key in alone:
+            np.testing.assert_array_equal(together[name][key], alone[key], err_msg=f"{name}.{key}")
+        assert np.isfinite(alone["range"]).any(), name
+
+
+def test_poses_must_match_the_sensors():
+    rig = Rig(SENSORS)
+    with pytest.raises(dacrt.InputError, match="missing \\['side'\\]"):
+        rig.capture(dacrt.Scene(ROOM), {k: v for k, v in POSE_OF.items() if k != "side"})
+
+
+def test_a_bad_pose_names_its_sensor():
+    bad = dict(POSE_OF, front=np.zeros((4, 4)))
+    with pytest.raises(dacrt.InputError, match="sensors.front: pose"):
+        Rig(SENSORS).capture(dacrt.Scene(ROOM), bad)

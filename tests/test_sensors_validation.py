@@ -1,0 +1,85 @@
+"""Bad options of dacrt.sensors.Lidar and Materials raise dacrt.InputError naming the key as the
+HTTP body of /lidar names it (``noise.range_sigma must be >= 0``), so the service answers 422."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import dacrt
+from dacrt.sensors import Lidar, Materials
+
+BEAMS = {"model": "VLP-16"}
+
+
+@pytest.mark.parametrize(
+    ("options", "words"),
+    [
+        ({}, "give exactly one beam pattern"),
+        ({"model": "VLP-16", "vertical_angles_deg": [0.0]}, "give exactly one beam pattern"),
+        ({"model": "VLP-99"}, "model must be one of VLP-16"),
+        ({"vertical_angles_deg": []}, "vertical_angles_deg must be a list of 1 to 1024"),
+        ({"vertical_angles_deg": [0.0, 95.0]}, "vertical_angles_deg[1] must be in [-90, 90]"),
+        ({"vertical_angles_deg": [np.nan]}, "vertical_angles_deg[0] must be in [-90, 90]"),
+        ({**BEAMS, "horizontal_steps": 0}, "horizontal_steps must be >= 1"),
+        ({**BEAMS, "horizontal_steps": 2.5}, "horizontal_steps must be an integer"),
+        ({**BEAMS, "min_range": -1}, "min_range must be >= 0"),
+        ({**BEAMS, "min_range": 5, "max_range": 5}, "max_range must be > 5"),
+        ({**BEAMS, "max_returns": 65}, "max_returns must be >= 1 and <= 64"),
+        ({**BEAMS, "return_mode": "second"}, "return_mode must be one of first, last"),
+        ({**BEAMS, "beam_divergence_deg": -0.1}, "beam_divergence_deg must be >= 0"),
+        ({**BEAMS, "beam_divergence_deg": 180}, "beam_divergence_deg must be < 180"),
+        ({**BEAMS, "beam_samples": 0}, "beam_samples must be >= 1 and <= 64"),
+        ({**BEAMS, "range_resolution": np.inf}, "range_resolution must be a finite number"),
+        ({**BEAMS, "attenuation": -0.004}, "attenuation must be >= 0"),
+        ({**BEAMS, "noise": {"range_sigma": -1}}, "noise.range_sigma must be >= 0"),
+        (
+            {**BEAMS, "noise": {"range_sigma_per_m": "1"}},
+            "noise.range_sigma_per_m must be a number",
+        ),
+        ({**BEAMS, "noise": {"angle_sigma_deg": np.nan}}, "noise.angle_sigma_deg must be a finite"),
+        ({**BEAMS, "noise": {"seed": -2}}, "noise.seed must be >= 0"),
+        ({**BEAMS, "noise": {"sigma": 1}}, "noise.sigma is not an option"),
+        ({**BEAMS, "noise": 0.1}, "noise must be an object"),
+        ({**BEAMS, "dropout": {"rate": 1.5}}, "dropout.rate must be <= 1"),
+        ({**BEAMS, "dropout": {"min_intensity": -1}}, "dropout.min_intensity must be >= 0"),
+        ({**BEAMS, "dropout": {"seed": True}}, "dropout.seed must be an integer"),
+        ({**BEAMS, "non_hits": "zero"}, "non_hits must be one of drop, keep"),
+        ({**BEAMS, "organized": 1}, "organized must be true or false"),
+        ({"pattern": [0.0, 1.0]}, "pattern must be a dacrt.sensors.Pattern"),
+    ],
+)
+def test_a_bad_option_is_refused_naming_its_key(options, words):
+    with pytest.raises(dacrt.InputError) as error:
+        Lidar(**options)
+    assert words in str(error.value)
+
+
+@pytest.mark.parametrize(
+    ("materials", "words"),
+    [
+        ({"reflectivity": [0.5, 1.2]}, "reflectivity must be in [0, 1], got 1.2"),
+        ({"reflectivity": -0.1}, "reflectivity must be in [0, 1]"),
+        ({"reflectivity": ["a"]}, "reflectivity must be numbers"),
+        ({"label": [-1]}, "label must be in [0, 4294967295]"),
+        ({"label": [1.5]}, "label must be integers"),
+    ],
+)
+def test_bad_materials_are_refused_naming_the_key(materials, words):
+    with pytest.raises(dacrt.InputError) as error:
+        Materials(**materials)
+    assert words in str(error.value)
+
+
+def test_materials_must_have_one_entry_per_mesh():
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    scene = dacrt.Scene([(vertices, [[0, 1, 2]])] * 2)
+    with pytest.raises(dacrt.InputError, match="reflectivity has 3 entries for a scene of 2"):
+        Lidar("VLP-16", horizontal_steps=4).scan(scene, np.eye(4), Materials([0.1, 0.2, 0.3]))
+
+
+def test_the_default_materials_and_a_scalar_for_every_mesh():
+    assert Materials().per_mesh(2)[0].tolist() == [0.5, 0.5]
+    reflectivity, label = Materials(0.25, 9).per_mesh(3)
+    assert reflectivity.tolist() == [0.25] * 3 and label.tolist() == [9] * 3
+    assert label.dtype == np.uint32
