@@ -24,7 +24,7 @@ from .metrics import Metrics
 from .options import Options
 from .responses import BuffersResponse
 from .settings import Settings
-from .store import Snapshot, Store, check_name
+from .store import Store, check_name
 from .timing import ServerTiming
 from .tracing import TraceResult
 
@@ -88,9 +88,8 @@ async def answer(
 
 @dataclass
 class Received:
-    """A request's body, read within the budget, and what it was sent to."""
+    """A request's body, read within the budget."""
 
-    snapshot: Snapshot | None  #: the scene's version when the request arrived (None: /trace)
     body: memoryview
     fmt: str  #: the body's format (``wire.resolve_format``)
     ticket: Ticket  #: the request's share of the in-flight budget
@@ -109,7 +108,8 @@ async def receive(
     """404 for an unknown scene before the body is read, then the body (its estimated peak held
     in the budget) and its format (415 naming ``formats``); the estimate is held again for the
     format the body turned out to be in."""
-    snapshot = store.snapshot(check_name("scene", scene)) if scene is not None else None
+    if scene is not None:  # the trace step takes the scene's version current by then
+        store.snapshot(check_name("scene", scene))
     timing = ServerTiming()
     with timing("receive"):
         body = await read_body(request, settings.max_body_bytes, estimate)
@@ -119,7 +119,7 @@ async def receive(
     )
     ticket: Ticket = request.state.ticket
     await ticket.hold(estimate(len(body), fmt), f"POST {request.url.path} with a {fmt} body")
-    return Received(snapshot, body, fmt, ticket, timing)
+    return Received(body, fmt, ticket, timing)
 
 
 def encode_arrays(result: TraceResult, answer_format: str) -> Encoded:
