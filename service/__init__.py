@@ -7,7 +7,8 @@ where Numba keeps the compiled kernels (``dacrt.cache.use_cache_dir``). Its modu
   ``app`` (the ``create_app`` factory), ``settings`` (DACRT_* environment), ``logs``,
   ``warmup`` (every kernel a request reaches), ``protocol`` (uvicorn's HTTP with deadlines);
 - requests: ``routes`` (thin handlers), ``pipeline`` (the one path of a query or sensor:
-  receive, then respond), ``params`` (path and query parameters), ``deps``
+  receive, decode, trace, encode, respond), ``options`` (what a query or sensor asks: one record,
+  ``?fields=`` read once), ``params`` (path and query parameters), ``deps``
   (dependencies), ``errors`` (domain errors -> statuses), ``openapi`` (what the document says
   of bodies), ``timing`` (``Server-Timing``), ``responses`` (answers sent as buffers),
   ``metrics`` (Prometheus), ``admission`` (the budget of bytes the requests in flight hold) and

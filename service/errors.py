@@ -1,7 +1,9 @@
 """Domain errors, and the one table that maps them to HTTP statuses.
 
 The rest of the service raises these (never ``HTTPException``); ``install`` turns every error,
-including FastAPI's own, into ``{"detail": "<message a person can act on>"}``. This module
+including FastAPI's own, into ``{"detail": "<message a person can act on>"}``. The engine's
+``dacrt.InputError`` (and ``cameras.CameraError``, one of its kind) is 422 here and nowhere else,
+in the engine's words, which name the caller's key (``car.faces[1]``, ``pose``). This module
 imports nothing from FastAPI at import time, so ``wire`` and ``client`` stay light.
 """
 

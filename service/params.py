@@ -1,18 +1,20 @@
-"""The path and query parameters of the routes, declared once with their descriptions and choices.
+"""The path and query parameters of the routes, declared once with their descriptions and choices,
+and the dependencies that build a query's or sensor's one ``options.Options`` from them.
 
-Values are checked by the service itself (``store.check_name``, ``tracing.make_options``,
+Values are checked by the service itself (``store.check_name``, ``options.make_options``,
 ``wire.resolve_format``, ``wire.parse_mask``), whose 422 messages name the fix; the declarations
 here tell the OpenAPI document what those checks accept.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Annotated
 
 from fastapi import Depends, Path, Query
 
-from . import tracing, wire
+from . import options, wire
+from .deps import SettingsDep
+from .options import Options, Sensor, make_options
 from .store import NAME
 
 _NAME = {"pattern": f"^{NAME.pattern}$"}
@@ -31,14 +33,14 @@ Strategy = Annotated[
     str | None,
     Query(
         description="the engine's partitioning strategy (default: the first); answers are the same",
-        json_schema_extra={"enum": list(tracing.strategies())},
+        json_schema_extra={"enum": list(options.strategies())},
     ),
 ]
 Stats = Annotated[bool, Query(description="add the engine's counters as X-Trace-Stats")]
 Cull = Annotated[
     str,
     Query(
-        description="which faces rays ignore", json_schema_extra={"enum": list(tracing.CULL_MODES)}
+        description="which faces rays ignore", json_schema_extra={"enum": list(options.CULL_MODES)}
     ),
 ]
 Mask = Annotated[
@@ -59,7 +61,7 @@ RayMask = Annotated[
 MaxHits = Annotated[
     int | None,
     Query(
-        description=f"hits kept per ray, nearest first (default {tracing.DEFAULT_MAX_HITS}, "
+        description=f"hits kept per ray, nearest first (default {options.DEFAULT_MAX_HITS}, "
         "at most the server's DACRT_MAX_HITS); hits only",
         ge=1,
     ),
@@ -68,53 +70,95 @@ QueryKind = Annotated[
     str,
     Query(
         description="what the one-shot trace answers",
-        json_schema_extra={"enum": [q.value for q in tracing.Query]},
+        json_schema_extra={"enum": [q.value for q in options.Query]},
     ),
 ]
 
 
-@dataclass(frozen=True)
-class BatchOptions:
-    """The query-string options every query takes, for the whole batch (API.md)."""
-
-    fields: str | None
-    strategy: str | None
-    stats: bool
-    cull: str
-    mask: str | None = None
-
-    def for_query(
-        self,
-        query: tracing.Query | str,
-        threads: int | None,
-        max_hits: int | None = None,
-        max_hits_limit: int | None = None,
-    ) -> tracing.Options:
-        """The engine options of ``query``; 422 naming the choices for an unknown value."""
-        return tracing.make_options(
-            query,
-            self.fields,
-            self.strategy,
-            self.stats,
-            threads,
-            self.cull,
-            max_hits,
-            None if self.mask is None else wire.parse_mask(self.mask, "?mask"),
-            max_hits_limit,
-        )
+def _options(
+    kind: options.Query | Sensor | str,
+    settings: SettingsDep,
+    fields: str | None = None,
+    strategy: str | None = None,
+    stats: bool = False,
+    cull: str = "none",
+    mask: str | None = None,
+    max_hits: int | None = None,
+) -> Options:
+    """A request's options: the query string's values, the server's threads and DACRT_MAX_HITS."""
+    return make_options(
+        kind,
+        fields,
+        strategy,
+        stats,
+        settings.threads,
+        cull,
+        max_hits,
+        None if mask is None else wire.parse_mask(mask, "?mask"),
+        settings.max_hits,
+    )
 
 
-def batch_options(
+def options_of(kind: options.Query | Sensor):
+    """The options of a route answering ``kind`` from a batch's query parameters: ``?fields=``,
+    ``?strategy=``, ``?stats=``, ``?cull=`` and ``?mask=``."""
+
+    def batch_options(
+        settings: SettingsDep,
+        fields: Fields = None,
+        strategy: Strategy = None,
+        stats: Stats = False,
+        cull: Cull = "none",
+        mask: RayMask = None,
+    ) -> Options:
+        return _options(kind, settings, fields, strategy, stats, cull, mask)
+
+    return Annotated[Options, Depends(batch_options)]
+
+
+def hits_options(
+    settings: SettingsDep,
     fields: Fields = None,
     strategy: Strategy = None,
     stats: Stats = False,
     cull: Cull = "none",
     mask: RayMask = None,
-) -> BatchOptions:
-    return BatchOptions(fields, strategy, stats, cull, mask)
+    max_hits: MaxHits = None,
+) -> Options:
+    """A hits query's options: a batch's, and ``?max_hits=``."""
+    return _options(options.Query.HITS, settings, fields, strategy, stats, cull, mask, max_hits)
 
 
-BatchOptionsDep = Annotated[BatchOptions, Depends(batch_options)]
+def trace_options(
+    settings: SettingsDep,
+    fields: Fields = None,
+    strategy: Strategy = None,
+    stats: Stats = False,
+    cull: Cull = "none",
+    mask: RayMask = None,
+    query: QueryKind = "closest",
+    max_hits: MaxHits = None,
+) -> Options:
+    """A one-shot trace's options: a batch's, the ``?query=`` and its ``?max_hits=``."""
+    return _options(query, settings, fields, strategy, stats, cull, mask, max_hits)
+
+
+def render_options(
+    settings: SettingsDep, strategy: Strategy = None, stats: Stats = False, cull: Cull = "none"
+) -> Options:
+    """A picture's options: ``?strategy=``, ``?stats=`` and ``?cull=`` (a PNG has no fields)."""
+    return _options(Sensor.RENDER, settings, None, strategy, stats, cull)
+
+
+#: The one options record of each query and sensor route, built before its body is read.
+ClosestOptions = options_of(options.Query.CLOSEST)
+OccludedOptions = options_of(options.Query.OCCLUDED)
+CountOptions = options_of(options.Query.COUNT)
+HitsOptions = Annotated[Options, Depends(hits_options)]
+TraceOptions = Annotated[Options, Depends(trace_options)]
+RenderOptions = Annotated[Options, Depends(render_options)]
+CameraOptions = options_of(Sensor.CAMERA)
+LidarOptions = options_of(Sensor.LIDAR)
 
 
 def body_format(formats: tuple[str, ...]):

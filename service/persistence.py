@@ -45,6 +45,8 @@ from typing import Any
 
 import numpy as np
 
+from dacrt import InputError
+
 try:
     from isal.isal_zlib import crc32
 except ImportError:  # pragma: no cover - isal is a dependency; zlib gives the same checksums
@@ -424,8 +426,8 @@ class DataDir:
                 meshes[name] = placed(mesh)
         except (KeyError, TypeError) as exc:
             raise CorruptScene(f"{path.name} lacks {exc}") from None
-        except Invalid as exc:
-            raise CorruptScene(f"{path.name}: {exc.detail}") from None
+        except (Invalid, InputError) as exc:  # a value the service or the engine refuses
+            raise CorruptScene(f"{path.name}: {exc}") from None
         meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))
         return Snapshot(folder.name, version, MappingProxyType(meshes), next_index), files
 

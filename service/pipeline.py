@@ -1,33 +1,95 @@
-"""The one path of a query or a sensor: ``receive`` (404, the body within the in-flight budget,
-its format), the route's work off the event loop, then ``respond`` (metrics and headers).
+"""The one path of a query or a sensor, ``answer``: its options come built (``params``), then
+``receive`` (404, the body within the in-flight budget, its format), the route's ``Steps`` off the
+event loop (decode, then trace and encode, the budget held for their peak in between), then
+``respond`` (metrics and headers).
 
-    route -> receive -> wire decode -> engine (tracing, sensing) -> wire encode -> respond
+    route (options: params) -> receive -> decode (wire, sensor_requests)
+        -> trace (tracing, sensing) -> encode (wire, shading) -> respond
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from anyio.to_thread import run_sync
 from fastapi import Request
 
 from . import wire
 from .admission import Ticket
 from .deps import Estimate, read_body
 from .metrics import Metrics
+from .options import Options
 from .responses import BuffersResponse
 from .settings import Settings
-from .store import Snapshot, Store, check_name
+from .store import Store, check_name
 from .timing import ServerTiming
+from .tracing import TraceResult
+
+#: An answer's body: buffers to send in order, its length (None: unknown), its Content-Type.
+Encoded = tuple[Iterable[wire.Buffer], int | None, str]
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """A body decoded: what the route's trace step takes, and what tracing it will hold."""
+
+    value: Any  #: rays, a mesh and rays, a camera or a scan
+    n_rays: int
+    peak: int  #: bytes the request holds at its peak from here on (body, work and answer)
+    answer_format: str  #: npz, npy or json (``wire.negotiate``), or png
+
+
+@dataclass(frozen=True)
+class Steps:
+    """What a query or sensor route does between receiving its body and answering."""
+
+    formats: tuple[str, ...]  #: the body formats it reads (415 names them)
+    estimate: Estimate  #: peak bytes of a body of n bytes in a format, before it is decoded
+    decode: Callable[[memoryview, str], Decoded]  #: the body, in its format
+    trace: Callable[[Any], TraceResult]  #: the engine's answer to ``Decoded.value``
+    encode: Callable[[TraceResult, str], Encoded]  #: the answer in ``Decoded.answer_format``
+
+
+async def answer(
+    request: Request,
+    settings: Settings,
+    store: Store | None,
+    metrics: Metrics,
+    options: Options,
+    scene: str | None,
+    format: str | None,
+    steps: Steps,
+) -> BuffersResponse:
+    """Receive the body sent to ``scene`` of ``store`` (None: a one-shot /trace), decode it,
+    hold the in-flight budget for its peak, trace and encode it, and answer; the steps run off
+    the event loop."""
+    got = await receive(request, settings, store, scene, format, steps.formats, steps.estimate)
+
+    def decode() -> Decoded:
+        with got.timing("decode"):
+            return steps.decode(got.body, got.fmt)
+
+    decoded = await run_sync(decode)
+    what = f"{request.method} {request.url.path} of {decoded.n_rays} rays"
+    await got.ticket.hold(decoded.peak, what)
+
+    def work() -> tuple[TraceResult, Encoded]:
+        with got.timing("trace"):
+            result = steps.trace(decoded.value)
+        with got.timing("encode"):
+            return result, steps.encode(result, decoded.answer_format)
+
+    result, encoded = await run_sync(work)
+    return respond(metrics, options.kind.value, result, encoded, got.timing)
 
 
 @dataclass
 class Received:
-    """A request's body, read within the budget, and what it was sent to."""
+    """A request's body, read within the budget."""
 
-    snapshot: Snapshot | None  #: the scene's version when the request arrived (None: /trace)
     body: memoryview
     fmt: str  #: the body's format (``wire.resolve_format``)
     ticket: Ticket  #: the request's share of the in-flight budget
@@ -46,7 +108,8 @@ async def receive(
     """404 for an unknown scene before the body is read, then the body (its estimated peak held
     in the budget) and its format (415 naming ``formats``); the estimate is held again for the
     format the body turned out to be in."""
-    snapshot = store.snapshot(check_name("scene", scene)) if scene is not None else None
+    if scene is not None:  # the trace step takes the scene's version current by then
+        store.snapshot(check_name("scene", scene))
     timing = ServerTiming()
     with timing("receive"):
         body = await read_body(request, settings.max_body_bytes, estimate)
@@ -56,21 +119,21 @@ async def receive(
     )
     ticket: Ticket = request.state.ticket
     await ticket.hold(estimate(len(body), fmt), f"POST {request.url.path} with a {fmt} body")
-    return Received(snapshot, body, fmt, ticket, timing)
+    return Received(body, fmt, ticket, timing)
+
+
+def encode_arrays(result: TraceResult, answer_format: str) -> Encoded:
+    """An answer's arrays as an npz, npy or JSON body (``wire.encode_answer``)."""
+    return wire.encode_answer(result.arrays, answer_format)
 
 
 def respond(
-    metrics: Metrics,
-    kind: str,
-    result: Any,
-    n_rays: int,
-    encoded: tuple[Iterable[wire.Buffer], int | None, str],
-    timing: ServerTiming,
+    metrics: Metrics, kind: str, result: TraceResult, encoded: Encoded, timing: ServerTiming
 ) -> BuffersResponse:
     """The answer of a query or sensor ``kind``: counted in the metrics, with X-Scene-Version,
     Server-Timing (with the cluster's time when it traced), X-Trace-Stats and the result's own
     headers."""
-    metrics.traced(kind, n_rays, result.seconds)
+    metrics.traced(kind, result.n_rays, result.seconds)
     if result.where != "process":  # e.g. cluster;dur=...: traced on the dask cluster
         timing.seconds[result.where] = result.seconds
     headers = {

@@ -8,101 +8,25 @@ engine scene, built once per scene version, and the same stable mesh indices as 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from . import shading, tracing
 from .cameras import Pinhole
-from .errors import Invalid
 from .lidar import Scan, points
+from .options import Options, Query
 from .store import Snapshot
-from .tracing import Query
+from .tracing import TraceResult
 from .wire import Rays
 
-#: The arrays of a ``/camera`` answer, each (height, width) (normal: (height, width, 3)).
-CAMERA_FIELDS = ("depth", "range", "mesh", "prim", "normal")
-#: The arrays of a ``/lidar`` answer, one row per point.
-LIDAR_FIELDS = (
-    "xyz",
-    "range",
-    "ring",
-    "azimuth",
-    "elevation",
-    "mesh",
-    "prim",
-    "return",
-    "cos_incidence",
-    "ray",
-)
-#: What the sensors ask of ``closest``.
-_HIT_FIELDS = "t,mesh,prim,normal"
+
+def _closest(snapshot: Snapshot, origins, directions, tmin, tmax, options: Options) -> TraceResult:
+    rays = Rays(origins, directions, tmin, tmax)
+    return tracing.trace(snapshot, rays, options.traced_as(Query.CLOSEST))
 
 
-@dataclass(frozen=True)
-class SensorOptions:
-    """The query-string options of a sensor request."""
-
-    fields: tuple[str, ...]  #: the answer arrays to send, in answer order
-    strategy: str | None = None
-    stats: bool = False
-    threads: int | None = None
-    cull: str = "none"
-
-    def closest(self) -> tracing.Options:
-        return tracing.make_options(
-            Query.CLOSEST, _HIT_FIELDS, self.strategy, self.stats, self.threads, self.cull
-        )
-
-    def hits(self, max_hits: int) -> tracing.Options:
-        return tracing.make_options(
-            Query.HITS,
-            _HIT_FIELDS,
-            self.strategy,
-            self.stats,
-            self.threads,
-            self.cull,
-            max_hits=max_hits,
-        )
-
-
-def pick_fields(fields: str | None, known: tuple[str, ...], what: str) -> tuple[str, ...]:
-    """``?fields=`` as a tuple in ``known``'s order (all of them if None); 422 naming the choices
-    for an unknown or empty list."""
-    if fields is None:
-        return known
-    names = [name.strip() for name in fields.split(",") if name.strip()]
-    unknown = [name for name in names if name not in known]
-    if unknown or not names:
-        named = "unknown fields " + ", ".join(map(repr, unknown)) if unknown else "no field"
-        raise Invalid(f"?fields={fields} names {named} for {what}; choose from {', '.join(known)}")
-    return tuple(name for name in known if name in names)
-
-
-@dataclass(frozen=True)
-class SensorResult:
-    """An answer's arrays (or picture), the scene version it was traced on, and what it cost."""
-
-    arrays: dict[str, np.ndarray]
-    version: int
-    stats: dict[str, Any] | None
-    seconds: float  #: engine build (if not cached) + trace + the answer's arithmetic
-    n_rays: int
-    headers: dict[str, str]
-    where: str = "process"  #: sensors trace in process
-
-
-def _closest(
-    snapshot: Snapshot, origins, directions, tmin, tmax, options: SensorOptions
-) -> tracing.TraceResult:
-    return tracing.trace(snapshot, Rays(origins, directions, tmin, tmax), options.closest())
-
-
-def render(
-    snapshot: Snapshot, camera: Pinhole, style: str, options: SensorOptions
-) -> tuple[np.ndarray, SensorResult]:
-    """The pixels of ``camera``'s view in ``style`` (``shading``), and what they cost."""
+def render(snapshot: Snapshot, camera: Pinhole, style: str, options: Options) -> TraceResult:
+    """The pixels of ``camera``'s view in ``style`` (``shading``), as the answer's ``pixels``."""
     start = time.perf_counter()
     origins, directions = camera.rays()
     result = _closest(snapshot, origins, directions, None, None, options)
@@ -123,12 +47,14 @@ def render(
             directions.reshape(*shape, 3),
         )
     seconds = time.perf_counter() - start
-    return pixels, SensorResult({}, result.version, result.stats, seconds, len(origins), headers)
+    return TraceResult(
+        {"pixels": pixels}, result.version, result.stats, seconds, len(origins), headers=headers
+    )
 
 
 def depth_camera(
-    snapshot: Snapshot, camera: Pinhole, near: float, far: float, options: SensorOptions
-) -> SensorResult:
+    snapshot: Snapshot, camera: Pinhole, near: float, far: float, options: Options
+) -> TraceResult:
     """``camera``'s depth image: ``depth`` (t of rays whose component along the optical axis is
     1), ``range`` (t |d|), ``mesh``, ``prim`` (-1 on a miss) and ``normal`` (0 on a miss), each of
     shape (height, width[, 3]), for ``near <= depth <= far``."""
@@ -137,24 +63,23 @@ def depth_camera(
     result = _closest(snapshot, origins, directions, near, far, options)
     shape = (camera.height, camera.width)
     t = result.arrays["t"]
-    arrays = {}
-    for name in options.fields:
+
+    def per_pixel(name: str) -> np.ndarray:
         if name == "depth":
-            arrays[name] = t.reshape(shape)
-        elif name == "range":
+            return t.reshape(shape)
+        if name == "range":
             length = np.linalg.norm(directions.astype(np.float64), axis=1)
-            arrays[name] = (t * length).astype(np.float32).reshape(shape)
-        elif name == "normal":
-            arrays[name] = result.arrays["normal"].reshape(*shape, 3)
-        else:
-            arrays[name] = result.arrays[name].reshape(shape)
+            return (t * length).astype(np.float32).reshape(shape)
+        if name == "normal":
+            return result.arrays["normal"].reshape(*shape, 3)
+        return result.arrays[name].reshape(shape)
+
+    arrays = options.pick(per_pixel)
     seconds = time.perf_counter() - start
-    return SensorResult(arrays, result.version, result.stats, seconds, len(origins), {})
+    return TraceResult(arrays, result.version, result.stats, seconds, len(origins))
 
 
-def lidar_scan(
-    snapshot: Snapshot, scan: Scan, max_returns: int, options: SensorOptions
-) -> SensorResult:
+def lidar_scan(snapshot: Snapshot, scan: Scan, max_returns: int, options: Options) -> TraceResult:
     """The points of one revolution: the first ``max_returns`` hits of each ray in
     ``[min_range, max_range]``, in ray order, nearest first. One return is ``closest``'s hit; more
     are ``Scene.hits``' list, which counts a crossing of an edge shared by two triangles once."""
@@ -175,16 +100,14 @@ def lidar_scan(
         version = snapshot.version
     per_point = points(scan, origins, directions, ray, hits["t"], hits["normal"])
     per_point.update({"mesh": hits["mesh"], "prim": hits["prim"], "return": returns, "ray": ray})
-    arrays = {name: per_point[name] for name in options.fields}
+    arrays = options.pick(per_point.__getitem__)
     seconds = time.perf_counter() - start
-    return SensorResult(arrays, version, stats, seconds, len(origins), {})
+    return TraceResult(arrays, version, stats, seconds, len(origins))
 
 
-def _hit_list(snapshot, origins, directions, scan: Scan, max_hits: int, options: SensorOptions):
+def _hit_list(snapshot, origins, directions, scan: Scan, max_hits: int, options: Options):
     """Every hit of the scan's rays within its range window, at most ``max_hits`` a ray, as the
     ``/hits`` query answers it: (arrays offsets, t, mesh, prim, normal; stats or None)."""
-    hits = options.hits(max_hits)
-    result = tracing.trace(
-        snapshot, Rays(origins, directions, scan.min_range, scan.max_range), hits
-    )
+    rays = Rays(origins, directions, scan.min_range, scan.max_range)
+    result = tracing.trace(snapshot, rays, options.traced_as(Query.HITS, max_hits))
     return result.arrays, result.stats

@@ -17,7 +17,7 @@ import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from . import wire
-from .cameras import CameraError, Pinhole, check_pose, look_at
+from .cameras import Pinhole, check_pose, look_at
 from .errors import BadBody, Invalid
 from .lidar import MODELS, Scan, make_scan
 from .shading import SHADINGS
@@ -69,11 +69,9 @@ class LookAtCamera(Body):
     fov_deg: FieldOfView = 60.0
 
     def pinhole(self) -> Pinhole:
-        """The camera as a pinhole (422 for eye == target, or up zero or parallel to the view)."""
-        try:
-            return look_at(self.eye, self.target, self.up, self.fov_deg, self.width, self.height)
-        except CameraError as exc:
-            raise Invalid(str(exc)) from None
+        """The camera as a pinhole; CameraError (422) for eye == target, or up zero or parallel to
+        the view."""
+        return look_at(self.eye, self.target, self.up, self.fov_deg, self.width, self.height)
 
 
 class RenderRequest(LookAtCamera):
@@ -139,10 +137,7 @@ class CameraRequest(Body):
                 up=self.up,
                 fov_deg=self.fov_deg,
             ).pinhole()
-        try:
-            pose = check_pose(self.pose)
-        except CameraError as exc:
-            raise Invalid(str(exc)) from None
+        pose = check_pose(self.pose)  # CameraError (422) naming the pose's fault
         return Pinhole(self.width, self.height, self.fx, self.fy, self.cx, self.cy, pose)
 
     @property
@@ -213,17 +208,14 @@ class LidarRequest(Body):
         return len(self.elevations_deg) * self.horizontal_steps
 
     def scan(self) -> Scan:
-        """The revolution to trace (422 for a pose that is not rigid)."""
-        try:
-            return make_scan(
-                self.pose,
-                self.elevations_deg,
-                self.horizontal_steps,
-                self.min_range,
-                math.inf if self.max_range is None else self.max_range,
-            )
-        except CameraError as exc:
-            raise Invalid(str(exc)) from None
+        """The revolution to trace; CameraError (422) for a pose that is not rigid."""
+        return make_scan(
+            self.pose,
+            self.elevations_deg,
+            self.horizontal_steps,
+            self.min_range,
+            math.inf if self.max_range is None else self.max_range,
+        )
 
 
 Model = TypeVar("Model", bound=Body)

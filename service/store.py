@@ -31,7 +31,6 @@ from dacrt.validation import place_vertices
 from .errors import Conflict, Invalid, NotFound, TooLarge
 from .footprint import TRIANGLE_BYTES
 from .wire import FrameChange, MeshArrays, json_ready
-from .wire.arrays import engine_errors
 
 if TYPE_CHECKING:
     from .persistence import DataDir
@@ -110,14 +109,14 @@ class Geometry:
         return np.array([[box[i >> a & 1][a] for i in range(8)] for a in range(3)], np.float64)
 
     def check_placeable(self, transform: np.ndarray, name: str) -> None:
-        """422 unless ``transform`` keeps every vertex within the float32 range."""
+        """The engine's InputError naming the mesh (422 through ``errors``' table) unless
+        ``transform`` keeps every vertex within the float32 range."""
         if not len(self.vertices):
             return
         corners = transform[:3, :3] @ self._corners + transform[:3, 3:]
         if np.abs(corners).max() <= np.finfo(np.float32).max:
             return  # every placed vertex lies in the placed box of these corners
-        with engine_errors():
-            place_vertices(self.vertices, transform, name)
+        place_vertices(self.vertices, transform, name)
 
     def placed_bounds(self, transform: np.ndarray | None) -> np.ndarray:
         """(2, 3) float32 bounds in scene space of the referenced vertices placed by

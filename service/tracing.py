@@ -1,9 +1,9 @@
-"""Queries: what can be asked of a scene, and how the dacrt engine answers it.
+"""Queries: how the dacrt engine answers what a request asks (``options``) of a scene.
 
 The only module that runs the engine's queries. It builds one ``dacrt.Scene`` per scene version
-(cached in the snapshot), maps the engine's mesh positions to the meshes' stable indices, and
-lets the engine's ``InputError`` (bad rays, named by the engine) through: ``errors`` maps it to
-422.
+(cached in the snapshot), maps the engine's mesh positions to the meshes' stable indices, picks the
+answer's keys (``Options.pick``) and lets the engine's ``InputError`` (bad rays, named by the
+engine) through: ``errors`` maps it to 422.
 """
 
 from __future__ import annotations
@@ -11,137 +11,22 @@ from __future__ import annotations
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from enum import Enum
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 import dacrt
-from dacrt.validation import check_cull, check_strategy
 
-from . import footprint
 from .errors import Invalid
+
+# CULL_MODES, make_options and strategies: service.warmup reads them here
+from .options import CULL_MODES, Options, Query, make_options, strategies  # noqa: F401
 from .store import Snapshot
-from .wire import ANSWER_FORMATS, MeshArrays, Rays
+from .wire import MeshArrays, Rays
 
 if TYPE_CHECKING:
     from .cluster import Cluster
-
-
-class Query(str, Enum):  # noqa: UP042 - StrEnum would change str() and format() of members
-    """Kinds of query."""
-
-    CLOSEST = "closest"
-    OCCLUDED = "occluded"
-    HITS = "hits"
-    COUNT = "count"
-
-
-#: The answer keys of each query, in answer order; ``?fields=`` picks a subset.
-FIELDS: dict[Query, tuple[str, ...]] = {
-    Query.CLOSEST: ("t", "mesh", "prim", "u", "v", "normal"),
-    Query.OCCLUDED: ("occluded",),
-    Query.HITS: ("offsets", "t", "mesh", "prim", "u", "v", "normal", "truncated"),
-    Query.COUNT: ("count",),
-}
-#: The keys of a hits answer with one value per hit: they come with ``offsets`` (CSR), listed in
-#: ``?fields=`` or not.
-PER_HIT_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")
-#: ``max_hits`` of a hits query that does not give it (API.md).
-DEFAULT_MAX_HITS = 16
-
-
-def strategies() -> tuple[str, ...]:
-    """The engine's partitioning strategies; the first is the default."""
-    return tuple(dacrt.STRATEGIES)
-
-
-#: Face culling modes: the engine's (none, back, front).
-CULL_MODES = tuple(dacrt.CULL_MODES)
-
-
-@dataclass(frozen=True)
-class Options:
-    """Options of one query, for the whole batch."""
-
-    query: Query
-    fields: tuple[str, ...]
-    strategy: str
-    stats: bool = False
-    threads: int | None = None
-    cull: str = "none"
-    max_hits: int | None = None  #: hits kept per ray (hits only)
-    mask: int | None = None  #: ``?mask=``: one mask for every ray of the batch
-
-    def hit_buffer_bytes(self, n_rays: int) -> int:
-        """Bytes of the engine's hit buffers for ``n_rays`` rays (0 but for hits)."""
-        if self.query is not Query.HITS:
-            return 0
-        return n_rays * (self.max_hits + 1) * footprint.HIT_SLOT_BYTES
-
-    @property
-    def answer_formats(self) -> tuple[str, ...]:
-        """The formats the answer can be written in: npy needs one row per ray in every array
-        (a hits answer with ``offsets`` or a per-hit key is CSR: npz and JSON only)."""
-        if self.query is Query.HITS and set(self.fields) & {"offsets", *PER_HIT_FIELDS}:
-            return tuple(fmt for fmt in ANSWER_FORMATS if fmt != "npy")
-        return ANSWER_FORMATS
-
-
-def make_options(
-    query: Query | str,
-    fields: str | None = None,
-    strategy: str | None = None,
-    stats: bool = False,
-    threads: int | None = None,
-    cull: str = "none",
-    max_hits: int | None = None,
-    mask: int | None = None,
-    max_hits_limit: int | None = None,
-) -> Options:
-    """Options from query-string values; 422 naming the choices for an unknown value (the
-    engine's checks for strategy and cull).
-
-    ``max_hits`` (hits only; default DEFAULT_MAX_HITS) must lie in [1, ``max_hits_limit``]."""
-    try:
-        query = Query(query)
-    except ValueError:
-        raise Invalid(
-            f"unknown query {query!r}; choose from {', '.join(q.value for q in Query)}"
-        ) from None
-    known = FIELDS[query]
-    chosen = known
-    if fields is not None:
-        names = [name.strip() for name in fields.split(",") if name.strip()]
-        unknown = [name for name in names if name not in known]
-        if unknown or not names:
-            raise Invalid(
-                f"?fields={fields} names "
-                f"{'unknown fields ' + ', '.join(map(repr, unknown)) if unknown else 'no field'} "
-                f"for {query.value}; choose from {', '.join(known)}"
-            )
-        chosen = tuple(name for name in known if name in names)
-        if query is Query.HITS and set(chosen) & set(PER_HIT_FIELDS):
-            chosen = ("offsets", *(name for name in chosen if name != "offsets"))
-    if query is Query.HITS:
-        max_hits = DEFAULT_MAX_HITS if max_hits is None else max_hits
-        max_hits = check_max_hits(max_hits, max_hits_limit)
-    elif max_hits is not None:
-        raise Invalid(f"max_hits applies to the hits query only, not to {query.value}")
-    # the engine's own checks, before the body is read: its InputError is 422 (errors.STATUS)
-    strategy = strategies()[0] if strategy is None else check_strategy(strategy)
-    cull = check_cull(cull)
-    return Options(query, chosen, strategy, stats, threads, cull, max_hits, mask)
-
-
-def check_max_hits(max_hits: int, limit: int | None) -> int:
-    """422 unless ``max_hits`` is an integer in [1, limit] (limit: DACRT_MAX_HITS)."""
-    within = f"1 to {limit} (DACRT_MAX_HITS)" if limit is not None else "at least 1"
-    if isinstance(max_hits, bool) or not isinstance(max_hits, int):
-        raise Invalid(f"max_hits must be an integer from {within}, got {max_hits!r}")
-    if max_hits < 1 or (limit is not None and max_hits > limit):
-        raise Invalid(f"max_hits must be an integer from {within}, got {max_hits}")
-    return max_hits
 
 
 @dataclass(frozen=True)
@@ -188,14 +73,16 @@ def _snapshot_engine(snapshot: Snapshot, scene_type: Any = dacrt.Scene) -> Engin
 
 @dataclass(frozen=True)
 class TraceResult:
-    """The arrays of an answer, the scene version it was computed on, and what it cost."""
+    """The arrays of an answer (a query's or a sensor's), the scene version it was traced on,
+    and what it cost."""
 
     arrays: dict[str, np.ndarray]
     version: int
     stats: dict[str, Any] | None
-    seconds: float  #: engine build (if not cached) + trace
+    seconds: float  #: engine build (if not cached) + trace (+ a sensor's arithmetic)
+    n_rays: int  #: rays traced
     where: str = "process"  #: where it was traced: "process", or "cluster" (``service.cluster``)
-    headers: dict[str, str] = field(default_factory=dict)  #: none: a sensor's answer has some
+    headers: dict[str, str] = field(default_factory=dict)  #: a sensor's own (X-Depth-Range)
 
 
 def trace(
@@ -252,18 +139,19 @@ def _run(
         "threads": options.threads if where == "process" else None,
         "stats": options.stats,
     }
-    if options.query is Query.HITS:
+    if options.kind is Query.HITS:
         kwargs["max_hits"] = options.max_hits
-    query = getattr(engine.scene, options.query.value)
-    # a bad ray is the engine's InputError, naming the first and how many: 422 (errors.STATUS)
+    query = getattr(engine.scene, Query(options.kind).value)
+    # a bad ray is the engine's InputError, naming the first and how many: 422 (errors.install)
     answer = query(rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs)
     stats = answer.stats
-    arrays = {name: getattr(answer, name) for name in options.fields}
+    arrays = options.pick(partial(getattr, answer))
     if "mesh" in arrays:
         arrays["mesh"] = engine.map_mesh(arrays["mesh"])
     if stats is not None:
         stats = {**stats, "strategy": options.strategy, "where": where}
-    return TraceResult(arrays, version, stats, time.perf_counter() - start, where)
+    seconds = time.perf_counter() - start
+    return TraceResult(arrays, version, stats, seconds, len(rays), where)
 
 
 def warmup() -> float:

@@ -19,7 +19,7 @@ from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from dacrt.chunks import N_CORES
 
-from .. import __version__, openapi, tracing, wire
+from .. import __version__, openapi, options, wire
 from ..cluster import Cluster
 from ..deps import (
     MetricsDep,
@@ -176,11 +176,11 @@ async def capabilities(settings: SettingsDep, cluster: ClusterDep) -> dict:
 
     return {
         "api": "v1",
-        "queries": [q.value for q in tracing.Query] + ["trace"],
-        "fields": {q.value: list(names) for q, names in tracing.FIELDS.items()},
-        "strategies": list(tracing.strategies()),
-        "default_strategy": tracing.strategies()[0],
-        "cull": list(tracing.CULL_MODES),
+        "queries": [q.value for q in options.Query] + ["trace"],
+        "fields": {q.value: list(names) for q, names in options.FIELDS.items()},
+        "strategies": list(options.strategies()),
+        "default_strategy": options.strategies()[0],
+        "cull": list(options.CULL_MODES),
         "formats": {
             "rays": media(wire.RAY_FORMATS),
             "meshes": media(wire.MESH_FORMATS),

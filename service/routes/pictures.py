@@ -3,24 +3,18 @@ lidar (``/lidar``), each a JSON body of a few numbers whose rays the server make
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
-from anyio import from_thread
-from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 
 from .. import footprint, openapi, sensing, shading, wire
 from ..deps import MetricsDep, SettingsDep, StoreDep, reject_unknown_query, require_token
 from ..errors import TooLarge
-from ..metrics import Metrics
-from ..params import BatchOptionsDep, Cull, SceneName, Stats, Strategy, body_format
-from ..pipeline import receive, respond
+from ..params import CameraOptions, LidarOptions, RenderOptions, SceneName, body_format
+from ..pipeline import Decoded, Steps, answer, encode_arrays
 from ..responses import BuffersResponse
 from ..sensor_requests import CameraRequest, LidarRequest, RenderRequest, parse
 from ..settings import Settings
-from ..store import Store
-from ..timing import ServerTiming
+from ..tracing import TraceResult
 
 router = APIRouter(
     prefix="/v1",
@@ -28,7 +22,8 @@ router = APIRouter(
     dependencies=[Depends(require_token), Depends(reject_unknown_query)],
 )
 
-JsonFormat = body_format(("json",))
+JSON_ONLY = ("json",)
+JsonFormat = body_format(JSON_ONLY)
 PNG = "image/png"
 SENSOR_ERRORS = openapi.errors(400, 401, 404, 406, 408, 413, 415, 422)
 
@@ -63,30 +58,29 @@ async def render(
     settings: SettingsDep,
     store: StoreDep,
     metrics: MetricsDep,
-    strategy: Strategy = None,
-    stats: Stats = False,
-    cull: Cull = "none",
+    options: RenderOptions,
     format: JsonFormat = None,
 ) -> Response:
     """A picture of the scene, traced by the engine: pixel (0, 0) is the top-left, ``fov_deg`` the
     vertical field of view (docs/sensors.md)."""
     wire.check_accepts(request.headers.get("accept"), PNG)
-    options = sensing.SensorOptions((), strategy, stats, settings.threads, cull)
-    options.closest()  # 422 for an unknown strategy or cull before the body is read
 
-    def work(body: memoryview, timing: ServerTiming, admit: Callable):
-        with timing("decode"):
-            wanted = parse(RenderRequest, body, "render")
-            check_pixels(wanted.width, wanted.height, settings)
-            admit(wanted.width * wanted.height, "png")
-            pinhole = wanted.pinhole()
-        with timing("trace"):
-            pixels, result = sensing.render(store.snapshot(scene), pinhole, wanted.shading, options)
-        with timing("encode"):
-            picture = shading.png(pixels)
-        return result, [picture], len(picture), PNG
+    def decode(body: memoryview, fmt: str) -> Decoded:
+        wanted = parse(RenderRequest, body, "render")
+        check_pixels(wanted.width, wanted.height, settings)
+        pixels = wanted.width * wanted.height
+        return sensor_decoded((wanted.pinhole(), wanted.shading), body, pixels, "png")
 
-    return await answer(request, settings, store, metrics, scene, format, "render", work)
+    def trace(value) -> TraceResult:
+        pinhole, style = value
+        return sensing.render(store.snapshot(scene), pinhole, style, options)
+
+    def encode(result: TraceResult, answer_format: str):
+        picture = shading.png(result.arrays["pixels"])
+        return [picture], len(picture), PNG
+
+    steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode)
+    return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
 @router.post(
@@ -106,32 +100,25 @@ async def camera(
     settings: SettingsDep,
     store: StoreDep,
     metrics: MetricsDep,
-    batch: BatchOptionsDep,
+    options: CameraOptions,
     format: JsonFormat = None,
 ) -> BuffersResponse:
     """A depth camera: per pixel, the depth along the optical axis (inf on a miss), the range
     along the ray, the mesh, the triangle and its normal (docs/sensors.md)."""
-    fields = sensing.pick_fields(batch.fields, sensing.CAMERA_FIELDS, "camera")
-    options = sensing.SensorOptions(
-        fields, batch.strategy, batch.stats, settings.threads, batch.cull
-    )
-    options.closest()  # 422 for an unknown strategy or cull before the body is read
     answer_format = wire.negotiate(request.headers.get("accept"), "json")
 
-    def work(body: memoryview, timing: ServerTiming, admit: Callable):
-        with timing("decode"):
-            wanted = parse(CameraRequest, body, "camera")
-            check_pixels(wanted.width, wanted.height, settings)
-            admit(wanted.width * wanted.height, answer_format)
-            pinhole = wanted.pinhole()
-        with timing("trace"):
-            result = sensing.depth_camera(
-                store.snapshot(scene), pinhole, wanted.near, wanted.max_depth, options
-            )
-        with timing("encode"):
-            return (result, *wire.encode_answer(result.arrays, answer_format))
+    def decode(body: memoryview, fmt: str) -> Decoded:
+        wanted = parse(CameraRequest, body, "camera")
+        check_pixels(wanted.width, wanted.height, settings)
+        value = (wanted.pinhole(), wanted.near, wanted.max_depth)
+        return sensor_decoded(value, body, wanted.width * wanted.height, answer_format)
 
-    return await answer(request, settings, store, metrics, scene, format, "camera", work)
+    def trace(value) -> TraceResult:
+        pinhole, near, far = value
+        return sensing.depth_camera(store.snapshot(scene), pinhole, near, far, options)
+
+    steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode_arrays)
+    return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
 @router.post(
@@ -154,57 +141,37 @@ async def lidar(
     settings: SettingsDep,
     store: StoreDep,
     metrics: MetricsDep,
-    batch: BatchOptionsDep,
+    options: LidarOptions,
     format: JsonFormat = None,
 ) -> BuffersResponse:
     """One revolution of a spinning lidar: the points where its beams hit (docs/sensors.md)."""
-    fields = sensing.pick_fields(batch.fields, sensing.LIDAR_FIELDS, "lidar")
-    options = sensing.SensorOptions(
-        fields, batch.strategy, batch.stats, settings.threads, batch.cull
-    )
-    options.closest()  # 422 for an unknown strategy or cull before the body is read
     answer_format = wire.negotiate(request.headers.get("accept"), "json")
 
-    def work(body: memoryview, timing: ServerTiming, admit: Callable):
-        with timing("decode"):
-            wanted = parse(LidarRequest, body, "lidar")
-            check_rays(wanted.n_rays * wanted.max_returns, settings, "beams x steps x max_returns")
-            admit(wanted.n_rays, answer_format, wanted.max_returns)
-            scan = wanted.scan()
-        with timing("trace"):
-            result = sensing.lidar_scan(store.snapshot(scene), scan, wanted.max_returns, options)
-        with timing("encode"):
-            return (result, *wire.encode_answer(result.arrays, answer_format))
+    def decode(body: memoryview, fmt: str) -> Decoded:
+        wanted = parse(LidarRequest, body, "lidar")
+        check_rays(wanted.n_rays * wanted.max_returns, settings, "beams x steps x max_returns")
+        value = (wanted.scan(), wanted.max_returns)
+        return sensor_decoded(value, body, wanted.n_rays, answer_format, wanted.max_returns)
 
-    return await answer(request, settings, store, metrics, scene, format, "lidar", work)
+    def trace(value) -> TraceResult:
+        scan, max_returns = value
+        return sensing.lidar_scan(store.snapshot(scene), scan, max_returns, options)
+
+    steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode_arrays)
+    return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
-async def answer(
-    request: Request,
-    settings: Settings,
-    store: Store,
-    metrics: Metrics,
-    scene: str,
-    format: str | None,
-    sensor: str,
-    work: Callable,
-) -> Response:
-    """Receive a sensor's JSON body, then decode, trace and encode it with ``work(body, timing,
-    admit)`` off the event loop, where ``admit(n_rays, answer_format, max_returns=1)`` waits for
-    the sensor's memory in the in-flight budget once its rays are known."""
-    got = await receive(request, settings, store, scene, format, ("json",), footprint.decode_bytes)
-
-    def admit(n_rays: int, answer_format: str, max_returns: int = 1) -> None:
-        nbytes = (
-            len(got.body)
-            + footprint.sensor_bytes(n_rays, max_returns)
-            + footprint.answer_bytes(answer_format)
-        )
-        what = f"POST /v1/scenes/{scene}/{sensor} of {n_rays} rays"
-        from_thread.run(got.ticket.hold, nbytes, what)
-
-    result, *encoded = await run_sync(work, got.body, got.timing, admit)
-    return respond(metrics, sensor, result, result.n_rays, encoded, got.timing)
+def sensor_decoded(
+    value, body: memoryview, n_rays: int, answer_format: str, max_returns: int = 1
+) -> Decoded:
+    """A sensor's body decoded into ``value``, holding its body, its ``n_rays`` rays traced for
+    ``max_returns`` returns each and its answer in ``answer_format``."""
+    peak = (
+        len(body)
+        + footprint.sensor_bytes(n_rays, max_returns)
+        + footprint.answer_bytes(answer_format)
+    )
+    return Decoded(value, n_rays, peak, answer_format)
 
 
 def check_pixels(width: int, height: int, settings: Settings) -> None:

@@ -2,19 +2,26 @@
 
 from __future__ import annotations
 
-from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request
 
 from .. import footprint, openapi, tracing, wire
 from ..deps import MetricsDep, SettingsDep, StoreDep, reject_unknown_query, require_token
 from ..errors import TooLarge
-from ..metrics import Metrics
-from ..params import BatchOptionsDep, MaxHits, QueryKind, RayFormat, SceneName, TraceFormat
-from ..pipeline import receive, respond
+from ..options import Options
+from ..params import (
+    ClosestOptions,
+    CountOptions,
+    HitsOptions,
+    OccludedOptions,
+    RayFormat,
+    SceneName,
+    TraceFormat,
+    TraceOptions,
+)
+from ..pipeline import Decoded, Steps, answer, encode_arrays
 from ..responses import BuffersResponse
 from ..settings import Settings
 from ..store import Store
-from ..tracing import Query
 
 router = APIRouter(
     prefix="/v1",
@@ -44,12 +51,12 @@ async def closest(
     settings: SettingsDep,
     store: StoreDep,
     metrics: MetricsDep,
-    batch: BatchOptionsDep,
+    options: ClosestOptions,
     format: RayFormat = None,
 ):
     """The nearest hit of each ray."""
-    options = batch.for_query(Query.CLOSEST, settings.threads)
-    return await answer(request, settings, store, metrics, options, scene, format)
+    steps = ray_steps(request, settings, store, options, scene, format)
+    return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
 @router.post(
@@ -64,12 +71,12 @@ async def occluded(
     settings: SettingsDep,
     store: StoreDep,
     metrics: MetricsDep,
-    batch: BatchOptionsDep,
+    options: OccludedOptions,
     format: RayFormat = None,
 ):
     """Whether each ray hits anything in [tmin, tmax]."""
-    options = batch.for_query(Query.OCCLUDED, settings.threads)
-    return await answer(request, settings, store, metrics, options, scene, format)
+    steps = ray_steps(request, settings, store, options, scene, format)
+    return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
 @router.post(
@@ -90,13 +97,12 @@ async def hits(
     settings: SettingsDep,
     store: StoreDep,
     metrics: MetricsDep,
-    batch: BatchOptionsDep,
-    max_hits: MaxHits = None,
+    options: HitsOptions,
     format: RayFormat = None,
 ):
     """Every hit along each ray in [tmin, tmax], nearest first, at most ``max_hits``."""
-    options = batch.for_query(Query.HITS, settings.threads, max_hits, settings.max_hits)
-    return await answer(request, settings, store, metrics, options, scene, format)
+    steps = ray_steps(request, settings, store, options, scene, format)
+    return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
 @router.post(
@@ -111,12 +117,12 @@ async def count(
     settings: SettingsDep,
     store: StoreDep,
     metrics: MetricsDep,
-    batch: BatchOptionsDep,
+    options: CountOptions,
     format: RayFormat = None,
 ):
     """How many triangles each ray crosses in [tmin, tmax] (a shared edge or vertex once)."""
-    options = batch.for_query(Query.COUNT, settings.threads)
-    return await answer(request, settings, store, metrics, options, scene, format)
+    steps = ray_steps(request, settings, store, options, scene, format)
+    return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
 @router.post(
@@ -129,84 +135,73 @@ async def trace(
     request: Request,
     settings: SettingsDep,
     metrics: MetricsDep,
-    batch: BatchOptionsDep,
-    query: QueryKind = "closest",
-    max_hits: MaxHits = None,
+    options: TraceOptions,
     format: TraceFormat = None,
 ):
     """A stateless one-shot: the mesh comes with the rays (answers carry X-Scene-Version: 0)."""
-    options = batch.for_query(query, settings.threads, max_hits, settings.max_hits)
-    return await answer(request, settings, None, metrics, options, None, format)
+    steps = ray_steps(request, settings, None, options, None, format)
+    return await answer(request, settings, None, metrics, options, None, format, steps)
 
 
-async def answer(
+def ray_steps(
     request: Request,
     settings: Settings,
     store: Store | None,
-    metrics: Metrics,
-    options: tracing.Options,
+    options: Options,
     scene: str | None,
     format: str | None,
-) -> BuffersResponse:
-    """Receive, decode, trace and encode one batch on ``scene`` of ``store`` (or a one-shot
-    /trace when ``scene`` is None); the last three off the event loop."""
+) -> Steps:
+    """A batch of rays for ``scene`` of ``store`` (a one-shot /trace's mesh and rays when
+    ``scene`` is None): decoded by ``wire``, traced by ``tracing``, encoded by ``wire`` in the
+    format ``Accept`` picks among those of the answer (406 before the body is read)."""
     accept = request.headers.get("accept")
     declared = format or wire.declared_format(request.headers.get("content-type"))
-    answer_format = negotiate(accept, declared or "npz", options)  # again once the body is read
+    guessed = negotiate(accept, declared or "npz", options)  # a JSON body may still make it json
     max_rays = settings.max_rays_per_request
+    limits = {"max_rays": max_rays, "max_bytes": settings.max_body_bytes}
 
-    def peak(n_body: int, fmt: str | None, n_rays: int | None = None) -> int:
+    def peak(n_body: int, fmt: str | None, answer_format: str, n_rays: int | None = None) -> int:
         """The request's peak bytes: its body decoded, its rays traced, its answer written."""
         if n_rays is None:
             n_rays = footprint.most_rays(n_body, fmt, max_rays)
         mesh = footprint.mesh_scene_bytes(n_body) if scene is None else 0  # /trace's mesh
-        work = footprint.query_bytes(n_rays, options.query.value, options.fields, options.max_hits)
-        answer = footprint.answer_bytes(answer_format)
-        return footprint.decode_bytes(n_body, fmt) + mesh + work + answer
+        work = footprint.query_bytes(n_rays, options.kind.value, options.fields, options.max_hits)
+        return (
+            footprint.decode_bytes(n_body, fmt)
+            + mesh
+            + work
+            + footprint.answer_bytes(answer_format)
+        )
+
+    def decode(body: memoryview, fmt: str) -> Decoded:
+        answer_format = negotiate(accept, fmt, options)
+        if scene is None:
+            mesh, rays = wire.decode_trace(body, fmt, **limits)
+        else:
+            mesh, rays = None, wire.decode_rays(body, fmt, **limits)
+        check_hit_buffers(len(rays), options, settings.max_hits_bytes)
+        held = peak(len(body), None, answer_format, len(rays))
+        return Decoded((mesh, rays), len(rays), held, answer_format)
+
+    def trace(value) -> tracing.TraceResult:
+        mesh, rays = value
+        if scene is None:
+            return tracing.trace_once(mesh, rays, options)
+        return tracing.trace(store.snapshot(scene), rays, options, request.app.state.cluster)
+
+    def estimate(n_body: int, fmt: str | None) -> int:
+        return peak(n_body, fmt, guessed)
 
     formats = wire.RAY_FORMATS if scene is not None else wire.TRACE_FORMATS
-    got = await receive(request, settings, store, scene, format, formats, peak)
-    answer_format = negotiate(accept, got.fmt, options)
-    limits = {"max_rays": max_rays, "max_bytes": settings.max_body_bytes}
-
-    def decode():
-        with got.timing("decode"):
-            if scene is None:
-                return wire.decode_trace(got.body, got.fmt, **limits)
-            return None, wire.decode_rays(got.body, got.fmt, **limits)
-
-    mesh, rays = await run_sync(decode)
-    check_hit_buffers(len(rays), options, settings.max_hits_bytes)
-    what = f"{request.method} {request.url.path} of {len(rays)} rays"
-    await got.ticket.hold(peak(len(got.body), None, len(rays)), what)
-
-    def work():
-        with got.timing("trace"):
-            result = (
-                tracing.trace(store.snapshot(scene), rays, options, request.app.state.cluster)
-                if scene is not None
-                else tracing.trace_once(mesh, rays, options)
-            )
-        with got.timing("encode"):
-            return result, wire.encode_answer(result.arrays, answer_format)
-
-    result, encoded = await run_sync(work)
-    return respond(metrics, options.query.value, result, len(rays), encoded, got.timing)
+    return Steps(formats, estimate, decode, trace, encode_arrays)
 
 
-def negotiate(accept: str | None, request_format: str, options: tracing.Options) -> str:
+def negotiate(accept: str | None, request_format: str, options: Options) -> str:
     """The answer format, among those the query's answer can be written in (406 naming them)."""
-    why_not = (
-        None
-        if options.answer_formats == wire.ANSWER_FORMATS
-        else f"a {options.query.value} answer with {', '.join(options.fields)} is written in: its "
-        f"arrays have different lengths (CSR), so use {wire.NPZ} or {wire.JSON}, or "
-        "?fields=truncated for an .npy"
-    )
-    return wire.negotiate(accept, request_format, options.answer_formats, why_not)
+    return wire.negotiate(accept, request_format, options.answer_formats, options.why_not_npy)
 
 
-def check_hit_buffers(n_rays: int, options: tracing.Options, limit: int) -> None:
+def check_hit_buffers(n_rays: int, options: Options, limit: int) -> None:
     """413 when a hits query would hold more hit buffers than DACRT_MAX_HITS_BYTES allows."""
     needed = options.hit_buffer_bytes(n_rays)
     if needed > limit:

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import itertools
 import json
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from dacrt.validation import InputError, explain_bad_faces, explain_bad_vertices
+from dacrt.validation import explain_bad_faces, explain_bad_vertices
 
 from ..errors import Invalid
 
@@ -161,19 +159,18 @@ def index_array(value: Any, name: str) -> np.ndarray:
 
 
 def check_vertices(vertices: np.ndarray, name: str = "vertices") -> np.ndarray:
-    """422 unless every vertex is finite, in the engine's words (the first bad row, how many)."""
+    """The engine's InputError naming ``name``'s first non-finite row and how many (422 through
+    ``errors``' table) unless every vertex is finite."""
     if not np.isfinite(vertices).all():  # one flat pass; rows only to name a bad one
-        with engine_errors():
-            explain_bad_vertices(vertices, name)
+        explain_bad_vertices(vertices, name)
     return vertices
 
 
 def check_faces(faces: np.ndarray, n_vertices: int, name: str = "faces") -> np.ndarray:
-    """422 unless every index is in [0, n_vertices), in the engine's words; the answer is int32
-    (a view when possible)."""
+    """The engine's InputError naming ``name``'s first bad row (422 through ``errors``' table)
+    unless every index is in [0, n_vertices); the answer is int32 (a view when possible)."""
     if faces.size and (faces.min() < 0 or faces.max() >= n_vertices):
-        with engine_errors():
-            explain_bad_faces(faces, n_vertices, name)
+        explain_bad_faces(faces, n_vertices, name)
     if faces.dtype == _I32:
         return faces
     if faces.dtype == _U32:
@@ -186,13 +183,3 @@ def mesh_arrays(vertices: Any, faces: Any, prefix: str = "") -> MeshArrays:
     v = check_vertices(float_array(vertices, f"{prefix}vertices", 3), f"{prefix}vertices")
     f = check_faces(index_array(faces, f"{prefix}faces"), len(v), f"{prefix}faces")
     return MeshArrays(v, f)
-
-
-@contextmanager
-def engine_errors() -> Iterator[None]:
-    """The engine's InputError (its message names the problem) as the service's 422, for
-    callers of ``wire`` outside a request (the client, the store)."""
-    try:
-        yield
-    except InputError as exc:
-        raise Invalid(str(exc)) from None

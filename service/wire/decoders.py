@@ -18,7 +18,6 @@ from .arrays import (
     check_faces,
     check_json_numbers,
     check_vertices,
-    engine_errors,
     float_array,
     index_array,
     mask_array,
@@ -249,7 +248,8 @@ def parse_mask(value: Any, name: str) -> int:
 
 def check_matrix(value: Any, name: str) -> np.ndarray:
     """A (4, 4) float64 row-major affine matrix from nested JSON lists or a float array, checked
-    by the engine (shape, finite, last row [0, 0, 0, 1], invertible); 422 in its words."""
+    by the engine (shape, finite, last row [0, 0, 0, 1], invertible): its InputError names
+    ``name`` (422 through ``errors``' table)."""
     if isinstance(value, np.ndarray):
         if value.dtype.kind not in "fiu":
             raise Invalid(f"{name} must be a float array, got {value.dtype}")
@@ -263,8 +263,7 @@ def check_matrix(value: Any, name: str) -> np.ndarray:
             value = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError, OverflowError):
             raise Invalid(f"{name} must be a 4x4 matrix (4 rows of 4 numbers)") from None
-    with engine_errors():
-        return dacrt.check_transform(value, name)
+    return dacrt.check_transform(value, name)
 
 
 def decode_trace(

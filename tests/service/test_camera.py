@@ -181,3 +181,14 @@ def test_limits(app_client, room):
     body = {**LOOK, "width": 4096, "height": 1025}
     response = camera(app_client, room, body)
     assert response.status_code == 413 and "DACRT_MAX_IMAGE_PIXELS" in response.json()["detail"]
+
+
+def test_the_query_strings_mask_is_every_pixels_ray_mask(app_client, app_api, room):
+    """``?mask=`` (the batch options every query takes) masks a camera's rays as a query's."""
+    body = {**LOOK, "width": 8, "height": 6}
+    seen = npz(camera(app_client, room, body).content)
+    assert (seen["mesh"] >= 0).any()
+    same = npz(camera(app_client, room, body, "?mask=0xFFFFFFFF").content)
+    assert np.array_equal(same["depth"], seen["depth"])
+    hidden = npz(camera(app_client, room, body, "?mask=0").content)
+    assert (hidden["mesh"] == -1).all() and np.isinf(hidden["depth"]).all()

@@ -271,3 +271,13 @@ def test_query_options_are_those_of_the_queries(app_client, app_api, room):
     for query, words in [("?strategy=fast", "strategy"), ("?cull=both", "cull")]:
         response = lidar(app_client, room, body, query)
         assert response.status_code == 422 and words in response.json()["detail"]
+
+
+@pytest.mark.parametrize("max_returns", [1, 3])
+def test_the_query_strings_mask_is_every_beams_ray_mask(app_client, inside_sphere, max_returns):
+    """``?mask=`` masks a lidar's rays as a query's: mask 0 sees nothing, so no point returns."""
+    body = {"pose": POSES[0].tolist(), "model": "VLP-16", "horizontal_steps": 8}
+    body["max_returns"] = max_returns
+    assert len(npz(lidar(app_client, inside_sphere, body).content)["xyz"]) == 16 * 8
+    hidden = npz(lidar(app_client, inside_sphere, body, "?mask=0").content)
+    assert len(hidden["xyz"]) == 0

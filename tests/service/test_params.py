@@ -1,6 +1,6 @@
 """service.params: what the OpenAPI document declares of each parameter is what the service's own
 checks accept (names, masks, the engine's strategies and culling modes, the body formats), and
-the batch options reach the engine's options unchanged, the mask parsed."""
+the query string reaches the one options record unchanged, the mask parsed."""
 
 from __future__ import annotations
 
@@ -9,8 +9,10 @@ from typing import Any, get_args
 
 import pytest
 
-from service import params, tracing, wire
+from service import options, params, wire
 from service.errors import Invalid
+from service.options import Options, Query, Sensor, make_options
+from service.settings import Settings
 from service.store import check_name
 
 
@@ -49,9 +51,9 @@ def test_every_mask_the_service_parses_matches_the_declared_pattern(text):
 
 
 def test_the_declared_choices_are_the_engines_and_the_services():
-    assert declared(params.Strategy)["enum"] == list(tracing.strategies())
-    assert declared(params.Cull)["enum"] == list(tracing.CULL_MODES)
-    assert declared(params.QueryKind)["enum"] == [q.value for q in tracing.Query]
+    assert declared(params.Strategy)["enum"] == list(options.strategies())
+    assert declared(params.Cull)["enum"] == list(options.CULL_MODES)
+    assert declared(params.QueryKind)["enum"] == [q.value for q in Query]
     formats = {
         params.RayFormat: wire.RAY_FORMATS,
         params.MeshFormat: wire.MESH_FORMATS,
@@ -63,23 +65,31 @@ def test_the_declared_choices_are_the_engines_and_the_services():
         assert declared(parameter)["enum"] == list(accepted)
 
 
-def test_the_batch_options_default_to_the_engines_defaults():
-    options = params.batch_options()
-    assert options == params.BatchOptions(None, None, False, "none", None)
-    assert options.for_query("closest", threads=None) == tracing.make_options("closest")
+def test_the_options_default_to_the_engines_defaults():
+    settings = Settings()
+    options = params.hits_options(settings)
+    assert options == make_options("hits", threads=settings.threads)
+    assert params.render_options(settings) == make_options(Sensor.RENDER)
 
 
-def test_the_batch_options_reach_the_engine_options_with_the_mask_parsed():
-    batch = params.batch_options(
-        fields="t", strategy="rayspace", stats=True, cull="back", mask="0x10"
+def test_the_query_string_reaches_the_options_with_the_mask_parsed():
+    settings = Settings(threads=2, max_hits=8)
+    options = params.hits_options(
+        settings, fields="t", strategy="rayspace", stats=True, cull="back", mask="0x10", max_hits=3
     )
-    options = batch.for_query("hits", threads=2, max_hits=3, max_hits_limit=8)
-    assert options == tracing.Options(
-        tracing.Query.HITS, ("offsets", "t"), "rayspace", True, 2, "back", 3, 0x10
-    )
+    assert options == Options(Query.HITS, ("offsets", "t"), "rayspace", True, 2, "back", 3, 0x10)
+    with pytest.raises(Invalid, match=r"1 to 8 \(DACRT_MAX_HITS\)"):
+        params.hits_options(settings, max_hits=9)
+
+
+def test_the_one_shot_trace_takes_a_query_by_name_only():
+    settings = Settings()
+    assert params.trace_options(settings, query="count").kind is Query.COUNT
+    with pytest.raises(Invalid, match="unknown query 'camera'"):
+        params.trace_options(settings, query="camera")
 
 
 @pytest.mark.parametrize("mask", ["0x1FFFFFFFF", "-1", "twelve"])
 def test_a_bad_mask_is_a_422_naming_the_query_parameter(mask):
     with pytest.raises(Invalid, match=r"\?mask="):
-        params.batch_options(mask=mask).for_query("count", threads=None)
+        params.hits_options(Settings(), mask=mask)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from service_helpers import grid, quad
 
+from dacrt import InputError
 from service import tracing
 from service.errors import Conflict, Invalid, NotFound, TooLarge
 from service.footprint import TRIANGLE_BYTES
@@ -274,7 +275,7 @@ def test_bounds_are_of_the_placed_referenced_vertices(store):
 def test_a_transform_that_leaves_the_float32_range_is_422(store):
     vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1e30, 0, 0]], np.float32)
     store.put_mesh("s", "a", MeshArrays(vertices, np.array([[0, 1, 2]], np.int32)))
-    with pytest.raises(Invalid, match="transform of mesh 'a' places vertex 3 beyond the float32"):
+    with pytest.raises(InputError, match="transform of mesh 'a' places vertex 3 beyond the float"):
         store.set_transform("s", "a", np.diag([1e9, 1.0, 1.0, 1.0]))  # vertex 3 is unreferenced
     assert store.snapshot("s").version == 1
     assert store.set_transform("s", "a", np.diag([1e8, 1.0, 1.0, 1.0])).version == 2

@@ -1,6 +1,5 @@
-"""service.tracing: what a query may ask (options with their defaults, and 422s that name the
-choices), and how a stored scene version answers it: the engine's answer under the meshes'
-stable indices, only the fields asked for, at the version traced."""
+"""service.tracing: how a stored scene version answers a query: the engine's answer under the
+meshes' stable indices, only the fields asked for, at the version traced."""
 
 from __future__ import annotations
 
@@ -11,57 +10,10 @@ from service_helpers import quad
 from dacrt import InputError
 from service import tracing, wire
 from service.errors import Invalid
+from service.options import FIELDS, Query, make_options
 from service.store import Store
 
-QUERIES = list(tracing.Query)
-
-
-@pytest.mark.parametrize("query", QUERIES)
-def test_defaults_ask_for_every_field_with_the_first_strategy(query):
-    options = tracing.make_options(query.value)
-    assert options.query is query and options.fields == tracing.FIELDS[query]
-    assert options.strategy == tracing.strategies()[0] == "sampling"
-    assert options.cull == "none" and not options.stats and options.mask is None
-    assert options.max_hits == (tracing.DEFAULT_MAX_HITS if query is tracing.Query.HITS else None)
-
-
-def test_fields_come_in_answer_order_whatever_order_they_are_asked_in():
-    options = tracing.make_options("closest", fields=" normal, t ,mesh")
-    assert options.fields == ("t", "mesh", "normal")
-
-
-def test_hits_fields_of_one_value_per_hit_bring_their_offsets():
-    assert tracing.make_options("hits", fields="prim,t").fields == ("offsets", "t", "prim")
-    assert tracing.make_options("hits", fields="truncated").fields == ("truncated",)
-
-
-@pytest.mark.parametrize(
-    ("kwargs", "named"),
-    [
-        ({"query": "nearest"}, ["closest", "occluded", "hits", "count"]),
-        ({"query": "closest", "fields": "t,colour"}, ["'colour'", "t, mesh, prim"]),
-        ({"query": "occluded", "fields": " , "}, ["no field", "occluded"]),
-        ({"query": "closest", "strategy": "bvh"}, ["'bvh'", "sampling, sah, middle, rayspace"]),
-        ({"query": "count", "cull": "both"}, ["'both'", "none, back, front"]),
-        ({"query": "closest", "max_hits": 4}, ["max_hits", "hits query only"]),
-        ({"query": "hits", "max_hits": 0}, ["max_hits", "at least 1"]),
-        ({"query": "hits", "max_hits": 65, "max_hits_limit": 64}, ["1 to 64 (DACRT_MAX_HITS)"]),
-        ({"query": "hits", "max_hits": True}, ["max_hits must be an integer"]),
-    ],
-)
-def test_an_unknown_choice_is_a_422_that_names_the_choices(kwargs, named):
-    """Invalid, or the engine's own InputError for its options (both 422: errors.STATUS)."""
-    with pytest.raises((Invalid, InputError)) as raised:
-        tracing.make_options(**kwargs)
-    for words in named:
-        assert words in str(raised.value)
-
-
-def test_a_csr_answer_cannot_be_one_npy():
-    assert "npy" not in tracing.make_options("hits").answer_formats
-    assert "npy" not in tracing.make_options("hits", fields="t").answer_formats
-    assert "npy" in tracing.make_options("hits", fields="truncated").answer_formats
-    assert tracing.make_options("closest").answer_formats == wire.ANSWER_FORMATS
+QUERIES = list(Query)
 
 
 def rays(origins, directions, **extra) -> wire.Rays:
@@ -84,18 +36,18 @@ def store() -> Store:
 
 
 def test_answers_name_the_meshes_by_their_stable_indices(store):
-    before = tracing.trace(store.snapshot("s"), DOWN, tracing.make_options("closest"))
+    before = tracing.trace(store.snapshot("s"), DOWN, make_options("closest"))
     assert before.arrays["mesh"].tolist() == [0, 1, -1]
     store.delete_mesh("s", "a")  # "b" is now the engine's first mesh, and keeps its index
     snapshot = store.snapshot("s")
-    after = tracing.trace(snapshot, DOWN, tracing.make_options("closest"))
+    after = tracing.trace(snapshot, DOWN, make_options("closest"))
     assert after.arrays["mesh"].tolist() == [-1, 1, -1]
     assert after.version == snapshot.version > before.version
     assert np.array_equal(after.arrays["prim"], [-1, before.arrays["prim"][1], -1])
 
 
 def test_an_answer_holds_the_fields_asked_for_and_stats_say_where(store):
-    options = tracing.make_options("closest", fields="t", stats=True, strategy="sah")
+    options = make_options("closest", fields="t", stats=True, strategy="sah")
     answer = tracing.trace(store.snapshot("s"), DOWN, options)
     assert list(answer.arrays) == ["t"]
     np.testing.assert_array_equal(answer.arrays["t"], [1, 1, np.inf])
@@ -105,14 +57,14 @@ def test_an_answer_holds_the_fields_asked_for_and_stats_say_where(store):
 
 @pytest.mark.parametrize("query", QUERIES)
 def test_every_query_answers_on_a_stored_scene(store, query):
-    answer = tracing.trace(store.snapshot("s"), DOWN, tracing.make_options(query.value))
-    assert tuple(answer.arrays) == tracing.FIELDS[query]
+    answer = tracing.trace(store.snapshot("s"), DOWN, make_options(query.value))
+    assert tuple(answer.arrays) == FIELDS[query]
     hit = {"closest": "t", "occluded": "occluded", "hits": "truncated", "count": "count"}
     assert len(answer.arrays[hit[query.value]]) == 3
 
 
 def test_the_masks_of_a_batch_come_from_the_body_or_the_query_string_not_both(store):
-    options = tracing.make_options("occluded", mask=0x2)
+    options = make_options("occluded", mask=0x2)
     masked = rays(DOWN.origins, DOWN.directions, mask=np.array([1, 1, 1], np.uint32))
     with pytest.raises(Invalid, match="in the body and in \\?mask= too"):
         tracing.trace(store.snapshot("s"), masked, options)
@@ -123,12 +75,12 @@ def test_the_masks_of_a_batch_come_from_the_body_or_the_query_string_not_both(st
 def test_a_bad_ray_is_the_engines_input_error_in_its_words(store):
     bad = rays([[0.5, 0.5, np.nan]], [[0, 0, -1]])
     with pytest.raises(InputError, match=r"origins\[0\]"):  # the caller's key and row
-        tracing.trace(store.snapshot("s"), bad, tracing.make_options("closest"))
+        tracing.trace(store.snapshot("s"), bad, make_options("closest"))
 
 
 def test_a_one_shot_trace_is_version_0_of_mesh_0():
     answer = tracing.trace_once(
-        wire.mesh_arrays(*quad(0, 1, 0, 1, 0)), DOWN, tracing.make_options("closest")
+        wire.mesh_arrays(*quad(0, 1, 0, 1, 0)), DOWN, make_options("closest")
     )
     assert answer.version == 0 and answer.arrays["mesh"].tolist() == [0, -1, -1]
 
