@@ -1,11 +1,16 @@
 """Input checks of the public API: shapes, dtypes and values, each error naming the first bad
 index and how many there are. Everything past here assumes clean float32/int32 arrays; a ray
 batch's values are checked as the kernels pack them (``rays.pack_rays``), and a bad batch is
-named here (``explain_bad_rays``) before any answer is returned."""
+named here (``explain_bad_rays``) before any answer is returned.
+
+The checked arrays come in one layout, whatever the caller's were (``contracts.kernel_input``):
+read-only, C-contiguous and aligned, float32, int32 or int64 faces and uint32 masks, so that each
+kernel compiles once (twice for faces). Ray origins and directions may stay rows of a wider
+array, which ``rays.ray_batch`` reads in place."""
 
 import numpy as np
 
-from .contracts import FLOAT, STRATEGIES
+from .contracts import FLOAT, INDEX, STRATEGIES, kernel_input, read_only
 from .query import CULL_MODES
 from .triangles import all_finite, faces_in_range
 
@@ -23,9 +28,9 @@ def _first_bad(bad, what, reason, total_label):
 
 
 def as_float_rows(array, name, width=3, check_finite=True, contiguous=True):
-    """``array`` as a float32 (n, width) array, C-contiguous unless ``contiguous`` is false
-    (then a float32 view, such as the columns of a wider array, is used as it is, no copy);
-    finite values required."""
+    """``array`` as a read-only float32 (n, width) array (``kernel_input``) unless
+    ``contiguous`` is false (then a read-only float32 view, such as the columns of a wider
+    array, no copy); finite values required."""
     array = np.asarray(array)
     if array.ndim != 2 or array.shape[1] != width:
         raise InputError(f"{name} must have shape (n, {width}), got {array.shape}")
@@ -33,9 +38,7 @@ def as_float_rows(array, name, width=3, check_finite=True, contiguous=True):
         raise InputError(f"{name} must be a float array, got dtype {array.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
         converted = (
-            np.ascontiguousarray(array, dtype=FLOAT)
-            if contiguous
-            else np.asarray(array, dtype=FLOAT)
+            kernel_input(array, FLOAT) if contiguous else read_only(np.asarray(array, FLOAT))
         )
     if check_finite:
         _first_bad(
@@ -48,7 +51,8 @@ def as_float_rows(array, name, width=3, check_finite=True, contiguous=True):
 
 
 def check_mesh(index, vertices, faces):
-    """Validate one mesh; returns (vertices float32 (V,3), faces (F,3) integer, C-contiguous)."""
+    """Validate one mesh; returns (vertices float32 (V, 3), faces int32 or int64 (F, 3)), as
+    ``kernel_input`` gives them."""
     label = f"mesh {index}"
     vertices = np.asarray(vertices)
     faces = np.asarray(faces)
@@ -67,10 +71,9 @@ def check_mesh(index, vertices, faces):
     vertices = as_float_rows(vertices, f"{label}: vertices", check_finite=False)
     if not all_finite(vertices):
         explain_bad_vertices(vertices, f"{label}: vertices")
-    # Kernels are compiled for int32 and int64 faces; other integer types are converted once.
-    faces = np.ascontiguousarray(
-        faces, dtype=None if faces.dtype in (np.int32, np.int64) else np.int64
-    )
+    # Kernels take int32 and int64 faces (narrowing int64 would copy on every Scene); other
+    # integer types become int64.
+    faces = kernel_input(faces, None if faces.dtype in (INDEX, np.int64) else np.int64)
     if not faces_in_range(faces, len(vertices)):
         explain_bad_faces(faces, len(vertices), f"{label}: faces")
     return vertices, faces
@@ -128,18 +131,18 @@ def explain_bad_rays(origins, directions, tmin, tmax):
 
 
 def _ray_range(value, default, n, name):
-    """A scalar or (n,) bound as a float32 (n,) array."""
+    """A scalar or (n,) bound as a read-only float32 (n,) array."""
     if value is None:
-        return np.full(n, default, FLOAT)
+        return kernel_input(np.full(n, default, FLOAT), None)
     value = np.asarray(value)
     if value.dtype.kind not in "fiu" or value.dtype.kind == "b":
         raise InputError(f"{name} must be a number or a float array, got dtype {value.dtype}")
     if value.ndim == 0:
-        return np.full(n, value, FLOAT)
+        return kernel_input(np.full(n, value, FLOAT), None)
     if value.shape != (n,):
         raise InputError(f"{name} must be a scalar or have shape ({n},), got {value.shape}")
     with np.errstate(over="ignore"):
-        return np.ascontiguousarray(value, dtype=FLOAT)
+        return kernel_input(value, FLOAT)
 
 
 def check_strategy(strategy):
@@ -179,7 +182,8 @@ def check_transform(matrix, name="matrix"):
 
 def place_vertices(vertices, matrix, name):
     """``vertices`` (V, 3) moved by the affine ``matrix`` (``check_transform``) in float64,
-    as float32; ValueError naming ``name`` if a placed vertex leaves the float32 range."""
+    as read-only float32; ValueError naming ``name`` if a placed vertex leaves the float32
+    range."""
     placed = vertices.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
     with np.errstate(over="ignore"):
         placed = placed.astype(FLOAT)
@@ -188,7 +192,7 @@ def place_vertices(vertices, matrix, name):
         raise InputError(
             f"{name} places vertex {bad[0]} beyond the float32 range ({len(bad)} vertices)"
         )
-    return placed
+    return read_only(placed)
 
 
 def check_max_hits(max_hits):
@@ -223,4 +227,4 @@ def check_masks(masks, n, name, what):
             "is outside the uint32 range [0, 2**32)",
             "out of range",
         )
-    return np.ascontiguousarray(masks, dtype=np.uint32)
+    return kernel_input(masks, np.uint32)

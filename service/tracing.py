@@ -264,8 +264,3 @@ def _run(
     if stats is not None:
         stats = {**stats, "strategy": options.strategy, "where": where}
     return TraceResult(arrays, version, stats, time.perf_counter() - start, where)
-
-
-def warmup() -> float:
-    """Compile every engine kernel; answers the seconds taken."""
-    return dacrt.warmup()
