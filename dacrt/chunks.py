@@ -179,7 +179,6 @@ def plan_chunks(origins, n_chunks, keep_order, box, density):
     if np.mean(near) < ORDERED_NEIGHBOUR_DISTANCE * np.mean(far):
         return None
     axis = int(np.argmax(sample.max(axis=0) - sample.min(axis=0)))
-    sample = np.ascontiguousarray(sample)  # one signature of origin_weights for every layout
     weights = origin_weights(sample, density(), box, DENSITY_GRID)
     order = np.argsort(sample[:, axis], kind="stable")
     cumulative = np.cumsum(weights[order])

@@ -10,20 +10,12 @@ INDEX = np.int32
 MISS = -1
 
 
-def read_only(array):
-    """A read-only view of ``array`` (no copy). Numba compiles a kernel once per argument type,
-    and writable and read-only arrays are two types; inputs come either way (a server's bodies
-    are read-only), so the public checks hand the kernels read-only ones only."""
-    view = array.view()
-    view.flags.writeable = False
-    return view
-
-
 def kernel_input(array, dtype):
     """``array`` as the kernels receive every input array: ``dtype`` (None: its own), a base
-    ndarray, C-contiguous, aligned and read-only; a view where it already is all but read-only,
-    else a copy. Each of these is part of a kernel's argument type."""
-    return read_only(np.require(array, dtype, "CAE"))
+    ndarray, C-contiguous, aligned and writable; the array itself where it already is, else a
+    copy. Each of these is part of a kernel's argument type, so every input gives one signature;
+    read-only arrays (a server's bodies) are copied, as Numba's code reads them more slowly."""
+    return np.require(array, dtype, "CAWE")
 
 
 STRATEGIES = ("sampling", "sah", "middle", "rayspace")

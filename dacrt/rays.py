@@ -18,13 +18,9 @@ of records read a quad's lanes at 4 i + lane with constant lanes, which LLVM vec
 shuffles (a lane chosen at run time makes it gather).
 """
 
-from collections import namedtuple
-
 import numpy as np
-from numpy.lib.stride_tricks import as_strided
 
 from .config import PACK_BLOCK, ROW_ALIGN, ROW_SKEW, UNIFORM_CHECK_BLOCK, inline, jit
-from .contracts import FLOAT, kernel_input
 
 ORIGIN_QUAD = 0
 DIRECTION_QUAD = 1
@@ -33,45 +29,6 @@ ORIGIN = 0
 TMIN = 3
 DIRECTION = 4
 BEST_T = 7
-
-
-RayBatch = namedtuple(
-    "RayBatch", ["origins", "origin_stride", "directions", "direction_stride", "tmin", "tmax"]
-)
-RayBatch.__doc__ = """A caller's ray batch as the kernels read it (``ray_batch``), one layout
-whatever the caller's arrays were: ray i's origin is origins[i * origin_stride + a], a = 0, 1, 2
-(origins a read-only 1-D float32 view), its direction likewise; tmin, tmax (n,) float32,
-read-only."""
-
-
-def ray_batch(origins, directions, tmin, tmax):
-    """The checked batch (``validation.check_rays``) as a ``RayBatch``: no copy for C-contiguous
-    rows or the column blocks of a wider C-contiguous array (the two layouts callers use), so one
-    compiled ``pack_rays`` reads every batch."""
-    origins, origin_stride = flat_rows(origins)
-    directions, direction_stride = flat_rows(directions)
-    tmin, tmax = kernel_input(tmin, FLOAT), kernel_input(tmax, FLOAT)
-    return RayBatch(origins, origin_stride, directions, direction_stride, tmin, tmax)
-
-
-def flat_rows(rows):
-    """A (n, 3) float32 array as (values, stride): a read-only 1-D view of its memory from its
-    first row on, row i at values[i * stride : i * stride + 3]. Rows whose three columns are
-    adjacent (C-contiguous rows, the columns of a wider array, one row repeated) are read in
-    place; other layouts are copied first."""
-    rows = np.asarray(rows, FLOAT)
-    item = rows.itemsize
-    step = rows.strides[0]
-    in_place = (
-        rows.flags.aligned
-        and rows.strides[1] == item
-        and (len(rows) < 2 or step == 0 or (step >= 3 * item and step % item == 0))
-    )
-    if not in_place:
-        rows = kernel_input(rows, FLOAT)
-    stride = rows.strides[0] // item if len(rows) > 1 else 3
-    span = (len(rows) - 1) * stride + 3 if len(rows) else 0
-    return as_strided(rows, shape=(span,), strides=(item,), writeable=False), stride
 
 
 def new_records(n):
@@ -99,10 +56,10 @@ def quad_view(rays):
 
 
 @jit
-def pack_rays(batch, ray_ids, rays):
-    """Fill ``rays`` (2, >= 4 n) float32 with the records of rays ``ray_ids`` (n,) of ``batch``
-    (``RayBatch``); returns whether all those rays are valid: finite origin and direction, a
-    non-zero direction, finite tmin, tmin <= tmax (tmax may be +inf).
+def pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
+    """Fill ``rays`` (2, >= 4 n) float32 with the records of rows ``ray_ids`` (n,) of the
+    batch; returns whether all those rays are valid: finite origin and direction, a non-zero
+    direction, finite tmin, tmin <= tmax (tmax may be +inf).
 
     Checking here, in each chunk's thread, rather than in a pass of its own, reads the batch
     once, on every thread. The checks accumulate without a branch; only a bad batch pays for
@@ -111,7 +68,6 @@ def pack_rays(batch, ray_ids, rays):
     PACK_BLOCK records at a time are built in a small buffer, then copied to the rows as one
     run of floats per quad (cheaper than writing each field straight into the rows), and
     checked in a loop of their own (which vectorises)."""
-    origins, o_stride, directions, d_stride, tmin, tmax = batch
     block = np.empty((2, PACK_BLOCK, 4), np.float32)
     block0 = block[ORIGIN_QUAD].reshape(4 * PACK_BLOCK)
     block1 = block[DIRECTION_QUAD].reshape(4 * PACK_BLOCK)
@@ -120,11 +76,9 @@ def pack_rays(batch, ray_ids, rays):
         n = min(PACK_BLOCK, ray_ids.shape[0] - lo)
         for i in range(n):
             ray = ray_ids[lo + i]
-            o_at = ray * o_stride
-            d_at = ray * d_stride
             for a in range(3):
-                block[ORIGIN_QUAD, i, a] = origins[o_at + a]
-                block[DIRECTION_QUAD, i, a] = directions[d_at + a]
+                block[ORIGIN_QUAD, i, a] = origins[ray, a]
+                block[DIRECTION_QUAD, i, a] = directions[ray, a]
             block[ORIGIN_QUAD, i, 3] = tmin[ray]
             block[DIRECTION_QUAD, i, 3] = tmax[ray]
         q0 = rays[ORIGIN_QUAD, 4 * lo : 4 * (lo + n)]

@@ -66,7 +66,8 @@ def finish_hits(
     list_t,
     list_tri,
     offsets,
-    batch,
+    origins,
+    directions,
     tri_global,
     mesh_offsets,
     tri_verts,
@@ -80,11 +81,9 @@ def finish_hits(
 ):
     """Copy the first offsets[i + 1] - offsets[i] entries of each ray i's list (t and kernel
     row, sorted by (t, row)) into the CSR rows offsets[i]:offsets[i + 1], as (mesh, prim), with
-    u and v from the watertight test of the ray (``batch``, a ``RayBatch``): the arithmetic
-    that found the hit, so the same bits; and unit normals (``normals`` as for
-    ``finish_closest``). Kernel rows rise with global triangle indices, so the lists' order is
-    the (t, mesh, prim) order."""
-    origins, o_stride, directions, d_stride, _, _ = batch
+    u and v from the ray's watertight test (the arithmetic that found the hit, so the same bits)
+    and unit normals (``normals`` as for ``finish_closest``). Kernel rows rise with global
+    triangle indices, so the lists' order is the (t, mesh, prim) order."""
     have_normals = normals.shape[0] > 0
     m = 0
     for ray in range(offsets.shape[0] - 1):
@@ -92,14 +91,12 @@ def finish_hits(
         n = offsets[ray + 1] - first
         if n == 0:
             continue
-        o = ray * o_stride
-        d = ray * d_stride
         kx, ky, kz, sx, sy, sz = watertight_setup(
-            directions[d], directions[d + 1], directions[d + 2]
+            directions[ray, 0], directions[ray, 1], directions[ray, 2]
         )
-        okx = np.float64(pick(kx, origins[o], origins[o + 1], origins[o + 2]))
-        oky = np.float64(pick(ky, origins[o], origins[o + 1], origins[o + 2]))
-        okz = np.float64(pick(kz, origins[o], origins[o + 1], origins[o + 2]))
+        okx = np.float64(pick(kx, origins[ray, 0], origins[ray, 1], origins[ray, 2]))
+        oky = np.float64(pick(ky, origins[ray, 0], origins[ray, 1], origins[ray, 2]))
+        okz = np.float64(pick(kz, origins[ray, 0], origins[ray, 1], origins[ray, 2]))
         for k in range(n):
             out = first + k
             row = list_tri[ray, k]

@@ -40,7 +40,6 @@ from .contracts import (
     HitList,
     Hits,
     Occlusion,
-    kernel_input,
 )
 from .leaf import NO_HIT
 from .query import (
@@ -55,7 +54,7 @@ from .query import (
     STRATEGY_SHIFT,
     QueryArrays,
 )
-from .rays import new_records, pack_rays, ray_batch, uniform_origin, unpack_best_t
+from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
 from .rayspace import trace_ray_space
 from .results import finish_closest, finish_hits, unit_normals
 from .traversal import split_middle, trace_object_split
@@ -78,10 +77,10 @@ from .validation import (
 Cull = Literal["none", "back", "front"]
 Strategy = Literal["sampling", "sah", "middle", "rayspace"]
 
-Traced = namedtuple("Traced", ["best_t", "arrays", "counters", "batch"])
+Traced = namedtuple("Traced", ["best_t", "arrays", "counters", "origins", "directions"])
 Traced.__doc__ = """What the kernels leave of a query: each ray's best_t, the query's
-``QueryArrays`` (without scratch), the counters (a dict), and the checked rays as the kernels
-read them (``RayBatch``)."""
+``QueryArrays`` (without scratch), the counters (a dict), and the checked float32 origins and
+directions."""
 
 
 class Scene:
@@ -194,10 +193,10 @@ class Scene:
         """Each kernel row's mesh mask (uint32, 4 bytes a triangle), for batches whose rays
         carry different masks: derived once per scene, on its first such query."""
         counts = np.diff(self.mesh_offsets)
-        return kernel_input(np.repeat(self.masks, counts)[self._tri_global], None)
+        return np.ascontiguousarray(np.repeat(self.masks, counts)[self._tri_global])
 
     _no_normals = np.empty((0, 3), FLOAT)
-    _no_masks = kernel_input(np.empty(0, np.uint32), None)  # as the checks give masks
+    _no_masks = np.empty(0, np.uint32)
 
     def __repr__(self) -> str:
         return f"Scene({self.n_meshes} meshes, {self.n_triangles} triangles)"
@@ -323,7 +322,8 @@ class Scene:
             answer.list_t,
             answer.list_tri,
             offsets,
-            traced.batch,
+            traced.origins,
+            traced.directions,
             self._tri_global,
             self.mesh_offsets,
             self._tri_verts,
@@ -383,7 +383,6 @@ class Scene:
         threads = check_threads(threads, N_CORES)
         flags |= CULL_FLAGS[check_cull(cull)]
         origins, directions, tmin, tmax = check_rays(origins, directions, tmin, tmax)
-        batch = ray_batch(origins, directions, tmin, tmax)
         n_rays = len(origins)
         ray_masks = None if mask is None else check_masks(mask, n_rays, "mask", "ray")
         mask_flags, visible_rows, tri_masks = self._visible_rows(ray_masks)
@@ -409,16 +408,15 @@ class Scene:
         n_live = len(self._tri_verts) if visible_rows is None else len(visible_rows)
         if n_rays == 0 or n_live == 0:
             explain_bad_rays(origins, directions, tmin, tmax)  # no kernel will check them
-            return Traced(best_t, answer, counters, batch)
+            return Traced(best_t, answer, counters, origins, directions)
         code = STRATEGY_CODES[strategy]
         flags |= code << STRATEGY_SHIFT
         ray_space = code == RAYSPACE
         if not ray_space and not flags & COLLECT and splits_triangles(n_rays, n_live, threads):
-            per_half = self._trace_halves(flags, batch, visible_rows, answer, best_t)
-            if per_half is None:
-                explain_bad_rays(origins, directions, tmin, tmax)
-                raise InputError("the batch holds an invalid ray")  # explain_bad_rays names it
-            return Traced(best_t, answer, add_counters(counters, per_half), batch)
+            per_half = self._trace_halves(
+                flags, origins, directions, tmin, tmax, visible_rows, answer, best_t
+            )
+            return Traced(best_t, answer, add_counters(counters, per_half), origins, directions)
         # The values are not checked yet (each chunk checks its own): a bad ray may make
         # the choice of chunks poor, never wrong.
         with np.errstate(invalid="ignore", over="ignore"):
@@ -432,7 +430,7 @@ class Scene:
         def run(chunk):
             ray_ids = chunk_ids(plan, n_rays, n_chunks, chunk)
             rays = new_records(len(ray_ids))
-            if not pack_rays(batch, ray_ids, rays):
+            if not pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
                 return None  # a bad ray: no kernel traces this chunk
             chunk_flags = flags | (FIXED_ORIGIN if uniform_origin(rays, len(ray_ids)) else 0)
             tri_ids = (
@@ -458,15 +456,14 @@ class Scene:
         if any(chunk_stats is None for chunk_stats in per_chunk):
             explain_bad_rays(origins, directions, tmin, tmax)
             raise InputError("the batch holds an invalid ray")  # explain_bad_rays names it
-        return Traced(best_t, answer, add_counters(counters, per_chunk), batch)
+        return Traced(best_t, answer, add_counters(counters, per_chunk), origins, directions)
 
-    def _trace_halves(self, flags, batch, visible_rows, answer, best_t):
-        """Trace a closest or occlusion batch (``batch``: ``RayBatch``) on two threads, each with
-        every ray against one half of the triangles (split at the middle of the scene's box);
-        then each ray keeps the better of its two answers, the smaller (t, row), as one trace
-        would. Writes best_t and ``answer``'s best_tri, hit_u and hit_v; returns each half's
-        stats, or None for a batch that holds an invalid ray (``pack_rays``)."""
-        n_rays = len(batch.tmin)
+    def _trace_halves(self, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t):
+        """Trace a closest or occlusion batch on two threads, each with every ray against one
+        half of the triangles (split at the middle of the scene's box); then each ray keeps the
+        better of its two answers, the smaller (t, row), as one trace would. Writes best_t and
+        ``answer``'s best_tri, hit_u and hit_v; returns each half's stats."""
+        n_rays = len(origins)
         tri_ids = (
             np.arange(len(self._tri_verts), dtype=INDEX)
             if visible_rows is None
@@ -477,8 +474,9 @@ class Scene:
         _, tri_mid = split_middle(tris, 0, len(tri_ids), self._box, boxes)
         rays = new_records(n_rays)
         ray_ids = np.arange(n_rays, dtype=INDEX)
-        if not pack_rays(batch, ray_ids, rays):
-            return None  # a bad ray: no kernel traces the batch
+        if not pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
+            explain_bad_rays(origins, directions, tmin, tmax)
+            raise InputError("the batch holds an invalid ray")  # explain_bad_rays names it
         if uniform_origin(rays, n_rays):
             flags |= FIXED_ORIGIN
         records = (rays, rays.copy())  # each half permutes its own

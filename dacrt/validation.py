@@ -4,13 +4,12 @@ batch's values are checked as the kernels pack them (``rays.pack_rays``), and a 
 named here (``explain_bad_rays``) before any answer is returned.
 
 The checked arrays come in one layout, whatever the caller's were (``contracts.kernel_input``):
-read-only, C-contiguous and aligned, float32, int32 or int64 faces and uint32 masks, so that each
-kernel compiles once (twice for faces). Ray origins and directions may stay rows of a wider
-array, which ``rays.ray_batch`` reads in place."""
+C-contiguous, aligned and writable, float32, int32 or int64 faces and uint32 masks, so that each
+kernel compiles once (twice for faces)."""
 
 import numpy as np
 
-from .contracts import FLOAT, INDEX, STRATEGIES, kernel_input, read_only
+from .contracts import FLOAT, INDEX, STRATEGIES, kernel_input
 from .query import CULL_MODES
 from .triangles import all_finite, faces_in_range
 
@@ -27,19 +26,15 @@ def _first_bad(bad, what, reason, total_label):
         raise InputError(f"{what}[{bad_rows[0]}] {reason} ({len(bad_rows)} {total_label})")
 
 
-def as_float_rows(array, name, width=3, check_finite=True, contiguous=True):
-    """``array`` as a read-only float32 (n, width) array (``kernel_input``) unless
-    ``contiguous`` is false (then a read-only float32 view, such as the columns of a wider
-    array, no copy); finite values required."""
+def as_float_rows(array, name, width=3, check_finite=True):
+    """``array`` as a float32 (n, width) array (``kernel_input``); finite values required."""
     array = np.asarray(array)
     if array.ndim != 2 or array.shape[1] != width:
         raise InputError(f"{name} must have shape (n, {width}), got {array.shape}")
     if array.dtype.kind not in "fiu" or array.dtype.kind == "b":
         raise InputError(f"{name} must be a float array, got dtype {array.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
-        converted = (
-            kernel_input(array, FLOAT) if contiguous else read_only(np.asarray(array, FLOAT))
-        )
+        converted = kernel_input(array, FLOAT)
     if check_finite:
         _first_bad(
             ~np.isfinite(converted).all(axis=1),
@@ -105,12 +100,11 @@ def explain_bad_faces(faces, n_vertices, name="faces"):
 
 
 def check_rays(origins, directions, tmin, tmax):
-    """Check a ray batch's shapes and dtypes; returns float32 origins, directions, tmin, tmax.
-    Origins and directions may be strided views (the columns of one (n, 6) array): the kernels
-    read them as they are, which saves a copy of the batch. The values are checked as the
-    kernels pack them (``rays.pack_rays``); ``explain_bad_rays`` then names a bad one."""
-    origins = as_float_rows(origins, "origins", check_finite=False, contiguous=False)
-    directions = as_float_rows(directions, "directions", check_finite=False, contiguous=False)
+    """Check a ray batch's shapes and dtypes; returns float32 origins, directions, tmin, tmax
+    (``kernel_input``: the columns of one (n, 6) array are copied). The values are checked as
+    the kernels pack them (``rays.pack_rays``); ``explain_bad_rays`` then names a bad one."""
+    origins = as_float_rows(origins, "origins", check_finite=False)
+    directions = as_float_rows(directions, "directions", check_finite=False)
     n = len(origins)
     if len(directions) != n:
         raise InputError(f"origins has {n} rows but directions has {len(directions)}")
@@ -131,14 +125,14 @@ def explain_bad_rays(origins, directions, tmin, tmax):
 
 
 def _ray_range(value, default, n, name):
-    """A scalar or (n,) bound as a read-only float32 (n,) array."""
+    """A scalar or (n,) bound as a float32 (n,) array."""
     if value is None:
-        return kernel_input(np.full(n, default, FLOAT), None)
+        return np.full(n, default, FLOAT)
     value = np.asarray(value)
     if value.dtype.kind not in "fiu" or value.dtype.kind == "b":
         raise InputError(f"{name} must be a number or a float array, got dtype {value.dtype}")
     if value.ndim == 0:
-        return kernel_input(np.full(n, value, FLOAT), None)
+        return np.full(n, value, FLOAT)
     if value.shape != (n,):
         raise InputError(f"{name} must be a scalar or have shape ({n},), got {value.shape}")
     with np.errstate(over="ignore"):
@@ -182,8 +176,7 @@ def check_transform(matrix, name="matrix"):
 
 def place_vertices(vertices, matrix, name):
     """``vertices`` (V, 3) moved by the affine ``matrix`` (``check_transform``) in float64,
-    as read-only float32; ValueError naming ``name`` if a placed vertex leaves the float32
-    range."""
+    as float32; ValueError naming ``name`` if a placed vertex leaves the float32 range."""
     placed = vertices.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
     with np.errstate(over="ignore"):
         placed = placed.astype(FLOAT)
@@ -192,7 +185,7 @@ def place_vertices(vertices, matrix, name):
         raise InputError(
             f"{name} places vertex {bad[0]} beyond the float32 range ({len(bad)} vertices)"
         )
-    return read_only(placed)
+    return placed
 
 
 def check_max_hits(max_hits):

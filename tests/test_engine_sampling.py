@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from dacrt.config import N_BINS, N_SAMPLE_RAYS
-from dacrt.rays import new_records, pack_rays, ray_batch
+from dacrt.rays import new_records, pack_rays
 from dacrt.traversal import PADDED_CANDIDATES, sample_rays, sampled_axis
 
 
@@ -19,8 +19,14 @@ def _records(origins, directions):
     origins = np.asarray(origins, np.float32)
     directions = np.asarray(directions, np.float32)
     rays = new_records(n)
-    batch = ray_batch(origins, directions, np.zeros(n, np.float32), np.full(n, np.inf, np.float32))
-    assert pack_rays(batch, np.arange(n, dtype=np.int32), rays)
+    assert pack_rays(
+        origins,
+        directions,
+        np.zeros(n, np.float32),
+        np.full(n, np.inf, np.float32),
+        np.arange(n, dtype=np.int32),
+        rays,
+    )
     return rays, origins, directions
 
 

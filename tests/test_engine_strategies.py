@@ -184,7 +184,7 @@ def test_batch_split_does_not_change_answers(strategy, default_answers):
 
 
 def test_uniform_origin_is_true_only_when_every_record_shares_origin_and_tmin():
-    from dacrt.rays import new_records, pack_rays, ray_batch, uniform_origin
+    from dacrt.rays import new_records, pack_rays, uniform_origin
 
     n = 1000  # several of the check's blocks
     origins = np.tile(np.float32([0.0, 1.5, -2.0]), (n, 1))
@@ -195,7 +195,7 @@ def test_uniform_origin_is_true_only_when_every_record_shares_origin_and_tmin():
 
     def fixed(o, d, t0=tmin):
         rays = new_records(n)
-        assert pack_rays(ray_batch(o, d, t0, tmax), ids, rays)
+        assert pack_rays(o, d, t0, tmax, ids, rays)
         return uniform_origin(rays, n)
 
     assert fixed(origins, directions)

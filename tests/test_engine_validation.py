@@ -351,10 +351,11 @@ def _plain(value):
 
 @pytest.mark.parametrize("faces_as", ["int32", "int64", "uint16", "read-only int32"])
 def test_every_input_layout_gives_the_same_answers_and_compiles_nothing(faces_as):
-    """The checks hand the kernels one layout (read-only, float32, int32 or int64 faces, uint32
-    masks): after dacrt.warmup(), meshes and rays in every layout callers use compile no kernel
-    (a server's bodies are read-only column views; a kernel compiled for them on a first request
-    takes minutes), and each layout gives the answers of plain arrays of the same values."""
+    """The checks hand the kernels one layout (C-contiguous and writable, float32, int32 or
+    int64 faces, uint32 masks): after dacrt.warmup(), meshes and rays in every layout callers use
+    compile no kernel (a server's bodies are read-only column views; a kernel compiled for them
+    on a first request takes minutes), and each layout gives the answers of plain arrays of the
+    same values."""
     dacrt.warmup()
     before = _compiled_signatures()
     vertices, faces = _mesh()

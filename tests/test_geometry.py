@@ -9,7 +9,7 @@ import pytest
 
 from dacrt.geometry import cull_distance, intersect_triangle, triangle_normal, watertight_setup
 from dacrt.partition import mark_rays_hitting_box
-from dacrt.rays import new_records, pack_rays, ray_batch
+from dacrt.rays import new_records, pack_rays
 
 SEEDS = (0, 1, 2)
 
@@ -33,7 +33,7 @@ def box_mask(origins, directions, tmin, tmax, box):
     """The kernel's verdict (``mark_rays_hitting_box`` over packed records) for every ray."""
     n = len(origins)
     rays = new_records(n)
-    assert pack_rays(ray_batch(origins, directions, tmin, tmax), np.arange(n, dtype=np.int32), rays)
+    assert pack_rays(origins, directions, tmin, tmax, np.arange(n, dtype=np.int32), rays)
     mask = np.zeros(n, np.bool_)
     mark_rays_hitting_box(rays, 0, n, np.asarray(box, np.float32), mask, False)
     return mask

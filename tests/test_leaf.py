@@ -20,7 +20,7 @@ from dacrt.geometry import (
 )
 from dacrt.leaf import NO_HIT, intersect_leaf, leaf_scratch
 from dacrt.query import ALL_HITS, ANY_HIT, COUNT, CULL_FLAGS, MASKED, QueryArrays
-from dacrt.rays import BEST_T, new_records, pack_rays, ray_batch
+from dacrt.rays import BEST_T, new_records, pack_rays
 from dacrt.triangles import Triangles
 
 MODE_CLOSEST = 0
@@ -55,7 +55,7 @@ def run_leaf(
     # Records in another order than the rays: answers go by ray id, not by record.
     ray_ids = np.random.default_rng(n).permutation(n).astype(np.int32)
     rays = new_records(n)
-    assert pack_rays(ray_batch(origins, directions, tmin, tmax), ray_ids, rays)
+    assert pack_rays(origins, directions, tmin, tmax, ray_ids, rays)
     best_tri = np.full(n, NO_HIT, np.int32)
     hit_u = np.zeros(n, np.float32)
     hit_v = np.zeros(n, np.float32)

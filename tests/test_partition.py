@@ -19,7 +19,7 @@ from dacrt.partition import (
     sweep_bins,
     triangle_bounds,
 )
-from dacrt.rays import new_records, pack_rays, ray_batch
+from dacrt.rays import new_records, pack_rays
 from dacrt.rayspace import compare_scratch, partition_rays
 from dacrt.triangles import Triangles, triangle_boxes
 
@@ -168,7 +168,7 @@ def packed(rng, n):
     tmax = (tmin + rng.uniform(0, 5, n)).astype(np.float32)
     ray_ids = rng.permutation(n).astype(np.int32)
     rays = new_records(n)
-    assert pack_rays(ray_batch(origins, directions, tmin, tmax), ray_ids, rays)
+    assert pack_rays(origins, directions, tmin, tmax, ray_ids, rays)
     return rays, ray_ids, np.column_stack([origins, tmin, directions, tmax])
 
 

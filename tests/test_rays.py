@@ -39,7 +39,7 @@ def test_packed_records_read_back_in_the_order_of_their_ids(n):
     origins, directions, tmin, tmax = batch(2 * n)
     ray_ids = np.random.default_rng(1).permutation(2 * n)[:n].astype(np.int32)
     records = rays.new_records(n)
-    assert rays.pack_rays(rays.ray_batch(origins, directions, tmin, tmax), ray_ids, records)
+    assert rays.pack_rays(origins, directions, tmin, tmax, ray_ids, records)
     for r, ray in enumerate(ray_ids):
         assert read(records, "origin", r, 3) == origins[ray].tolist()
         assert read(records, "direction", r, 3) == directions[ray].tolist()
@@ -49,61 +49,6 @@ def test_packed_records_read_back_in_the_order_of_their_ids(n):
     assert np.array_equal(best_t[ray_ids], tmax[ray_ids])  # back in ray order
     untouched = np.setdiff1d(np.arange(2 * n), ray_ids)
     assert np.all(best_t[untouched] == -1.0)
-
-
-def _layouts(rows):
-    """(name, array, read in place) for the layouts a caller may hand ``ray_batch``: rows
-    holding the values of ``rows`` (n, 3) float32."""
-    n = len(rows)
-    wide = np.zeros((n, 8), np.float32)
-    wide[:, 2:5] = rows
-    body = wide.copy()
-    body.flags.writeable = False
-    reversed_rows = rows[::-1].copy()[::-1]
-    fortran = np.asfortranarray(rows)
-    every_other = np.repeat(rows, 2, axis=0)[::2]
-    unaligned = np.ndarray(rows.shape, np.float32, bytearray(rows.nbytes + 1), offset=1)
-    unaligned[:] = rows
-    return [
-        ("C-contiguous", rows, True),
-        ("columns of a wider array", wide[:, 2:5], True),
-        ("read-only columns", body[:, 2:5], True),
-        ("reversed rows", reversed_rows, n < 2),
-        ("Fortran order", fortran, n < 2),
-        ("every other row", every_other, True),
-        ("unaligned", unaligned, False),
-    ]
-
-
-@pytest.mark.parametrize("n", [0, 1, 2, 100])
-def test_a_ray_batch_reads_every_layout_in_one_type_and_packs_the_same_records(n):
-    """``ray_batch`` gives one array type whatever the layout (so one compiled ``pack_rays``),
-    reads rows whose columns are adjacent in place, and every layout packs the same records."""
-    origins, directions, tmin, tmax = batch(n)
-    ids = np.arange(n, dtype=np.int32)
-    want = rays.new_records(n)
-    assert rays.pack_rays(rays.ray_batch(origins, directions, tmin, tmax), ids, want)
-    for name, array, in_place in _layouts(origins):
-        packed_batch = rays.ray_batch(array, directions, tmin, tmax)
-        assert packed_batch.origins.ndim == 1 and packed_batch.origins.flags.c_contiguous, name
-        assert not packed_batch.origins.flags.writeable, name
-        assert np.shares_memory(packed_batch.origins, array) == (in_place and n > 0), name
-        got = rays.new_records(n)
-        assert rays.pack_rays(packed_batch, ids, got)
-        np.testing.assert_array_equal(got[:, : 4 * n], want[:, : 4 * n], err_msg=name)
-
-
-def test_one_origin_for_every_ray_is_read_in_place():
-    """Rays from one point (a broadcast row, as a camera's) are read in place, stride 0."""
-    origins, directions, tmin, tmax = batch(50)
-    one = np.broadcast_to(origins[0], origins.shape)
-    packed_batch = rays.ray_batch(one, directions, tmin, tmax)
-    assert packed_batch.origin_stride == 0 and np.shares_memory(packed_batch.origins, origins)
-    ids = np.arange(50, dtype=np.int32)
-    got, want = rays.new_records(50), rays.new_records(50)
-    assert rays.pack_rays(packed_batch, ids, got)
-    assert rays.pack_rays(rays.ray_batch(one.copy(), directions, tmin, tmax), ids, want)
-    np.testing.assert_array_equal(got[:, :200], want[:, :200])
 
 
 BAD = {
@@ -126,17 +71,16 @@ def test_one_bad_ray_makes_the_pack_invalid(kind, bad_ray):
     name, where, value = BAD[kind]
     arrays[name][(bad_ray, *where) if where != slice(None) else (bad_ray, where)] = value
     ids = np.arange(100, dtype=np.int32)
-    assert not rays.pack_rays(rays.ray_batch(*arrays.values()), ids, rays.new_records(100))
+    assert not rays.pack_rays(*arrays.values(), ids, rays.new_records(100))
     others = np.delete(ids, bad_ray)  # the same batch without that ray is valid
-    assert rays.pack_rays(rays.ray_batch(*arrays.values()), others, rays.new_records(99))
+    assert rays.pack_rays(*arrays.values(), others, rays.new_records(99))
 
 
 def test_an_infinite_tmax_is_valid():
     origins, directions, tmin, tmax = batch(10)
     tmax[:] = np.inf
     ids = np.arange(10, dtype=np.int32)
-    packable = rays.ray_batch(origins, directions, tmin, tmax)
-    assert rays.pack_rays(packable, ids, rays.new_records(10))
+    assert rays.pack_rays(origins, directions, tmin, tmax, ids, rays.new_records(10))
 
 
 def packed(origins: np.ndarray, tmin: np.ndarray) -> np.ndarray:
@@ -144,9 +88,7 @@ def packed(origins: np.ndarray, tmin: np.ndarray) -> np.ndarray:
     directions = np.tile(np.float32([0, 0, 1]), (n, 1))
     records = rays.new_records(n)
     ids = np.arange(n, dtype=np.int32)
-    rays.pack_rays(
-        rays.ray_batch(origins, directions, tmin, np.full(n, np.inf, np.float32)), ids, records
-    )
+    rays.pack_rays(origins, directions, tmin, np.full(n, np.inf, np.float32), ids, records)
     return records
 
 
@@ -177,7 +119,7 @@ def test_a_swap_exchanges_whole_records_and_their_ids(fixed_origin):
     origins, directions, tmin, tmax = batch(8)
     ids = np.arange(8, dtype=np.int32)
     records = rays.new_records(8)
-    rays.pack_rays(rays.ray_batch(origins, directions, tmin, tmax), ids, records)
+    rays.pack_rays(origins, directions, tmin, tmax, ids, records)
     before = records.copy()
     rays.swap_rays(rays.quad_view(records), ids, 2, 5, fixed_origin)
     assert ids.tolist() == [0, 1, 5, 3, 4, 2, 6, 7]

@@ -9,7 +9,6 @@ import pytest
 
 from dacrt import MISS, results
 from dacrt.leaf import NO_HIT
-from dacrt.rays import ray_batch
 
 #: Two meshes: mesh 0 holds global triangles 0-1, mesh 1 holds 2-4. Kernel row r is global
 #: triangle TRI_GLOBAL[r] (rows rise with global indices; triangle 3 is degenerate: no row).
@@ -95,7 +94,8 @@ def test_every_hit_is_copied_into_its_rays_rows_with_u_v_on_its_triangle():
         list_t,
         list_tri,
         offsets,
-        ray_batch(origins, directions, np.zeros(4, np.float32), np.full(4, np.inf, np.float32)),
+        origins,
+        directions,
         TRI_GLOBAL,
         MESH_OFFSETS,
         TRI_VERTS,
