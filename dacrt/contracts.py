@@ -1,5 +1,5 @@
-"""Array contracts shared by the engine: dtypes, the miss marker, strategies, float32 constants,
-the stats layout and the answer types."""
+"""Array contracts shared by the engine: dtypes, the layout of inputs, the miss marker,
+strategies, float32 constants, the stats layout and the answer types."""
 
 from dataclasses import dataclass
 
@@ -8,6 +8,15 @@ import numpy as np
 FLOAT = np.float32
 INDEX = np.int32
 MISS = -1
+
+
+def kernel_input(array, dtype):
+    """``array`` as the kernels receive every input array: ``dtype`` (None: its own), a base
+    ndarray, C-contiguous, aligned and writable; the array itself where it already is, else a
+    copy. Each of these is part of a kernel's argument type, so every input gives one signature;
+    read-only arrays (a server's bodies) are copied, as Numba's code reads them more slowly."""
+    return np.require(array, dtype, "CAWE")
+
 
 STRATEGIES = ("sampling", "sah", "middle", "rayspace")
 # The kernels' codes of the strategies.

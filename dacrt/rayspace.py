@@ -301,7 +301,9 @@ def widest_dimension(frustum, scene_size):
     are weighed by the distance they travel across the scene, so both kinds are in world
     units."""
     spread = 0.0
-    dim = -1
+    # Not a literal -1: Numba types a call with the literal first, and would compile
+    # partition_rays for it as well.
+    dim = np.int64(-1)
     for d in range(5):
         if d < 3:
             extent = frustum[_O_MAX + d] - frustum[_O_MIN + d]

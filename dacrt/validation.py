@@ -1,11 +1,15 @@
 """Input checks of the public API: shapes, dtypes and values, each error naming the first bad
 index and how many there are. Everything past here assumes clean float32/int32 arrays; a ray
 batch's values are checked as the kernels pack them (``rays.pack_rays``), and a bad batch is
-named here (``explain_bad_rays``) before any answer is returned."""
+named here (``explain_bad_rays``) before any answer is returned.
+
+The checked arrays come in one layout, whatever the caller's were (``contracts.kernel_input``):
+C-contiguous, aligned and writable, float32, int32 or int64 faces and uint32 masks, so that each
+kernel compiles once (twice for faces)."""
 
 import numpy as np
 
-from .contracts import FLOAT, STRATEGIES
+from .contracts import FLOAT, INDEX, STRATEGIES, kernel_input
 from .query import CULL_MODES
 from .triangles import all_finite, faces_in_range
 
@@ -22,21 +26,15 @@ def _first_bad(bad, what, reason, total_label):
         raise InputError(f"{what}[{bad_rows[0]}] {reason} ({len(bad_rows)} {total_label})")
 
 
-def as_float_rows(array, name, width=3, check_finite=True, contiguous=True):
-    """``array`` as a float32 (n, width) array, C-contiguous unless ``contiguous`` is false
-    (then a float32 view, such as the columns of a wider array, is used as it is, no copy);
-    finite values required."""
+def as_float_rows(array, name, width=3, check_finite=True):
+    """``array`` as a float32 (n, width) array (``kernel_input``); finite values required."""
     array = np.asarray(array)
     if array.ndim != 2 or array.shape[1] != width:
         raise InputError(f"{name} must have shape (n, {width}), got {array.shape}")
     if array.dtype.kind not in "fiu" or array.dtype.kind == "b":
         raise InputError(f"{name} must be a float array, got dtype {array.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
-        converted = (
-            np.ascontiguousarray(array, dtype=FLOAT)
-            if contiguous
-            else np.asarray(array, dtype=FLOAT)
-        )
+        converted = kernel_input(array, FLOAT)
     if check_finite:
         _first_bad(
             ~np.isfinite(converted).all(axis=1),
@@ -48,7 +46,8 @@ def as_float_rows(array, name, width=3, check_finite=True, contiguous=True):
 
 
 def check_mesh(index, vertices, faces):
-    """Validate one mesh; returns (vertices float32 (V,3), faces (F,3) integer, C-contiguous)."""
+    """Validate one mesh; returns (vertices float32 (V, 3), faces int32 or int64 (F, 3)), as
+    ``kernel_input`` gives them."""
     label = f"mesh {index}"
     vertices = np.asarray(vertices)
     faces = np.asarray(faces)
@@ -67,10 +66,9 @@ def check_mesh(index, vertices, faces):
     vertices = as_float_rows(vertices, f"{label}: vertices", check_finite=False)
     if not all_finite(vertices):
         explain_bad_vertices(vertices, f"{label}: vertices")
-    # Kernels are compiled for int32 and int64 faces; other integer types are converted once.
-    faces = np.ascontiguousarray(
-        faces, dtype=None if faces.dtype in (np.int32, np.int64) else np.int64
-    )
+    # Kernels take int32 and int64 faces (narrowing int64 would copy on every Scene); other
+    # integer types become int64.
+    faces = kernel_input(faces, None if faces.dtype in (INDEX, np.int64) else np.int64)
     if not faces_in_range(faces, len(vertices)):
         explain_bad_faces(faces, len(vertices), f"{label}: faces")
     return vertices, faces
@@ -102,12 +100,11 @@ def explain_bad_faces(faces, n_vertices, name="faces"):
 
 
 def check_rays(origins, directions, tmin, tmax):
-    """Check a ray batch's shapes and dtypes; returns float32 origins, directions, tmin, tmax.
-    Origins and directions may be strided views (the columns of one (n, 6) array): the kernels
-    read them as they are, which saves a copy of the batch. The values are checked as the
-    kernels pack them (``rays.pack_rays``); ``explain_bad_rays`` then names a bad one."""
-    origins = as_float_rows(origins, "origins", check_finite=False, contiguous=False)
-    directions = as_float_rows(directions, "directions", check_finite=False, contiguous=False)
+    """Check a ray batch's shapes and dtypes; returns float32 origins, directions, tmin, tmax
+    (``kernel_input``: the columns of one (n, 6) array are copied). The values are checked as
+    the kernels pack them (``rays.pack_rays``); ``explain_bad_rays`` then names a bad one."""
+    origins = as_float_rows(origins, "origins", check_finite=False)
+    directions = as_float_rows(directions, "directions", check_finite=False)
     n = len(origins)
     if len(directions) != n:
         raise InputError(f"origins has {n} rows but directions has {len(directions)}")
@@ -139,7 +136,7 @@ def _ray_range(value, default, n, name):
     if value.shape != (n,):
         raise InputError(f"{name} must be a scalar or have shape ({n},), got {value.shape}")
     with np.errstate(over="ignore"):
-        return np.ascontiguousarray(value, dtype=FLOAT)
+        return kernel_input(value, FLOAT)
 
 
 def check_strategy(strategy):
@@ -223,4 +220,4 @@ def check_masks(masks, n, name, what):
             "is outside the uint32 range [0, 2**32)",
             "out of range",
         )
-    return np.ascontiguousarray(masks, dtype=np.uint32)
+    return kernel_input(masks, np.uint32)

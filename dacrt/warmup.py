@@ -1,4 +1,6 @@
-"""Compile (or load from the cache) every kernel by running each query kind on a tiny scene."""
+"""Compile (or load from the cache) every kernel by running each query kind on a tiny scene: the
+public checks hand the kernels one layout whatever the caller's arrays (``validation``), so these
+calls compile every kernel a query can reach."""
 
 import time
 
@@ -26,16 +28,9 @@ def warmup() -> float:
         scene.occluded(origins, directions, strategy=strategy, threads=1)
         scene.hits(origins, directions, strategy=strategy, threads=1)
         scene.count(origins, directions, strategy=strategy, threads=1)
-    # Rays as the columns of one read-only (n, 6) array, as a server decodes them from a body.
-    rays = np.hstack([origins, directions])
-    rays.flags.writeable = False
-    scene.closest(rays[:, :3], rays[:, 3:], threads=1)
-    # Incoherent batches on two threads are cut into slabs of origins (writable arrays, and the
-    # read-only columns of a server's body).
+    # Incoherent batches on two threads are cut into slabs of origins.
     n_rays = 2 * MIN_RAYS_PER_THREAD
     scattered = np.random.default_rng(0).uniform(-1.0, 2.0, (n_rays, 6)).astype(np.float32)
-    scene.closest(scattered[:, :3].copy(), scattered[:, 3:].copy(), threads=2)
-    scattered.flags.writeable = False
     scene.closest(scattered[:, :3], scattered[:, 3:], threads=2)
     # Few rays a triangle on two threads: halves of the triangles (a grid of small quads).
     side = int(np.sqrt(n_rays / SPLIT_TRIANGLES_RAYS_PER_TRIANGLE / 2)) + 1

@@ -56,7 +56,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             load_demo(store, settings)
         threading.Thread(
             target=warm_up,
-            args=(app.state.readiness, settings.threads),
+            args=(app.state.readiness,),
             name="dacrt-warmup",
             daemon=True,
         ).start()
@@ -119,11 +119,11 @@ def open_data_dir(settings: Settings) -> DataDir | None:
         ) from None
 
 
-def warm_up(readiness: Readiness, threads: int | None = None) -> None:
+def warm_up(readiness: Readiness) -> None:
     """Compile every kernel a request can reach (minutes the first time, then seconds from
     Numba's cache)."""
     try:
-        seconds = warmup.warm_up(threads)
+        seconds = warmup.warm_up()
     except Exception as exc:  # report through /health rather than die in a thread
         log.exception("engine warm-up failed")
         readiness.error, readiness.status = f"{type(exc).__name__}: {exc}", "error"

@@ -19,9 +19,7 @@ import numpy as np
 import dacrt
 
 from .errors import Invalid
-
-# CULL_MODES, make_options and strategies: service.warmup reads them here
-from .options import CULL_MODES, Options, Query, make_options, strategies  # noqa: F401
+from .options import Options, Query
 from .store import Snapshot
 from .wire import MeshArrays, Rays
 
@@ -152,8 +150,3 @@ def _run(
         stats = {**stats, "strategy": options.strategy, "where": where}
     seconds = time.perf_counter() - start
     return TraceResult(arrays, version, stats, seconds, len(rays), where)
-
-
-def warmup() -> float:
-    """Compile every engine kernel; answers the seconds taken."""
-    return dacrt.warmup()

@@ -1,56 +1,40 @@
 """The service's warm-up: compile every kernel a request can reach before /health says ok.
 
-``dacrt.warmup`` compiles the engine's queries for the arrays it makes itself; a request's arrays
-come from a body (read-only views, strided columns, JSON lists), which are other Numba
-signatures. So the warm-up then sends tiny bodies of every format through the functions the
-routes call (``wire`` decoders, a private ``Store``, ``tracing``, the answer encoders). It logs
-whether it loads the kernels from the cache or compiles them, every PROGRESS_SECONDS how many
-have compiled and about how long is left, and each group's time.
+The engine's checks hand its kernels one layout whatever a body holds (read-only views, strided
+columns, JSON lists: ``dacrt.validation``), so ``dacrt.warmup`` compiles every kernel a request
+reaches. This runs it and logs whether it loads the kernels from the cache or compiles them, and
+every PROGRESS_SECONDS how many have compiled and about how long is left.
 """
 
 from __future__ import annotations
 
-import io
-import itertools
-import json
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 
-import numpy as np
-
+import dacrt
 import dacrt.cache
 from dacrt import compiling
-
-from . import tracing, wire
-from .store import Store
 
 log = logging.getLogger("service")
 
 #: Seconds between progress lines while the kernels compile or load.
 PROGRESS_SECONDS = 15.0
-#: Kernels a warm-up compiles from an empty cache (``compiling.compiled_kernels()``, counted on
-#: af71529): the "of about N" of the progress lines and their time left.
-EXPECTED_COMPILES = 37
+#: Kernels a warm-up compiles from an empty cache (``compiling.compiled_kernels()``): the "of
+#: about N" of the progress lines and their time left.
+EXPECTED_COMPILES = 27
 #: What a first start takes, measured from an empty cache (README, First start).
 COLD_START = "about a minute on 2 idle cores, up to 15 on 2 cores busy with other work"
 
-VERTICES = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
-FACES = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
-RAYS = np.array(
-    [[0.25, 0.5, 1, 0, 0, -1, 0, 10], [5, 5, 1, 0, 0, -1, 0, 10]], np.float32
-)  #: a hit and a miss, with tmin and tmax
-
 
 class Progress:
-    """The warm-up's progress: the group under way and the kernels compiled since ``start``."""
+    """The warm-up's progress: the kernels compiled since ``start``."""
 
     def __init__(self) -> None:
         self.start = time.perf_counter()
         self.first_count = compiling.compiled_kernels()
-        self.group = ""
 
     @property
     def compiled(self) -> int:
@@ -61,7 +45,7 @@ class Progress:
         elapsed = time.perf_counter() - self.start
         compiled = self.compiled
         if not compiled:
-            return f"warm-up: loading {self.group} from the cache ({elapsed:.0f} s)"
+            return f"warm-up: loading the engine's kernels from the cache ({elapsed:.0f} s)"
         kernel = compiling.latest_kernel()
         if compiled >= EXPECTED_COMPILES:
             return f"warm-up: compiling kernel {compiled} ({kernel}), {elapsed:.0f} s so far"
@@ -74,18 +58,6 @@ class Progress:
         return (
             f"warm-up: compiling kernel {compiled} of about {EXPECTED_COMPILES} ({kernel}), "
             f"{elapsed:.0f} s so far{left}"
-        )
-
-    @contextmanager
-    def step(self, group: str) -> Iterator[None]:
-        """Run one group of kernels, and log its time and compiles."""
-        start, compiled, self.group = time.perf_counter(), self.compiled, group
-        yield
-        log.info(
-            "warm-up: %s ready after %.1f s (%d kernels compiled)",
-            group,
-            time.perf_counter() - start,
-            self.compiled - compiled,
         )
 
     @contextmanager
@@ -126,123 +98,20 @@ def announce() -> None:
         )
 
 
-def warm_up(threads: int | None = None) -> float:
+def warm_up() -> float:
     """Compile (or load from Numba's cache: ``dacrt.cache``) every kernel; answers the seconds
     taken."""
     announce()
     progress = Progress()
-    with compiling.warming_up(), progress.reporting():
-        with progress.step("the engine's kernels (dacrt.warmup)"):
-            tracing.warmup()
-        with progress.step("mesh uploads, vertex updates and frames"):
-            store = warm_up_meshes()
-        with progress.step("queries on every ray format"):
-            warm_up_queries(store, threads)
-    return time.perf_counter() - progress.start
-
-
-def body(data: bytes) -> memoryview:
-    """A read-only body, as a request's."""
-    return memoryview(data).toreadonly()
-
-
-def npy(array: np.ndarray) -> memoryview:
-    out = io.BytesIO()
-    np.save(out, array, allow_pickle=False)
-    return body(out.getvalue())
-
-
-def npz(**arrays: np.ndarray) -> memoryview:
-    out = io.BytesIO()
-    np.savez(out, **arrays)
-    return body(out.getvalue())
-
-
-def as_json(**values: object) -> memoryview:
-    listed = {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in values.items()}
-    return body(json.dumps(listed).encode())
-
-
-def mesh_files() -> dict[str, bytes]:
-    """The quad as every mesh file format the service reads."""
-    import trimesh  # slow to import, as in ``wire.meshfile``
-
-    quad = trimesh.Trimesh(VERTICES, FACES, process=False)
-    files = {fmt: quad.export(file_type=fmt) for fmt in ("ply", "stl", "glb")}
-    files["obj"] = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n"
-    files["off"] = b"OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n"
-    return {fmt: data if isinstance(data, bytes) else data.encode() for fmt, data in files.items()}
-
-
-def warm_up_meshes() -> Store:
-    """Every mesh body format into a private store, a vertex update of each format and a frame."""
-    store = Store(2**20, 2**30)
-    bodies = {
-        "npz": npz(vertices=VERTICES, faces=FACES),
-        "json": as_json(vertices=VERTICES, faces=FACES),
-    }
-    bodies.update({fmt: body(data) for fmt, data in mesh_files().items()})
-    for fmt, data in bodies.items():
-        store.put_mesh("warm-up", fmt, wire.decode_mesh(data, fmt))
-    moved = VERTICES + np.float32(0.5)
-    vertex_bodies = {"npy": npy(moved), "npz": npz(vertices=moved), "json": as_json(vertices=moved)}
-    for fmt, data in vertex_bodies.items():
-        store.update_vertices("warm-up", "npz", wire.decode_vertices(data, fmt))
-    frames = {
-        "npz": npz(**{"npz.vertices": VERTICES, "new.vertices": VERTICES, "new.faces": FACES}),
-        "json": as_json(
-            **{"json.vertices": VERTICES, "new.vertices": VERTICES, "new.faces": FACES}
-        ),
-    }
-    for fmt, data in frames.items():
-        store.apply_frame("warm-up", wire.decode_frame(data, fmt))
-    return store
-
-
-def warm_up_queries(store: Store, threads: int | None) -> None:
-    """closest and occluded with every strategy, culling mode and with and without statistics on
-    rays of every format, and the one-shot trace."""
-    origins, directions, tmin, tmax = RAYS[:, 0:3], RAYS[:, 3:6], RAYS[:, 6], RAYS[:, 7]
-    ray_bodies = {
-        "npy": [npy(RAYS[:, :6]), npy(RAYS)],
-        "npz": [npz(origins=origins, directions=directions, tmin=tmin, tmax=tmax)],
-        "json": [
-            as_json(origins=origins, directions=directions),
-            as_json(origins=origins, directions=directions, tmin=0.0, tmax=tmax),
-        ],
-    }
-    snapshot = store.snapshot("warm-up")
-    for fmt, bodies in ray_bodies.items():
-        for data in bodies:
-            rays = wire.decode_rays(data, fmt)
-            for query, strategy, cull, stats in itertools.product(
-                tracing.Query, tracing.strategies(), tracing.CULL_MODES, (False, True)
-            ):
-                options = tracing.make_options(
-                    query, strategy=strategy, stats=stats, threads=threads, cull=cull
-                )
-                encode(tracing.trace(snapshot, rays, options).arrays, options.answer_formats)
-    trace_bodies = {
-        "npz": npz(vertices=VERTICES, faces=FACES, origins=origins, directions=directions),
-        "json": as_json(vertices=VERTICES, faces=FACES, origins=origins, directions=directions),
-    }
-    for fmt, data in trace_bodies.items():
-        mesh, rays = wire.decode_trace(data, fmt)
-        for query in tracing.Query:
-            options = tracing.make_options(query, threads=threads)
-            encode(tracing.trace_once(mesh, rays, options).arrays, options.answer_formats)
-
-
-def encode(
-    arrays: dict[str, np.ndarray],
-    formats: tuple[str, ...] = wire.ANSWER_FORMATS,
-    consume: Callable[[object], object] = bytes,
-) -> None:
-    """Each answer format of ``formats``, sent nowhere."""
-    for fmt in formats:
-        parts, _, _ = wire.encode_answer(arrays, fmt)
-        for part in parts:
-            consume(part)
+    with progress.reporting():
+        dacrt.warmup()
+    seconds = time.perf_counter() - progress.start
+    log.info(
+        "warm-up: the engine's kernels (dacrt.warmup) ready after %.1f s (%d kernels compiled)",
+        seconds,
+        progress.compiled,
+    )
+    return seconds
 
 
 def main() -> None:

@@ -8,6 +8,7 @@ cannot appear in a message by accident.
 from __future__ import annotations
 
 import re
+import sys
 
 import numpy as np
 import procedural as pg
@@ -290,3 +291,86 @@ def test_valid_edge_values_are_accepted(query):
     getattr(scene, query)(origins, directions, 0.5, 0.5)
     getattr(scene, query)(origins, directions, 0.0, np.inf)
     getattr(scene, query)(origins, directions, threads=64)
+
+
+def _compiled_signatures():
+    """{kernel: signatures compiled} over every Numba dispatcher of dacrt's modules."""
+    import numba
+
+    counts = {}
+    for name, module in list(sys.modules.items()):
+        if name != "dacrt" and not name.startswith("dacrt."):
+            continue
+        for attr, value in vars(module).items():
+            if isinstance(value, numba.core.registry.CPUDispatcher):
+                counts[f"{value.py_func.__module__}.{attr}"] = len(value.signatures)
+    return counts
+
+
+def _read_only(array):
+    array = np.array(array)
+    array.flags.writeable = False
+    return array
+
+
+def _layouts(origins, directions):
+    """The ray layouts callers hand the engine: (name, origins, directions, tmin, tmax, mask)."""
+    n = len(origins)
+    tmax = np.full(n, 50.0, np.float32)
+    masks = np.where(np.arange(n) % 3 == 0, 1, 3).astype(np.uint32)  # mixed: the MASKED path
+    wide = np.hstack([origins, directions, np.zeros((n, 1)), tmax[:, None]]).astype(np.float32)
+    body = _read_only(wide)  # a server's (n, 8) npy body: read-only, columns in place
+    return [
+        ("arrays", origins, directions, None, None, None),
+        ("read-only arrays", _read_only(origins), _read_only(directions), 0.0, 50.0, 3),
+        ("columns", wide[:, :3], wide[:, 3:6], wide[:, 6], wide[:, 7], masks),
+        ("read-only columns", body[:, :3], body[:, 3:6], body[:, 6], body[:, 7], None),
+        (
+            "read-only bounds and masks",
+            origins,
+            directions,
+            _read_only(np.zeros(n, np.float32)),
+            _read_only(tmax),
+            _read_only(masks),
+        ),
+        (
+            "float64, int64 masks",
+            origins.astype(np.float64),
+            directions.astype(np.float64),
+            None,
+            tmax.astype(np.float64),
+            masks.astype(np.int64),
+        ),
+    ]
+
+
+def _plain(value):
+    """``value`` as a writable C-contiguous array of its own (None and scalars as they are)."""
+    return value if value is None or np.ndim(value) == 0 else np.array(value, order="C")
+
+
+@pytest.mark.parametrize("faces_as", ["int32", "int64", "uint16", "read-only int32"])
+def test_every_input_layout_gives_the_same_answers_and_compiles_nothing(faces_as):
+    """The checks hand the kernels one layout (C-contiguous and writable, float32, int32 or
+    int64 faces, uint32 masks): after dacrt.warmup(), meshes and rays in every layout callers use
+    compile no kernel (a server's bodies are read-only column views; a kernel compiled for them
+    on a first request takes minutes), and each layout gives the answers of plain arrays of the
+    same values."""
+    dacrt.warmup()
+    before = _compiled_signatures()
+    vertices, faces = _mesh()
+    faces = _read_only(faces) if faces_as == "read-only int32" else faces.astype(faces_as)
+    scene = dacrt.Scene([(vertices, faces), (_read_only(vertices), faces)], masks=[1, 2])
+    origins, directions = _rays()
+    for query in ("closest", "occluded", "hits", "count"):
+        for name, *arguments in _layouts(origins, directions):
+            o, d, tmin, tmax, mask = arguments
+            got = getattr(scene, query)(o, d, tmin, tmax, mask=mask, threads=1)
+            plain = [_plain(value) for value in arguments]
+            want = getattr(scene, query)(*plain[:4], mask=plain[4], threads=1)
+            for key, value in vars(want).items():
+                if isinstance(value, np.ndarray):
+                    np.testing.assert_array_equal(getattr(got, key), value, err_msg=f"{name} {key}")
+    after = _compiled_signatures()
+    compiled = {k: n - before.get(k, 0) for k, n in after.items() if n != before.get(k, 0)}
+    assert not compiled, f"kernels compiled for a layout the warm-up did not cover: {compiled}"

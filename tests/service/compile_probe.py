@@ -20,7 +20,6 @@ from service_helpers import NPY, NPZ, npy_bytes, npz_bytes, quad  # noqa: E402
 
 import dacrt  # noqa: E402
 from service.settings import Settings  # noqa: E402
-from service.warmup import mesh_files  # noqa: E402
 
 
 def signature_counts() -> dict[str, int]:
@@ -34,6 +33,18 @@ def signature_counts() -> dict[str, int]:
 
 
 NPZ_TYPE = NPZ["Content-Type"]
+
+
+def mesh_files() -> dict[str, bytes]:
+    """A quad as every mesh file format the service reads."""
+    import trimesh
+
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    square = trimesh.Trimesh(vertices, faces, process=False)
+    files = {fmt: square.export(file_type=fmt) for fmt in ("ply", "stl", "glb")}
+    files["obj"] = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n"
+    files["off"] = b"OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n"
+    return {fmt: data if isinstance(data, bytes) else data.encode() for fmt, data in files.items()}
 
 
 def first_requests(http) -> None:
