@@ -1,12 +1,13 @@
 """Instances: meshes placed by a matrix, traced in their own space (the second level of a trace).
 
 A placed mesh keeps its packed arrays in mesh space (``packed``), shared by all its instances and
-versions. A query traces the scene's untransformed meshes first (the base level); then, one
-instance at a time, the rays that reach the instance's box in scene space within [tmin, their
-best t] go into mesh space (origin by the inverse affine map, direction by the inverse linear
-part, not normalised, so t, u and v are the parameters along the caller's ray), are traced against
-the mesh with the same kernels, and are merged into the answers by the tie rule (smaller t, then
-lower (mesh, prim)). The kernels here are the few small steps around that loop.
+versions. A query traces the scene's untransformed meshes first (the base level); then the rays
+are sorted into the instances whose box in scene space they reach within [tmin, their best t]
+(``rays_reaching_boxes``); each instance's rays go into mesh space (origin by the inverse affine
+map, direction by the inverse linear part, not normalised, so t, u and v are the parameters along
+the caller's ray), are traced against the mesh with the same kernels, and are merged into the
+answers by the tie rule (smaller t, then lower (mesh, prim)). The kernels here are the few small
+steps around those traces.
 """
 
 import numpy as np
@@ -76,35 +77,76 @@ def inverse_directions(directions):
         return np.float32(1.0) / np.ascontiguousarray(directions, FLOAT)
 
 
+# Instances per group of the box filter: a ray tests a group's box, then its members' boxes.
+GROUP_SIZE = 8
+
+
+def group_boxes(boxes):
+    """Groups of GROUP_SIZE boxes (I, 6) float32, neighbours along the axis where the boxes'
+    centres spread most: (order (I,) int64, the boxes in that order; group_lo (G + 1,) int64,
+    group g's members order[group_lo[g]:group_lo[g + 1]]; group_boxes (G, 6) float32)."""
+    centres = (boxes[:, :3] + boxes[:, 3:]) / 2
+    axis = int(np.argmax(np.ptp(centres, axis=0))) if len(boxes) else 0
+    order = np.argsort(centres[:, axis], kind="stable")
+    group_lo = np.arange(0, len(boxes) + GROUP_SIZE, GROUP_SIZE).clip(max=len(boxes))
+    group_lo = np.unique(group_lo)
+    sorted_boxes = boxes[order]
+    groups = np.array(
+        [
+            np.concatenate([sorted_boxes[lo:hi, :3].min(0), sorted_boxes[lo:hi, 3:].max(0)])
+            for lo, hi in zip(group_lo[:-1], group_lo[1:])
+        ],
+        FLOAT,
+    ).reshape(-1, 6)
+    return order, group_lo.astype(np.int64), groups
+
+
+@inline
+def reaches(origins, inv_dirs, i, t_lo, t_hi, boxes, b):
+    """Whether ray i's segment [t_lo, t_hi] reaches box b of ``boxes`` (``intersect_box``)."""
+    return intersect_box(
+        origins[i, 0],
+        origins[i, 1],
+        origins[i, 2],
+        inv_dirs[i, 0],
+        inv_dirs[i, 1],
+        inv_dirs[i, 2],
+        t_lo,
+        t_hi,
+        boxes[b, 0],
+        boxes[b, 1],
+        boxes[b, 2],
+        boxes[b, 3],
+        boxes[b, 4],
+        boxes[b, 5],
+    )
+
+
 @jit
-def rays_reaching_box(origins, inv_dirs, tmin, limit, ray_masks, mesh_mask, box, ray_ids):
-    """The rays whose segment [tmin, limit] reaches ``box`` (6,) and, when ``ray_masks`` is not
-    empty, whose mask sees ``mesh_mask``: their ids go to ``ray_ids`` (n + 1,) int32 in order;
-    returns how many. A limit of -inf (a finished occlusion ray) reaches nothing."""
+def rays_reaching_boxes(
+    origins, inv_dirs, tmin, limit, ray_masks, box_masks, boxes, groups, group_lo, lo, hi, ids, at
+):
+    """Rays lo:hi whose segment [tmin, limit] reaches each of ``boxes`` (I, 6) (grouped by
+    ``group_boxes``: ``groups``, ``group_lo``) and, when ``ray_masks`` is not empty, whose mask
+    sees ``box_masks[b]``. With ``ids`` empty, counts them per box into ``at`` (I,) int64;
+    else writes box b's ray ids to ids[at[b]], ids[at[b] + 1], ... (in increasing order),
+    advancing at[b]. A limit of -inf (a finished occlusion ray) reaches nothing."""
     masked = ray_masks.shape[0] > 0
-    n = 0
-    for i in range(origins.shape[0]):
-        ray_ids[n] = i
-        reached = intersect_box(
-            origins[i, 0],
-            origins[i, 1],
-            origins[i, 2],
-            inv_dirs[i, 0],
-            inv_dirs[i, 1],
-            inv_dirs[i, 2],
-            tmin[i],
-            cull_distance(limit[i]),
-            box[0],
-            box[1],
-            box[2],
-            box[3],
-            box[4],
-            box[5],
-        )
-        if masked:
-            reached &= (ray_masks[i] & mesh_mask) != 0
-        n += 1 if reached else 0
-    return n
+    fill = ids.shape[0] > 0
+    for i in range(lo, hi):
+        t_lo = tmin[i]
+        t_hi = cull_distance(limit[i])
+        for g in range(groups.shape[0]):
+            if not reaches(origins, inv_dirs, i, t_lo, t_hi, groups, g):
+                continue
+            for b in range(group_lo[g], group_lo[g + 1]):
+                if not reaches(origins, inv_dirs, i, t_lo, t_hi, boxes, b):
+                    continue
+                if masked and (ray_masks[i] & box_masks[b]) == 0:
+                    continue
+                if fill:
+                    ids[at[b]] = i
+                at[b] += 1
 
 
 @jit

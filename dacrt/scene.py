@@ -44,11 +44,12 @@ from .contracts import (
 )
 from .instances import (
     Instance,
+    group_boxes,
     inverse_directions,
     merge_closest,
     merge_hit_lists,
     placed_normals,
-    rays_reaching_box,
+    rays_reaching_boxes,
     rays_to_mesh_space,
 )
 from .leaf import NO_HIT
@@ -730,32 +731,39 @@ class Scene:
         return query, traced
 
     def _trace_instances(self, query, limit, kind, max_hits=0):
-        """Trace the query's rays into each instance they can reach, one instance at a time:
-        yields (instance, ray ids (k,) int32, ``Traced`` with ``origins`` and ``directions``
-        in mesh space). A ray goes in when its segment [tmin, limit] reaches the instance's
-        box and its mask sees the instance; ``limit`` (n,) float32 may shrink between
-        instances (the caller merges each one's hits before the next)."""
+        """Trace the query's rays into each instance they can reach: yields (instance, ray ids
+        (k,) int32, ``InstanceTraced`` with ``origins`` and ``directions`` in mesh space), in
+        the order of the instances. A ray goes in when its segment [tmin, limit] reaches the
+        instance's box and its mask sees the instance; ``limit`` (n,) float32 is read once,
+        before the instances are traced side by side on the query's threads, one thread each
+        (the caller merges their answers afterwards, in any order: the tie rule decides)."""
         # Writable and contiguous, as the kernels are compiled for (one signature).
         origins = np.require(query.origins, FLOAT, ["C", "W"])
         directions = np.require(query.directions, FLOAT, ["C", "W"])
         tmin = np.require(query.tmin, FLOAT, ["C", "W"])
-        inv_dirs = inverse_directions(directions)
         uniform = self._uniform_mask(query.ray_masks)
         ray_masks = (
             self._no_masks if uniform is not None else np.require(query.ray_masks, None, ["C", "W"])
         )
+        seen = [i for i in self._instances if uniform is None or uniform & self.masks[i.mesh]]
+        if not seen:
+            return
+        ray_ids = self._rays_reaching(
+            seen, origins, directions, tmin, limit, ray_masks, query.threads
+        )
         flags = query.flags & ~(ANY_HIT | COLLECT) | kind
-        ids = np.empty(len(origins) + 1, INDEX)
-        for instance in self._instances:
-            mesh_mask = self.masks[instance.mesh]
-            if uniform is not None and not uniform & mesh_mask:
-                continue
-            n = rays_reaching_box(
-                origins, inv_dirs, tmin, limit, ray_masks, mesh_mask, instance.box, ids
-            )
-            if not n:
-                continue
-            ray_ids = ids[:n].copy()
+        # The instances with most rays start first; one alone takes every thread.
+        work = sorted(
+            (k for k in range(len(seen)) if len(ray_ids[k])), key=lambda k: -len(ray_ids[k])
+        )
+        if not work:
+            return
+        inner_threads = query.threads if len(work) == 1 else 1
+
+        def run(k):
+            instance = seen[k]
+            ids = ray_ids[k]
+            n = len(ids)
             mesh_o = np.empty((n, 3), FLOAT)
             mesh_d = np.empty((n, 3), FLOAT)
             mesh_tmin = np.empty(n, FLOAT)
@@ -765,7 +773,7 @@ class Scene:
                 directions,
                 tmin,
                 limit,
-                ray_ids,
+                ids,
                 instance.to_mesh,
                 mesh_o,
                 mesh_d,
@@ -784,7 +792,7 @@ class Scene:
                     self._no_masks,
                     None,
                     self._no_masks,
-                    query.threads,
+                    inner_threads,
                     list_size,
                 )
             except InputError:
@@ -792,7 +800,53 @@ class Scene:
                     f"a ray of the batch leaves the float32 range in the space of mesh "
                     f"{instance.mesh} (transforms[{instance.mesh}])"
                 ) from None
-            yield instance, ray_ids, InstanceTraced(*found, mesh_o, mesh_d)
+            return k, InstanceTraced(*found, mesh_o, mesh_d)
+
+        traced = map_on_threads(lambda j: run(work[j]), len(work), min(query.threads, len(work)))
+        for k, found in sorted(traced, key=lambda item: item[0]):
+            yield seen[k], ray_ids[k], found
+
+    def _rays_reaching(self, instances, origins, directions, tmin, limit, ray_masks, threads):
+        """For each of ``instances``, the ids (int32, increasing) of the rays whose segment
+        [tmin, limit] reaches its box and whose mask (``ray_masks``, or none) sees it: a pass
+        over the rays per thread to count, one to fill (``rays_reaching_boxes``)."""
+        inv_dirs = inverse_directions(directions)
+        boxes = np.array([instance.box for instance in instances], FLOAT)
+        order, group_lo, groups = group_boxes(boxes)
+        boxes = np.ascontiguousarray(boxes[order])
+        box_masks = np.ascontiguousarray(self.masks[[instances[k].mesh for k in order]])
+        n_rays = len(origins)
+        n_parts = max(1, min(threads, n_rays // MIN_RAYS_PER_THREAD))
+        bounds = [k * n_rays // n_parts for k in range(n_parts + 1)]
+        no_ids = np.empty(0, INDEX)
+
+        def count(k):
+            at = np.zeros(len(boxes), np.int64)
+            rays_reaching_boxes(
+                origins, inv_dirs, tmin, limit, ray_masks, box_masks, boxes, groups, group_lo,
+                bounds[k], bounds[k + 1], no_ids, at,
+            )  # fmt: skip
+            return at
+
+        counts = np.array(map_on_threads(count, n_parts, n_parts))  # (parts, boxes)
+        per_box = counts.sum(axis=0)
+        box_start = np.zeros(len(boxes) + 1, np.int64)
+        np.cumsum(per_box, out=box_start[1:])
+        starts = box_start[:-1] + np.cumsum(counts, axis=0) - counts
+        ids = np.empty(max(1, int(box_start[-1])), INDEX)
+
+        def fill(k):
+            rays_reaching_boxes(
+                origins, inv_dirs, tmin, limit, ray_masks, box_masks, boxes, groups, group_lo,
+                bounds[k], bounds[k + 1], ids, starts[k].copy(),
+            )  # fmt: skip
+
+        if box_start[-1]:
+            map_on_threads(fill, n_parts, n_parts)
+        by_instance = [None] * len(instances)
+        for b, k in enumerate(order):
+            by_instance[k] = ids[box_start[b] : box_start[b + 1]]
+        return by_instance
 
     def _trace_level(
         self,
