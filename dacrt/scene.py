@@ -1,10 +1,12 @@
 """The public query surface: ``Scene`` and its queries ``closest``, ``occluded``, ``hits`` and
 ``count``.
 
-This is the only module that checks and converts input. A Scene keeps its triangles and what is
-O(F) and cheap to derive from them (gathered vertices, boxes); every query partitions rays and
-triangles from scratch and keeps nothing afterwards. How a batch is cut into chunks and spread
-over threads is ``chunks``.
+This is the only module that checks and converts input. A Scene keeps its triangles packed for
+the kernels (``packed``: gathered corners and boxes, O(F) and cheap to make): its untransformed
+meshes as one base level, each placed mesh once in its own space, traced as instances
+(``instances``). Every query partitions rays and triangles from scratch and keeps nothing
+afterwards. ``Scene.with_changes`` makes a new version that shares every unchanged mesh's packed
+arrays. How a batch is cut into chunks and spread over threads is ``chunks``.
 """
 
 import functools
@@ -16,10 +18,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .chunks import (
-    DENSITY_GRID,
     MIN_RAYS_PER_THREAD,
     N_CORES,
-    centre_counts,
     chunk_ids,
     count_chunks,
     from_one_point,
@@ -31,6 +31,7 @@ from .compiling import watch
 from .contracts import (
     FLOAT,
     INDEX,
+    MISS,
     RAYSPACE,
     STAT_NAMES,
     STAT_RAYS,
@@ -41,7 +42,18 @@ from .contracts import (
     Hits,
     Occlusion,
 )
+from .instances import (
+    Instance,
+    group_boxes,
+    inverse_directions,
+    merge_closest,
+    merge_hit_lists,
+    placed_normals,
+    rays_reaching_boxes,
+    rays_to_mesh_space,
+)
 from .leaf import NO_HIT
+from .packed import Packed, live_box, pack_mesh, pack_meshes, union_box
 from .query import (
     ALL_HITS,
     ALL_MASKS,
@@ -56,11 +68,12 @@ from .query import (
 )
 from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
 from .rayspace import trace_ray_space
-from .results import finish_closest, finish_hits, unit_normals
+from .results import finish_closest, finish_hits
 from .traversal import split_middle, trace_object_split
-from .triangles import Triangles, gather_triangles
+from .triangles import Triangles, all_finite
 from .validation import (
     InputError,
+    as_float_rows,
     check_cull,
     check_masks,
     check_max_hits,
@@ -70,6 +83,7 @@ from .validation import (
     check_threads,
     check_transform,
     explain_bad_rays,
+    explain_bad_vertices,
     place_vertices,
 )
 
@@ -77,10 +91,25 @@ from .validation import (
 Cull = Literal["none", "back", "front"]
 Strategy = Literal["sampling", "sah", "middle", "rayspace"]
 
-Traced = namedtuple("Traced", ["best_t", "arrays", "counters", "origins", "directions"])
-Traced.__doc__ = """What the kernels leave of a query: each ray's best_t, the query's
-``QueryArrays`` (without scratch), the counters (a dict), and the checked float32 origins and
-directions."""
+Traced = namedtuple("Traced", ["best_t", "arrays", "stats"])
+Traced.__doc__ = """What the kernels leave of one level's trace: each ray's best_t, the
+``QueryArrays`` (without scratch), and the stats arrays of its chunks (a list)."""
+
+Query = namedtuple(
+    "Query", ["flags", "origins", "directions", "tmin", "tmax", "ray_masks", "threads"]
+)
+Query.__doc__ = """A checked query: its flags word (kind, culling, strategy), float32 origins,
+directions, tmin and tmax, its (n,) uint32 ray masks or None, and its thread count."""
+
+InstanceTraced = namedtuple(
+    "InstanceTraced", ["best_t", "arrays", "stats", "origins", "directions"]
+)
+InstanceTraced.__doc__ = """``Traced`` of an instance, with the rays it traced in mesh space:
+(k, 3) float32 origins and directions."""
+
+BaseRows = namedtuple("BaseRows", ["lo", "hi", "box", "corner_box"])
+BaseRows.__doc__ = """Where an untransformed mesh lies in the scene's base level: rows lo:hi,
+their box, and the box of its corners (``Packed``)."""
 
 
 class Scene:
@@ -91,10 +120,19 @@ class Scene:
     masks : None (every mesh all ones), an integer, or (n_meshes,) uint32: each mesh's mask; a
         ray sees a mesh only where ray mask & mesh mask != 0 (``mask=`` of the queries).
     transforms : None, or one entry per mesh: None (as given) or a (4, 4) row-major affine
-        matrix that places the mesh, each vertex p at M[:3, :3] @ p + M[:3, 3] (in float64,
-        then float32). Answers are in scene space: t, u, v along the caller's ray, normals of
-        the placed triangles; prim stays the row of the mesh's own faces. The same (vertices,
-        faces) arrays may be given several times, each with its own matrix and mask: instances.
+        matrix that places the mesh, each vertex p at M[:3, :3] @ p + M[:3, 3]. Answers are in
+        scene space: t, u, v along the caller's ray, normals of the placed triangles (the
+        inverse transpose of M's linear part, times its determinant's sign, applied to the
+        mesh's (p1-p0)x(p2-p0), normalised); prim stays the row of the mesh's own faces. The
+        same (vertices, faces) arrays may be given several times, each with its own matrix and
+        mask: instances, which share one packing of the mesh.
+
+    A placed mesh is an instance, traced in its own space: the rays that reach it go into mesh
+    space (rounded to float32), rather than its vertices into scene space. Its answers are
+    therefore those of the mesh placed in float64 and rounded to float32 up to that rounding:
+    the same hits and misses but for rays through the exact edges or silhouette of a triangle,
+    t within a few ulps and normals within about 1e-6 (docs/engine.md, "Instances", has the
+    measured figures). Each instance is watertight on its own.
     """
 
     def __init__(
@@ -106,94 +144,283 @@ class Scene:
         watch()  # the first compile in process says so (``compiling``)
         meshes = list(meshes)
         checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in enumerate(meshes)]
+        matrices = [None] * len(checked)
         if transforms is not None:
-            checked = self._placed(checked, list(transforms))
-        counts = [len(faces) for _, faces in checked]
-        self.n_meshes = len(checked)
-        self.masks = check_masks(
-            ALL_MASKS if masks is None else masks, self.n_meshes, "masks", "mesh"
-        ).copy()
-        self.masks.flags.writeable = False  # _row_masks is derived from it once
-        self.mesh_offsets = np.zeros(self.n_meshes + 1, np.int64)
-        self.mesh_offsets[1:] = np.cumsum(counts)
-        self.n_triangles = int(self.mesh_offsets[-1])
+            transforms = list(transforms)
+            if len(transforms) != len(checked):
+                raise InputError(
+                    f"transforms has {len(transforms)} entries for {len(checked)} meshes"
+                )
+            matrices = [
+                None if matrix is None else check_transform(matrix, f"transforms[{i}]")
+                for i, matrix in enumerate(transforms)
+            ]
+        mesh_masks = check_masks(
+            ALL_MASKS if masks is None else masks, len(checked), "masks", "mesh"
+        )
+        # Instances of the same (vertices, faces) arrays share one packing.
+        packings = {}
+        packs = {}
+        for i, ((vertices, faces), matrix) in enumerate(zip(meshes, matrices)):
+            if matrix is not None:
+                key = (id(vertices), id(faces))
+                if key not in packings:
+                    packings[key] = pack_mesh(*checked[i])
+                packs[i] = packings[key]
+        self._assemble(checked, mesh_masks.copy(), matrices, packs, None, set())
 
-        # Degenerate (zero-area) triangles never hit: they get no row, and no query sees them.
-        tri_verts = np.empty((self.n_triangles, 9), FLOAT)
-        tri_bounds = np.empty((self.n_triangles, 6), FLOAT)
-        tri_global = np.empty(self.n_triangles, INDEX)
-        corner_box = np.array([np.inf] * 3 + [-np.inf] * 3, FLOAT)
-        self._box = corner_box.copy()
-        n_live = 0
-        for (vertices, faces), first_row in zip(checked, self.mesh_offsets):
-            n_live = gather_triangles(
-                vertices,
-                faces,
-                first_row,
-                n_live,
-                tri_verts,
-                tri_bounds,
-                tri_global,
-                corner_box,
-                self._box,
+    def _assemble(self, checked, masks, matrices, packs, old, changed):
+        """Set up the scene from its checked meshes, masks (n,) uint32, matrices (None or
+        (4, 4) float64 each) and ``packs`` (mesh index: ``Packed`` of each placed mesh). With
+        ``old``, a scene of the same faces: its base level is shared when no untransformed mesh
+        changed (``changed``: the meshes given new vertices), else its rows are copied for
+        those that did not."""
+        self.n_meshes = len(checked)
+        self._meshes = checked
+        self._matrices = matrices
+        self.masks = masks
+        self.masks.flags.writeable = False  # _row_masks is derived from it once
+        if old is None:
+            counts = [len(faces) for _, faces in checked]
+            self.mesh_offsets = np.zeros(self.n_meshes + 1, np.int64)
+            self.mesh_offsets[1:] = np.cumsum(counts)
+        else:
+            self.mesh_offsets = old.mesh_offsets
+        self.n_triangles = int(self.mesh_offsets[-1])
+        base_meshes = [i for i in range(self.n_meshes) if matrices[i] is None]
+        self._base_meshes = np.array(base_meshes, np.int64)
+        if (
+            old is not None
+            and list(old._base_meshes) == base_meshes
+            and not changed & set(base_meshes)
+        ):
+            self._base = old._base
+            self._parts = {i: old._parts[i] for i in base_meshes}
+        else:
+            self._base, self._parts = self._pack_base(base_meshes, old, changed)
+        instances = []
+        for i, matrix in enumerate(matrices):
+            if matrix is None:
+                continue
+            self._parts[i] = packs[i]
+            self._check_placement(i, packs[i], matrix)
+            kept = old is not None and i in old._instance_of and old._parts[i] is packs[i]
+            if kept and np.array_equal(old._matrices[i], matrix):
+                instances.append(old._instance_of[i])
+            elif len(packs[i]):
+                instances.append(Instance(i, packs[i], matrix))
+        self._instances = instances
+        self._instance_of = {instance.mesh: instance for instance in instances}
+
+    def _pack_base(self, base_meshes, old, changed):
+        """The base level (``Packed``, ids global) of the untransformed ``base_meshes``, and
+        each one's ``BaseRows``: packed afresh, or from ``old``'s packed arrays for the meshes
+        not in ``changed`` (rows copied, in mesh order, so rows still rise with ids)."""
+        first_rows = [self.mesh_offsets[i] for i in base_meshes]
+        if old is None:
+            packed, live, boxes, corner_boxes = pack_meshes(
+                [self._meshes[i] for i in base_meshes], first_rows
             )
-        self._tri_verts = tri_verts[:n_live]
-        self._tri_bounds = tri_bounds[:n_live]
-        self._tri_global = tri_global[:n_live]
-        if not n_live:
-            self._box[:] = 0
-        # Bounds of the referenced vertices: every corner, degenerate triangles included.
-        self.bounds = corner_box.reshape(2, 3) if self.n_triangles else np.zeros((2, 3), FLOAT)
+            parts = {
+                i: BaseRows(live[k], live[k + 1], boxes[k], corner_boxes[k])
+                for k, i in enumerate(base_meshes)
+            }
+            return packed, parts
+        pieces = []
+        for i, first_row in zip(base_meshes, first_rows):
+            part = old._parts[i]
+            if i in changed:
+                piece = pack_mesh(*self._meshes[i])
+                pieces.append(
+                    (
+                        piece.verts,
+                        piece.bounds,
+                        piece.ids + INDEX(first_row),
+                        piece.box,
+                        piece.corner_box,
+                    )
+                )
+            elif isinstance(part, Packed):  # placed before, as given now
+                pieces.append(
+                    (
+                        part.verts,
+                        part.bounds,
+                        part.ids + INDEX(first_row),
+                        part.box,
+                        part.corner_box,
+                    )
+                )
+            else:
+                rows = slice(part.lo, part.hi)
+                base = old._base
+                pieces.append(
+                    (base.verts[rows], base.bounds[rows], base.ids[rows], part.box, part.corner_box)
+                )
+        lengths = [len(piece[0]) for piece in pieces]
+        live = np.zeros(len(pieces) + 1, np.int64)
+        np.cumsum(lengths, out=live[1:])
+        parts = {
+            i: BaseRows(live[k], live[k + 1], piece[3], piece[4])
+            for k, (i, piece) in enumerate(zip(base_meshes, pieces))
+        }
+        packed = Packed(
+            np.concatenate([p[0] for p in pieces] or [np.empty((0, 9), FLOAT)]),
+            np.concatenate([p[1] for p in pieces] or [np.empty((0, 6), FLOAT)]),
+            np.concatenate([p[2] for p in pieces] or [np.empty(0, INDEX)]).astype(
+                INDEX, copy=False
+            ),
+            live_box(union_box([p[3] for p in pieces])),
+            union_box([p[4] for p in pieces]),
+        )
+        return packed, parts
 
     @staticmethod
-    def _placed(checked, transforms):
-        """The checked meshes with their vertices placed by ``transforms`` (one per mesh)."""
-        if len(transforms) != len(checked):
-            raise InputError(f"transforms has {len(transforms)} entries for {len(checked)} meshes")
-        placed = []
-        for i, ((vertices, faces), matrix) in enumerate(zip(checked, transforms)):
-            if matrix is not None:
-                name = f"transforms[{i}]"
-                vertices = place_vertices(vertices, check_transform(matrix, name), name)
-            placed.append((vertices, faces))
-        return placed
+    def _check_placement(i, packed, matrix):
+        """InputError naming ``transforms[i]`` if the placed mesh leaves the float32 range."""
+        corners = packed.corner_box
+        if not corners[0] <= corners[3]:
+            return
+        lo, hi = corners[:3].astype(np.float64), corners[3:].astype(np.float64)
+        points = np.array([[(lo, hi)[k >> a & 1][a] for a in range(3)] for k in range(8)])
+        placed = points @ matrix[:3, :3].T + matrix[:3, 3]
+        if not (np.abs(placed) <= np.finfo(FLOAT).max).all():
+            raise InputError(f"transforms[{i}] places mesh {i} beyond the float32 range")
 
-    @property
-    def nbytes(self) -> int:
-        """Bytes held by the scene's arrays, with those derived on demand once they exist."""
-        derived = [
-            self.__dict__[name]
-            for name in ("_unit_normals", "_centre_counts", "_row_masks")
-            if name in self.__dict__
-        ]
-        return int(
-            self._tri_verts.nbytes
-            + self._tri_bounds.nbytes
-            + self._tri_global.nbytes
-            + self.mesh_offsets.nbytes
-            + sum(array.nbytes for array in derived)
+    def with_changes(
+        self,
+        transforms: dict[int, ArrayLike | None] | None = None,
+        vertices: dict[int, ArrayLike] | None = None,
+        masks: dict[int, int] | None = None,
+    ) -> "Scene":
+        """A new Scene: this one with some meshes moved, deformed or masked; this one is left
+        as it is, and keeps answering as before.
+
+        transforms : {mesh index: (4, 4) affine matrix, or None for as given}
+        vertices : {mesh index: (V, 3) float}, the mesh's new vertices (as many as before; its
+            faces stay)
+        masks : {mesh index: mask}, an integer in [0, 2**32)
+        Every other mesh keeps its packed arrays, shared with this scene: a placed mesh costs
+        nothing to move, and a deformed one is packed again alone. A change to the meshes as
+        given (the base level: new vertices, or a mesh placed or put back as given) copies the
+        base level's arrays once (about 64 bytes a triangle of those meshes). Answers are those
+        of a new Scene of the same meshes, bit for bit. Raises InputError naming the argument
+        (``vertices[3]``, ...) and changes nothing."""
+        transforms = self._by_mesh(transforms, "transforms")
+        vertices = self._by_mesh(vertices, "vertices")
+        masks = self._by_mesh(masks, "masks")
+        matrices = list(self._matrices)
+        for i, matrix in transforms.items():
+            matrices[i] = None if matrix is None else check_transform(matrix, f"transforms[{i}]")
+        checked = list(self._meshes)
+        for i, new in vertices.items():
+            checked[i] = (self._checked_vertices(i, new), checked[i][1])
+        new_masks = self.masks.copy()
+        for i, mask in masks.items():
+            new_masks[i] = check_masks(mask, 1, f"masks[{i}]", "mesh")[0]
+        changed = set(vertices)
+        packings = {}
+        packs = {}
+        for i, matrix in enumerate(matrices):
+            if matrix is None:
+                continue
+            if i not in changed and isinstance(self._parts[i], Packed):
+                packs[i] = self._parts[i]
+            elif i not in changed:  # as given before, placed now: its rows of the base level
+                packs[i] = self._packed_from_base(i)
+            else:
+                key = id(vertices[i])
+                if key not in packings:
+                    packings[key] = pack_mesh(*checked[i])
+                packs[i] = packings[key]
+        scene = object.__new__(Scene)
+        scene._assemble(checked, new_masks, matrices, packs, self, changed)
+        return scene
+
+    def _by_mesh(self, changes, name):
+        """``changes`` (None or a dict keyed by mesh index) as a dict with int keys."""
+        if changes is None:
+            return {}
+        if not isinstance(changes, dict):
+            raise InputError(
+                f"{name} must be a dict {{mesh index: value}}, got {type(changes).__name__}"
+            )
+        checked = {}
+        for key, value in changes.items():
+            if isinstance(key, bool) or not isinstance(key, int | np.integer):
+                raise InputError(f"{name} has key {key!r}: keys must be mesh indices (integers)")
+            if not 0 <= key < self.n_meshes:
+                raise InputError(
+                    f"{name}[{key}]: there is no mesh {key} (the scene has {self.n_meshes})"
+                )
+            checked[int(key)] = value
+        return checked
+
+    def _checked_vertices(self, i, new):
+        """Mesh i's new vertices as float32 (V, 3), V as before, finite."""
+        name = f"vertices[{i}]"
+        new = as_float_rows(new, name, check_finite=False)
+        n_before = len(self._meshes[i][0])
+        if len(new) != n_before:
+            raise InputError(f"{name} has {len(new)} rows; mesh {i} has {n_before} vertices")
+        if not all_finite(new):
+            explain_bad_vertices(new, name)
+        return new
+
+    def _packed_from_base(self, i):
+        """Mesh i's rows of the base level as a ``Packed`` of its own (ids its face rows)."""
+        part = self._parts[i]
+        rows = slice(part.lo, part.hi)
+        return Packed(
+            self._base.verts[rows].copy(),
+            self._base.bounds[rows].copy(),
+            self._base.ids[rows] - INDEX(self.mesh_offsets[i]),
+            part.box if part.box[0] <= part.box[3] else np.zeros(6, FLOAT),
+            part.corner_box,
         )
 
     @functools.cached_property
-    def _centre_counts(self):
-        """Triangle centres per cell of the DENSITY_GRID grid, for slab cuts: derived once per
-        scene, on its first incoherent query on several threads."""
-        return centre_counts(self._tri_bounds, self._box, DENSITY_GRID)
+    def bounds(self):
+        """(2, 3) float32: the box of every corner the faces refer to (degenerate triangles
+        included), placed meshes' corners placed in float64 then rounded; zeros for no faces.
+        Derived on first use."""
+        boxes = [self._parts[i].corner_box for i in self._base_meshes]
+        for i, matrix in enumerate(self._matrices):
+            if matrix is None or not len(self._meshes[i][1]):
+                continue
+            vertices, faces = self._meshes[i]
+            corners = place_vertices(vertices[np.unique(faces)], matrix, f"transforms[{i}]")
+            boxes.append(np.concatenate([corners.min(axis=0), corners.max(axis=0)]))
+        return union_box(boxes).reshape(2, 3) if self.n_triangles else np.zeros((2, 3), FLOAT)
 
-    @functools.cached_property
-    def _unit_normals(self):
-        """Each kernel row's unit normal (12 bytes a triangle), for batches of many rays:
-        derived once per scene, on its first such ``closest``."""
-        normals = np.empty((len(self._tri_verts), 3), FLOAT)
-        unit_normals(self._tri_verts, normals)
-        return normals
+    @property
+    def _box(self):
+        """The base level's box (6,) float32."""
+        return self._base.box
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the scene's packed arrays (each shared one once), with those derived
+        on demand once they exist."""
+        held = {id(self._base): self._base}
+        held.update((id(i.packed), i.packed) for i in self._instances)
+        derived = self.__dict__.get("_row_masks")
+        return int(
+            sum(packed.nbytes for packed in held.values())
+            + self.mesh_offsets.nbytes
+            + (derived.nbytes if derived is not None else 0)
+        )
+
+    @property
+    def _centre_counts(self):
+        """The base level's triangle centres per cell of the DENSITY_GRID grid (``Packed``)."""
+        return self._base.centre_counts
 
     @functools.cached_property
     def _row_masks(self):
-        """Each kernel row's mesh mask (uint32, 4 bytes a triangle), for batches whose rays
+        """Each base row's mesh mask (uint32, 4 bytes a triangle), for batches whose rays
         carry different masks: derived once per scene, on its first such query."""
-        counts = np.diff(self.mesh_offsets)
-        return np.ascontiguousarray(np.repeat(self.masks, counts)[self._tri_global])
+        meshes = np.searchsorted(self.mesh_offsets, self._base.ids, side="right") - 1
+        return np.ascontiguousarray(self.masks[meshes])
 
     _no_normals = np.empty((0, 3), FLOAT)
     _no_masks = np.empty(0, np.uint32)
@@ -226,18 +453,21 @@ class Scene:
         threads : None for every core, or a positive int
         Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
         """
-        traced = self._trace(0, origins, directions, tmin, tmax, cull, mask, strategy, threads)
-        t, counters = traced.best_t, traced.counters
+        query, traced = self._trace(
+            0, origins, directions, tmin, tmax, cull, mask, strategy, threads
+        )
+        t = traced.best_t
         best_tri, u, v = traced.arrays.best_tri, traced.arrays.hit_u, traced.arrays.hit_v
         n = len(t)
         mesh = np.empty(n, INDEX)  # every element is written by finish_closest
         prim = np.empty(n, INDEX)
         normal = np.empty((n, 3), FLOAT)
+        base = self._base
         # A batch with at least as many rays as triangles looks up each triangle's normal,
         # derived once per scene; a smaller one derives each hit's.
-        normals = self._unit_normals if n >= self.n_triangles else self._no_normals
+        normals = base.unit_normals if n >= self.n_triangles else self._no_normals
         # In place (t, u, v are the trace's own arrays), in as many parts as the trace had threads.
-        n_parts = max(1, min(check_threads(threads, N_CORES), n // MIN_RAYS_PER_THREAD))
+        n_parts = max(1, min(query.threads, n // MIN_RAYS_PER_THREAD))
         bounds = [k * n // n_parts for k in range(n_parts + 1)]
 
         def finish(k):
@@ -245,9 +475,9 @@ class Scene:
             finish_closest(
                 t[part],
                 best_tri[part],
-                self._tri_global,
+                base.ids,
                 self.mesh_offsets,
-                self._tri_verts,
+                base.verts,
                 normals,
                 mesh[part],
                 prim[part],
@@ -255,7 +485,31 @@ class Scene:
             )
 
         map_on_threads(finish, n_parts, n_parts)
-        return Hits(t, mesh, prim, u, v, normal, counters if stats else None)
+        per_level = [traced.stats]
+        if self._instances and n:
+            # The base level's best t bounds each ray's segment into the instances.
+            limit = np.where(mesh != MISS, t, query.tmax)
+            for instance, ids, found in self._trace_instances(query, limit, 0):
+                merge_closest(
+                    ids,
+                    found.best_t,
+                    found.arrays.best_tri,
+                    found.arrays.hit_u,
+                    found.arrays.hit_v,
+                    instance.packed.verts,
+                    instance.packed.ids,
+                    instance.mesh,
+                    instance.cofactor,
+                    t,
+                    mesh,
+                    prim,
+                    u,
+                    v,
+                    normal,
+                    limit,
+                )
+                per_level.append(found.stats)
+        return Hits(t, mesh, prim, u, v, normal, self._counters(n, per_level) if stats else None)
 
     def occluded(
         self,
@@ -273,10 +527,20 @@ class Scene:
         """Whether each ray hits anything with tmin <= t <= tmax (it stops at its first hit).
 
         Same arguments as ``closest``. Returns ``Occlusion``."""
-        traced = self._trace(
+        query, traced = self._trace(
             ANY_HIT, origins, directions, tmin, tmax, cull, mask, strategy, threads
         )
-        return Occlusion(traced.arrays.best_tri != NO_HIT, traced.counters if stats else None)
+        occluded = traced.arrays.best_tri != NO_HIT
+        per_level = [traced.stats]
+        if self._instances and len(occluded):
+            # An occluded ray goes no further: -inf reaches no box.
+            limit = np.where(occluded, -np.inf, query.tmax).astype(FLOAT)
+            for _, ids, found in self._trace_instances(query, limit, ANY_HIT):
+                blocked = ids[found.arrays.best_tri != NO_HIT]
+                occluded[blocked] = True
+                limit[blocked] = -np.inf
+                per_level.append(found.stats)
+        return Occlusion(occluded, self._counters(len(occluded), per_level) if stats else None)
 
     def hits(
         self,
@@ -300,16 +564,53 @@ class Scene:
         truncated[i] where it had more than max_hits, of which the nearest are kept."""
         max_hits = check_max_hits(max_hits)
         # One entry beyond max_hits tells a truncated list from a full one; a ray has no more
-        # hits than the scene has triangles.
-        list_size = min(max_hits, len(self._tri_verts)) + 1
-        traced = self._trace(
+        # hits than the level has triangles.
+        list_size = min(max_hits, len(self._base)) + 1
+        query, traced = self._trace(
             ALL_HITS, origins, directions, tmin, tmax, cull, mask, strategy, threads, list_size
         )
+        n_rays = len(query.origins)
+        # With instances, each level keeps its max_hits + 1 nearest, merged below.
+        kept = max_hits + 1 if self._instances else max_hits
+        offsets, t, mesh, prim, u, v, normal = self._finish_hits(
+            traced, query.origins, query.directions, self._base, self.mesh_offsets, kept
+        )
+        n_held = traced.arrays.n_hits
+        truncated = n_held > max_hits
+        per_level = [traced.stats]
+        if self._instances and n_rays:
+            parts = [(np.repeat(np.arange(n_rays), np.diff(offsets)), t, mesh, prim, u, v, normal)]
+            limit = np.require(query.tmax, FLOAT, ["C", "W"])
+            for instance, ids, found in self._trace_instances(query, limit, ALL_HITS, max_hits):
+                packed = instance.packed
+                face_offsets = np.array([0, len(self._meshes[instance.mesh][1])], np.int64)
+                i_offsets, i_t, _, i_prim, i_u, i_v, i_normal = self._finish_hits(
+                    found, found.origins, found.directions, packed, face_offsets, max_hits + 1
+                )
+                # The placed normals, from the held kernel rows in the lists' order.
+                n_held = found.arrays.n_hits
+                rows = found.arrays.list_tri[
+                    np.arange(found.arrays.list_tri.shape[1]) < n_held[:, None]
+                ]
+                placed_normals(packed.verts, rows, instance.cofactor, i_normal)
+                i_rays = np.repeat(ids.astype(np.int64), np.diff(i_offsets))
+                i_mesh = np.full(len(i_t), instance.mesh, INDEX)
+                parts.append((i_rays, i_t, i_mesh, i_prim, i_u, i_v, i_normal))
+                per_level.append(found.stats)
+            offsets, t, mesh, prim, u, v, normal, truncated = merge_hit_lists(
+                n_rays, parts, max_hits
+            )
+        counters = self._counters(n_rays, per_level) if stats else None
+        return HitList(offsets, t, mesh, prim, u, v, normal, truncated, counters)
+
+    def _finish_hits(self, traced, origins, directions, level, mesh_offsets, kept):
+        """A level's lists as CSR arrays (offsets, t, mesh, prim, u, v, normal), at most
+        ``kept`` a ray (``results.finish_hits``, with ``origins`` and ``directions`` in the
+        level's space)."""
         answer = traced.arrays
-        n_held = answer.n_hits
-        n_rays = len(n_held)
+        n_rays = len(answer.n_hits)
         offsets = np.zeros(n_rays + 1, np.int64)
-        np.cumsum(np.minimum(n_held, max_hits), out=offsets[1:])
+        np.cumsum(np.minimum(answer.n_hits, kept), out=offsets[1:])
         n = int(offsets[-1])
         t = np.empty(n, FLOAT)
         mesh = np.empty(n, INDEX)
@@ -317,16 +618,18 @@ class Scene:
         u = np.empty(n, FLOAT)
         v = np.empty(n, FLOAT)
         normal = np.empty((n, 3), FLOAT)
-        normals = self._unit_normals if n >= self.n_triangles else self._no_normals
+        # An instance's normals are placed afterwards (``placed_normals``): none looked up here.
+        looked_up = level is self._base and n >= self.n_triangles
+        normals = level.unit_normals if looked_up else self._no_normals
         finish_hits(
             answer.list_t,
             answer.list_tri,
             offsets,
-            traced.origins,
-            traced.directions,
-            self._tri_global,
-            self.mesh_offsets,
-            self._tri_verts,
+            origins,
+            directions,
+            level.ids,
+            mesh_offsets,
+            level.verts,
             normals,
             t,
             mesh,
@@ -335,9 +638,7 @@ class Scene:
             v,
             normal,
         )
-        truncated = n_held > max_hits
-        counters = traced.counters if stats else None
-        return HitList(offsets, t, mesh, prim, u, v, normal, truncated, counters)
+        return offsets, t, mesh, prim, u, v, normal
 
     def count(
         self,
@@ -357,19 +658,43 @@ class Scene:
         Same arguments as ``closest``. A crossing through an edge or vertex shared by several
         triangles counts once (``geometry.crossing``): from outside a closed mesh a ray counts an
         even number, from inside an odd one. Returns ``Counts``."""
-        traced = self._trace(COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads)
-        return Counts(traced.arrays.n_hits, traced.counters if stats else None)
+        query, traced = self._trace(
+            COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads
+        )
+        counts = traced.arrays.n_hits
+        per_level = [traced.stats]
+        if self._instances and len(counts):
+            limit = np.require(query.tmax, FLOAT, ["C", "W"])
+            for _, ids, found in self._trace_instances(query, limit, COUNT):
+                counts[ids] += found.arrays.n_hits
+                per_level.append(found.stats)
+        return Counts(counts, self._counters(len(counts), per_level) if stats else None)
+
+    def _counters(self, n_rays, per_level):
+        """The counters of a query (a dict): the kernels' stats summed over every chunk of every
+        level (the deepest node's depth for max_depth)."""
+        counters = dict.fromkeys(STAT_NAMES, 0)
+        counters["rays"] = n_rays
+        counters["triangles"] = self.n_triangles
+        per_chunk = [chunk_stats for level in per_level for chunk_stats in level]
+        return add_counters(counters, per_chunk) if per_chunk else counters
+
+    def _uniform_mask(self, ray_masks):
+        """The one mask every ray of the batch carries (all ones for none), or None when they
+        differ."""
+        if ray_masks is None or not len(ray_masks):
+            return ALL_MASKS
+        return ray_masks[0] if (ray_masks == ray_masks[0]).all() else None
 
     def _visible_rows(self, ray_masks):
-        """How a batch's masks are traced: (flags, tri_ids, tri_masks). A batch whose rays
-        share one mask (or carry none) sees a fixed set of meshes: tri_ids (int32) holds their
-        kernel rows, or is None for every row, and the kernels check no mask. Otherwise the
-        MASKED flag and every row's mesh mask (``_row_masks``)."""
-        uniform = ray_masks is None or not len(ray_masks) or (ray_masks == ray_masks[0]).all()
-        if not uniform:
+        """How a batch's masks are traced on the base level: (flags, tri_ids, tri_masks). A
+        batch whose rays share one mask (or carry none) sees a fixed set of meshes: tri_ids
+        (int32) holds their kernel rows, or is None for every row, and the kernels check no
+        mask. Otherwise the MASKED flag and every row's mesh mask (``_row_masks``)."""
+        ray_mask = self._uniform_mask(ray_masks)
+        if ray_mask is None:
             return MASKED, None, self._row_masks
-        ray_mask = ALL_MASKS if ray_masks is None or not len(ray_masks) else ray_masks[0]
-        seen = (self.masks & ray_mask) != 0
+        seen = (self.masks[self._base_meshes] & ray_mask) != 0
         if seen.all():
             return 0, None, self._no_masks
         return 0, np.flatnonzero(self._row_masks & ray_mask).astype(INDEX), self._no_masks
@@ -377,23 +702,179 @@ class Scene:
     def _trace(
         self, flags, origins, directions, tmin, tmax, cull, mask, strategy, threads, list_size=0
     ):
-        """Run the kernels with ``flags`` (``dacrt.query``) and the query's options; returns
-        ``Traced``. ``list_size`` is the length of each ray's list of hits (ALL_HITS)."""
+        """Check a query and trace its base level with ``flags`` (``dacrt.query``) and its
+        options; returns (``Query``, ``Traced``). ``list_size`` is the length of each ray's
+        list of hits (ALL_HITS)."""
         strategy = check_strategy(strategy)
         threads = check_threads(threads, N_CORES)
-        flags |= CULL_FLAGS[check_cull(cull)]
+        flags |= CULL_FLAGS[check_cull(cull)] | STRATEGY_CODES[strategy] << STRATEGY_SHIFT
         origins, directions, tmin, tmax = check_rays(origins, directions, tmin, tmax)
         n_rays = len(origins)
         ray_masks = None if mask is None else check_masks(mask, n_rays, "mask", "ray")
+        query = Query(flags, origins, directions, tmin, tmax, ray_masks, threads)
         mask_flags, visible_rows, tri_masks = self._visible_rows(ray_masks)
-        flags |= mask_flags
+        traced = self._trace_level(
+            self._base,
+            flags | mask_flags,
+            origins,
+            directions,
+            tmin,
+            tmax,
+            ray_masks if mask_flags else self._no_masks,
+            visible_rows,
+            tri_masks,
+            threads,
+            list_size,
+        )
+        if not traced.stats and n_rays:
+            explain_bad_rays(origins, directions, tmin, tmax)  # no kernel checked them
+        return query, traced
+
+    def _trace_instances(self, query, limit, kind, max_hits=0):
+        """Trace the query's rays into each instance they can reach: yields (instance, ray ids
+        (k,) int32, ``InstanceTraced`` with ``origins`` and ``directions`` in mesh space), in
+        the order of the instances. A ray goes in when its segment [tmin, limit] reaches the
+        instance's box and its mask sees the instance; ``limit`` (n,) float32 is read once,
+        before the instances are traced side by side on the query's threads, one thread each
+        (the caller merges their answers afterwards, in any order: the tie rule decides)."""
+        # Writable and contiguous, as the kernels are compiled for (one signature).
+        origins = np.require(query.origins, FLOAT, ["C", "W"])
+        directions = np.require(query.directions, FLOAT, ["C", "W"])
+        tmin = np.require(query.tmin, FLOAT, ["C", "W"])
+        uniform = self._uniform_mask(query.ray_masks)
+        ray_masks = (
+            self._no_masks if uniform is not None else np.require(query.ray_masks, None, ["C", "W"])
+        )
+        seen = [i for i in self._instances if uniform is None or uniform & self.masks[i.mesh]]
+        if not seen:
+            return
+        ray_ids = self._rays_reaching(
+            seen, origins, directions, tmin, limit, ray_masks, query.threads
+        )
+        flags = query.flags & ~(ANY_HIT | COLLECT) | kind
+        # The instances with most rays start first; one alone takes every thread.
+        work = sorted(
+            (k for k in range(len(seen)) if len(ray_ids[k])), key=lambda k: -len(ray_ids[k])
+        )
+        if not work:
+            return
+        inner_threads = query.threads if len(work) == 1 else 1
+
+        def run(k):
+            instance = seen[k]
+            ids = ray_ids[k]
+            n = len(ids)
+            mesh_o = np.empty((n, 3), FLOAT)
+            mesh_d = np.empty((n, 3), FLOAT)
+            mesh_tmin = np.empty(n, FLOAT)
+            mesh_tmax = np.empty(n, FLOAT)
+            rays_to_mesh_space(
+                origins,
+                directions,
+                tmin,
+                limit,
+                ids,
+                instance.to_mesh,
+                mesh_o,
+                mesh_d,
+                mesh_tmin,
+                mesh_tmax,
+            )
+            list_size = min(max_hits, len(instance.packed)) + 1 if kind & ALL_HITS else 0
+            try:
+                found = self._trace_level(
+                    instance.packed,
+                    instance.flags(flags),
+                    mesh_o,
+                    mesh_d,
+                    mesh_tmin,
+                    mesh_tmax,
+                    self._no_masks,
+                    None,
+                    self._no_masks,
+                    inner_threads,
+                    list_size,
+                )
+            except InputError:
+                raise InputError(
+                    f"a ray of the batch leaves the float32 range in the space of mesh "
+                    f"{instance.mesh} (transforms[{instance.mesh}])"
+                ) from None
+            return k, InstanceTraced(*found, mesh_o, mesh_d)
+
+        traced = map_on_threads(lambda j: run(work[j]), len(work), min(query.threads, len(work)))
+        for k, found in sorted(traced, key=lambda item: item[0]):
+            yield seen[k], ray_ids[k], found
+
+    def _rays_reaching(self, instances, origins, directions, tmin, limit, ray_masks, threads):
+        """For each of ``instances``, the ids (int32, increasing) of the rays whose segment
+        [tmin, limit] reaches its box and whose mask (``ray_masks``, or none) sees it: a pass
+        over the rays per thread to count, one to fill (``rays_reaching_boxes``)."""
+        inv_dirs = inverse_directions(directions)
+        boxes = np.array([instance.box for instance in instances], FLOAT)
+        order, group_lo, groups = group_boxes(boxes)
+        boxes = np.ascontiguousarray(boxes[order])
+        box_masks = np.ascontiguousarray(self.masks[[instances[k].mesh for k in order]])
+        n_rays = len(origins)
+        n_parts = max(1, min(threads, n_rays // MIN_RAYS_PER_THREAD))
+        bounds = [k * n_rays // n_parts for k in range(n_parts + 1)]
+        no_ids = np.empty(0, INDEX)
+
+        def count(k):
+            at = np.zeros(len(boxes), np.int64)
+            rays_reaching_boxes(
+                origins, inv_dirs, tmin, limit, ray_masks, box_masks, boxes, groups, group_lo,
+                bounds[k], bounds[k + 1], no_ids, at,
+            )  # fmt: skip
+            return at
+
+        counts = np.array(map_on_threads(count, n_parts, n_parts))  # (parts, boxes)
+        per_box = counts.sum(axis=0)
+        box_start = np.zeros(len(boxes) + 1, np.int64)
+        np.cumsum(per_box, out=box_start[1:])
+        starts = box_start[:-1] + np.cumsum(counts, axis=0) - counts
+        ids = np.empty(max(1, int(box_start[-1])), INDEX)
+
+        def fill(k):
+            rays_reaching_boxes(
+                origins, inv_dirs, tmin, limit, ray_masks, box_masks, boxes, groups, group_lo,
+                bounds[k], bounds[k + 1], ids, starts[k].copy(),
+            )  # fmt: skip
+
+        if box_start[-1]:
+            map_on_threads(fill, n_parts, n_parts)
+        by_instance = [None] * len(instances)
+        for b, k in enumerate(order):
+            by_instance[k] = ids[box_start[b] : box_start[b + 1]]
+        return by_instance
+
+    def _trace_level(
+        self,
+        level,
+        flags,
+        origins,
+        directions,
+        tmin,
+        tmax,
+        ray_masks,
+        visible_rows,
+        tri_masks,
+        threads,
+        list_size,
+    ):
+        """Run the kernels on one level (a ``Packed``) with ``flags`` (``dacrt.query``, the
+        strategy's code included); ``ray_masks`` and ``tri_masks`` as ``QueryArrays`` holds
+        them, ``visible_rows`` the rows traced (None for all). Returns ``Traced``, whose stats
+        list is empty when no kernel ran (no rays or no rows) or a ray is invalid (then the
+        rays were not traced)."""
+        n_rays = len(origins)
         best_t = tmax.copy()  # the records' best_t, scattered back after the trace
         lists = (n_rays, list_size) if flags & ALL_HITS else (0, 0)
         answer = QueryArrays(
             best_tri=np.full(n_rays, NO_HIT, INDEX),
             hit_u=np.zeros(n_rays, FLOAT),
             hit_v=np.zeros(n_rays, FLOAT),
-            ray_masks=ray_masks if mask_flags else self._no_masks,
+            ray_masks=ray_masks,
             tri_masks=tri_masks,
             n_hits=np.zeros(n_rays if flags & COLLECT else 0, INDEX),
             list_t=np.empty(lists, FLOAT),
@@ -402,29 +883,23 @@ class Scene:
             tri_bins=None,
             stats=None,
         )
-        counters = dict.fromkeys(STAT_NAMES, 0)
-        counters["rays"] = n_rays
-        counters["triangles"] = self.n_triangles
-        n_live = len(self._tri_verts) if visible_rows is None else len(visible_rows)
+        n_live = len(level) if visible_rows is None else len(visible_rows)
         if n_rays == 0 or n_live == 0:
-            explain_bad_rays(origins, directions, tmin, tmax)  # no kernel will check them
-            return Traced(best_t, answer, counters, origins, directions)
-        code = STRATEGY_CODES[strategy]
-        flags |= code << STRATEGY_SHIFT
-        ray_space = code == RAYSPACE
+            return Traced(best_t, answer, [])
+        ray_space = (flags >> STRATEGY_SHIFT) & 3 == RAYSPACE
         if not ray_space and not flags & COLLECT and splits_triangles(n_rays, n_live, threads):
             per_half = self._trace_halves(
-                flags, origins, directions, tmin, tmax, visible_rows, answer, best_t
+                level, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t
             )
-            return Traced(best_t, answer, add_counters(counters, per_half), origins, directions)
+            return Traced(best_t, answer, per_half)
         # The values are not checked yet (each chunk checks its own): a bad ray may make
         # the choice of chunks poor, never wrong.
         with np.errstate(invalid="ignore", over="ignore"):
-            coherent = from_one_point(origins, self._box)
+            coherent = from_one_point(origins, level.box)
             n_chunks = count_chunks(n_rays, n_live, threads, coherent)
             # rayspace splits the rays by origin and direction itself: it keeps the input order.
             plan = plan_chunks(
-                origins, n_chunks, coherent or ray_space, self._box, lambda: self._centre_counts
+                origins, n_chunks, coherent or ray_space, level.box, lambda: level.centre_counts
             )
 
         def run(chunk):
@@ -436,7 +911,7 @@ class Scene:
             tri_ids = (
                 np.arange(n_live, dtype=INDEX) if visible_rows is None else visible_rows.copy()
             )
-            tris = Triangles(self._tri_verts, self._tri_bounds, tri_ids)
+            tris = Triangles(level.verts, level.bounds, tri_ids)
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
             arrays = answer._replace(
                 hit_mask=np.empty(len(ray_ids), np.bool_),
@@ -444,10 +919,10 @@ class Scene:
                 stats=chunk_stats,
             )
             if ray_space:
-                trace_ray_space(chunk_flags, tris, self._box, rays, ray_ids, arrays)
+                trace_ray_space(chunk_flags, tris, level.box, rays, ray_ids, arrays)
             else:
                 trace_object_split(
-                    chunk_flags, tris, self._box, rays, ray_ids, 0, len(ray_ids), 0, n_live, arrays
+                    chunk_flags, tris, level.box, rays, ray_ids, 0, len(ray_ids), 0, n_live, arrays
                 )
             unpack_best_t(rays, ray_ids, best_t)
             return chunk_stats
@@ -456,22 +931,22 @@ class Scene:
         if any(chunk_stats is None for chunk_stats in per_chunk):
             explain_bad_rays(origins, directions, tmin, tmax)
             raise InputError("the batch holds an invalid ray")  # explain_bad_rays names it
-        return Traced(best_t, answer, add_counters(counters, per_chunk), origins, directions)
+        return Traced(best_t, answer, per_chunk)
 
-    def _trace_halves(self, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t):
+    def _trace_halves(
+        self, level, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t
+    ):
         """Trace a closest or occlusion batch on two threads, each with every ray against one
-        half of the triangles (split at the middle of the scene's box); then each ray keeps the
+        half of the level's triangles (split at the middle of its box); then each ray keeps the
         better of its two answers, the smaller (t, row), as one trace would. Writes best_t and
         ``answer``'s best_tri, hit_u and hit_v; returns each half's stats."""
         n_rays = len(origins)
         tri_ids = (
-            np.arange(len(self._tri_verts), dtype=INDEX)
-            if visible_rows is None
-            else visible_rows.copy()
+            np.arange(len(level), dtype=INDEX) if visible_rows is None else visible_rows.copy()
         )
-        tris = Triangles(self._tri_verts, self._tri_bounds, tri_ids)
+        tris = Triangles(level.verts, level.bounds, tri_ids)
         boxes = np.empty((3, 6), FLOAT)  # the halves' boxes, and scratch for split_middle
-        _, tri_mid = split_middle(tris, 0, len(tri_ids), self._box, boxes)
+        _, tri_mid = split_middle(tris, 0, len(tri_ids), level.box, boxes)
         rays = new_records(n_rays)
         ray_ids = np.arange(n_rays, dtype=INDEX)
         if not pack_rays(origins, directions, tmin, tmax, ray_ids, rays):

@@ -28,6 +28,17 @@ def warmup() -> float:
         scene.occluded(origins, directions, strategy=strategy, threads=1)
         scene.hits(origins, directions, strategy=strategy, threads=1)
         scene.count(origins, directions, strategy=strategy, threads=1)
+    # Two instances of the mesh beside it, and a version that moves one (``with_changes``).
+    moved = np.eye(4)
+    moved[:3, 3] = (2.0, 0.0, 0.0)
+    placed = Scene([(vertices, faces)] * 3, transforms=[None, moved, np.diag([-1.0, 1, 1, 1])])
+    placed = placed.with_changes(transforms={1: moved @ moved}, vertices={2: vertices})
+    masks = np.array([1, 2, 3, 1], np.uint32)
+    for mask in (None, masks):
+        placed.closest(origins, directions, mask=mask, threads=1)
+        placed.occluded(origins, directions, mask=mask, threads=1)
+        placed.hits(origins, directions, mask=mask, threads=1)
+        placed.count(origins, directions, mask=mask, threads=1)
     # Incoherent batches on two threads are cut into slabs of origins.
     n_rays = 2 * MIN_RAYS_PER_THREAD
     scattered = np.random.default_rng(0).uniform(-1.0, 2.0, (n_rays, 6)).astype(np.float32)

@@ -69,13 +69,27 @@ def instance(http, scene: str, mesh: str, source: str, matrix=None, **params):
     return http.put(f"/v1/scenes/{scene}/meshes/{mesh}", json=body, params=params)
 
 
-def same_answers(a, b) -> None:
-    np.testing.assert_array_equal(a.mesh, b.mesh)
-    np.testing.assert_array_equal(a.prim, b.prim)
-    np.testing.assert_allclose(a.t, b.t, rtol=1e-6)
-    np.testing.assert_allclose(a.u, b.u, atol=1e-5)
-    np.testing.assert_allclose(a.v, b.v, atol=1e-5)
-    np.testing.assert_allclose(a.normal, b.normal, atol=1e-5)
+def same_answers(a, b, rays=None) -> None:
+    """The same answers; with ``rays`` (origins, directions), ``a`` is a placed mesh's and ``b``
+    its copy placed in numpy's: a placed mesh is traced in its own space (docs/engine.md,
+    "Instances"), so the same hits but for rays at an exact edge (at most 1 in 200 here), the
+    hit within 8 float32 ulps of the coordinates' magnitude across the surface (|dt| |d| cos)
+    and normals within 5e-3 (the copies' float32 corners turn a small triangle's normal by
+    that much); u and v follow the hit over the triangle's size, unchecked."""
+    if rays is None:
+        for name in ("mesh", "prim", "t", "u", "v", "normal"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), name)
+        return
+    origins, directions = (np.asarray(x, np.float64) for x in rays)
+    agree = (a.mesh == b.mesh) & (a.prim == b.prim)
+    assert agree.mean() >= 0.995, f"{(~agree).sum()} rays hit something else"
+    hit = agree & (b.mesh >= 0)
+    o, d = origins[hit], directions[hit]
+    scale = np.maximum(np.abs(o).max(axis=1), np.abs(o + b.t[hit, None] * d).max(axis=1))
+    cos = np.abs(np.einsum("ij,ij->i", b.normal[hit], d))
+    across = np.abs(a.t[hit].astype(np.float64) - b.t[hit]) * cos
+    assert np.all(across <= 8 * np.spacing(scale.astype(np.float32))), across.max()
+    np.testing.assert_allclose(a.normal[agree], b.normal[agree], atol=5e-3)
 
 
 # ---- PUT .../transform
@@ -121,11 +135,15 @@ def test_closest_on_a_placed_mesh_is_that_of_the_mesh_placed_in_numpy(
     ).raise_for_status()
     origins, directions = rays_at(placed, faces, 1500, seed=5)
     answer = app_api.closest(scene_name, origins, directions)
-    same_answers(answer, app_api.closest(scene_name + "-numpy", origins, directions))
+    numpy_placed = app_api.closest(scene_name + "-numpy", origins, directions)
+    same_answers(answer, numpy_placed, (origins, directions))
     assert (answer.mesh == 1).mean() > 0.99  # every ray aims at a point of a pot's triangle
     expected = reference.closest(placed, faces, origins, directions)
-    np.testing.assert_array_equal(answer.prim, expected.prim)
-    np.testing.assert_allclose(answer.t, expected.t, rtol=1e-5)
+    # Rays aimed at an exact edge may hit or miss by rounding (same_answers).
+    agree = answer.prim == expected.prim
+    assert agree.mean() >= 0.995
+    # Along a grazing ray that rounding is larger: same_answers bounds it across the surface.
+    np.testing.assert_allclose(answer.t[agree], expected.t[agree], rtol=1e-4)
 
 
 BAD_MATRICES = [
@@ -284,7 +302,7 @@ def test_instances_share_the_source_and_answer_as_placed_copies(app_api, scene_n
         zip(*[rays_at(place(vertices, m), faces, 400, seed=i) for i, m in enumerate(matrices)]),
     )
     answer = app_api.closest(scene_name, origins, directions)
-    same_answers(answer, app_api.closest(copies, origins, directions))
+    same_answers(answer, app_api.closest(copies, origins, directions), (origins, directions))
     assert set(np.unique(answer.mesh)) >= {1, 2, 3}
 
 

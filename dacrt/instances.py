@@ -1,0 +1,264 @@
+"""Instances: meshes placed by a matrix, traced in their own space (the second level of a trace).
+
+A placed mesh keeps its packed arrays in mesh space (``packed``), shared by all its instances and
+versions. A query traces the scene's untransformed meshes first (the base level); then the rays
+are sorted into the instances whose box in scene space they reach within [tmin, their best t]
+(``rays_reaching_boxes``); each instance's rays go into mesh space (origin by the inverse affine
+map, direction by the inverse linear part, not normalised, so t, u and v are the parameters along
+the caller's ray), are traced against the mesh with the same kernels, and are merged into the
+answers by the tie rule (smaller t, then lower (mesh, prim)). The kernels here are the few small
+steps around those traces.
+"""
+
+import numpy as np
+
+from .config import inline, jit
+from .contracts import FLOAT, INDEX
+from .geometry import cull_distance, intersect_box, triangle_normal
+from .leaf import NO_HIT
+from .query import CULL_BACK, CULL_FRONT
+
+# The instance's box in scene space is grown by this, relative to its size and distance from
+# the origin: a ray rounded into mesh space may reach a little beyond the exact placed box.
+BOX_MARGIN = 1e-5
+
+
+class Instance:
+    """A mesh placed by an affine matrix, as a query traces it.
+
+    mesh : its index in the scene
+    packed : its ``Packed`` arrays in mesh space (ids are its face rows)
+    matrix : (4, 4) float64, the placement; to_mesh : (3, 4) float64, its inverse's top rows
+    cofactor : (3, 3) float64, det(A) A^-T of the linear part A: takes a mesh-space normal
+        (p1-p0)x(p2-p0) to the placed triangle's, orientation included
+    mirrored : det(A) < 0, so back and front faces swap in mesh space
+    box : (6,) float32, a box in scene space holding the placed triangles
+    """
+
+    def __init__(self, mesh, packed, matrix):
+        self.mesh = mesh
+        self.packed = packed
+        self.matrix = matrix
+        linear = matrix[:3, :3]
+        self.to_mesh = np.ascontiguousarray(np.linalg.inv(matrix)[:3])
+        det = np.linalg.det(linear)
+        self.cofactor = np.ascontiguousarray(det * np.linalg.inv(linear).T)
+        self.mirrored = bool(det < 0)
+        self.box = placed_box(packed.box, matrix)
+
+    def flags(self, flags):
+        """The query's ``flags`` in mesh space: culling's back and front swap when mirrored."""
+        if not self.mirrored:
+            return flags
+        cull = flags & (CULL_BACK | CULL_FRONT)
+        swapped = (CULL_FRONT if cull & CULL_BACK else 0) | (CULL_BACK if cull & CULL_FRONT else 0)
+        return (flags & ~(CULL_BACK | CULL_FRONT)) | swapped
+
+
+def placed_box(box, matrix):
+    """A float32 box (6,) in scene space holding ``box`` (6,) placed by ``matrix`` (4, 4),
+    grown by BOX_MARGIN."""
+    lo, hi = box[:3].astype(np.float64), box[3:].astype(np.float64)
+    corners = np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
+    placed = corners @ matrix[:3, :3].T + matrix[:3, 3]
+    p_lo, p_hi = placed.min(axis=0), placed.max(axis=0)
+    margin = BOX_MARGIN * (np.max(p_hi - p_lo) + np.max(np.abs(placed)))
+    grown = np.concatenate([p_lo - margin, p_hi + margin])
+    rounded = grown.astype(FLOAT)
+    # Round outwards: float32 must not shrink the box.
+    rounded[:3] = np.where(rounded[:3] > grown[:3], np.nextafter(rounded[:3], -np.inf), rounded[:3])
+    rounded[3:] = np.where(rounded[3:] < grown[3:], np.nextafter(rounded[3:], np.inf), rounded[3:])
+    return rounded
+
+
+def inverse_directions(directions):
+    """(n, 3) float32 1 / direction, +-inf for a zero component (``intersect_box``)."""
+    with np.errstate(divide="ignore"):
+        return np.float32(1.0) / np.ascontiguousarray(directions, FLOAT)
+
+
+# Instances per group of the box filter: a ray tests a group's box, then its members' boxes.
+GROUP_SIZE = 8
+
+
+def group_boxes(boxes):
+    """Groups of GROUP_SIZE boxes (I, 6) float32, neighbours along the axis where the boxes'
+    centres spread most: (order (I,) int64, the boxes in that order; group_lo (G + 1,) int64,
+    group g's members order[group_lo[g]:group_lo[g + 1]]; group_boxes (G, 6) float32)."""
+    centres = (boxes[:, :3] + boxes[:, 3:]) / 2
+    axis = int(np.argmax(np.ptp(centres, axis=0))) if len(boxes) else 0
+    order = np.argsort(centres[:, axis], kind="stable")
+    group_lo = np.arange(0, len(boxes) + GROUP_SIZE, GROUP_SIZE).clip(max=len(boxes))
+    group_lo = np.unique(group_lo)
+    sorted_boxes = boxes[order]
+    groups = np.array(
+        [
+            np.concatenate([sorted_boxes[lo:hi, :3].min(0), sorted_boxes[lo:hi, 3:].max(0)])
+            for lo, hi in zip(group_lo[:-1], group_lo[1:])
+        ],
+        FLOAT,
+    ).reshape(-1, 6)
+    return order, group_lo.astype(np.int64), groups
+
+
+@inline
+def reaches(origins, inv_dirs, i, t_lo, t_hi, boxes, b):
+    """Whether ray i's segment [t_lo, t_hi] reaches box b of ``boxes`` (``intersect_box``)."""
+    return intersect_box(
+        origins[i, 0],
+        origins[i, 1],
+        origins[i, 2],
+        inv_dirs[i, 0],
+        inv_dirs[i, 1],
+        inv_dirs[i, 2],
+        t_lo,
+        t_hi,
+        boxes[b, 0],
+        boxes[b, 1],
+        boxes[b, 2],
+        boxes[b, 3],
+        boxes[b, 4],
+        boxes[b, 5],
+    )
+
+
+@jit
+def rays_reaching_boxes(
+    origins, inv_dirs, tmin, limit, ray_masks, box_masks, boxes, groups, group_lo, lo, hi, ids, at
+):
+    """Rays lo:hi whose segment [tmin, limit] reaches each of ``boxes`` (I, 6) (grouped by
+    ``group_boxes``: ``groups``, ``group_lo``) and, when ``ray_masks`` is not empty, whose mask
+    sees ``box_masks[b]``. With ``ids`` empty, counts them per box into ``at`` (I,) int64;
+    else writes box b's ray ids to ids[at[b]], ids[at[b] + 1], ... (in increasing order),
+    advancing at[b]. A limit of -inf (a finished occlusion ray) reaches nothing."""
+    masked = ray_masks.shape[0] > 0
+    fill = ids.shape[0] > 0
+    for i in range(lo, hi):
+        t_lo = tmin[i]
+        t_hi = cull_distance(limit[i])
+        for g in range(groups.shape[0]):
+            if not reaches(origins, inv_dirs, i, t_lo, t_hi, groups, g):
+                continue
+            for b in range(group_lo[g], group_lo[g + 1]):
+                if not reaches(origins, inv_dirs, i, t_lo, t_hi, boxes, b):
+                    continue
+                if masked and (ray_masks[i] & box_masks[b]) == 0:
+                    continue
+                if fill:
+                    ids[at[b]] = i
+                at[b] += 1
+
+
+@jit
+def rays_to_mesh_space(
+    origins, directions, tmin, limit, ray_ids, to_mesh, out_o, out_d, out_tmin, out_tmax
+):
+    """Rays ``ray_ids`` of the batch in mesh space, into the (k, 3) and (k,) float32 ``out_``
+    arrays: origin by ``to_mesh`` (3, 4) float64, the inverse affine map, direction by its
+    linear part, in float64 then rounded; tmin as given, tmax from ``limit``."""
+    for i in range(ray_ids.shape[0]):
+        ray = ray_ids[i]
+        ox = np.float64(origins[ray, 0])
+        oy = np.float64(origins[ray, 1])
+        oz = np.float64(origins[ray, 2])
+        dx = np.float64(directions[ray, 0])
+        dy = np.float64(directions[ray, 1])
+        dz = np.float64(directions[ray, 2])
+        for a in range(3):
+            out_o[i, a] = np.float32(
+                to_mesh[a, 0] * ox + to_mesh[a, 1] * oy + to_mesh[a, 2] * oz + to_mesh[a, 3]
+            )
+            out_d[i, a] = np.float32(to_mesh[a, 0] * dx + to_mesh[a, 1] * dy + to_mesh[a, 2] * dz)
+        out_tmin[i] = tmin[ray]
+        out_tmax[i] = limit[ray]
+
+
+@inline
+def placed_normal(tri_verts, row, cofactor):
+    """The unit normal of mesh-space row ``row`` as placed: ``cofactor`` (3, 3) times
+    (p1-p0)x(p2-p0), normalised, in float64."""
+    nx, ny, nz = triangle_normal(tri_verts, row)
+    px = cofactor[0, 0] * nx + cofactor[0, 1] * ny + cofactor[0, 2] * nz
+    py = cofactor[1, 0] * nx + cofactor[1, 1] * ny + cofactor[1, 2] * nz
+    pz = cofactor[2, 0] * nx + cofactor[2, 1] * ny + cofactor[2, 2] * nz
+    inv_length = 1.0 / np.sqrt(px * px + py * py + pz * pz)
+    return px * inv_length, py * inv_length, pz * inv_length
+
+
+@jit
+def placed_normals(tri_verts, rows, cofactor, normals):
+    """``normals`` (k, 3) float32: the placed unit normal (``placed_normal``) of each row."""
+    for k in range(rows.shape[0]):
+        normals[k, 0], normals[k, 1], normals[k, 2] = placed_normal(tri_verts, rows[k], cofactor)
+
+
+@jit
+def merge_closest(
+    ray_ids,
+    found_t,
+    found_tri,
+    found_u,
+    found_v,
+    tri_verts,
+    face_rows,
+    mesh_index,
+    cofactor,
+    t,
+    mesh,
+    prim,
+    u,
+    v,
+    normal,
+    limit,
+):
+    """Merge an instance's closest hits (``found_``, by the instance's ray number; found_tri
+    holds rows of ``tri_verts``, NO_HIT for none) into the answers by ray id: a hit wins where
+    its t is smaller, or equal with a lower (mesh, prim), the tie rule of one trace. A winner's
+    t (-0.0 as +0.0), mesh, prim (``face_rows`` of its row), u, v and placed normal are written,
+    and its t becomes the ray's ``limit``."""
+    for i in range(ray_ids.shape[0]):
+        row = found_tri[i]
+        if row == NO_HIT:
+            continue
+        ray = ray_ids[i]
+        hit_t = found_t[i] + np.float32(0.0)
+        face = face_rows[row]
+        better = hit_t < t[ray] or (
+            hit_t == t[ray]
+            and (mesh_index < mesh[ray] or (mesh_index == mesh[ray] and face < prim[ray]))
+        )
+        if not better:
+            continue
+        t[ray] = hit_t
+        limit[ray] = hit_t
+        mesh[ray] = mesh_index
+        prim[ray] = face
+        u[ray] = found_u[i]
+        v[ray] = found_v[i]
+        normal[ray, 0], normal[ray, 1], normal[ray, 2] = placed_normal(tri_verts, row, cofactor)
+
+
+def merge_hit_lists(n_rays, parts, max_hits):
+    """Every level's hits of a ``hits`` query merged, per ray, in (t, mesh, prim) order and cut
+    to ``max_hits``. ``parts`` holds (ray, t, mesh, prim, u, v, normal) arrays, one entry a
+    hit, each level's at most max_hits + 1 nearest of a ray. Returns (offsets, t, mesh, prim,
+    u, v, normal, truncated) as ``HitList`` holds them."""
+    ray, t, mesh, prim, u, v, normal = (np.concatenate(column) for column in zip(*parts))
+    order = np.lexsort((prim, mesh, t, ray))
+    held = np.bincount(ray, minlength=n_rays)
+    first = np.zeros(n_rays + 1, np.int64)
+    np.cumsum(held, out=first[1:])
+    rank = np.arange(len(order)) - first[ray[order]]
+    order = order[rank < max_hits]
+    offsets = np.zeros(n_rays + 1, np.int64)
+    np.cumsum(np.minimum(held, max_hits), out=offsets[1:])
+    return (
+        offsets,
+        t[order],
+        mesh[order].astype(INDEX),
+        prim[order].astype(INDEX),
+        u[order],
+        v[order],
+        normal[order],
+        held > max_hits,
+    )

@@ -1,0 +1,112 @@
+"""Triangles packed for the kernels once, then shared: a mesh's packed arrays serve every
+instance of it and every later version of a Scene that keeps it (``Scene.with_changes``).
+
+A ``Packed`` is never written after it is made: the kernels only read it, and a new version of
+a mesh gets a new ``Packed``. Its arrays stay writable because Numba compiles a read-only array
+as another type, which would compile every kernel twice.
+"""
+
+import functools
+
+import numpy as np
+
+from .chunks import DENSITY_GRID, centre_counts
+from .contracts import FLOAT, INDEX
+from .results import unit_normals
+from .triangles import gather_triangles
+
+# The box of no triangles: grows to the first one.
+EMPTY_BOX = np.array([np.inf] * 3 + [-np.inf] * 3, FLOAT)
+
+
+class Packed:
+    """One set of triangles as the kernels read them.
+
+    verts : (F, 9) float32, each row's corners p0, p1, p2 (degenerate triangles get no row)
+    bounds : (F, 6) float32, each row's box
+    ids : (F,) int32, each row's triangle: a mesh's face row, or in a scene's base level its
+        global index (``Scene.mesh_offsets``); rows rise with ids
+    box : (6,) float32, the rows' box (zeros when there are none)
+    corner_box : (6,) float32, the box of every corner the faces refer to, degenerate triangles
+        included (EMPTY_BOX when there are no faces)
+    """
+
+    def __init__(self, verts, bounds, ids, box, corner_box):
+        self.verts = verts
+        self.bounds = bounds
+        self.ids = ids
+        self.box = box
+        self.corner_box = corner_box
+
+    def __len__(self) -> int:
+        return len(self.verts)
+
+    @functools.cached_property
+    def centre_counts(self):
+        """Triangle centres per cell of the DENSITY_GRID grid over ``box``, for slab cuts:
+        derived on the first incoherent query on several threads that needs it."""
+        return centre_counts(self.bounds, self.box, DENSITY_GRID)
+
+    @functools.cached_property
+    def unit_normals(self):
+        """Each row's unit normal (12 bytes a triangle): derived on the first batch that looks
+        them up (``Scene.closest``)."""
+        normals = np.empty((len(self.verts), 3), FLOAT)
+        unit_normals(self.verts, normals)
+        return normals
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays, with the derived ones that exist."""
+        derived = [self.__dict__.get(name) for name in ("centre_counts", "unit_normals")]
+        held = [self.verts, self.bounds, self.ids] + [a for a in derived if a is not None]
+        return int(sum(array.nbytes for array in held))
+
+
+def pack_meshes(meshes, first_rows):
+    """One ``Packed`` of the checked ``meshes`` ((vertices float32, faces) pairs) in their
+    order, each triangle's id being its face row plus that mesh's entry of ``first_rows``.
+
+    Returns (packed, live, boxes, corner_boxes): mesh k's rows are live[k]:live[k + 1] (live:
+    (n + 1,) int64), and boxes, corner_boxes (n, 6) float32 hold each mesh's box of rows and
+    box of corners (EMPTY_BOX for none)."""
+    n_faces = sum(len(faces) for _, faces in meshes)
+    verts = np.empty((n_faces, 9), FLOAT)
+    bounds = np.empty((n_faces, 6), FLOAT)
+    ids = np.empty(n_faces, INDEX)
+    boxes = np.tile(EMPTY_BOX, (len(meshes), 1))
+    corner_boxes = boxes.copy()
+    live = np.zeros(len(meshes) + 1, np.int64)
+    n_live = 0
+    for k, ((vertices, faces), first_row) in enumerate(zip(meshes, first_rows)):
+        n_live = gather_triangles(
+            vertices, faces, first_row, n_live, verts, bounds, ids, corner_boxes[k], boxes[k]
+        )
+        live[k + 1] = n_live
+    packed = Packed(
+        verts[:n_live],
+        bounds[:n_live],
+        ids[:n_live],
+        live_box(union_box(boxes)),
+        union_box(corner_boxes),
+    )
+    return packed, live, boxes, corner_boxes
+
+
+def pack_mesh(vertices, faces):
+    """The ``Packed`` of one checked mesh, its ids being its face rows."""
+    packed, _, _, _ = pack_meshes([(vertices, faces)], [0])
+    return packed
+
+
+def union_box(boxes):
+    """The box (6,) float32 holding the (n, 6) ``boxes`` (EMPTY_BOX for none)."""
+    boxes = np.asarray(boxes, FLOAT).reshape(-1, 6)
+    lo = boxes[:, :3].min(axis=0, initial=np.inf)
+    hi = boxes[:, 3:].max(axis=0, initial=-np.inf)
+    return np.concatenate([lo, hi]).astype(FLOAT)
+
+
+def live_box(box):
+    """``box`` as the kernels' root box: zeros for the box of no triangles (EMPTY_BOX)."""
+    return box if box[0] <= box[3] else np.zeros(6, FLOAT)

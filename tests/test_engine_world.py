@@ -1,0 +1,258 @@
+"""Scenes of a static world and moving instances: ``Scene.with_changes`` and the two-level trace.
+
+A scene made by ``with_changes`` answers as a new Scene of the same meshes, bit for bit, and the
+scene it came from keeps its answers; instances give the same answers for every strategy and
+thread count, and each is watertight in its own space.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import procedural as pg
+import pytest
+import sample_scenes
+from test_engine_instances import BIG, MATRICES, _queries, affine, assert_same_answers
+
+import dacrt
+
+
+@functools.cache
+def _world():
+    """Five meshes: two as given (a soup, a sphere), a grid and two instances of one sphere
+    (the same arrays), placed."""
+    sphere = sample_scenes.sphere(21)[0]
+    meshes = [
+        pg.triangle_soup(300, np.random.default_rng(22)),
+        sample_scenes.sphere(23)[0],
+        sample_scenes.tilted_grid(24)[0],
+        sphere,
+        sphere,
+    ]
+    transforms = [
+        None,
+        None,
+        MATRICES["shear"],
+        affine(pg.rotation([0, 1.0, 0], 0.4), (2.5, 0.0, 0.0)),
+        MATRICES["reflection"] @ affine(offset=(0.0, 2.0, 0.0)),
+    ]
+    masks = np.array([1, 2, 4, 8, 16], np.uint32)
+    return meshes, transforms, masks
+
+
+def _rays(meshes, transforms, n=800, seed=25):
+    """Mixed rays over the placed scene's box."""
+    corners = []
+    for (v, _), m in zip(meshes, transforms):
+        v = v.astype(np.float64)
+        corners.append(v if m is None else v @ m[:3, :3].T + m[:3, 3])
+    return pg.mixed_rays(pg.bounds(np.concatenate(corners)), n, np.random.default_rng(seed))
+
+
+def _all_queries(scene, o, d, ray_masks):
+    answers = {}
+    for cull in ("none", "back"):
+        for mask in (None, np.uint32(0b11010), ray_masks):
+            label = "per-ray" if mask is ray_masks else mask
+            for name, answer in _queries(scene, o, d, cull=cull, mask=mask).items():
+                answers[f"{name}, cull={cull}, mask={label}"] = answer
+    return answers
+
+
+CHANGES = {
+    "move an instance": dict(transforms={3: affine(offset=(2.0, 1.0, 0.5))}),
+    "deform a base mesh": dict(vertices={1: "scaled"}),
+    "deform an instance": dict(vertices={4: "scaled"}),
+    "place a base mesh": dict(transforms={0: MATRICES["rotation"]}),
+    "put an instance as given": dict(transforms={2: None}),
+    "masks": dict(masks={0: 3, 3: 0}),
+    "all at once": dict(
+        transforms={0: MATRICES["nonuniform_scale"], 2: None, 3: MATRICES["far"]},
+        vertices={1: "scaled", 3: "scaled"},
+        masks={4: 7},
+    ),
+}
+
+
+def _resolved(change, meshes):
+    """``change`` with "scaled" vertices made: the mesh's vertices times 1.1."""
+    vertices = {i: meshes[i][0] * np.float32(1.1) for i in change.get("vertices", {})}
+    return {**change, "vertices": vertices} if vertices else change
+
+
+@pytest.mark.parametrize("case", sorted(CHANGES))
+def test_with_changes_answers_as_a_new_scene_and_leaves_the_old_one(case):
+    meshes, transforms, masks = _world()
+    o, d = _rays(meshes, transforms)
+    ray_masks = np.random.default_rng(26).integers(1, 32, len(o)).astype(np.uint32)
+    old = dacrt.Scene(meshes, masks=masks, transforms=transforms)
+    before = _all_queries(old, o, d, ray_masks)
+    change = _resolved(CHANGES[case], meshes)
+    new = old.with_changes(**change)
+    # The same meshes, masks and transforms, given whole.
+    new_meshes = [(change.get("vertices", {}).get(i, v), f) for i, (v, f) in enumerate(meshes)]
+    new_transforms = list(transforms)
+    for i, m in change.get("transforms", {}).items():
+        new_transforms[i] = m
+    new_masks = masks.copy()
+    for i, m in change.get("masks", {}).items():
+        new_masks[i] = m
+    fresh = dacrt.Scene(new_meshes, masks=new_masks, transforms=new_transforms)
+    got = _all_queries(new, o, d, ray_masks)
+    assert_same_answers(got, _all_queries(fresh, o, d, ray_masks), case)
+    assert_same_answers(_all_queries(old, o, d, ray_masks), before, f"{case}: the old scene")
+    assert new.n_triangles == fresh.n_triangles and new.n_meshes == fresh.n_meshes
+    np.testing.assert_array_equal(new.masks, fresh.masks)
+    np.testing.assert_array_equal(new.bounds, fresh.bounds)
+    # A chain of versions: changing back gives the first answers again.
+    if case == "move an instance":
+        back = new.with_changes(transforms={3: transforms[3]})
+        assert_same_answers(_all_queries(back, o, d, ray_masks), before, f"{case}: back")
+
+
+def test_with_changes_shares_what_did_not_change():
+    meshes, transforms, masks = _world()
+    old = dacrt.Scene(meshes, masks=masks, transforms=transforms)
+    # Instances of one (vertices, faces) pair share one packing.
+    assert old._parts[3] is old._parts[4]
+    moved = old.with_changes(transforms={3: affine(offset=(0.0, 0.0, 5.0))}, masks={1: 9})
+    assert moved._base is old._base
+    assert all(moved._parts[i] is old._parts[i] for i in range(len(meshes)))
+    assert moved._instance_of[2] is old._instance_of[2]
+    deformed = old.with_changes(vertices={3: meshes[3][0] + np.float32(0.5)})
+    assert deformed._base is old._base
+    assert deformed._parts[3] is not old._parts[3] and deformed._parts[4] is old._parts[4]
+    rebased = old.with_changes(vertices={1: meshes[1][0] * np.float32(2)})
+    assert rebased._base is not old._base and rebased._parts[3] is old._parts[3]
+
+
+def test_a_mesh_with_seven_instances_is_packed_once():
+    v, f = sample_scenes.sphere(27)[0]
+    matrices = [affine(offset=(3.0 * k, 0.0, 0.0)) for k in range(7)]
+    one = dacrt.Scene([(v, f)], transforms=matrices[:1])
+    seven = dacrt.Scene([(v, f)] * 7, transforms=matrices)
+    assert seven.nbytes - one.nbytes == 8 * 6  # mesh_offsets grow; the packed arrays do not
+
+
+BAD_CHANGES = {
+    "not a dict": (dict(transforms=[np.eye(4)]), "transforms must be a dict"),
+    "key out of range": (dict(transforms={5: np.eye(4)}), r"transforms\[5\]: there is no mesh 5"),
+    "negative key": (dict(masks={-1: 1}), r"masks\[-1\]"),
+    "key not an int": (dict(vertices={"a": np.zeros((3, 3))}), "vertices has key 'a'"),
+    "bad matrix": (dict(transforms={2: np.eye(3)}), r"transforms\[2\] must have shape"),
+    "singular matrix": (
+        dict(transforms={2: affine(np.zeros((3, 3)))}),
+        r"transforms\[2\].*singular",
+    ),
+    "beyond float32": (dict(transforms={1: affine(np.eye(3) * 1e39)}), r"transforms\[1\]"),
+    "rows": (dict(vertices={3: np.zeros((12, 3))}), r"vertices\[3\] has 12 rows; mesh 3 has"),
+    "shape": (dict(vertices={3: np.zeros((12, 2))}), r"vertices\[3\] must have shape"),
+    "not finite": (dict(vertices={0: "nan"}), r"vertices\[0\]\[5\] is not finite"),
+    "mask range": (dict(masks={2: 2**32}), r"masks\[2\]"),
+    "mask type": (dict(masks={2: 1.5}), r"masks\[2\]"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CHANGES))
+def test_bad_changes_are_input_errors_naming_the_argument(case):
+    meshes, transforms, masks = _world()
+    scene = dacrt.Scene(meshes, masks=masks, transforms=transforms)
+    change, message = BAD_CHANGES[case]
+    if change.get("vertices", {}).get(0) == "nan":
+        bad = meshes[0][0].copy()
+        bad[5, 1] = np.nan
+        change = dict(vertices={0: bad})
+    o, d = _rays(meshes, transforms, n=200)
+    before = scene.closest(o, d)
+    with pytest.raises(dacrt.InputError, match=message):
+        scene.with_changes(**change)
+    after = scene.closest(o, d)
+    np.testing.assert_array_equal(after.t, before.t)
+    np.testing.assert_array_equal(after.prim, before.prim)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
+def test_instances_give_the_same_answers_for_every_strategy_and_thread_count(strategy, threads):
+    meshes, transforms, masks = _world()
+    scene = dacrt.Scene(meshes, masks=masks, transforms=transforms)
+    # Enough rays for two chunks on two threads.
+    o, d = _rays(meshes, transforms, n=40_000, seed=28)
+    ray_masks = np.random.default_rng(29).integers(1, 32, len(o)).astype(np.uint32)
+    expected = _strategy_answers("sampling", 1)
+    for cull, mask in (("none", None), ("front", ray_masks)):
+        got = _four(scene, o, d, cull=cull, mask=mask, strategy=strategy, threads=threads)
+        assert_same_answers(got, expected[cull], f"{strategy}, {threads} threads, cull={cull}")
+
+
+def _four(scene, o, d, **options):
+    """The four queries' answers (hits with max_hits=4, which truncates some)."""
+    return {
+        "closest": scene.closest(o, d, **options),
+        "occluded": scene.occluded(o, d, **options),
+        "hits": scene.hits(o, d, max_hits=4, **options),
+        "count": scene.count(o, d, **options),
+    }
+
+
+@functools.cache
+def _strategy_answers(strategy, threads):
+    meshes, transforms, masks = _world()
+    scene = dacrt.Scene(meshes, masks=masks, transforms=transforms)
+    o, d = _rays(meshes, transforms, n=40_000, seed=28)
+    ray_masks = np.random.default_rng(29).integers(1, 32, len(o)).astype(np.uint32)
+    answers = {}
+    for cull, mask in (("none", None), ("front", ray_masks)):
+        answers[cull] = _four(scene, o, d, cull=cull, mask=mask, strategy=strategy, threads=threads)
+    return answers
+
+
+def test_hits_across_instances_are_merged_and_truncated():
+    """Three instances along x: a ray through them crosses each twice; max_hits keeps the
+    nearest across instances and says so."""
+    v, f = sample_scenes.sphere(30)[0]
+    matrices = [affine(offset=(3.0 * k, 0.0, 0.0)) for k in range(3)]
+    scene = dacrt.Scene([(v, f)] * 3, transforms=matrices)
+    o = np.array([[-5.0, 0.01, 0.02], [-5.0, 9.0, 0.0]], np.float32)
+    d = np.array([[1.0, 0, 0], [1.0, 0, 0]], np.float32)
+    every = scene.hits(o, d, max_hits=BIG)
+    np.testing.assert_array_equal(every.mesh, [0, 0, 1, 1, 2, 2])
+    np.testing.assert_array_equal(every.truncated, [False, False])
+    assert np.all(np.diff(every.t) > 0)
+    three = scene.hits(o, d, max_hits=3)
+    np.testing.assert_array_equal(three.offsets, [0, 3, 3])
+    np.testing.assert_array_equal(three.mesh, [0, 0, 1])
+    np.testing.assert_array_equal(three.t, every.t[:3])
+    np.testing.assert_array_equal(three.truncated, [True, False])
+    np.testing.assert_array_equal(scene.count(o, d).count, [6, 0])
+    stats = scene.closest(o, d, stats=True).stats
+    assert stats["rays"] == 2 and stats["triangles"] == 3 * len(f)
+    assert stats["ray_triangle_tests"] > 0
+
+
+@pytest.mark.parametrize("kind", ["rotation", "reflection", "nonuniform_scale", "far"])
+def test_each_instance_is_watertight(kind):
+    """Rays from inside a closed sphere placed by a matrix, through its vertices, edge
+    midpoints and random directions: every one hits, and each counts an odd number of
+    crossings."""
+    v, f = pg.icosphere(3)
+    v = pg.perturb_radially(v, np.random.default_rng(31), 0.1)
+    m = MATRICES[kind]
+    scene = dacrt.Scene([(v, f)], transforms=[m])
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    v64 = v.astype(np.float64)
+    targets = np.concatenate([v64, v64[edges].mean(axis=1)])
+    inside = np.random.default_rng(32).uniform(-0.2, 0.2, (len(targets), 3))
+    directions = np.concatenate(
+        [targets - inside, pg.unit_vectors(2000, np.random.default_rng(33))]
+    )
+    starts = np.concatenate([inside, np.zeros((2000, 3))])
+    # The rays in scene space: the mesh-space rays placed by the matrix.
+    o = (starts @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+    d = (directions @ m[:3, :3].T).astype(np.float32)
+    hits = scene.closest(o, d)
+    missed = np.flatnonzero(hits.prim < 0)
+    assert not len(missed), f"{len(missed)} rays slipped through, first {missed[0]}"
+    assert np.all(scene.count(o, d).count % 2 == 1)
+    assert scene.occluded(o, d).occluded.all()
