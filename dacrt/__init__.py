@@ -5,6 +5,8 @@ hits = scene.closest(origins, directions)
 blocked = scene.occluded(origins, directions, tmax=distances).occluded
 every = scene.hits(origins, directions, max_hits=16)      # CSR: every.offsets, every.t, ...
 crossings = scene.count(origins, directions).count
+closest = scene.nearest(points)                           # distance, point, mesh, prim, u, v
+inside = scene.contains(points)
 
 The first queries of a process compile the engine's kernels with Numba (minutes, once per
 machine and version; a warning says so); ``dacrt.warmup()`` compiles them all up front, and
@@ -14,7 +16,7 @@ outside the package.
 
 from importlib.metadata import PackageNotFoundError, version
 
-from .contracts import MISS, STRATEGIES, Counts, HitList, Hits, Occlusion
+from .contracts import MISS, STRATEGIES, Counts, HitList, Hits, Nearest, Occlusion
 from .query import CULL_MODES
 from .scene import Scene
 from .validation import InputError, check_transform
@@ -27,6 +29,7 @@ __all__ = [
     "Occlusion",
     "HitList",
     "Counts",
+    "Nearest",
     "MISS",
     "STRATEGIES",
     "CULL_MODES",

@@ -1,5 +1,5 @@
 """The public query surface: ``Scene`` and its queries ``closest``, ``occluded``, ``hits`` and
-``count``.
+``count``; the point queries ``nearest``, ``contains`` and ``signed_distance`` are ``points``'.
 
 This is the only module that checks and converts input. A Scene keeps its triangles and what is
 O(F) and cheap to derive from them (gathered vertices, boxes); every query partitions rays and
@@ -15,6 +15,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
+from . import points as point_queries
 from .chunks import (
     DENSITY_GRID,
     MIN_RAYS_PER_THREAD,
@@ -39,6 +40,7 @@ from .contracts import (
     Counts,
     HitList,
     Hits,
+    Nearest,
     Occlusion,
 )
 from .leaf import NO_HIT
@@ -359,6 +361,61 @@ class Scene:
         even number, from inside an odd one. Returns ``Counts``."""
         traced = self._trace(COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads)
         return Counts(traced.arrays.n_hits, traced.counters if stats else None)
+
+    def nearest(
+        self,
+        points: ArrayLike,
+        max_distance: float | None = None,
+        *,
+        mask: ArrayLike | int | None = None,
+        threads: int | None = None,
+        stats: bool = False,
+    ) -> Nearest:
+        """The closest point on any triangle to each of ``points``.
+
+        points : (n, 3) float (converted to float32)
+        max_distance : None (no limit) or a number >= 0: a point farther from every triangle
+            gets none (distance inf, prim -1)
+        mask, threads : as for ``closest``; every thread count gives the same answers
+        Returns ``Nearest``; the distance is exact in float64, then rounded to float32, and ties
+        go to the lowest (mesh, triangle)."""
+        return point_queries.nearest_query(self, points, max_distance, mask, threads, stats)
+
+    def contains(
+        self,
+        points: ArrayLike,
+        nsamples: int = 1,
+        *,
+        mask: ArrayLike | int | None = None,
+        threads: int | None = None,
+    ) -> np.ndarray:
+        """(n,) bool: whether each point is inside, by the parity of the crossings (``count``,
+        exact at edges and vertices) of rays from it along ``nsamples`` (odd) fixed directions
+        (``dacrt.points.sample_directions``), the majority of them. A point on the surface may
+        go either way."""
+        return point_queries.contains_query(self, points, nsamples, mask, threads)
+
+    def signed_distance(
+        self,
+        points: ArrayLike,
+        nsamples: int = 1,
+        max_distance: float | None = None,
+        *,
+        mask: ArrayLike | int | None = None,
+        threads: int | None = None,
+    ) -> np.ndarray:
+        """(n,) float32: ``nearest``'s distance, negative where ``contains``; 0 on a triangle,
+        +-inf beyond max_distance."""
+        return point_queries.signed_distance_query(
+            self, points, nsamples, max_distance, mask, threads
+        )
+
+    def _scene_triangles(self) -> point_queries.SceneTriangles:
+        """The scene-space triangles, for the point queries: the one place they read the
+        scene's internals."""
+        return point_queries.SceneTriangles(
+            self._tri_verts, self._tri_global, self.mesh_offsets, self._row_masks
+        )
 
     def _visible_rows(self, ray_masks):
         """How a batch's masks are traced: (flags, tri_ids, tri_masks). A batch whose rays

@@ -26,6 +26,10 @@ def warmup() -> float:
         scene.occluded(origins, directions, strategy=strategy, threads=1)
         scene.hits(origins, directions, strategy=strategy, threads=1)
         scene.count(origins, directions, strategy=strategy, threads=1)
+    # Point queries: one mask for the batch, a mask per point, and the parity of crossings.
+    scene.nearest(origins, threads=1)
+    scene.nearest(origins, mask=np.arange(1, 5, dtype=np.uint32), threads=1)
+    scene.contains(origins, threads=1)
     # Rays as the columns of one read-only (n, 6) array, as a server decodes them from a body.
     rays = np.hstack([origins, directions])
     rays.flags.writeable = False
