@@ -51,12 +51,21 @@ from .query import ALL_MASKS
 from .traversal import split_middle
 from .triangles import Triangles, triangle_boxes
 from .validation import (
-    as_float_rows,
     check_masks,
     check_max_distance,
     check_nsamples,
+    check_points,
     check_threads,
 )
+
+NearestArrays = namedtuple("NearestArrays", ["d2", "global_id", "u", "v", "point"])
+NearestArrays.__doc__ = """What ``nearest`` finds, by point id: the squared distance (float64, inf
+for none), the global triangle id (int64, NO_TRIANGLE for none), the barycentrics u, v (float64,
+0 for none) and the closest point (N, 3) float64 (inf for none)."""
+
+Seeds = namedtuple("Seeds", ["codes", "rows"])
+Seeds.__doc__ = """The triangles a point measures first: the visible rows (int32) sorted by the
+Morton codes (int64) of their box centres."""
 
 SceneTriangles = namedtuple("SceneTriangles", ["verts", "global_ids", "mesh_offsets", "row_masks"])
 SceneTriangles.__doc__ = """What a point query reads of a scene (``Scene._scene_triangles``).
@@ -272,16 +281,11 @@ def nearest_chunk(
     tri_global,
     tri_masks,
     root_box,
-    seed_codes,
-    seed_rows,
+    seeds,
     n_seeds,
     max_d2,
     slack2,
-    out_d2,
-    out_id,
-    out_u,
-    out_v,
-    out_point,
+    out,
     stats,
 ):
     """The closest triangle of each point ``chunk_ids`` of ``points`` (N, 3) float32, among
@@ -290,12 +294,10 @@ def nearest_chunk(
 
     point_masks : (N,) uint32 and tri_masks : (F,) uint32 by kernel row, or both (0,): a point
         sees a row where the masks share a bit
-    seed_codes, seed_rows : the visible rows sorted by the Morton codes of their box centres;
-        each point measures ``n_seeds`` of them beside its own code
+    seeds : ``Seeds``, of which each point measures ``n_seeds`` beside its own Morton code
     slack2 : absolute slack of the cull, in squared distance
-    Writes each point's squared distance (inf for none), global id (NO_TRIANGLE for none),
-    barycentrics and closest point (float64) to the ``out_*`` arrays by point id; adds to
-    ``stats`` (``POINT_STAT_NAMES``)."""
+    Writes each point's answer to ``out`` (``NearestArrays``) by point id; adds to ``stats``
+    (``POINT_STAT_NAMES``)."""
     n = len(chunk_ids)
     masked = len(point_masks) > 0
     # The chunk's points as float64 rows, by local id; the partitions permute local ids.
@@ -311,13 +313,13 @@ def nearest_chunk(
             local_masks[i] = point_masks[chunk_ids[i]]
 
     # Seeds: the triangles beside each point on the Morton curve give it a radius.
-    n_seeds = min(n_seeds, len(seed_rows))
+    n_seeds = min(n_seeds, len(seeds.rows))
     for i in range(n):
         px, py, pz = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-        at = np.searchsorted(seed_codes, morton_code(px, py, pz, root_box))
-        first = min(max(at - n_seeds // 2, 0), len(seed_rows) - n_seeds)
+        at = np.searchsorted(seeds.codes, morton_code(px, py, pz, root_box))
+        first = min(max(at - n_seeds // 2, 0), len(seeds.rows) - n_seeds)
         for k in range(first, first + n_seeds):
-            row = seed_rows[k]
+            row = seeds.rows[k]
             if masked and (local_masks[i] & tri_masks[row]) == 0:
                 continue
             d2 = closest_on_triangle(px, py, pz, tris.verts, row)[0]
@@ -328,6 +330,7 @@ def nearest_chunk(
         stats[STAT_POINT_SEED_TESTS] += n_seeds
 
     point_ids = np.arange(n).astype(np.int32)
+    culled_ids = np.empty(n, np.int32)  # scratch of the filters
     n_stack = MAX_DEPTH + 2
     stack_tri = np.empty((n_stack, 2), np.int64)
     stack_point = np.empty((n_stack, 2), np.int64)
@@ -350,22 +353,25 @@ def nearest_chunk(
         box = stack_box[sp]
         stats[STAT_POINT_NODES] += 1
         stats[STAT_POINT_MAX_DEPTH] = max(stats[STAT_POINT_MAX_DEPTH], depth)
-        # Keep the points whose radius reaches the box, at the front; sum them for the order.
+        # Keep the points whose radius reaches the box, at the front in their order (neighbours
+        # stay neighbours), with no branch on the test; sum them for the order of the children.
         stats[STAT_POINT_BOX_TESTS] += stack_point[sp, 1] - point_lo
-        i = point_lo
-        point_hi = stack_point[sp, 1]
+        point_hi = point_lo
+        n_culled = 0
         sx = sy = sz = 0.0
-        while i < point_hi:
+        for i in range(point_lo, stack_point[sp, 1]):
             p = point_ids[i]
-            if box_distance2(xyz[p, 0], xyz[p, 1], xyz[p, 2], box) <= reach(best_d2[p], slack2):
-                sx += xyz[p, 0]
-                sy += xyz[p, 1]
-                sz += xyz[p, 2]
-                i += 1
-            else:
-                point_hi -= 1
-                point_ids[i] = point_ids[point_hi]
-                point_ids[point_hi] = p
+            x, y, z = xyz[p, 0], xyz[p, 1], xyz[p, 2]
+            keep = box_distance2(x, y, z, box) <= reach(best_d2[p], slack2)
+            point_ids[point_hi] = p
+            culled_ids[n_culled] = p
+            point_hi += keep
+            n_culled += 1 - keep
+            weight = 1.0 if keep else 0.0
+            sx += weight * x
+            sy += weight * y
+            sz += weight * z
+        point_ids[point_hi : point_hi + n_culled] = culled_ids[:n_culled]
         n_points = point_hi - point_lo
         n_tris = tri_hi - tri_lo
         if n_points == 0:
@@ -417,21 +423,17 @@ def nearest_chunk(
     # The answers, with each closest point measured again from its triangle.
     for i in range(n):
         p = chunk_ids[i]
-        out_d2[p] = best_d2[i] if best_row[i] >= 0 else np.inf
-        out_id[p] = best_id[i]
+        out.global_id[p] = best_id[i]
         if best_row[i] >= 0:
             _, u, v, qx, qy, qz = closest_on_triangle(
                 xyz[i, 0], xyz[i, 1], xyz[i, 2], tris.verts, best_row[i]
             )
-            out_u[p] = u
-            out_v[p] = v
-            out_point[p, 0] = qx
-            out_point[p, 1] = qy
-            out_point[p, 2] = qz
-        else:
-            out_u[p] = 0.0
-            out_v[p] = 0.0
-            out_point[p, :] = np.inf
+            out.d2[p] = best_d2[i]
+            out.u[p] = u
+            out.v[p] = v
+            out.point[p, 0] = qx
+            out.point[p, 1] = qy
+            out.point[p, 2] = qz
 
 
 @inline
@@ -494,19 +496,13 @@ def measure_leaf(
 # ---- The query
 
 
-NearestArrays = namedtuple("NearestArrays", ["d2", "global_id", "u", "v", "point", "stats"])
-NearestArrays.__doc__ = """What ``nearest`` finds, by point: squared distance (float64, inf for
-none), global triangle id (int64, NO_TRIANGLE for none), barycentrics u, v (float64), the
-closest point (N, 3) float64 (inf for none), and the counters (a dict)."""
-
-
 def nearest(scene_triangles, points, max_distance, point_masks, visible_rows, threads):
     """The closest point of each of ``points`` (N, 3) float32 (finite, checked) on the triangles
     of ``scene_triangles`` (``SceneTriangles``) within ``max_distance`` (float, inf for none).
 
     point_masks : (N,) uint32 when the points' masks differ, else (0,)
     visible_rows : (k,) int32 rows the points see, or None for every row
-    threads : a positive int. Returns ``NearestArrays``."""
+    threads : a positive int. Returns ``NearestArrays`` and the counters (a dict)."""
     n_points = len(points)
     verts = scene_triangles.verts
     rows = np.arange(len(verts), dtype=INDEX) if visible_rows is None else visible_rows
@@ -519,18 +515,16 @@ def nearest(scene_triangles, points, max_distance, point_masks, visible_rows, th
         u=np.zeros(n_points),
         v=np.zeros(n_points),
         point=np.full((n_points, 3), np.inf),
-        stats=counters,
     )
     if n_points == 0 or len(rows) == 0:
-        return answer
+        return answer, counters
     tri_bounds = np.empty((len(verts), 6), FLOAT)
     scene_box = np.empty(6, FLOAT)
     triangle_boxes(verts, tri_bounds, scene_box)
     box = scene_box if visible_rows is None else visible_box(tri_bounds, rows)
     codes = triangle_codes(tri_bounds, rows, box)
     by_code = np.argsort(codes, kind="stable")
-    seed_codes = codes[by_code]
-    seed_rows = rows[by_code].astype(INDEX)
+    seeds = Seeds(codes[by_code], rows[by_code].astype(INDEX))
     extent = float(np.max(box[3:].astype(np.float64) - box[:3]))
     slack2 = (POINT_CULL_SLACK * max(extent, float(np.max(np.abs(box))))) ** 2
     max_d2 = float(max_distance) ** 2
@@ -550,16 +544,11 @@ def nearest(scene_triangles, points, max_distance, point_masks, visible_rows, th
             scene_triangles.global_ids,
             tri_masks,
             box,
-            seed_codes,
-            seed_rows,
+            seeds,
             POINT_SEEDS,
             max_d2,
             slack2,
-            answer.d2,
-            answer.global_id,
-            answer.u,
-            answer.v,
-            answer.point,
+            answer,
             chunk_stats,
         )
         return chunk_stats
@@ -570,7 +559,7 @@ def nearest(scene_triangles, points, max_distance, point_masks, visible_rows, th
         if name not in ("points", "triangles", "max_depth"):
             counters[name] = int(totals[k])
     counters["max_depth"] = int(max(c[STAT_POINT_MAX_DEPTH] for c in per_chunk))
-    return answer
+    return answer, counters
 
 
 def visible_box(tri_bounds, rows):
@@ -635,7 +624,7 @@ def signed(distance, inside):
 def nearest_query(scene, points, max_distance=None, mask=None, threads=None, stats=False):
     """``Scene.nearest``: checks the input, finds each point's closest triangle, returns
     ``Nearest``."""
-    points = as_float_rows(points, "points")
+    points = check_points(points)
     max_distance = check_max_distance(max_distance)
     threads = check_threads(threads, N_CORES)
     triangles = scene._scene_triangles()
@@ -649,7 +638,7 @@ def nearest_query(scene, points, max_distance=None, mask=None, threads=None, sta
         if not seen.all():
             visible_rows = np.flatnonzero(seen).astype(INDEX)
         point_masks = np.empty(0, np.uint32)
-    found = nearest(triangles, points, max_distance, point_masks, visible_rows, threads)
+    found, counters = nearest(triangles, points, max_distance, point_masks, visible_rows, threads)
     mesh, prim = mesh_and_prim(found.global_id, triangles.mesh_offsets)
     return Nearest(
         distance=np.sqrt(found.d2).astype(FLOAT),
@@ -658,13 +647,13 @@ def nearest_query(scene, points, max_distance=None, mask=None, threads=None, sta
         prim=prim,
         u=found.u.astype(FLOAT),
         v=found.v.astype(FLOAT),
-        stats=found.stats if stats else None,
+        stats=counters if stats else None,
     )
 
 
 def contains_query(scene, points, nsamples=1, mask=None, threads=None):
     """``Scene.contains``: (n,) bool, by the majority of ``nsamples`` parities."""
-    points = as_float_rows(points, "points")
+    points = check_points(points)
     nsamples = check_nsamples(nsamples)
     threads = check_threads(threads, N_CORES)
     directions = np.empty_like(points)
@@ -678,7 +667,7 @@ def contains_query(scene, points, nsamples=1, mask=None, threads=None):
 
 def signed_distance_query(scene, points, nsamples=1, max_distance=None, mask=None, threads=None):
     """``Scene.signed_distance``: (n,) float32, negative inside."""
-    points = as_float_rows(points, "points")
+    points = check_points(points)
     check_nsamples(nsamples)
     found = nearest_query(scene, points, max_distance, mask, threads)
     inside = contains_query(scene, points, nsamples, mask, threads)

@@ -226,6 +226,13 @@ def check_masks(masks, n, name, what):
     return np.ascontiguousarray(masks, dtype=np.uint32)
 
 
+def check_points(points):
+    """Query points as a writable float32 (n, 3) C-contiguous array, each row finite; a
+    read-only one (a server's body) is copied, so the kernels have one signature."""
+    points = as_float_rows(points, "points")
+    return points if points.flags.writeable else points.copy()
+
+
 def check_max_distance(max_distance):
     """``max_distance`` as a float: None (no limit: inf) or a number >= 0."""
     if max_distance is None:

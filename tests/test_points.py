@@ -336,3 +336,16 @@ def test_closed_shared_scene_against_trimesh_and_open3d(name, load_shared):
     o3d_signed = o3d_scene.compute_signed_distance(query, nsamples=3).numpy()
     signed = scene.signed_distance(points, 3)
     np.testing.assert_array_equal(signed[apart] < 0, o3d_signed[apart] < 0)
+
+
+def test_read_only_and_float64_points_give_the_same_answers():
+    """A server's body is a read-only view; float64 points are rounded to float32 once."""
+    meshes, vertices, _, _ = _scene_and_soup("sphere")
+    points = _points(vertices, 200, np.random.default_rng(18))
+    scene = dacrt.Scene(meshes)
+    first = scene.nearest(points)
+    frozen = points.copy()
+    frozen.flags.writeable = False
+    for same in (frozen, points.astype(np.float64)):
+        np.testing.assert_array_equal(scene.nearest(same).distance, first.distance)
+        np.testing.assert_array_equal(scene.contains(same), scene.contains(points))
