@@ -32,8 +32,8 @@ log = logging.getLogger("service")
 #: Seconds between progress lines while the kernels compile or load.
 PROGRESS_SECONDS = 15.0
 #: Kernels a warm-up compiles from an empty cache (``compiling.compiled_kernels()``, counted on
-#: af71529): the "of about N" of the progress lines and their time left.
-EXPECTED_COMPILES = 37
+#: the point queries' commit): the "of about N" of the progress lines and their time left.
+EXPECTED_COMPILES = 42
 #: What a first start takes, measured from an empty cache (README, First start).
 COLD_START = "about a minute on 2 idle cores, up to 15 on 2 cores busy with other work"
 
@@ -138,6 +138,8 @@ def warm_up(threads: int | None = None) -> float:
             store = warm_up_meshes()
         with progress.step("queries on every ray format"):
             warm_up_queries(store, threads)
+        with progress.step("point queries on every point format"):
+            warm_up_points(store, threads)
     return time.perf_counter() - progress.start
 
 
@@ -231,6 +233,18 @@ def warm_up_queries(store: Store, threads: int | None) -> None:
         for query in tracing.Query:
             options = tracing.make_options(query, threads=threads)
             encode(tracing.trace_once(mesh, rays, options).arrays, options.answer_formats)
+
+
+def warm_up_points(store: Store, threads: int | None) -> None:
+    """/nearest with and without the sign, on points of every format (an .npy body's points
+    are a read-only view, which the kernels are compiled for apart)."""
+    points = RAYS[:, 0:3]
+    point_bodies = {"npy": npy(points), "npz": npz(points=points), "json": as_json(points=points)}
+    snapshot = store.snapshot("warm-up")
+    for fmt, data in point_bodies.items():
+        for sign in (False, True):
+            options = tracing.point_options(None, sign, 1, None, False, threads)
+            encode(tracing.nearest(snapshot, wire.decode_points(data, fmt), options).arrays)
 
 
 def encode(

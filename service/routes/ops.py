@@ -176,13 +176,17 @@ async def capabilities(settings: SettingsDep, cluster: ClusterDep) -> dict:
 
     return {
         "api": "v1",
-        "queries": [q.value for q in tracing.Query] + ["trace"],
-        "fields": {q.value: list(names) for q, names in tracing.FIELDS.items()},
+        "queries": [q.value for q in tracing.Query] + ["trace", "nearest"],
+        "fields": {
+            **{q.value: list(names) for q, names in tracing.FIELDS.items()},
+            "nearest": [*tracing.NEAREST_FIELDS, *tracing.SIGN_FIELDS],
+        },
         "strategies": list(tracing.strategies()),
         "default_strategy": tracing.strategies()[0],
         "cull": list(tracing.CULL_MODES),
         "formats": {
             "rays": media(wire.RAY_FORMATS),
+            "points": media(wire.POINT_FORMATS),
             "meshes": media(wire.MESH_FORMATS),
             "vertices": media(wire.VERTEX_FORMATS),
             "frame": media(wire.FRAME_FORMATS),
