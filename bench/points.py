@@ -36,6 +36,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 import dacrt  # noqa: E402
+from oracles import open3d_points  # noqa: E402
 
 SHARED_SCENES = REPO.parent / "shared" / "scenes"
 
@@ -62,38 +63,25 @@ def point_sets(vertices, n, seed=0):
     return {"uniform": uniform.astype(np.float32), "near": near.astype(np.float32)}
 
 
-def open3d_scene(vertices, faces):
-    import open3d
-
-    scene = open3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        open3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),
-        open3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)),
-    )
-    return scene
-
-
 def measure(vertices, faces, points, threads, trimesh_points):
     """{figure name: seconds} and the distances' largest difference, for one point set."""
-    import open3d
     import trimesh
 
-    query = open3d.core.Tensor(points)
     # Scenes made, and queried once, before the clock: Open3D builds its BVH on the first query.
     scene = dacrt.Scene([(vertices, faces)])
     scene.nearest(points[:1])
-    o3d = open3d_scene(vertices, faces)
-    o3d.compute_distance(open3d.core.Tensor(points[:1]))
+    rival = open3d_points.build(open3d_points.scene(vertices, faces))
+    query = open3d_points.tensor(points)  # Open3D's input, made once as dacrt's is
     runs = {
         "dacrt frame": lambda: dacrt.Scene([(vertices, faces)]).nearest(points, threads=threads),
         "dacrt query": lambda: scene.nearest(points, threads=threads),
         "dacrt signed": lambda: dacrt.Scene([(vertices, faces)]).signed_distance(
             points, threads=threads
         ),
-        "open3d frame": lambda: open3d_scene(vertices, faces).compute_distance(query).numpy(),
-        "open3d query": lambda: o3d.compute_distance(query).numpy(),
-        "open3d signed": lambda: (
-            open3d_scene(vertices, faces).compute_signed_distance(query).numpy()
+        "open3d frame": lambda: open3d_points.distance(open3d_points.scene(vertices, faces), query),
+        "open3d query": lambda: open3d_points.distance(rival, query),
+        "open3d signed": lambda: open3d_points.signed_distance(
+            open3d_points.scene(vertices, faces), query
         ),
     }
     seconds = {name: timed(run) for name, run in runs.items()}
