@@ -226,8 +226,8 @@ def morton_code(x, y, z, box):
         value = x if a == 0 else (y if a == 1 else z)
         lo = np.float64(box[a])
         extent = np.float64(box[a + 3]) - lo
-        k = int((value - lo) / extent * cells) if extent > 0 else 0
-        k = min(max(k, 0), cells)
+        # Clamped before the conversion: a point far outside would overflow the integer.
+        k = int(min(max((value - lo) / extent * cells, 0.0), cells)) if extent > 0 else 0
         code |= spread_bits(k) << a
     return code
 
@@ -640,8 +640,10 @@ def nearest_query(scene, points, max_distance=None, mask=None, threads=None, sta
         point_masks = np.empty(0, np.uint32)
     found, counters = nearest(triangles, points, max_distance, point_masks, visible_rows, threads)
     mesh, prim = mesh_and_prim(found.global_id, triangles.mesh_offsets)
+    with np.errstate(over="ignore"):  # a distance beyond float32's range reads inf
+        distance = np.sqrt(found.d2).astype(FLOAT)
     return Nearest(
-        distance=np.sqrt(found.d2).astype(FLOAT),
+        distance=distance,
         point=found.point.astype(FLOAT),
         mesh=mesh,
         prim=prim,

@@ -81,6 +81,29 @@ def test_points_far_away(name):
     _check_against_reference(found, expected, vertices, faces, offsets, points)
 
 
+def test_points_at_the_edge_of_float32():
+    meshes, vertices, faces, offsets = _scene_and_soup("soup")
+    points = np.array([[1e30, 0, 0], [-3e38, 3e38, 0], [0.5, 0.5, -1e20]], np.float32)
+    found = dacrt.Scene(meshes).nearest(points)
+    expected = pr.nearest(points, vertices, faces)
+    with np.errstate(over="ignore"):  # the second is beyond float32's range: inf
+        np.testing.assert_allclose(found.distance, expected.distance.astype(np.float32), rtol=1e-6)
+    assert (found.prim >= 0).all()
+
+
+def test_placed_meshes_answer_in_scene_space():
+    """Transforms place the triangles before anything else: the answers are those of the placed
+    vertices, prim the row of the mesh's own faces."""
+    vertices, faces = pg.icosphere(2)
+    matrix = np.array([[0, -2, 0, 1], [2, 0, 0, 0], [0, 0, 2, -3], [0, 0, 0, 1]], np.float64)
+    placed = (vertices.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]).astype(np.float32)
+    points = _points(placed, 300, np.random.default_rng(19))
+    moved = dacrt.Scene([(vertices, faces)], transforms=[matrix]).nearest(points)
+    plain = dacrt.Scene([(placed, faces)]).nearest(points)
+    for field in ("distance", "point", "prim", "u", "v"):
+        np.testing.assert_array_equal(getattr(moved, field), getattr(plain, field))
+
+
 @pytest.mark.parametrize("name", ["sphere", "tilted_grid", "soup"])
 def test_points_on_vertices_edges_and_faces(name):
     meshes, vertices, faces, offsets = _scene_and_soup(name)
