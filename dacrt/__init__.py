@@ -6,6 +6,8 @@ blocked = scene.occluded(origins, directions, tmax=distances).occluded
 every = scene.hits(origins, directions, max_hits=16)      # CSR: every.offsets, every.t, ...
 crossings = scene.count(origins, directions).count
 points = dacrt.sensors.Lidar("HDL-64E", horizontal_steps=2048).scan(scene, pose)  # a lidar
+closest = scene.nearest(points)                           # distance, point, mesh, prim, u, v
+inside = scene.contains(points)
 
 The first queries of a process compile the engine's kernels with Numba (minutes, once per
 machine and version; a warning says so); ``dacrt.warmup()`` compiles them all up front, and
@@ -16,7 +18,7 @@ outside the package.
 from importlib.metadata import PackageNotFoundError, version
 
 from . import sensors
-from .contracts import MISS, STRATEGIES, Counts, HitList, Hits, Occlusion
+from .contracts import MISS, STRATEGIES, Counts, HitList, Hits, Nearest, Occlusion
 from .query import CULL_MODES
 from .scene import Scene
 from .validation import InputError, check_transform
@@ -29,6 +31,7 @@ __all__ = [
     "Occlusion",
     "HitList",
     "Counts",
+    "Nearest",
     "MISS",
     "STRATEGIES",
     "CULL_MODES",

@@ -133,6 +133,21 @@ CHUNK_SAMPLE_RAYS = 4096
 # over the scene): a ray that starts among many triangles costs more.
 DENSITY_GRID = 16
 
+# ---- Point queries (points)
+# Triangles beside a point's Morton code that it measures before any partition: its first radius.
+POINT_SEEDS = 4
+# Points per chunk: a run of the Morton order, so a chunk's points meet few triangles.
+POINT_CHUNK = 32768
+# Top bits of the points' Morton codes that order them into chunks (a counting sort).
+POINT_ORDER_BITS = 18
+# Leaves: brute force a node of P points and T triangles when P*T <= C_P*P + C_T*T.
+POINT_LEAF_C_P = 8
+POINT_LEAF_C_T = 8
+# A box is culled only beyond a point's best squared distance times this, plus the square of
+# this fraction of the scene's size: rounding in a triangle's distance never culls it.
+POINT_CULL_GROWTH = 1.0 + 1e-9
+POINT_CULL_SLACK = 1e-9
+
 # ---- Shards on a cluster (distributed)
 # Fewest rays in a shard (but for a batch smaller than this): a worker's DACRT gains with rays
 # per node, and one thread traces shards of this size at 0.4 to 0.7 of its rate on shards of 1 Mi

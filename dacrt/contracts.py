@@ -56,6 +56,29 @@ STAT_NAMES = (
     STAT_SAMPLE_BOX_TESTS,
 ) = range(len(STAT_NAMES))
 
+# Order of the counters of a point query (``points``): seed_tests counts the point-triangle
+# distances measured for the first radii, triangle_tests those measured in leaves.
+POINT_STAT_NAMES = (
+    "points",
+    "triangles",
+    "point_box_tests",
+    "point_triangle_tests",
+    "seed_tests",
+    "nodes",
+    "leaves",
+    "max_depth",
+)
+(
+    STAT_POINTS,
+    STAT_POINT_TRIANGLES,
+    STAT_POINT_BOX_TESTS,
+    STAT_POINT_TRIANGLE_TESTS,
+    STAT_POINT_SEED_TESTS,
+    STAT_POINT_NODES,
+    STAT_POINT_LEAVES,
+    STAT_POINT_MAX_DEPTH,
+) = range(len(POINT_STAT_NAMES))
+
 
 @dataclass
 class Hits:
@@ -140,3 +163,27 @@ class Counts:
 
     def __len__(self) -> int:
         return len(self.count)
+
+
+@dataclass
+class Nearest:
+    """The closest point on the scene's triangles to each query point.
+
+    distance : (n,) float32, inf where no triangle is within max_distance (or none is seen)
+    point : (n, 3) float32, the closest point; inf where there is none
+    mesh, prim : (n,) int32, its triangle; -1 where there is none
+    u, v : (n,) float32 barycentrics of the closest point, point = (1-u-v)*p0 + u*p1 + v*p2;
+        0 where there is none
+    stats : dict of counters when asked for, else None
+    """
+
+    distance: np.ndarray
+    point: np.ndarray
+    mesh: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    stats: dict[str, int] | None = None
+
+    def __len__(self) -> int:
+        return len(self.distance)

@@ -1,5 +1,5 @@
 """The public query surface: ``Scene`` and its queries ``closest``, ``occluded``, ``hits`` and
-``count``.
+``count``; the point queries ``nearest``, ``contains`` and ``signed_distance`` are ``points``'.
 
 This is the only module that checks and converts input. A Scene keeps its triangles packed for
 the kernels (``packed``: gathered corners and boxes, O(F) and cheap to make): its untransformed
@@ -17,6 +17,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
+from . import points as point_queries
 from .chunks import (
     MIN_RAYS_PER_THREAD,
     N_CORES,
@@ -40,6 +41,7 @@ from .contracts import (
     Counts,
     HitList,
     Hits,
+    Nearest,
     Occlusion,
 )
 from .instances import (
@@ -685,6 +687,80 @@ class Scene:
         if ray_masks is None or not len(ray_masks):
             return ALL_MASKS
         return ray_masks[0] if (ray_masks == ray_masks[0]).all() else None
+
+    def nearest(
+        self,
+        points: ArrayLike,
+        max_distance: float | None = None,
+        *,
+        mask: ArrayLike | int | None = None,
+        threads: int | None = None,
+        stats: bool = False,
+    ) -> Nearest:
+        """The closest point on any triangle to each of ``points``.
+
+        points : (n, 3) float (converted to float32)
+        max_distance : None (no limit) or a number >= 0: a point farther from every triangle
+            gets none (distance inf, prim -1)
+        mask, threads : as for ``closest``; every thread count gives the same answers
+        Returns ``Nearest``; the distance is exact in float64, then rounded to float32, and ties
+        go to the lowest (mesh, triangle)."""
+        return point_queries.nearest_query(self, points, max_distance, mask, threads, stats)
+
+    def contains(
+        self,
+        points: ArrayLike,
+        nsamples: int = 1,
+        *,
+        mask: ArrayLike | int | None = None,
+        threads: int | None = None,
+    ) -> np.ndarray:
+        """(n,) bool: whether each point is inside, by the parity of the crossings (``count``,
+        exact at edges and vertices) of rays from it along ``nsamples`` (odd) fixed directions
+        (``dacrt.points.sample_directions``), the majority of them. A point on the surface may
+        go either way."""
+        return point_queries.contains_query(self, points, nsamples, mask, threads)
+
+    def signed_distance(
+        self,
+        points: ArrayLike,
+        nsamples: int = 1,
+        max_distance: float | None = None,
+        *,
+        mask: ArrayLike | int | None = None,
+        threads: int | None = None,
+    ) -> np.ndarray:
+        """(n,) float32: ``nearest``'s distance, negative where ``contains``; 0 on a triangle,
+        +-inf beyond max_distance."""
+        return point_queries.signed_distance_query(
+            self, points, nsamples, max_distance, mask, threads
+        )
+
+    def _scene_triangles(self) -> point_queries.SceneTriangles:
+        """The scene-space triangles, for the point queries: the one place they read the
+        scene's internals (``_placed_triangles``)."""
+        return self._placed_triangles
+
+    @functools.cached_property
+    def _placed_triangles(self) -> point_queries.SceneTriangles:
+        """The base level's rows, then each instance's triangles placed in scene space (in
+        float64, then float32, as placed copies): distances are not kept by a non-rigid
+        placement, so point queries read placed triangles. Derived on the first point query."""
+        verts = [self._base.verts]
+        ids = [self._base.ids]
+        masks = [self._row_masks]
+        for instance in self._instances:
+            corners = instance.packed.verts.reshape(-1, 3).astype(np.float64)
+            placed = corners @ instance.matrix[:3, :3].T + instance.matrix[:3, 3]
+            verts.append(placed.astype(FLOAT).reshape(-1, 9))
+            ids.append((instance.packed.ids + self.mesh_offsets[instance.mesh]).astype(INDEX))
+            masks.append(np.full(len(instance.packed), self.masks[instance.mesh], np.uint32))
+        return point_queries.SceneTriangles(
+            np.ascontiguousarray(np.concatenate(verts)),
+            np.ascontiguousarray(np.concatenate(ids)),
+            self.mesh_offsets,
+            np.ascontiguousarray(np.concatenate(masks)),
+        )
 
     def _visible_rows(self, ray_masks):
         """How a batch's masks are traced on the base level: (flags, tri_ids, tri_masks). A

@@ -1,7 +1,9 @@
-"""trimesh's ray intersector interface, answered by dacrt: switch with one line.
+"""trimesh's ray intersector and proximity interfaces, answered by dacrt: switch with one line.
 
     mesh.ray = dacrt.trimesh_ray.RayMeshIntersector(mesh)   # mesh: a trimesh.Trimesh
     mesh.ray.intersects_location(origins, directions)       # and mesh.contains(points) use it
+    mesh.nearest = dacrt.trimesh_ray.ProximityQuery(mesh)
+    mesh.nearest.on_surface(points)                         # closest, distance, triangle_id
 
 The methods, argument names, shapes, dtypes and ``-1`` conventions are those of
 ``trimesh.ray.ray_pyembree.RayMeshIntersector`` (and ``ray_triangle``'s): ``intersects_first``,
@@ -23,8 +25,13 @@ The engine traces in float32; the in-process backend moves the mesh's bounding-b
 origin first (rays too), which keeps float32 precision for meshes far from the origin. ``t`` is
 never exposed, so directions are normalised (as trimesh's embree intersector does).
 
-Any object with the four methods of ``EngineBackend`` can answer for the mesh (the service's
-``service.intersector`` sends them to a server).
+Any object with the four ray methods of ``EngineBackend`` can answer for the mesh (the service's
+``service.intersector`` sends them to a server); ``ProximityQuery`` also asks ``nearest``.
+
+``ProximityQuery`` has trimesh's ``on_surface`` and ``signed_distance`` (not ``vertex``): the
+closest point by ``Scene.nearest`` (exact in float64 for the float32 point; ties to the lowest
+triangle, where trimesh takes any), and trimesh's sign convention (positive inside, by
+``RayMeshIntersector.contains_points``; a point on the surface is positive).
 """
 
 import numpy as np
@@ -73,6 +80,13 @@ class EngineBackend:
     def count(self, origins, directions):
         """(n,) int: the triangles each ray crosses (a shared edge or vertex once)."""
         return self.scene.count(*self._rays(origins, directions)).count
+
+    def nearest(self, points):
+        """The closest point of the mesh to each of ``points`` (n, 3) float64, every one finite:
+        prim (n,) int (-1 for none: an empty mesh), the point (n, 3) float64 and the distance
+        (n,) float."""
+        found = self.scene.nearest((points - self.shift).astype(np.float32))
+        return found.prim, found.point.astype(np.float64) + self.shift, found.distance
 
 
 class RayMeshIntersector:
@@ -222,6 +236,55 @@ class RayMeshIntersector:
         v = np.asarray(v, dtype=np.float64)[:, None]
         on_triangle = (1 - u - v) * corners[:, 0] + u * corners[:, 1] + v * corners[:, 2]
         return np.where(steep[:, None], o + t[:, None] * d, on_triangle)
+
+
+class ProximityQuery:
+    """Closest points on one triangle mesh, with trimesh's ``mesh.nearest`` interface.
+
+    mesh : a ``trimesh.Trimesh``, or any object with ``vertices`` and ``faces``; read once.
+    backend : what answers the queries; default an ``EngineBackend`` of the mesh (in process).
+    """
+
+    def __init__(self, mesh, backend=None):
+        self._backend = backend if backend is not None else EngineBackend(mesh.vertices, mesh.faces)
+        self._intersector = RayMeshIntersector(mesh, self._backend)
+
+    def on_surface(self, points):
+        """The closest point of the mesh to each point.
+
+        points : (m, 3) float
+        Returns closest : (m, 3) float64, distance : (m,) float64, triangle_id : (m,) int64
+        (-1, with inf, for an empty mesh).
+        """
+        points = _points(points)
+        prim, closest, distance = self._backend.nearest(points)
+        return (
+            np.asarray(closest, dtype=np.float64),
+            np.asarray(distance, dtype=np.float64),
+            np.asarray(prim, dtype=np.int64),
+        )
+
+    def signed_distance(self, points):
+        """The distance to the mesh, positive inside (``contains_points``) and on the surface,
+        negative outside: trimesh's convention.
+
+        points : (n, 3) float
+        Returns signed_distance : (n,) float64.
+        """
+        points = _points(points)
+        _, distance, _ = self.on_surface(points)
+        inside = self._intersector.contains_points(points) | (distance == 0)
+        return np.where(inside, distance, -distance)
+
+
+def _points(points):
+    """float64 (n, 3) points; ValueError for another shape or a non-finite value."""
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must be (n, 3), got {points.shape}")
+    if not np.isfinite(points).all():
+        raise ValueError("points must be finite")
+    return points
 
 
 def _unit(vectors):

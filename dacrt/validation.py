@@ -221,3 +221,33 @@ def check_masks(masks, n, name, what):
             "out of range",
         )
     return kernel_input(masks, np.uint32)
+
+
+def check_points(points):
+    """Query points as a writable float32 (n, 3) C-contiguous array, each row finite; a
+    read-only one (a server's body) is copied, so the kernels have one signature."""
+    points = as_float_rows(points, "points")
+    return points if points.flags.writeable else points.copy()
+
+
+def check_max_distance(max_distance):
+    """``max_distance`` as a float: None (no limit: inf) or a number >= 0."""
+    if max_distance is None:
+        return np.inf
+    if isinstance(max_distance, bool) or not isinstance(max_distance, int | float | np.number):
+        raise InputError(f"max_distance must be a number or None, got {max_distance!r}")
+    if not float(max_distance) >= 0:  # NaN too
+        raise InputError(f"max_distance must be >= 0, got {max_distance!r}")
+    return float(max_distance)
+
+
+def check_nsamples(nsamples):
+    """``nsamples`` as an int: a positive odd integer (a majority of votes always exists)."""
+    if (
+        isinstance(nsamples, bool)
+        or not isinstance(nsamples, int | np.integer)
+        or nsamples < 1
+        or nsamples % 2 == 0
+    ):
+        raise InputError(f"nsamples must be a positive odd integer, got {nsamples!r}")
+    return int(nsamples)

@@ -39,6 +39,10 @@ def warmup() -> float:
         placed.occluded(origins, directions, mask=mask, threads=1)
         placed.hits(origins, directions, mask=mask, threads=1)
         placed.count(origins, directions, mask=mask, threads=1)
+    # Point queries: one mask for the batch, a mask per point, and the parity of crossings.
+    scene.nearest(origins, threads=1)
+    scene.nearest(origins, mask=np.arange(1, 5, dtype=np.uint32), threads=1)
+    scene.contains(origins, threads=1)
     # Incoherent batches on two threads are cut into slabs of origins.
     n_rays = 2 * MIN_RAYS_PER_THREAD
     scattered = np.random.default_rng(0).uniform(-1.0, 2.0, (n_rays, 6)).astype(np.float32)

@@ -25,7 +25,7 @@ from .deps import Readiness, require_ready
 from .logs import configure_logging
 from .metrics import Metrics, MetricsMiddleware
 from .persistence import DataDir
-from .routes import meshes, ops, pictures, queries
+from .routes import meshes, ops, pictures, points, queries
 from .settings import Settings, load_settings_or_exit
 from .store import Store
 
@@ -81,7 +81,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     errors.install(app)
     # each router carries its full prefix (route templates in metrics) and its /v1 token check
-    for module in (meshes, queries, pictures):
+    for module in (meshes, queries, points, pictures):
         app.include_router(
             module.router, dependencies=[Depends(require_ready)], responses=openapi.errors(503)
         )

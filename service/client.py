@@ -41,6 +41,10 @@ ANSWER_DTYPES = {
     "offsets": np.int64,
     "truncated": np.bool_,
     "count": np.int32,
+    "distance": np.float32,
+    "point": np.float32,
+    "inside": np.bool_,
+    "signed_distance": np.float32,
 }
 _SUFFIX_FORMATS = {
     ".obj": "obj",
@@ -428,6 +432,43 @@ class Client:
             headers={"Accept": wire.MEDIA_TYPES[answer]},
         )
 
+    def nearest(
+        self,
+        scene: str,
+        points: Any,
+        max_distance: float | None = None,
+        *,
+        sign: bool = False,
+        nsamples: int = 1,
+        mask: int | None = None,
+        stats: bool = False,
+        answer: str = "npz",
+    ) -> Answer:
+        """The closest point on the scene's triangles to each of ``points`` (N, 3), sent as
+        .npy float32: ``answer.distance`` (N,) float32 (inf beyond ``max_distance``),
+        ``point`` (N, 3), ``mesh``, ``prim`` (-1 for none), ``u``, ``v``; with ``sign`` also
+        ``inside`` (bool, the majority of ``nsamples`` parities) and ``signed_distance``
+        (negative inside). ``mask`` is one 32-bit mask for every point."""
+        params: dict[str, str] = {}
+        if max_distance is not None:
+            params["max_distance"] = repr(float(max_distance))
+        if sign:
+            params["sign"] = "true"
+        if nsamples != 1:
+            params["nsamples"] = str(nsamples)
+        if mask is not None:
+            params["mask"] = str(_mask_value(mask, "mask"))
+        if stats:
+            params["stats"] = "true"
+        points = np.ascontiguousarray(_numbers(points, "points"), dtype="<f4")
+        return self._query(
+            f"/v1/scenes/{scene}/nearest",
+            {"points": points},
+            "npy",
+            params=params,
+            headers={"Accept": wire.MEDIA_TYPES[answer]},
+        )
+
     def trace(
         self,
         vertices: Any,
@@ -547,11 +588,18 @@ def read_answer(response: httpx.Response, body: wire.Buffer | None = None) -> di
     return {key: _from_json(key, value) for key, value in document.items()}
 
 
+def _nulls_to_inf(value: Any) -> Any:
+    """A JSON answer's list, rows too (a point's (N, 3)), with null (inf) made numeric."""
+    if isinstance(value, list) and value and isinstance(value[0], list):
+        return [_nulls_to_inf(row) for row in value]
+    return wire.nulls_to_inf(value)
+
+
 def _from_json(key: str, value: Any) -> np.ndarray:
     dtype = ANSWER_DTYPES.get(key, np.float64)
     if np.dtype(dtype).kind == "f":
-        value = wire.nulls_to_inf(value)
+        value = _nulls_to_inf(value)
     array = np.asarray(value, dtype=dtype)
-    if key == "normal" and array.size == 0:
+    if key in ("normal", "point") and array.size == 0:
         array = array.reshape(0, 3)
     return array

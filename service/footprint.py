@@ -45,6 +45,14 @@ ARRAY_FACTOR = 2
 #: arrays at the most (``wire.JSON_PIECE_ITEMS``), each piece's text and lists at about 600 bytes
 #: an item (measured 456-605).
 JSON_ANSWER_BYTES = 16 * 2**20
+#: Bytes per point of a point query (``/nearest``) beyond its body: the checked copy, the
+#: engine's float64 answers and the float32 answer (measured 102-104).
+POINT_WORK_BYTES = 128
+#: ... and what ``?sign=true`` adds: the rays of the crossing count and their votes (measured
+#: 14-20: the count runs once the float64 answers are freed).
+POINT_SIGN_BYTES = 32
+#: The smallest bytes of one point in a body of each format (npz counted as stored).
+MIN_POINT_BYTES = {"npy": 12, "npz": 12, "json": 8}
 #: The smallest bytes of one ray in a body of each format (npz counted as stored), for the most
 #: rays a body can hold before it is decoded.
 MIN_RAY_BYTES = {"npy": 24, "npz": 24, "json": 16}
@@ -64,6 +72,16 @@ def most_rays(n_body: int, fmt: str | None, max_rays: int) -> int:
     """The most rays a body of ``n_body`` bytes can hold (a compressed npz may hold more: its
     rays are counted again once decoded)."""
     return min(max_rays, n_body // MIN_RAY_BYTES.get(fmt or "npy", 24))
+
+
+def most_points(n_body: int, fmt: str | None, max_points: int) -> int:
+    """The most points a body of ``n_body`` bytes can hold (counted again once decoded)."""
+    return min(max_points, n_body // MIN_POINT_BYTES.get(fmt or "npy", 12))
+
+
+def point_query_bytes(n_points: int, sign: bool) -> int:
+    """Peak bytes of a point query of ``n_points`` points and its answer."""
+    return n_points * (POINT_WORK_BYTES + (POINT_SIGN_BYTES if sign else 0))
 
 
 def mesh_scene_bytes(n_body: int) -> int:

@@ -49,6 +49,7 @@ _MASK = {
 RAYS_JSON = _object(
     {"origins": _POINTS, "directions": _POINTS}, {"tmin": _BOUND, "tmax": _BOUND, "mask": _MASK}
 )
+POINTS_JSON = _object({"points": _POINTS})
 MESH_JSON = _object({"vertices": _POINTS, "faces": _TRIANGLES})
 VERTICES_JSON = _object({"vertices": _POINTS})
 _MATRIX = {

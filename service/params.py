@@ -66,6 +66,22 @@ MaxHits = Annotated[
         ge=1,
     ),
 ]
+MaxDistance = Annotated[
+    float | None,
+    Query(
+        description="the farthest a point's closest point may be (>= 0); beyond it, distance is "
+        "inf and mesh, prim are -1 (default: no limit)"
+    ),
+]
+Sign = Annotated[bool, Query(description="add inside (bool) and signed_distance (negative inside)")]
+NSamples = Annotated[
+    int,
+    Query(
+        description="rays from each point (odd) whose majority of odd crossing counts says "
+        "inside; with sign=true",
+        ge=1,
+    ),
+]
 QueryKind = Annotated[
     str,
     Query(
@@ -173,6 +189,7 @@ def body_format(formats: tuple[str, ...]):
 
 
 RayFormat = body_format(wire.RAY_FORMATS)
+PointFormat = body_format(wire.POINT_FORMATS)
 MeshFormat = body_format(wire.MESH_FORMATS)
 VertexFormat = body_format(wire.VERTEX_FORMATS)
 FrameFormat = body_format(wire.FRAME_FORMATS)

@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import dacrt
+from dacrt.points import signed
+from dacrt.validation import check_max_distance, check_nsamples
 
 from .errors import Invalid
 from .options import Options, Query
@@ -150,3 +152,58 @@ def _run(
         stats = {**stats, "strategy": options.strategy, "where": where}
     seconds = time.perf_counter() - start
     return TraceResult(arrays, version, stats, seconds, len(rays), where)
+
+
+#: The answer keys of a point query (``/nearest``), and those ``?sign=true`` adds.
+NEAREST_FIELDS = ("distance", "point", "mesh", "prim", "u", "v")
+SIGN_FIELDS = ("inside", "signed_distance")
+
+
+@dataclass(frozen=True)
+class PointOptions:
+    """Options of one point query, for the whole batch (API.md, "Point queries")."""
+
+    max_distance: float | None = None
+    sign: bool = False  #: add inside and signed_distance
+    nsamples: int = 1  #: rays whose majority says inside (odd)
+    mask: int | None = None  #: ``?mask=``: one mask for every point
+    stats: bool = False
+    threads: int | None = None
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        return NEAREST_FIELDS + (SIGN_FIELDS if self.sign else ())
+
+
+def point_options(
+    max_distance: float | None,
+    sign: bool,
+    nsamples: int,
+    mask: int | None,
+    stats: bool,
+    threads: int | None,
+) -> PointOptions:
+    """Options from query-string values; 422 naming ``max_distance`` or ``nsamples`` (the
+    engine's checks) for a bad one, before the body is read."""
+    check_max_distance(max_distance)
+    check_nsamples(nsamples)
+    return PointOptions(max_distance, sign, nsamples, mask, stats, threads)
+
+
+def nearest(snapshot: Snapshot, points: np.ndarray, options: PointOptions) -> TraceResult:
+    """The closest point on one scene version to each of ``points`` (N, 3) float32, with inside
+    and the signed distance when asked; always in process."""
+    start = time.perf_counter()
+    engine = snapshot.cached("dacrt", _snapshot_engine)
+    shared = {"mask": options.mask, "threads": options.threads}
+    # a bad point is the engine's InputError, naming the first and how many: 422
+    found = engine.scene.nearest(points, options.max_distance, stats=options.stats, **shared)
+    arrays = {name: getattr(found, name) for name in NEAREST_FIELDS}
+    arrays["mesh"] = engine.map_mesh(arrays["mesh"])
+    if options.sign:
+        inside = engine.scene.contains(points, options.nsamples, **shared)
+        arrays["inside"] = inside
+        arrays["signed_distance"] = signed(found.distance, inside)
+    stats = None if found.stats is None else {**found.stats, "where": "process"}
+    seconds = time.perf_counter() - start
+    return TraceResult(arrays, snapshot.version, stats, seconds, len(points))

@@ -16,7 +16,7 @@ from dacrt import scene
 
 REPO = Path(__file__).resolve().parents[1]
 
-QUERIES = ("closest", "occluded", "hits", "count")
+QUERIES = ("closest", "occluded", "hits", "count", "nearest", "contains", "signed_distance")
 
 
 def test_the_package_is_marked_typed():
@@ -36,7 +36,13 @@ def test_every_public_method_of_scene_is_annotated():
 
 
 def test_each_query_answers_its_own_type():
-    answers = {"closest": "Hits", "occluded": "Occlusion", "hits": "HitList", "count": "Counts"}
+    answers = {
+        "closest": "Hits",
+        "occluded": "Occlusion",
+        "hits": "HitList",
+        "count": "Counts",
+        "nearest": "Nearest",
+    }
     for query, answer in answers.items():
         returned = inspect.signature(getattr(dacrt.Scene, query)).return_annotation
         assert returned is getattr(dacrt, answer) and answer in dacrt.__all__

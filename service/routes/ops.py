@@ -19,7 +19,7 @@ from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from dacrt.chunks import N_CORES
 
-from .. import __version__, openapi, options, wire
+from .. import __version__, openapi, options, tracing, wire
 from ..cluster import Cluster
 from ..deps import (
     MetricsDep,
@@ -176,13 +176,17 @@ async def capabilities(settings: SettingsDep, cluster: ClusterDep) -> dict:
 
     return {
         "api": "v1",
-        "queries": [q.value for q in options.Query] + ["trace"],
-        "fields": {q.value: list(names) for q, names in options.FIELDS.items()},
+        "queries": [q.value for q in options.Query] + ["trace", "nearest"],
+        "fields": {
+            **{q.value: list(names) for q, names in options.FIELDS.items()},
+            "nearest": [*tracing.NEAREST_FIELDS, *tracing.SIGN_FIELDS],
+        },
         "strategies": list(options.strategies()),
         "default_strategy": options.strategies()[0],
         "cull": list(options.CULL_MODES),
         "formats": {
             "rays": media(wire.RAY_FORMATS),
+            "points": media(wire.POINT_FORMATS),
             "meshes": media(wire.MESH_FORMATS),
             "vertices": media(wire.VERTEX_FORMATS),
             "frame": media(wire.FRAME_FORMATS),

@@ -57,6 +57,13 @@ Rays (``decode_rays``; formats npy, npz, json)
     ``max_rays`` rays is 413. Values (finite, non-zero directions, tmin <= tmax) are checked by the
     engine, which names the first bad ray.
 
+Points (``decode_points``; formats npy, npz, json)
+    npy  float32 (N, 3) ``[x, y, z]``.
+    npz  ``points`` float32 (N, 3). No other keys.
+    json ``{"points": [[x, y, z], ...]}``.
+    More than ``max_points`` points is 413. Values (finite) are checked by the engine, which
+    names the first bad point.
+
 Meshes (``decode_mesh``; formats npz, json, obj, ply, stl, glb, off)
     npz  ``vertices`` float32 (V, 3) and ``faces`` int32 or uint32 (F, 3). No other keys.
     json ``{"vertices": [[x, y, z], ...], "faces": [[i, j, k], ...]}`` (faces must be integers).
@@ -123,6 +130,7 @@ from .decoders import (
     check_matrix,
     decode_frame,
     decode_mesh,
+    decode_points,
     decode_rays,
     decode_trace,
     decode_vertices,
@@ -140,6 +148,7 @@ from .formats import (
     MESH_FORMATS,
     NPY,
     NPZ,
+    POINT_FORMATS,
     RAY_FORMATS,
     TRACE_FORMATS,
     VERTEX_FORMATS,
@@ -162,6 +171,7 @@ __all__ = [
     "MESH_FORMATS",
     "NPY",
     "NPZ",
+    "POINT_FORMATS",
     "RAY_FORMATS",
     "TRACE_FORMATS",
     "VERTEX_FORMATS",
@@ -179,6 +189,7 @@ __all__ = [
     "check_vertices",
     "decode_frame",
     "decode_mesh",
+    "decode_points",
     "decode_rays",
     "decode_trace",
     "decode_vertices",

@@ -90,6 +90,30 @@ def decode_rays(
     return rays_from_mapping(mapping, max_rays)
 
 
+def decode_points(
+    body: Buffer, fmt: str, max_points: int | None = None, max_bytes: int | None = None
+) -> np.ndarray:
+    """Query points, float32 (N, 3), from an npy, npz or JSON body (see the module docstring).
+    Their values (finite) are checked by the engine, which names the first bad point."""
+    if fmt == "npy":
+        points = read_npy(body, "points body")
+    else:
+        mapping = read_mapping(body, fmt, "points", max_bytes)
+        check_keys(mapping, ("points",))
+        points = mapping["points"]
+    n = (
+        points.shape[0]
+        if isinstance(points, np.ndarray) and points.ndim
+        else (len(points) if isinstance(points, list) else 0)
+    )
+    if max_points is not None and n > max_points:
+        raise TooLarge(
+            f"{n} points in one request, over the limit of {max_points} "
+            "(DACRT_MAX_RAYS_PER_REQUEST); split the batch"
+        )
+    return float_array(points, "points", 3)
+
+
 #: The optional keys of a ray batch in an npz or JSON body.
 RAY_OPTIONAL_KEYS = ("tmin", "tmax", "mask")
 

@@ -40,6 +40,7 @@ MEDIA_TYPES: dict[str, str] = {
 MESH_FILE_FORMATS = ("obj", "ply", "stl", "glb", "off")
 
 RAY_FORMATS = ("npy", "npz", "json")
+POINT_FORMATS = ("npy", "npz", "json")
 MESH_FORMATS = ("npz", "json", *MESH_FILE_FORMATS)
 VERTEX_FORMATS = ("npy", "npz", "json")
 FRAME_FORMATS = ("npz", "json")

@@ -239,5 +239,40 @@ BAD_SENSOR_VALUES = [
     ("render", {**LOOK_AT, "fov_deg": 5e-324}, "fov_deg: 5e-324 is too small"),
     ("render", {**LOOK_AT, "fov_deg": 0}, "fov_deg: Input should be greater than 0"),
 ]
+#: (route with its query, headers kind, body, status, a phrase of the detail that names the
+#: request's key) for point queries: values the engine refuses, JSON that is not numbers, keys
+#: that are not ``points``, and query values out of range.
+BAD_POINT_REQUESTS = [
+    (
+        "nearest",
+        "npy",
+        npy_bytes(np.array([[0, 0, 0], [np.inf, 0, 0]], np.float32)),
+        422,
+        "points[1]",
+    ),
+    ("nearest", "json", b'{"points": [[NaN, 0, 0]]}', 422, "points[0]"),
+    ("nearest", "json", b'{"points": [[1e39, 0, 0]]}', 422, "points[0]"),
+    ("nearest", "json", b'{"points": [["0", 0, 0]]}', 422, "points must be numbers"),
+    ("nearest", "json", b'{"points": [[true, 0, 0]]}', 422, "points must be numbers"),
+    ("nearest", "json", b'{"points": [[1' + b"0" * 400 + b", 0, 0]]}", 422, "int too large"),
+    ("nearest", "json", b'{"points": [[0, 0, 0]], "origins": []}', 400, "unknown keys 'origins'"),
+    ("nearest", "npy", npy_bytes(np.zeros((4, 6), np.float32)), 422, "points must have shape"),
+    (
+        "nearest?max_distance=-1",
+        "npy",
+        npy_bytes(np.zeros((1, 3), np.float32)),
+        422,
+        "max_distance",
+    ),
+    (
+        "nearest?max_distance=nan",
+        "npy",
+        npy_bytes(np.zeros((1, 3), np.float32)),
+        422,
+        "max_distance",
+    ),
+    ("nearest?nsamples=4", "npy", npy_bytes(np.zeros((1, 3), np.float32)), 422, "nsamples"),
+    ("nearest?nsamples=-1", "npy", npy_bytes(np.zeros((1, 3), np.float32)), 422, "nsamples"),
+]
 #: What a sensor's error must never name: the engine's arrays, which are not the request's keys.
 INTERNAL_NAMES = r"\b(origins|directions|tmin|tmax)\b"

@@ -298,6 +298,37 @@ CORPUS = [
         )
         for route, body, phrase in hostile.BAD_SENSOR_VALUES
     ],
+    # point queries: a bad value or key is named by the request's key
+    *[
+        (
+            f"{route}: {phrase}",
+            "POST",
+            route,
+            {"npy": NPY, "json": JSON}[kind],
+            lambda body=body: body,
+            status,
+            phrase,
+        )
+        for route, kind, body, status, phrase in hostile.BAD_POINT_REQUESTS
+    ],
+    (
+        "zip bomb as points",
+        "POST",
+        "nearest",
+        NPZ,
+        lambda: hostile.zip_bomb(1 << 30),
+        400,
+        "inflates to more than",
+    ),
+    (
+        "an npy of 2 GiB of points promised, 48 bytes sent",
+        "POST",
+        "nearest",
+        NPY,
+        lambda: hostile.npy_with_header("<f4", (2**28, 3), bytes(48)),
+        400,
+        "truncated",
+    ),
 ]
 
 

@@ -25,6 +25,7 @@ BODIES = {
     ("POST", "/v1/scenes/{scene}/occluded"): wire.RAY_FORMATS,
     ("POST", "/v1/scenes/{scene}/hits"): wire.RAY_FORMATS,
     ("POST", "/v1/scenes/{scene}/count"): wire.RAY_FORMATS,
+    ("POST", "/v1/scenes/{scene}/nearest"): wire.POINT_FORMATS,
     ("POST", "/v1/trace"): wire.TRACE_FORMATS,
     ("POST", "/v1/scenes/{scene}/render"): ("json",),
     ("POST", "/v1/scenes/{scene}/camera"): ("json",),

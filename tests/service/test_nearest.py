@@ -1,0 +1,169 @@
+"""POST /v1/scenes/{scene}/nearest: the engine's ``Scene.nearest`` (and, with ?sign=true,
+``contains`` and ``signed_distance``) over HTTP, in every body and answer format, against the
+plain-NumPy brute force (``point_reference``); and the 4xx of bad requests, each naming the
+request's key."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import point_reference
+import procedural
+import pytest
+from service_helpers import NPY, NPZ, npy_bytes, npz_bytes
+
+from service.client import APIError
+from service.client import read_answer as read
+
+NEAREST_FIELDS = ("distance", "point", "mesh", "prim", "u", "v")
+JSON = {"Content-Type": "application/json"}
+
+
+@pytest.fixture
+def sphere_scene(app_api, scene_name):
+    """A closed sphere (mesh index 1) and a quad below it (mesh index 0)."""
+    vertices, faces = procedural.icosphere(2)
+    app_api.put_mesh(scene_name, "floor", *procedural.grid(2, 4.0))
+    app_api.put_mesh(scene_name, "ball", vertices + [2.0, 2.0, 3.0], faces)
+    return scene_name
+
+
+def _points(n=300, seed=0):
+    return np.random.default_rng(seed).uniform(-1, 5, (n, 3)).astype(np.float32)
+
+
+def _expected(points):
+    """The reference's answer on sphere_scene's meshes, as (distance, mesh, global face)."""
+    floor = procedural.grid(2, 4.0)
+    vertices, faces = procedural.icosphere(2)
+    meshes = [floor, (vertices + [2.0, 2.0, 3.0], faces)]
+    all_vertices, all_faces, offsets = procedural.concat(meshes)
+    return point_reference.nearest(points, all_vertices, all_faces), offsets
+
+
+def test_nearest_matches_the_reference(app_api, sphere_scene):
+    points = _points()
+    answer = app_api.nearest(sphere_scene, points)
+    assert list(answer) == list(NEAREST_FIELDS)
+    expected, offsets = _expected(points)
+    np.testing.assert_allclose(answer.distance, expected.distance, rtol=1e-6, atol=1e-6)
+    global_face = offsets[answer.mesh] + answer.prim
+    for i, face in enumerate(global_face):
+        assert face in expected.ties(i, 1e-6)
+    measured = np.linalg.norm(answer.point.astype(np.float64) - points, axis=1)
+    np.testing.assert_allclose(measured, expected.distance, rtol=1e-5, atol=1e-6)
+    assert answer.distance.dtype == np.float32 and answer.point.shape == (len(points), 3)
+    assert answer.mesh.dtype == np.int32 and answer.prim.dtype == np.int32
+    assert answer.version == 2
+
+
+@pytest.mark.parametrize("body_format", ["npy", "npz", "json"])
+@pytest.mark.parametrize("answer_format", ["npz", "npy", "json"])
+def test_every_body_and_answer_format_gives_the_same_answer(
+    app_client, app_api, sphere_scene, body_format, answer_format
+):
+    points = _points(40, seed=1)
+    points[0] = [100.0, 0, 0]  # beyond max_distance: inf, -1 (null in JSON)
+    bodies = {
+        "npy": (npy_bytes(points), NPY),
+        "npz": (npz_bytes(points=points), NPZ),
+        "json": (json.dumps({"points": points.tolist()}).encode(), JSON),
+    }
+    body, headers = bodies[body_format]
+    media = {"npz": "application/x-npz", "npy": "application/x-npy", "json": "application/json"}
+    response = app_client.post(
+        f"/v1/scenes/{sphere_scene}/nearest?max_distance=10&sign=true&nsamples=3",
+        content=body,
+        headers={**headers, "Accept": media[answer_format]},
+    )
+    assert response.status_code == 200, response.text
+    got = read(response)
+    want = app_api.nearest(sphere_scene, points, 10.0, sign=True, nsamples=3)
+    assert list(got) == [*NEAREST_FIELDS, "inside", "signed_distance"]
+    for key in want:
+        np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+    assert want.distance[0] == np.inf and want.prim[0] == -1 and want.mesh[0] == -1
+
+
+def test_sign_says_inside_the_ball(app_api, sphere_scene):
+    rng = np.random.default_rng(2)
+    directions = procedural.unit_vectors(200, rng)
+    radii = np.concatenate([rng.uniform(0, 0.8, 100), rng.uniform(1.2, 2, 100)])
+    points = (directions * radii[:, None] + [2.0, 2.0, 3.0]).astype(np.float32)
+    answer = app_api.nearest(sphere_scene, points, sign=True, nsamples=5)
+    np.testing.assert_array_equal(answer.inside, radii < 1)
+    np.testing.assert_array_equal(
+        answer.signed_distance, np.where(radii < 1, -1, 1) * answer.distance
+    )
+    assert answer.inside.dtype == bool and answer.signed_distance.dtype == np.float32
+
+
+def test_max_distance_mask_and_stats(app_api, sphere_scene):
+    points = _points(200, seed=3)
+    near = app_api.nearest(sphere_scene, points, 0.5, stats=True)
+    expected, _ = _expected(points)
+    within = expected.distance <= 0.5
+    np.testing.assert_array_equal(np.isfinite(near.distance), within)
+    assert (near.prim[~within] == -1).all()
+    assert near.stats["points"] == len(points) and near.stats["where"] == "process"
+    # the ball alone, by mask
+    app_api.put_mesh(sphere_scene, "floor", *procedural.grid(2, 4.0), mask=0x1)
+    app_api.put_mesh(sphere_scene, "ball", *_ball(), mask=0x2)
+    ball_only = app_api.nearest(sphere_scene, points, mask=0x2)
+    assert (ball_only.mesh == 1).all()
+
+
+def _ball():
+    vertices, faces = procedural.icosphere(2)
+    return vertices + [2.0, 2.0, 3.0], faces
+
+
+def test_an_empty_batch_and_an_unknown_scene(app_api, app_client, sphere_scene):
+    empty = app_api.nearest(sphere_scene, np.zeros((0, 3), np.float32))
+    assert empty.distance.shape == (0,) and empty.point.shape == (0, 3)
+    missing = app_client.post(
+        "/v1/scenes/no-such-scene/nearest", content=npy_bytes(_points(2)), headers=NPY
+    )
+    assert missing.status_code == 404
+
+
+@pytest.mark.parametrize(
+    ("query", "body", "headers", "status", "phrase"),
+    [
+        ("max_distance=-1", None, NPY, 422, "max_distance must be >= 0"),
+        ("max_distance=nan", None, NPY, 422, "max_distance"),
+        ("max_distance=far", None, NPY, 422, "max_distance"),
+        ("nsamples=2", None, NPY, 422, "nsamples must be a positive odd integer"),
+        ("nsamples=0", None, NPY, 422, "nsamples"),
+        ("sign=maybe", None, NPY, 422, "sign"),
+        ("mask=-3", None, NPY, 422, "mask"),
+        ("feilds=distance", None, NPY, 422, "unknown query parameter 'feilds'"),
+        ("", npy_bytes(np.zeros((2, 2), np.float32)), NPY, 422, "points must have shape (N, 3)"),
+        ("", npy_bytes(np.zeros((2, 3), np.float64)), NPY, 422, "points must be little-endian"),
+        ("", npy_bytes(np.array([[0, 0, 0], [0, np.nan, 0]], np.float32)), NPY, 422, "points[1]"),
+        ("", b'{"points": [[0, 0, "x"]]}', JSON, 422, "points must be numbers"),
+        ("", b'{"points": [[0, 0, 0]], "extra": 1}', JSON, 400, "unknown keys 'extra'"),
+        ("", b'{"pts": [[0, 0, 0]]}', JSON, 400, "lacks 'points'"),
+        ("", npz_bytes(origins=np.zeros((1, 3), np.float32)), NPZ, 400, "lacks 'points'"),
+    ],
+)
+def test_bad_requests_name_the_key(app_client, sphere_scene, query, body, headers, status, phrase):
+    body = npy_bytes(_points(3)) if body is None else body
+    response = app_client.post(
+        f"/v1/scenes/{sphere_scene}/nearest?{query}", content=body, headers=headers
+    )
+    assert response.status_code == status, response.text
+    assert phrase in response.json()["detail"], response.json()["detail"]
+
+
+def test_the_client_raises_the_servers_error(app_api, sphere_scene):
+    with pytest.raises(APIError) as caught:
+        app_api.nearest(sphere_scene, _points(3), nsamples=4)
+    assert caught.value.status == 422 and "nsamples" in caught.value.detail
+
+
+def test_capabilities_name_the_point_query(app_api):
+    caps = app_api.capabilities()
+    assert "nearest" in caps["queries"] and "application/x-npy" in caps["formats"]["points"]
+    assert caps["fields"]["nearest"] == [*NEAREST_FIELDS, "inside", "signed_distance"]

@@ -1,0 +1,358 @@
+"""``Scene.nearest``, ``contains`` and ``signed_distance`` against the numpy brute force
+(``point_reference``), the exact crossing count (``reference.count``), trimesh and Open3D.
+
+The engine's distance is exact in float64 and then rounded to float32; the reference measures
+by another method in float64, so distances agree to float32 rounding and the engine's face is
+one of the reference's within a tolerance of the least distance. Where the geometry is dyadic
+(an axis-aligned grid) both are exact, and a tie must go to the lowest face.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import point_reference as pr
+import procedural as pg
+import pytest
+import reference
+import sample_scenes
+
+import dacrt
+from dacrt.points import sample_directions
+
+SCENES = ("soup", "sphere", "tilted_grid", "multi", "degenerate_mix", "pinwheel")
+MESH_MASKS = np.array([0b0001, 0b0010, 0b0110, 0xFFFFFFFF], np.uint32)
+POINT_MASKS = np.array([0b0001, 0b0010, 0b0100, 0b1000, 0b0011, 0xFFFFFFFF], np.uint32)
+
+
+def _scene_and_soup(name):
+    meshes = sample_scenes.SCENES[name](3)
+    vertices, faces, offsets = pg.concat(meshes)
+    return meshes, vertices, faces, offsets
+
+
+def _points(vertices, n, rng, margin=0.5):
+    """Points uniform in the vertices' box grown by ``margin`` of its size."""
+    lo, hi = pg.bounds(vertices)
+    grow = margin * (hi - lo).max()
+    return rng.uniform(lo - grow, hi + grow, (n, 3)).astype(np.float32)
+
+
+def _size(vertices):
+    lo, hi = pg.bounds(vertices)
+    return float(np.max(hi - lo))
+
+
+def _check_against_reference(found, expected, vertices, faces, offsets, points):
+    """The engine's answer is the reference's: distance to float32 rounding, a face among the
+    least ones, and a closest point on that face at that distance."""
+    scale = max(_size(vertices), float(np.abs(points).max()))
+    tolerance = 4e-7 * scale
+    has = np.isfinite(expected.distance)
+    np.testing.assert_array_equal(np.isfinite(found.distance), has)
+    np.testing.assert_allclose(
+        found.distance[has], expected.distance[has], rtol=1e-6, atol=tolerance
+    )
+    assert (found.prim[~has] == -1).all() and (found.mesh[~has] == -1).all()
+    global_prim = offsets[found.mesh[has]] + found.prim[has]
+    for i, g in zip(np.flatnonzero(has), global_prim):
+        assert g in expected.ties(i, tolerance), (i, g, expected.ties(i, tolerance))
+    on_face = pr.point_on_face(vertices, faces, global_prim, found.u[has], found.v[has])
+    np.testing.assert_allclose(found.point[has], on_face, atol=tolerance)
+    measured = np.linalg.norm(found.point[has].astype(np.float64) - points[has], axis=1)
+    np.testing.assert_allclose(measured, expected.distance[has], rtol=1e-5, atol=tolerance)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_nearest_matches_the_brute_force(name):
+    meshes, vertices, faces, offsets = _scene_and_soup(name)
+    points = _points(vertices, 400, np.random.default_rng(1))
+    found = dacrt.Scene(meshes).nearest(points)
+    expected = pr.nearest(points, vertices, faces)
+    _check_against_reference(found, expected, vertices, faces, offsets, points)
+
+
+@pytest.mark.parametrize("name", ["soup", "sphere"])
+def test_points_far_away(name):
+    meshes, vertices, faces, offsets = _scene_and_soup(name)
+    directions = pg.unit_vectors(200, np.random.default_rng(2))
+    points = (directions * 1000.0 * _size(vertices)).astype(np.float32)
+    found = dacrt.Scene(meshes).nearest(points)
+    expected = pr.nearest(points, vertices, faces)
+    _check_against_reference(found, expected, vertices, faces, offsets, points)
+
+
+def test_points_at_the_edge_of_float32():
+    meshes, vertices, faces, offsets = _scene_and_soup("soup")
+    points = np.array([[1e30, 0, 0], [-3e38, 3e38, 0], [0.5, 0.5, -1e20]], np.float32)
+    found = dacrt.Scene(meshes).nearest(points)
+    expected = pr.nearest(points, vertices, faces)
+    with np.errstate(over="ignore"):  # the second is beyond float32's range: inf
+        np.testing.assert_allclose(found.distance, expected.distance.astype(np.float32), rtol=1e-6)
+    assert (found.prim >= 0).all()
+
+
+def test_placed_meshes_answer_in_scene_space():
+    """Transforms place the triangles before anything else: the answers are those of the placed
+    vertices, prim the row of the mesh's own faces."""
+    vertices, faces = pg.icosphere(2)
+    matrix = np.array([[0, -2, 0, 1], [2, 0, 0, 0], [0, 0, 2, -3], [0, 0, 0, 1]], np.float64)
+    placed = (vertices.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]).astype(np.float32)
+    points = _points(placed, 300, np.random.default_rng(19))
+    moved = dacrt.Scene([(vertices, faces)], transforms=[matrix]).nearest(points)
+    plain = dacrt.Scene([(placed, faces)]).nearest(points)
+    for field in ("distance", "point", "prim", "u", "v"):
+        np.testing.assert_array_equal(getattr(moved, field), getattr(plain, field))
+
+
+@pytest.mark.parametrize("name", ["sphere", "tilted_grid", "soup"])
+def test_points_on_vertices_edges_and_faces(name):
+    meshes, vertices, faces, offsets = _scene_and_soup(name)
+    rng = np.random.default_rng(4)
+    corners = vertices[faces].astype(np.float64)
+    on_vertices = vertices[faces[:, 0]]
+    on_edges = (0.5 * (corners[:, 0] + corners[:, 1])).astype(np.float32)
+    weights = rng.dirichlet([1, 1, 1], len(faces))
+    on_faces = np.einsum("fk,fka->fa", weights, corners).astype(np.float32)
+    points = np.concatenate([on_vertices, on_edges, on_faces])
+    found = dacrt.Scene(meshes).nearest(points)
+    expected = pr.nearest(points, vertices, faces)
+    _check_against_reference(found, expected, vertices, faces, offsets, points)
+    assert (found.distance <= 1e-6 * _size(vertices)).all()
+
+
+def test_exact_points_on_a_grid_tie_to_the_lowest_face():
+    """On a dyadic grid in z = 0 every distance is exact: a point on a vertex, an edge or a face
+    is at distance 0, and of the faces that touch it the lowest is the answer."""
+    vertices, faces = pg.grid(8, 2.0, alternate=True)
+    corners = vertices[faces].astype(np.float64)
+    on_vertices = vertices.copy()
+    on_edges = 0.5 * (corners[:, 0] + corners[:, 1])
+    on_faces = (corners[:, 0] + corners[:, 1] + 2 * corners[:, 2]) / 4
+    above = on_faces + [0, 0, 0.25]
+    points = np.concatenate([on_vertices, on_edges, on_faces, above]).astype(np.float32)
+    found = dacrt.Scene([(vertices, faces)]).nearest(points)
+    expected = pr.nearest(points, vertices, faces)
+    np.testing.assert_array_equal(found.distance, expected.distance.astype(np.float32))
+    n_on = len(points) - len(above)
+    assert (found.distance[:n_on] == 0).all()
+    assert (found.distance[n_on:] == 0.25).all()
+    # The lowest face at the least distance: exact here, no tolerance.
+    np.testing.assert_array_equal(found.prim, expected.prim)
+    np.testing.assert_array_equal(found.point[:n_on], points[:n_on])
+
+
+def test_max_distance():
+    meshes, vertices, faces, offsets = _scene_and_soup("sphere")
+    points = _points(vertices, 400, np.random.default_rng(6), margin=1.0)
+    scene = dacrt.Scene(meshes)
+    for max_distance in (0.0, 0.1, 0.5, 2.0):
+        found = scene.nearest(points, max_distance)
+        expected = pr.nearest(points, vertices, faces, max_distance)
+        _check_against_reference(found, expected, vertices, faces, offsets, points)
+        assert (found.distance[np.isfinite(found.distance)] <= max_distance).all()
+        missed = ~np.isfinite(found.distance)
+        assert (found.u[missed] == 0).all() and np.isinf(found.point[missed]).all()
+
+
+def test_max_distance_zero_keeps_points_on_the_surface():
+    vertices, faces = pg.grid(4, 1.0)
+    points = np.array([[0.5, 0.5, 0.0], [0.5, 0.5, 1e-3]], np.float32)
+    found = dacrt.Scene([(vertices, faces)]).nearest(points, max_distance=0)
+    assert found.distance[0] == 0 and found.prim[0] >= 0
+    assert found.distance[1] == np.inf and found.prim[1] == -1
+
+
+@pytest.mark.parametrize("kind", ["one mask", "per point"])
+def test_masks(kind):
+    meshes, vertices, faces, offsets = _scene_and_soup("multi")
+    points = _points(vertices, 300, np.random.default_rng(7))
+    rng = np.random.default_rng(8)
+    if kind == "one mask":
+        point_masks = np.full(len(points), 0b0010, np.uint32)
+        mask = 0b0010
+    else:
+        point_masks = rng.choice(POINT_MASKS, len(points))
+        mask = point_masks
+    face_masks = np.repeat(MESH_MASKS, np.diff(offsets))
+    found = dacrt.Scene(meshes, masks=MESH_MASKS).nearest(points, mask=mask)
+    expected = pr.nearest(points, vertices, faces, point_masks=point_masks, face_masks=face_masks)
+    _check_against_reference(found, expected, vertices, faces, offsets, points)
+
+
+def test_a_mask_that_sees_nothing():
+    meshes, vertices, faces, offsets = _scene_and_soup("multi")
+    points = _points(vertices, 50, np.random.default_rng(9))
+    found = dacrt.Scene(meshes, masks=0b0001).nearest(points, mask=0b0010)
+    assert np.isinf(found.distance).all() and (found.prim == -1).all()
+
+
+def test_every_thread_count_gives_the_same_answers():
+    """Enough points for several chunks (dacrt.config.POINT_CHUNK) on each thread count."""
+    meshes, vertices, faces, _ = _scene_and_soup("sphere")
+    rng = np.random.default_rng(10)
+    points = np.concatenate([_points(vertices, 60000, rng), vertices[faces[:, 1]]])
+    scene = dacrt.Scene(meshes)
+    one = scene.nearest(points, threads=1, stats=True)
+    two = scene.nearest(points, threads=2, stats=True)
+    for field in ("distance", "point", "mesh", "prim", "u", "v"):
+        np.testing.assert_array_equal(getattr(one, field), getattr(two, field))
+    assert one.stats["points"] == len(points) and one.stats["leaves"] > 0
+    sample = rng.choice(len(points), 300, replace=False)
+    expected = pr.nearest(points[sample], vertices, faces)
+    np.testing.assert_allclose(one.distance[sample], expected.distance, rtol=1e-6, atol=1e-7)
+
+
+def test_shuffling_triangles_changes_no_distance():
+    meshes, vertices, faces, _ = _scene_and_soup("soup")
+    points = _points(vertices, 500, np.random.default_rng(11))
+    order = np.random.default_rng(12).permutation(len(faces))
+    first = dacrt.Scene([(vertices, faces)]).nearest(points)
+    shuffled = dacrt.Scene([(vertices, faces[order])]).nearest(points)
+    np.testing.assert_array_equal(first.distance, shuffled.distance)
+
+
+def test_empty_scene_and_no_points():
+    empty = dacrt.Scene([])
+    found = empty.nearest(np.zeros((3, 3), np.float32))
+    assert np.isinf(found.distance).all() and (found.mesh == -1).all() and (found.prim == -1).all()
+    assert not empty.contains(np.zeros((3, 3))).any()
+    assert np.isinf(empty.signed_distance(np.zeros((3, 3)))).all()
+    scene = dacrt.Scene(sample_scenes.SCENES["sphere"](0))
+    none = scene.nearest(np.zeros((0, 3)))
+    assert none.distance.shape == (0,) and none.point.shape == (0, 3)
+    assert none.distance.dtype == np.float32 and none.prim.dtype == np.int32
+    assert scene.contains(np.zeros((0, 3))).shape == (0,)
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda s: s.nearest(np.zeros((3, 2))), "points must have shape"),
+        (lambda s: s.nearest([[0, 0, np.nan]]), r"points\[0\]"),
+        (lambda s: s.nearest(np.zeros((1, 3)), -1.0), "max_distance"),
+        (lambda s: s.nearest(np.zeros((1, 3)), float("nan")), "max_distance"),
+        (lambda s: s.nearest(np.zeros((1, 3)), "far"), "max_distance"),
+        (lambda s: s.nearest(np.zeros((2, 3)), mask=[1, 2, 3]), "mask"),
+        (lambda s: s.nearest(np.zeros((1, 3)), threads=0), "threads"),
+        (lambda s: s.contains(np.zeros((1, 3)), nsamples=2), "nsamples"),
+        (lambda s: s.contains(np.zeros((1, 3)), nsamples=0), "nsamples"),
+        (lambda s: s.contains(np.zeros((1, 3)), nsamples=True), "nsamples"),
+        (lambda s: s.signed_distance(np.zeros((1, 3)), nsamples=4), "nsamples"),
+        (lambda s: s.signed_distance(np.zeros((1, 4))), "points"),
+    ],
+)
+def test_bad_input_names_the_argument(call, message):
+    scene = dacrt.Scene(sample_scenes.SCENES["sphere"](0))
+    with pytest.raises(dacrt.InputError, match=message):
+        call(scene)
+
+
+# ---- contains and signed_distance
+
+
+def _parity_votes(vertices, faces, points, nsamples):
+    """(n,) bool: the majority of odd exact crossing counts along ``sample_directions``."""
+    votes = np.zeros(len(points), np.int64)
+    for direction in sample_directions(nsamples):
+        directions = np.tile(direction, (len(points), 1))
+        votes += reference.count(vertices, faces, points, directions) % 2
+    return 2 * votes > nsamples
+
+
+@pytest.mark.parametrize("nsamples", [1, 3])
+@pytest.mark.parametrize("name", ["sphere", "multi", "tilted_grid"])
+def test_contains_is_the_parity_of_exact_crossings(name, nsamples):
+    meshes, vertices, faces, _ = _scene_and_soup(name)
+    rng = np.random.default_rng(13)
+    points = np.concatenate([_points(vertices, 300, rng, margin=0.1), vertices[faces[:40, 0]]])
+    scene = dacrt.Scene(meshes)
+    inside = scene.contains(points, nsamples)
+    distance = scene.nearest(points).distance
+    # A point on the surface may go either way (a crossing at t = 0).
+    off = distance > 0
+    expected = _parity_votes(vertices, faces, points[off], nsamples)
+    np.testing.assert_array_equal(inside[off], expected)
+    signed = scene.signed_distance(points, nsamples)
+    np.testing.assert_array_equal(np.abs(signed), distance)
+    np.testing.assert_array_equal(signed < 0, inside & (distance > 0))
+    assert (signed[distance == 0] == 0).all()
+
+
+def test_contains_in_a_closed_sphere():
+    """Points well inside and well outside a closed mesh, whatever nsamples."""
+    vertices, faces = pg.icosphere(3)
+    rng = np.random.default_rng(14)
+    directions = pg.unit_vectors(500, rng)
+    radii = np.concatenate([rng.uniform(0, 0.9, 250), rng.uniform(1.1, 3, 250)])
+    points = (directions * radii[:, None]).astype(np.float32)
+    scene = dacrt.Scene([(vertices, faces)])
+    for nsamples in (1, 3, 5):
+        np.testing.assert_array_equal(scene.contains(points, nsamples), radii < 1)
+    signed = scene.signed_distance(points, max_distance=0.5)
+    far = np.abs(radii - 1) > 0.55
+    assert np.isinf(signed[far]).all()
+    np.testing.assert_array_equal(signed[far] < 0, radii[far] < 1)
+
+
+def test_signed_distance_masks():
+    meshes, vertices, faces, offsets = _scene_and_soup("multi")
+    points = _points(vertices, 200, np.random.default_rng(15))
+    scene = dacrt.Scene(meshes, masks=MESH_MASKS)
+    seen = np.repeat(MESH_MASKS, np.diff(offsets)) & 0b0010 != 0
+    inside = scene.contains(points, mask=0b0010)
+    np.testing.assert_array_equal(inside, _parity_votes(vertices, faces[seen], points, 1))
+
+
+def test_sample_directions_are_unit_and_spread():
+    for n in (1, 3, 5, 15):
+        directions = sample_directions(n).astype(np.float64)
+        np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1, rtol=1e-6)
+        assert (np.abs(directions) > 1e-3).all()  # none in a coordinate plane
+    assert abs(sample_directions(15).astype(np.float64).mean(axis=0)).max() < 0.2
+
+
+# ---- Real scenes, trimesh and Open3D
+
+
+def _shared_points(vertices, n, seed):
+    """Half uniform in the box, half near the surface (vertices moved by 1 % of the size)."""
+    rng = np.random.default_rng(seed)
+    size = _size(vertices)
+    near = vertices[rng.integers(0, len(vertices), n - n // 2)].astype(np.float64)
+    near += rng.normal(scale=0.01 * size, size=near.shape)
+    return np.concatenate([_points(vertices, n // 2, rng, margin=0.05), near]).astype(np.float32)
+
+
+@pytest.mark.parametrize("name", ["bunny", "dragon"])
+def test_shared_scene_matches_the_brute_force(name, load_shared):
+    vertices, faces = load_shared(name)
+    points = _shared_points(vertices, 200, 16)
+    found = dacrt.Scene([(vertices, faces)]).nearest(points, threads=2)
+    expected = pr.nearest(points, vertices, faces)
+    offsets = np.array([0, len(faces)])
+    _check_against_reference(found, expected, vertices, faces, offsets, points)
+
+
+@pytest.mark.parametrize("name", ["dragon", "armadillo"])
+def test_closed_shared_scene_against_trimesh_and_open3d(name, load_shared):
+    """On watertight meshes: inside as trimesh's ``contains`` says, distances as Open3D's
+    (float32), and signs as Open3D's, on points not within 0.1 % of the size of the surface."""
+    trimesh = pytest.importorskip("trimesh")
+    pytest.importorskip("open3d")
+    from oracles import open3d_points
+
+    vertices, faces = load_shared(name)
+    points = _shared_points(vertices, 4000, 17)
+    scene = dacrt.Scene([(vertices, faces)])
+    found = scene.nearest(points)
+    apart = found.distance > 1e-3 * _size(vertices)
+    inside = scene.contains(points, 3)
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    np.testing.assert_array_equal(inside[apart], mesh.contains(points[apart]))
+
+    rival = open3d_points.scene(vertices, faces)
+    theirs = open3d_points.distance(rival, points)
+    np.testing.assert_allclose(found.distance, theirs, rtol=1e-4, atol=1e-6 * _size(vertices))
+    their_sign = open3d_points.signed_distance(rival, points, nsamples=3)
+    signed = scene.signed_distance(points, 3)
+    np.testing.assert_array_equal(signed[apart] < 0, their_sign[apart] < 0)
