@@ -30,12 +30,17 @@ class Instance:
     packed : its ``Packed`` arrays in mesh space (ids are its face rows)
     matrix : (4, 4) float64, the placement; to_mesh : (3, 4) float64, its inverse's top rows
     cofactor : (3, 3) float64, det(A) A^-T of the linear part A: takes a mesh-space normal
-        (p1-p0)x(p2-p0) to the placed triangle's, orientation included
+        (p1-p0)x(p2-p0) to the placed triangle's, orientation included; cofactors : the same as
+        (1, 3, 3), as the merging kernels take one per ray or one for all
     mirrored : det(A) < 0, so back and front faces swap in mesh space
-    box : (6,) float32, a box in scene space holding the placed triangles
+    matrix_end : None (static), or (4, 4) float64, the placement at the end of the frame's
+        interval: at time tau the mesh is placed by (1 - tau) matrix + tau matrix_end
+    box_start : (6,) float32, a box in scene space holding the triangles placed by ``matrix``;
+        box : the same for every instant of the interval (the union of the placed boxes at 0
+        and 1, which holds every interpolated placement)
     """
 
-    def __init__(self, mesh, packed, matrix):
+    def __init__(self, mesh, packed, matrix, matrix_end=None):
         self.mesh = mesh
         self.packed = packed
         self.matrix = matrix
@@ -43,12 +48,21 @@ class Instance:
         self.to_mesh = np.ascontiguousarray(np.linalg.inv(matrix)[:3])
         det = np.linalg.det(linear)
         self.cofactor = np.ascontiguousarray(det * np.linalg.inv(linear).T)
+        self.cofactors = np.ascontiguousarray(self.cofactor[None])
         self.mirrored = bool(det < 0)
-        self.box = placed_box(packed.box, matrix)
+        self.box_start = placed_box(packed.box, matrix)
+        self.matrix_end = matrix_end
+        self.moving = matrix_end is not None
+        self.box = self.box_start
+        if self.moving:
+            end_box = placed_box(packed.box, matrix_end)
+            lo = np.minimum(self.box_start[:3], end_box[:3])
+            self.box = np.concatenate([lo, np.maximum(self.box_start[3:], end_box[3:])])
 
-    def flags(self, flags):
-        """The query's ``flags`` in mesh space: culling's back and front swap when mirrored."""
-        if not self.mirrored:
+    def flags(self, flags, mirrored=None):
+        """The query's ``flags`` in mesh space: culling's back and front swap when mirrored
+        (``mirrored``: this instance's own placement's, unless given)."""
+        if not (self.mirrored if mirrored is None else mirrored):
             return flags
         cull = flags & (CULL_BACK | CULL_FRONT)
         swapped = (CULL_FRONT if cull & CULL_BACK else 0) | (CULL_BACK if cull & CULL_FRONT else 0)
@@ -173,6 +187,88 @@ def rays_to_mesh_space(
         out_tmax[i] = limit[ray]
 
 
+@jit
+def rays_to_mesh_space_at(
+    origins,
+    directions,
+    tmin,
+    limit,
+    ray_ids,
+    times,
+    to_mesh,
+    cofactor,
+    start_sign,
+    matrix,
+    matrix_end,
+    out_o,
+    out_d,
+    out_tmin,
+    out_tmax,
+    out_cofactors,
+    out_sign,
+):
+    """``rays_to_mesh_space`` for a moving instance: ray ``ray_ids[i]`` at its time tau
+    (``times``) goes into the space of M(tau) = (1 - tau) ``matrix`` + tau ``matrix_end`` by
+    M(tau)'s inverse (float64, then rounded); ``out_cofactors`` (k, 3, 3) gets M(tau)'s
+    cofactor (the normals' map) and ``out_sign`` (k,) int8 the sign of its determinant (-1
+    mirrored, 0 singular at that instant). At tau == 0 exactly it uses the instance's own
+    ``to_mesh`` and ``cofactor`` (``start_sign``: -1 where mirrored, else 1), so those rays are
+    the static instance's bit for bit."""
+    inv = np.empty((3, 4))
+    cof = np.empty((3, 3))
+    for i in range(ray_ids.shape[0]):
+        ray = ray_ids[i]
+        tau = np.float64(times[ray])
+        if tau == 0.0:
+            for a in range(3):
+                for b in range(4):
+                    inv[a, b] = to_mesh[a, b]
+                for b in range(3):
+                    cof[a, b] = cofactor[a, b]
+            sign = start_sign
+        else:
+            # M(tau)'s linear rows r0, r1, r2 and translation; its cofactor has rows
+            # r1 x r2, r2 x r0, r0 x r1, and its inverse is the cofactor's transpose / det.
+            m = np.empty((3, 4))
+            for a in range(3):
+                for b in range(4):
+                    m[a, b] = (1.0 - tau) * matrix[a, b] + tau * matrix_end[a, b]
+            for a in range(3):
+                p = (a + 1) % 3
+                q = (a + 2) % 3
+                cof[a, 0] = m[p, 1] * m[q, 2] - m[p, 2] * m[q, 1]
+                cof[a, 1] = m[p, 2] * m[q, 0] - m[p, 0] * m[q, 2]
+                cof[a, 2] = m[p, 0] * m[q, 1] - m[p, 1] * m[q, 0]
+            det = m[0, 0] * cof[0, 0] + m[0, 1] * cof[0, 1] + m[0, 2] * cof[0, 2]
+            sign = 1 if det > 0.0 else (-1 if det < 0.0 else 0)
+            if sign != 0:
+                for a in range(3):
+                    for b in range(3):
+                        inv[a, b] = cof[b, a] / det
+                for a in range(3):
+                    inv[a, 3] = -(inv[a, 0] * m[0, 3] + inv[a, 1] * m[1, 3] + inv[a, 2] * m[2, 3])
+        out_sign[i] = sign
+        for a in range(3):
+            for b in range(3):
+                out_cofactors[i, a, b] = cof[a, b]
+        out_tmin[i] = tmin[ray]
+        out_tmax[i] = limit[ray]
+        if sign == 0:  # no placement to go into: the caller drops the ray
+            for a in range(3):
+                out_o[i, a] = 0.0
+                out_d[i, a] = 0.0
+            continue
+        ox = np.float64(origins[ray, 0])
+        oy = np.float64(origins[ray, 1])
+        oz = np.float64(origins[ray, 2])
+        dx = np.float64(directions[ray, 0])
+        dy = np.float64(directions[ray, 1])
+        dz = np.float64(directions[ray, 2])
+        for a in range(3):
+            out_o[i, a] = np.float32(inv[a, 0] * ox + inv[a, 1] * oy + inv[a, 2] * oz + inv[a, 3])
+            out_d[i, a] = np.float32(inv[a, 0] * dx + inv[a, 1] * dy + inv[a, 2] * dz)
+
+
 @inline
 def placed_normal(tri_verts, row, cofactor):
     """The unit normal of mesh-space row ``row`` as placed: ``cofactor`` (3, 3) times
@@ -186,9 +282,12 @@ def placed_normal(tri_verts, row, cofactor):
 
 
 @jit
-def placed_normals(tri_verts, rows, cofactor, normals):
-    """``normals`` (k, 3) float32: the placed unit normal (``placed_normal``) of each row."""
+def placed_normals(tri_verts, rows, cofactors, normals):
+    """``normals`` (k, 3) float32: the placed unit normal (``placed_normal``) of each row, by
+    ``cofactors`` (k, 3, 3), one a row, or (1, 3, 3), one for all."""
+    each = cofactors.shape[0] > 1
     for k in range(rows.shape[0]):
+        cofactor = cofactors[k if each else 0]
         normals[k, 0], normals[k, 1], normals[k, 2] = placed_normal(tri_verts, rows[k], cofactor)
 
 
@@ -202,7 +301,7 @@ def merge_closest(
     tri_verts,
     face_rows,
     mesh_index,
-    cofactor,
+    cofactors,
     t,
     mesh,
     prim,
@@ -215,7 +314,9 @@ def merge_closest(
     holds rows of ``tri_verts``, NO_HIT for none) into the answers by ray id: a hit wins where
     its t is smaller, or equal with a lower (mesh, prim), the tie rule of one trace. A winner's
     t (-0.0 as +0.0), mesh, prim (``face_rows`` of its row), u, v and placed normal are written,
-    and its t becomes the ray's ``limit``."""
+    and its t becomes the ray's ``limit``. ``cofactors`` (k, 3, 3) holds the placement's cofactor
+    per instance ray (a moving instance's), or (1, 3, 3) one for all."""
+    each = cofactors.shape[0] > 1
     for i in range(ray_ids.shape[0]):
         row = found_tri[i]
         if row == NO_HIT:
@@ -235,6 +336,7 @@ def merge_closest(
         prim[ray] = face
         u[ray] = found_u[i]
         v[ray] = found_v[i]
+        cofactor = cofactors[i if each else 0]
         normal[ray, 0], normal[ray, 1], normal[ray, 2] = placed_normal(tri_verts, row, cofactor)
 
 

@@ -53,6 +53,7 @@ from .instances import (
     placed_normals,
     rays_reaching_boxes,
     rays_to_mesh_space,
+    rays_to_mesh_space_at,
 )
 from .leaf import NO_HIT
 from .packed import Packed, live_box, pack_mesh, pack_meshes, union_box
@@ -62,7 +63,9 @@ from .query import (
     ANY_HIT,
     COLLECT,
     COUNT,
+    CULL_BACK,
     CULL_FLAGS,
+    CULL_FRONT,
     FIXED_ORIGIN,
     MASKED,
     STRATEGY_SHIFT,
@@ -83,6 +86,7 @@ from .validation import (
     check_rays,
     check_strategy,
     check_threads,
+    check_time,
     check_transform,
     explain_bad_rays,
     explain_bad_vertices,
@@ -98,16 +102,21 @@ Traced.__doc__ = """What the kernels leave of one level's trace: each ray's best
 ``QueryArrays`` (without scratch), and the stats arrays of its chunks (a list)."""
 
 Query = namedtuple(
-    "Query", ["flags", "origins", "directions", "tmin", "tmax", "ray_masks", "threads"]
+    "Query", ["flags", "origins", "directions", "tmin", "tmax", "ray_masks", "threads", "times"]
 )
 Query.__doc__ = """A checked query: its flags word (kind, culling, strategy), float32 origins,
-directions, tmin and tmax, its (n,) uint32 ray masks or None, and its thread count."""
+directions, tmin and tmax, its (n,) uint32 ray masks or None, its thread count, and its rays'
+times (n,) float32, or None where every ray is at 0 or nothing in the scene moves."""
 
 InstanceTraced = namedtuple(
-    "InstanceTraced", ["best_t", "arrays", "stats", "origins", "directions"]
+    "InstanceTraced", ["best_t", "arrays", "stats", "origins", "directions", "cofactors"]
 )
 InstanceTraced.__doc__ = """``Traced`` of an instance, with the rays it traced in mesh space:
-(k, 3) float32 origins and directions."""
+(k, 3) float32 origins and directions, and the placement's cofactor (the normals' map) per ray
+(k, 3, 3), or (1, 3, 3) for all."""
+
+#: The start placement of a mesh given an end placement and none at the start.
+IDENTITY = np.eye(4)
 
 BaseRows = namedtuple("BaseRows", ["lo", "hi", "box", "corner_box"])
 BaseRows.__doc__ = """Where an untransformed mesh lies in the scene's base level: rows lo:hi,
@@ -129,6 +138,13 @@ class Scene:
         same (vertices, faces) arrays may be given several times, each with its own matrix and
         mask: instances, which share one packing of the mesh.
 
+    transforms_end : None, or one entry per mesh: None (static) or a (4, 4) affine matrix, the
+        mesh's placement at the end of the frame's interval (a mesh with an end and no start
+        transform is placed by the identity at the start). At time tau in [0, 1] (``time=`` of
+        the queries) each vertex is at (1 - tau) p0 + tau p1, its placed positions at 0 and 1:
+        the mesh is placed by (1 - tau) M0 + tau M1 (Embree's linear motion). Point queries
+        (``nearest``, ...) see the meshes at time 0.
+
     A placed mesh is an instance, traced in its own space: the rays that reach it go into mesh
     space (rounded to float32), rather than its vertices into scene space. Its answers are
     therefore those of the mesh placed in float64 and rounded to float32 up to that rounding:
@@ -142,44 +158,52 @@ class Scene:
         meshes: Iterable[tuple[ArrayLike, ArrayLike]],
         masks: ArrayLike | int | None = None,
         transforms: Sequence[ArrayLike | None] | None = None,
+        transforms_end: Sequence[ArrayLike | None] | None = None,
     ) -> None:
         watch()  # the first compile in process says so (``compiling``)
         meshes = list(meshes)
         checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in enumerate(meshes)]
-        matrices = [None] * len(checked)
-        if transforms is not None:
-            transforms = list(transforms)
-            if len(transforms) != len(checked):
-                raise InputError(
-                    f"transforms has {len(transforms)} entries for {len(checked)} meshes"
-                )
-            matrices = [
-                None if matrix is None else check_transform(matrix, f"transforms[{i}]")
-                for i, matrix in enumerate(transforms)
-            ]
+        matrices = self._checked_transforms(transforms, len(checked), "transforms")
+        ends = self._checked_transforms(transforms_end, len(checked), "transforms_end")
         mesh_masks = check_masks(
             ALL_MASKS if masks is None else masks, len(checked), "masks", "mesh"
         )
         # Instances of the same (vertices, faces) arrays share one packing.
         packings = {}
         packs = {}
-        for i, ((vertices, faces), matrix) in enumerate(zip(meshes, matrices)):
-            if matrix is not None:
+        for i, (vertices, faces) in enumerate(meshes):
+            if matrices[i] is not None or ends[i] is not None:
                 key = (id(vertices), id(faces))
                 if key not in packings:
                     packings[key] = pack_mesh(*checked[i])
                 packs[i] = packings[key]
-        self._assemble(checked, mesh_masks.copy(), matrices, packs, None, set())
+        self._assemble(checked, mesh_masks.copy(), matrices, ends, packs, None, set())
 
-    def _assemble(self, checked, masks, matrices, packs, old, changed):
-        """Set up the scene from its checked meshes, masks (n,) uint32, matrices (None or
-        (4, 4) float64 each) and ``packs`` (mesh index: ``Packed`` of each placed mesh). With
+    @staticmethod
+    def _checked_transforms(transforms, n_meshes, name):
+        """``transforms`` (None, or one None or matrix per mesh) as a list of None or checked
+        (4, 4) float64 matrices; InputError naming ``name`` or its entry."""
+        if transforms is None:
+            return [None] * n_meshes
+        transforms = list(transforms)
+        if len(transforms) != n_meshes:
+            raise InputError(f"{name} has {len(transforms)} entries for {n_meshes} meshes")
+        return [
+            None if matrix is None else check_transform(matrix, f"{name}[{i}]")
+            for i, matrix in enumerate(transforms)
+        ]
+
+    def _assemble(self, checked, masks, matrices, ends, packs, old, changed):
+        """Set up the scene from its checked meshes, masks (n,) uint32, matrices and ends (None
+        or (4, 4) float64 each: placements at the start and end of the interval) and ``packs``
+        (mesh index: ``Packed`` of each placed mesh, one with a start or an end). With
         ``old``, a scene of the same faces: its base level is shared when no untransformed mesh
         changed (``changed``: the meshes given new vertices), else its rows are copied for
         those that did not."""
         self.n_meshes = len(checked)
         self._meshes = checked
         self._matrices = matrices
+        self._ends = ends
         self.masks = masks
         self.masks.flags.writeable = False  # _row_masks is derived from it once
         if old is None:
@@ -189,7 +213,7 @@ class Scene:
         else:
             self.mesh_offsets = old.mesh_offsets
         self.n_triangles = int(self.mesh_offsets[-1])
-        base_meshes = [i for i in range(self.n_meshes) if matrices[i] is None]
+        base_meshes = [i for i in range(self.n_meshes) if i not in packs]
         self._base_meshes = np.array(base_meshes, np.int64)
         if (
             old is not None
@@ -201,18 +225,26 @@ class Scene:
         else:
             self._base, self._parts = self._pack_base(base_meshes, old, changed)
         instances = []
-        for i, matrix in enumerate(matrices):
-            if matrix is None:
-                continue
+        for i in sorted(packs):
+            matrix = IDENTITY if matrices[i] is None else matrices[i]
+            end = ends[i]
             self._parts[i] = packs[i]
-            self._check_placement(i, packs[i], matrix)
+            self._check_placement(i, packs[i], matrix, "transforms")
+            if end is not None:
+                self._check_placement(i, packs[i], end, "transforms_end")
             kept = old is not None and i in old._instance_of and old._parts[i] is packs[i]
-            if kept and np.array_equal(old._matrices[i], matrix):
+            if (
+                kept
+                and _same_matrix(old._matrices[i], matrices[i])
+                and _same_matrix(old._ends[i], end)
+            ):
                 instances.append(old._instance_of[i])
             elif len(packs[i]):
-                instances.append(Instance(i, packs[i], matrix))
+                instances.append(Instance(i, packs[i], matrix, end))
         self._instances = instances
         self._instance_of = {instance.mesh: instance for instance in instances}
+        # Only a scene with a moving instance reads the rays' times.
+        self._moving = any(instance.moving for instance in instances)
 
     def _pack_base(self, base_meshes, old, changed):
         """The base level (``Packed``, ids global) of the untransformed ``base_meshes``, and
@@ -277,8 +309,8 @@ class Scene:
         return packed, parts
 
     @staticmethod
-    def _check_placement(i, packed, matrix):
-        """InputError naming ``transforms[i]`` if the placed mesh leaves the float32 range."""
+    def _check_placement(i, packed, matrix, name):
+        """InputError naming ``name[i]`` if the placed mesh leaves the float32 range."""
         corners = packed.corner_box
         if not corners[0] <= corners[3]:
             return
@@ -286,13 +318,14 @@ class Scene:
         points = np.array([[(lo, hi)[k >> a & 1][a] for a in range(3)] for k in range(8)])
         placed = points @ matrix[:3, :3].T + matrix[:3, 3]
         if not (np.abs(placed) <= np.finfo(FLOAT).max).all():
-            raise InputError(f"transforms[{i}] places mesh {i} beyond the float32 range")
+            raise InputError(f"{name}[{i}] places mesh {i} beyond the float32 range")
 
     def with_changes(
         self,
         transforms: dict[int, ArrayLike | None] | None = None,
         vertices: dict[int, ArrayLike] | None = None,
         masks: dict[int, int] | None = None,
+        transforms_end: dict[int, ArrayLike | None] | None = None,
     ) -> "Scene":
         """A new Scene: this one with some meshes moved, deformed or masked; this one is left
         as it is, and keeps answering as before.
@@ -301,6 +334,8 @@ class Scene:
         vertices : {mesh index: (V, 3) float}, the mesh's new vertices (as many as before; its
             faces stay)
         masks : {mesh index: mask}, an integer in [0, 2**32)
+        transforms_end : {mesh index: (4, 4) affine matrix, its placement at the end of the
+            interval, or None for static}; a mesh not named keeps its end (``Scene``)
         Every other mesh keeps its packed arrays, shared with this scene: a placed mesh costs
         nothing to move, and a deformed one is packed again alone. A change to the meshes as
         given (the base level: new vertices, or a mesh placed or put back as given) copies the
@@ -310,9 +345,13 @@ class Scene:
         transforms = self._by_mesh(transforms, "transforms")
         vertices = self._by_mesh(vertices, "vertices")
         masks = self._by_mesh(masks, "masks")
+        transforms_end = self._by_mesh(transforms_end, "transforms_end")
         matrices = list(self._matrices)
         for i, matrix in transforms.items():
             matrices[i] = None if matrix is None else check_transform(matrix, f"transforms[{i}]")
+        ends = list(self._ends)
+        for i, matrix in transforms_end.items():
+            ends[i] = None if matrix is None else check_transform(matrix, f"transforms_end[{i}]")
         checked = list(self._meshes)
         for i, new in vertices.items():
             checked[i] = (self._checked_vertices(i, new), checked[i][1])
@@ -322,8 +361,8 @@ class Scene:
         changed = set(vertices)
         packings = {}
         packs = {}
-        for i, matrix in enumerate(matrices):
-            if matrix is None:
+        for i, (matrix, end) in enumerate(zip(matrices, ends)):
+            if matrix is None and end is None:
                 continue
             if i not in changed and isinstance(self._parts[i], Packed):
                 packs[i] = self._parts[i]
@@ -335,7 +374,7 @@ class Scene:
                     packings[key] = pack_mesh(*checked[i])
                 packs[i] = packings[key]
         scene = object.__new__(Scene)
-        scene._assemble(checked, new_masks, matrices, packs, self, changed)
+        scene._assemble(checked, new_masks, matrices, ends, packs, self, changed)
         return scene
 
     def _by_mesh(self, changes, name):
@@ -383,15 +422,21 @@ class Scene:
     @functools.cached_property
     def bounds(self):
         """(2, 3) float32: the box of every corner the faces refer to (degenerate triangles
-        included), placed meshes' corners placed in float64 then rounded; zeros for no faces.
+        included), placed meshes' corners placed in float64 then rounded (a moving mesh's at
+        the start and at the end of the interval); zeros for no faces.
         Derived on first use."""
         boxes = [self._parts[i].corner_box for i in self._base_meshes]
-        for i, matrix in enumerate(self._matrices):
-            if matrix is None or not len(self._meshes[i][1]):
+        for i, (matrix, end) in enumerate(zip(self._matrices, self._ends)):
+            if (matrix is None and end is None) or not len(self._meshes[i][1]):
                 continue
             vertices, faces = self._meshes[i]
-            corners = place_vertices(vertices[np.unique(faces)], matrix, f"transforms[{i}]")
-            boxes.append(np.concatenate([corners.min(axis=0), corners.max(axis=0)]))
+            used = vertices[np.unique(faces)]
+            # A moving mesh's box at every instant: its placed corners at 0 and at 1.
+            placements = [("transforms", IDENTITY if matrix is None else matrix)]
+            placements += [] if end is None else [("transforms_end", end)]
+            for name, placement in placements:
+                corners = place_vertices(used, placement, f"{name}[{i}]")
+                boxes.append(np.concatenate([corners.min(axis=0), corners.max(axis=0)]))
         return union_box(boxes).reshape(2, 3) if self.n_triangles else np.zeros((2, 3), FLOAT)
 
     @property
@@ -442,6 +487,7 @@ class Scene:
         strategy: Strategy = "sampling",
         threads: int | None = None,
         stats: bool = False,
+        time: ArrayLike | float | None = None,
     ) -> Hits:
         """Nearest hit of each ray ``origins + t * directions`` with tmin <= t <= tmax.
 
@@ -453,10 +499,12 @@ class Scene:
             mask & the mesh's mask != 0
         strategy : one of ``dacrt.STRATEGIES``; all give the same answers
         threads : None for every core, or a positive int
+        time : None (every ray at 0), a number, or (n,) float in [0, 1]: the instant of each
+            ray in the frame's interval, where meshes move (``transforms_end``)
         Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
         """
         query, traced = self._trace(
-            0, origins, directions, tmin, tmax, cull, mask, strategy, threads
+            0, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time
         )
         t = traced.best_t
         best_tri, u, v = traced.arrays.best_tri, traced.arrays.hit_u, traced.arrays.hit_v
@@ -501,7 +549,7 @@ class Scene:
                     instance.packed.verts,
                     instance.packed.ids,
                     instance.mesh,
-                    instance.cofactor,
+                    found.cofactors,
                     t,
                     mesh,
                     prim,
@@ -525,12 +573,13 @@ class Scene:
         strategy: Strategy = "sampling",
         threads: int | None = None,
         stats: bool = False,
+        time: ArrayLike | float | None = None,
     ) -> Occlusion:
         """Whether each ray hits anything with tmin <= t <= tmax (it stops at its first hit).
 
         Same arguments as ``closest``. Returns ``Occlusion``."""
         query, traced = self._trace(
-            ANY_HIT, origins, directions, tmin, tmax, cull, mask, strategy, threads
+            ANY_HIT, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time
         )
         occluded = traced.arrays.best_tri != NO_HIT
         per_level = [traced.stats]
@@ -557,6 +606,7 @@ class Scene:
         strategy: Strategy = "sampling",
         threads: int | None = None,
         stats: bool = False,
+        time: ArrayLike | float | None = None,
     ) -> HitList:
         """Every hit of each ray with tmin <= t <= tmax, nearest first, at most ``max_hits``.
 
@@ -569,7 +619,17 @@ class Scene:
         # hits than the level has triangles.
         list_size = min(max_hits, len(self._base)) + 1
         query, traced = self._trace(
-            ALL_HITS, origins, directions, tmin, tmax, cull, mask, strategy, threads, list_size
+            ALL_HITS,
+            origins,
+            directions,
+            tmin,
+            tmax,
+            cull,
+            mask,
+            strategy,
+            threads,
+            list_size,
+            time,
         )
         n_rays = len(query.origins)
         # With instances, each level keeps its max_hits + 1 nearest, merged below.
@@ -594,7 +654,12 @@ class Scene:
                 rows = found.arrays.list_tri[
                     np.arange(found.arrays.list_tri.shape[1]) < n_held[:, None]
                 ]
-                placed_normals(packed.verts, rows, instance.cofactor, i_normal)
+                cofactors = found.cofactors
+                if len(cofactors) > 1:  # a moving instance's, one per ray: one per hit
+                    cofactors = np.ascontiguousarray(
+                        np.repeat(cofactors, np.diff(i_offsets), axis=0)
+                    )
+                placed_normals(packed.verts, rows, cofactors, i_normal)
                 i_rays = np.repeat(ids.astype(np.int64), np.diff(i_offsets))
                 i_mesh = np.full(len(i_t), instance.mesh, INDEX)
                 parts.append((i_rays, i_t, i_mesh, i_prim, i_u, i_v, i_normal))
@@ -654,6 +719,7 @@ class Scene:
         strategy: Strategy = "sampling",
         threads: int | None = None,
         stats: bool = False,
+        time: ArrayLike | float | None = None,
     ) -> Counts:
         """How many triangles each ray crosses with tmin <= t <= tmax.
 
@@ -661,7 +727,7 @@ class Scene:
         triangles counts once (``geometry.crossing``): from outside a closed mesh a ray counts an
         even number, from inside an odd one. Returns ``Counts``."""
         query, traced = self._trace(
-            COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads
+            COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time
         )
         counts = traced.arrays.n_hits
         per_level = [traced.stats]
@@ -736,6 +802,39 @@ class Scene:
             self, points, nsamples, max_distance, mask, threads
         )
 
+    @property
+    def moving(self) -> bool:
+        """Whether a mesh of the scene moves during the interval (``transforms_end``)."""
+        return self._moving
+
+    def motion(
+        self, mesh: ArrayLike, points: ArrayLike, time: ArrayLike | float | None = None
+    ) -> np.ndarray:
+        """(n, 3) float64: how fast each of ``points`` (n, 3), on mesh ``mesh[i]`` (-1 for
+        none) at time ``time[i]``, moves, in scene units per interval: d/dtau of
+        M(tau) p = (M1 - M0) applied to p's mesh-space point inv(M(tau)) x. Zero on a static
+        mesh and for mesh -1 (divide by the interval's seconds for a velocity)."""
+        mesh = np.asarray(mesh, np.int64).reshape(-1)
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        if len(points) != len(mesh):
+            raise InputError(f"points has {len(points)} rows but mesh has {len(mesh)}")
+        n = len(mesh)
+        times = check_time(time, n)
+        times = np.zeros(n) if times is None else times.astype(np.float64)
+        velocity = np.zeros((n, 3))
+        for instance in self._instances:
+            rows = np.flatnonzero(mesh == instance.mesh)
+            if not instance.moving or not len(rows):
+                continue
+            tau = times[rows, None, None]
+            m = (1.0 - tau) * instance.matrix + tau * instance.matrix_end  # (k, 4, 4)
+            local = np.linalg.solve(
+                m[:, :3, :3], (points[rows] - m[:, :3, 3])[:, :, None]
+            )  # (k, 3, 1)
+            change = instance.matrix_end - instance.matrix
+            velocity[rows] = (change[:3, :3] @ local)[:, :, 0] + change[:3, 3]
+        return velocity
+
     def _scene_triangles(self) -> point_queries.SceneTriangles:
         """The scene-space triangles, for the point queries: the one place they read the
         scene's internals (``_placed_triangles``)."""
@@ -776,18 +875,32 @@ class Scene:
         return 0, np.flatnonzero(self._row_masks & ray_mask).astype(INDEX), self._no_masks
 
     def _trace(
-        self, flags, origins, directions, tmin, tmax, cull, mask, strategy, threads, list_size=0
+        self,
+        flags,
+        origins,
+        directions,
+        tmin,
+        tmax,
+        cull,
+        mask,
+        strategy,
+        threads,
+        list_size=0,
+        time=None,
     ):
         """Check a query and trace its base level with ``flags`` (``dacrt.query``) and its
         options; returns (``Query``, ``Traced``). ``list_size`` is the length of each ray's
-        list of hits (ALL_HITS)."""
+        list of hits (ALL_HITS); ``time`` the rays' instants (``check_time``)."""
         strategy = check_strategy(strategy)
         threads = check_threads(threads, N_CORES)
         flags |= CULL_FLAGS[check_cull(cull)] | STRATEGY_CODES[strategy] << STRATEGY_SHIFT
         origins, directions, tmin, tmax = check_rays(origins, directions, tmin, tmax)
         n_rays = len(origins)
         ray_masks = None if mask is None else check_masks(mask, n_rays, "mask", "ray")
-        query = Query(flags, origins, directions, tmin, tmax, ray_masks, threads)
+        times = check_time(time, n_rays)
+        if not self._moving or (times is not None and not times.any()):
+            times = None  # every ray at 0, or nothing moves: the static trace, bit for bit
+        query = Query(flags, origins, directions, tmin, tmax, ray_masks, threads, times)
         mask_flags, visible_rows, tri_masks = self._visible_rows(ray_masks)
         traced = self._trace_level(
             self._base,
@@ -809,10 +922,13 @@ class Scene:
     def _trace_instances(self, query, limit, kind, max_hits=0):
         """Trace the query's rays into each instance they can reach: yields (instance, ray ids
         (k,) int32, ``InstanceTraced`` with ``origins`` and ``directions`` in mesh space), in
-        the order of the instances. A ray goes in when its segment [tmin, limit] reaches the
-        instance's box and its mask sees the instance; ``limit`` (n,) float32 is read once,
-        before the instances are traced side by side on the query's threads, one thread each
-        (the caller merges their answers afterwards, in any order: the tie rule decides)."""
+        the order of the instances (a moving instance may yield twice: its rays where its
+        placement is mirrored at their time, and the others, when the query culls). A ray goes
+        in when its segment [tmin, limit] reaches the instance's box (a moving one's over the
+        whole interval, when the rays carry times) and its mask sees the instance; ``limit``
+        (n,) float32 is read once, before the instances are traced side by side on the query's
+        threads, one thread each (the caller merges their answers afterwards, in any order: the
+        tie rule decides)."""
         # Writable and contiguous, as the kernels are compiled for (one signature).
         origins = np.require(query.origins, FLOAT, ["C", "W"])
         directions = np.require(query.directions, FLOAT, ["C", "W"])
@@ -824,8 +940,10 @@ class Scene:
         seen = [i for i in self._instances if uniform is None or uniform & self.masks[i.mesh]]
         if not seen:
             return
+        timed = query.times is not None
+        boxes = [i.box if timed else i.box_start for i in seen]
         ray_ids = self._rays_reaching(
-            seen, origins, directions, tmin, limit, ray_masks, query.threads
+            seen, boxes, origins, directions, tmin, limit, ray_masks, query.threads
         )
         flags = query.flags & ~(ANY_HIT | COLLECT) | kind
         # The instances with most rays start first; one alone takes every thread.
@@ -836,31 +954,14 @@ class Scene:
             return
         inner_threads = query.threads if len(work) == 1 else 1
 
-        def run(k):
-            instance = seen[k]
-            ids = ray_ids[k]
-            n = len(ids)
-            mesh_o = np.empty((n, 3), FLOAT)
-            mesh_d = np.empty((n, 3), FLOAT)
-            mesh_tmin = np.empty(n, FLOAT)
-            mesh_tmax = np.empty(n, FLOAT)
-            rays_to_mesh_space(
-                origins,
-                directions,
-                tmin,
-                limit,
-                ids,
-                instance.to_mesh,
-                mesh_o,
-                mesh_d,
-                mesh_tmin,
-                mesh_tmax,
-            )
+        def trace(instance, ids, mesh_rays, mirrored, cofactors):
+            """Trace rays ``ids`` of the batch, given in mesh space, into ``instance``."""
+            mesh_o, mesh_d, mesh_tmin, mesh_tmax = mesh_rays
             list_size = min(max_hits, len(instance.packed)) + 1 if kind & ALL_HITS else 0
             try:
                 found = self._trace_level(
                     instance.packed,
-                    instance.flags(flags),
+                    instance.flags(flags, mirrored),
                     mesh_o,
                     mesh_d,
                     mesh_tmin,
@@ -876,18 +977,61 @@ class Scene:
                     f"a ray of the batch leaves the float32 range in the space of mesh "
                     f"{instance.mesh} (transforms[{instance.mesh}])"
                 ) from None
-            return k, InstanceTraced(*found, mesh_o, mesh_d)
+            return ids, InstanceTraced(*found, mesh_o, mesh_d, cofactors)
+
+        def run(k):
+            instance = seen[k]
+            ids = ray_ids[k]
+            n = len(ids)
+            mesh_rays = (
+                np.empty((n, 3), FLOAT),
+                np.empty((n, 3), FLOAT),
+                np.empty(n, FLOAT),
+                np.empty(n, FLOAT),
+            )
+            if not (timed and instance.moving):
+                rays_to_mesh_space(
+                    origins, directions, tmin, limit, ids, instance.to_mesh, *mesh_rays
+                )
+                return k, [trace(instance, ids, mesh_rays, None, instance.cofactors)]
+            cofactors = np.empty((n, 3, 3))
+            signs = np.empty(n, np.int8)
+            rays_to_mesh_space_at(
+                origins, directions, tmin, limit, ids, query.times, instance.to_mesh,
+                instance.cofactor, -1 if instance.mirrored else 1, instance.matrix,
+                instance.matrix_end, *mesh_rays, cofactors, signs,
+            )  # fmt: skip
+            # Rays at an instant where the placement is singular see nothing of it; culling
+            # swaps faces where it is mirrored, so those rays are traced apart.
+            culls = query.flags & (CULL_BACK | CULL_FRONT)
+            groups = [signs != 0] if not culls else [signs > 0, signs < 0]
+            traced = []
+            for group, keep in enumerate(groups):
+                if not keep.any():
+                    continue
+                every = keep.all()
+                arrays = (ids, cofactors, *mesh_rays)
+                part_ids, part_cofactors, *part_rays = (
+                    a if every else np.ascontiguousarray(a[keep]) for a in arrays
+                )
+                mirrored = None if not culls else group == 1
+                traced.append(trace(instance, part_ids, part_rays, mirrored, part_cofactors))
+            return k, traced
 
         traced = map_on_threads(lambda j: run(work[j]), len(work), min(query.threads, len(work)))
-        for k, found in sorted(traced, key=lambda item: item[0]):
-            yield seen[k], ray_ids[k], found
+        for k, parts in sorted(traced, key=lambda item: item[0]):
+            for ids, found in parts:
+                yield seen[k], ids, found
 
-    def _rays_reaching(self, instances, origins, directions, tmin, limit, ray_masks, threads):
-        """For each of ``instances``, the ids (int32, increasing) of the rays whose segment
-        [tmin, limit] reaches its box and whose mask (``ray_masks``, or none) sees it: a pass
-        over the rays per thread to count, one to fill (``rays_reaching_boxes``)."""
+    def _rays_reaching(
+        self, instances, boxes, origins, directions, tmin, limit, ray_masks, threads
+    ):
+        """For each of ``instances`` (with its box in ``boxes``), the ids (int32, increasing)
+        of the rays whose segment [tmin, limit] reaches that box and whose mask (``ray_masks``,
+        or none) sees it: a pass over the rays per thread to count, one to fill
+        (``rays_reaching_boxes``)."""
         inv_dirs = inverse_directions(directions)
-        boxes = np.array([instance.box for instance in instances], FLOAT)
+        boxes = np.array(boxes, FLOAT)
         order, group_lo, groups = group_boxes(boxes)
         boxes = np.ascontiguousarray(boxes[order])
         box_masks = np.ascontiguousarray(self.masks[[instances[k].mesh for k in order]])
@@ -1058,6 +1202,11 @@ class Scene:
         for name in ("best_tri", "hit_u", "hit_v"):
             np.copyto(getattr(answer, name), getattr(second, name), where=take)
         return [first.stats, second.stats]
+
+
+def _same_matrix(a, b):
+    """Whether two placements (None or (4, 4)) are the same."""
+    return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
 
 
 def add_counters(counters, per_chunk):

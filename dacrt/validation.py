@@ -139,6 +139,21 @@ def _ray_range(value, default, n, name):
         return kernel_input(value, FLOAT)
 
 
+def check_time(time, n):
+    """Each ray's instant in the frame's interval: None (every ray at 0), a number, or (n,)
+    float, finite and in [0, 1]; returns float32 (n,) or None. InputError naming ``time``."""
+    if time is None:
+        return None
+    times = _ray_range(time, 0.0, n, "time")
+    bad = np.flatnonzero(~((times >= 0) & (times <= 1)))  # NaN fails both
+    if len(bad):
+        raise InputError(
+            f"time[{bad[0]}] is {times[bad[0]]}: each time must be finite and in [0, 1] "
+            f"({len(bad)} rays)"
+        )
+    return times
+
+
 def check_strategy(strategy):
     if strategy not in STRATEGIES:
         raise InputError(f"unknown strategy {strategy!r}; use one of {', '.join(STRATEGIES)}")

@@ -39,6 +39,11 @@ def warmup() -> float:
         placed.occluded(origins, directions, mask=mask, threads=1)
         placed.hits(origins, directions, mask=mask, threads=1)
         placed.count(origins, directions, mask=mask, threads=1)
+    # A moving instance and rays at their own times (``rays_to_mesh_space_at``).
+    moving = placed.with_changes(transforms_end={1: moved})
+    times = np.linspace(0.0, 1.0, len(origins), dtype=np.float32)
+    moving.closest(origins, directions, time=times, threads=1)
+    moving.hits(origins, directions, time=times, threads=1)
     # Point queries: one mask for the batch, a mask per point, and the parity of crossings.
     scene.nearest(origins, threads=1)
     scene.nearest(origins, mask=np.arange(1, 5, dtype=np.uint32), threads=1)
