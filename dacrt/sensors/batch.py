@@ -23,6 +23,7 @@ class Rays:
     tmin: float
     tmax: float
     max_hits: int | None = None  #: None: each ray's closest hit; else its first max_hits hits
+    time: np.ndarray | None = None  #: (n,) float32 in [0, 1]: each ray's instant (None: 0)
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,9 @@ class Traced:
     normal: np.ndarray  #: (., 3) float32, unit
     offsets: np.ndarray | None  #: (n + 1,) int64 for hits
     stats: dict | None  #: the counters of the call that traced these rays (shared in a batch)
+    #: (., 3) float64: how fast each hit point moves, scene units per interval (``Scene.motion``),
+    #: when the rays carry times; else None
+    motion: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -70,8 +74,10 @@ def trace(scene, batch: list[Rays], **query) -> list[Traced]:
 
 
 def _joined(scene_rays: list[Rays]):
-    """(origins, directions, tmin, tmax, bounds): the rays end to end, each window a scalar when
-    every sensor has the same one, else per ray; sensor k's rays are bounds[k]:bounds[k + 1]."""
+    """(origins, directions, tmin, tmax, time, bounds): the rays end to end, each window a
+    scalar when every sensor has the same one, else per ray, and their times (None when no
+    sensor's rays carry any, else 0 for those that do not); sensor k's rays are
+    bounds[k]:bounds[k + 1]."""
     bounds = np.cumsum([0] + [len(rays.origins) for rays in scene_rays])
     origins = np.concatenate([rays.origins for rays in scene_rays])
     directions = np.concatenate([rays.directions for rays in scene_rays])
@@ -82,23 +88,49 @@ def _joined(scene_rays: list[Rays]):
         counts = np.diff(bounds)
         tmin = np.repeat([rays.tmin for rays in scene_rays], counts).astype(np.float32)
         tmax = np.repeat([rays.tmax for rays in scene_rays], counts).astype(np.float32)
-    return origins, directions, tmin, tmax, bounds
+    time = None
+    if any(rays.time is not None for rays in scene_rays):
+        time = np.concatenate(
+            [
+                np.zeros(len(rays.origins), np.float32) if rays.time is None else rays.time
+                for rays in scene_rays
+            ]
+        )
+    return origins, directions, tmin, tmax, time, bounds
+
+
+def _motion(scene, origins, directions, time, ray, t, mesh):
+    """How fast the hit points move (``Traced.motion``), or None without times."""
+    if time is None:
+        return None
+    points = origins[ray].astype(np.float64) + t[:, None] * directions[ray].astype(np.float64)
+    return scene.motion(mesh, points, time[ray])
 
 
 def _trace_closest(scene, batch, chosen, answers, query) -> None:
-    origins, directions, tmin, tmax, bounds = _joined([batch[k] for k in chosen])
-    hits = scene.closest(origins, directions, tmin, tmax, **query)
+    origins, directions, tmin, tmax, time, bounds = _joined([batch[k] for k in chosen])
+    hits = scene.closest(origins, directions, tmin, tmax, time=time, **query)
+    motion = None
+    if time is not None:  # one row per ray, zero where it missed
+        rays = np.flatnonzero(np.isfinite(hits.t))
+        motion = np.zeros((len(origins), 3))
+        motion[rays] = _motion(
+            scene, origins, directions, time, rays, hits.t[rays], hits.mesh[rays]
+        )
     for k, lo, hi in zip(chosen, bounds[:-1], bounds[1:]):
         part = slice(lo, hi)
         answers[k] = Traced(
-            hits.t[part], hits.mesh[part], hits.prim[part], hits.normal[part], None, hits.stats
-        )
+            hits.t[part], hits.mesh[part], hits.prim[part], hits.normal[part], None, hits.stats,
+            None if motion is None else motion[part],
+        )  # fmt: skip
 
 
 def _trace_hits(scene, batch, chosen, answers, query) -> None:
-    origins, directions, tmin, tmax, bounds = _joined([batch[k] for k in chosen])
+    origins, directions, tmin, tmax, time, bounds = _joined([batch[k] for k in chosen])
     largest = max(batch[k].max_hits for k in chosen)
-    every = scene.hits(origins, directions, tmin, tmax, max_hits=largest, **query)
+    every = scene.hits(origins, directions, tmin, tmax, max_hits=largest, time=time, **query)
+    ray = np.repeat(np.arange(len(origins)), np.diff(every.offsets))
+    motion = _motion(scene, origins, directions, time, ray, every.t, every.mesh)
     for k, lo, hi in zip(chosen, bounds[:-1], bounds[1:]):
         # a sensor keeps each ray's nearest max_hits of the (nearest first) list
         counts = np.minimum(np.diff(every.offsets[lo : hi + 1]), batch[k].max_hits)
@@ -109,5 +141,5 @@ def _trace_hits(scene, batch, chosen, answers, query) -> None:
         np.cumsum(counts, out=offsets[1:])
         answers[k] = Traced(
             every.t[rows], every.mesh[rows], every.prim[rows], every.normal[rows], offsets,
-            every.stats,
+            every.stats, None if motion is None else motion[rows],
         )  # fmt: skip

@@ -32,6 +32,7 @@ from .batch import Rays, Shot, Traced, capture
 from .cameras import check_pose
 from .checks import choice, flag, integer, number
 from .models import MODELS
+from .motion import poses_at
 from .patterns import Pattern
 from .pcd import write_pcd
 from .physics import (
@@ -126,7 +127,8 @@ def points(
 MAX_BEAMS = 1024
 MAX_RETURNS = 64
 MAX_BEAM_SAMPLES = 64
-#: The arrays of a lidar's answer, in answer order; ``time`` only for a pattern with ``time_s``.
+#: The arrays of a lidar's answer, in answer order; ``time`` only for a pattern with ``time_s`` or
+#: a lidar with ``period_s``, ``velocity`` and ``radial_speed`` only with ``period_s``.
 LIDAR_FIELDS = (
     "xyz",
     "range",
@@ -141,6 +143,8 @@ LIDAR_FIELDS = (
     "intensity",
     "label",
     "time",
+    "velocity",
+    "radial_speed",
 )
 #: The value of a point that did not return (``non_hits="keep"``, organized answers' empty cells);
 #: ring, azimuth, elevation, ray and time keep their beam's values.
@@ -153,6 +157,8 @@ FILL = {
     "cos_incidence": 0,
     "intensity": 0,
     "label": 0,
+    "velocity": np.float32(np.nan),
+    "radial_speed": np.float32(np.nan),
 }
 NON_HITS = ("drop", "keep")
 
@@ -172,6 +178,12 @@ class Lidar:
     noise : a ``Noise`` or a dict of its keys; dropout : a ``Dropout`` or a dict of its keys
     non_hits : ``drop`` or ``keep`` (a beam that returns nothing is one point of FILL values)
     organized : arrays shaped (rings, steps) or (rings, steps, returns) instead of a list
+    period_s : None (the sweep is an instant), or the sweep's duration in seconds: column s of
+        a spinning lidar fires at tau = s / steps of it, a pattern's ray at time_s / period_s,
+        from the sensor's pose at tau (``scan``'s ``pose_end``) into the scene at tau (meshes
+        moving by ``transforms_end``); points then carry ``time`` (seconds from the sweep's
+        start), ``velocity`` (the hit surface's, scene units a second) and ``radial_speed``
+        (along the beam, relative to the sensor, positive receding)
     """
 
     model: str | None = None
@@ -190,6 +202,7 @@ class Lidar:
     dropout: Dropout | dict | None = None
     non_hits: str = "drop"
     organized: bool = False
+    period_s: float | None = None
 
     def __post_init__(self) -> None:
         given = [self.model, self.vertical_angles_deg, self.pattern]
@@ -219,6 +232,16 @@ class Lidar:
         object.__setattr__(self, "dropout", physics.options(self.dropout, Dropout, "dropout"))
         choice(self.non_hits, "non_hits", NON_HITS)
         flag(self.organized, "organized")
+        if self.period_s is not None:
+            number(self.period_s, "period_s", above=0)
+            if self.pattern is not None and self.pattern.time_s is None:
+                raise InputError("period_s needs a pattern with time_s (when each ray fires)")
+            if self.pattern is not None and not self.pattern.time_s.max() <= self.period_s:
+                late = int(np.argmax(self.pattern.time_s > self.period_s))
+                raise InputError(
+                    f"time_s[{late}] is {self.pattern.time_s[late]!r}, beyond period_s "
+                    f"({self.period_s!r}): a ray fires within the sweep"
+                )
         if self.organized and self.pattern is not None:
             raise InputError(
                 "organized needs a spinning lidar (model or vertical_angles_deg): a pattern's "
@@ -250,15 +273,23 @@ class Lidar:
         """The most points a beam gives: the last axis of an organized answer (1: no axis)."""
         return {"all": self.max_returns, "dual": 2}.get(self.return_mode, 1)
 
-    def scan(self, scene, pose, materials: Materials | None = None, **query) -> LidarPoints:
+    def scan(
+        self, scene, pose, materials: Materials | None = None, pose_end=None, **query
+    ) -> LidarPoints:
         """The points of one sweep from ``pose`` (4x4 sensor-to-scene, rigid) in ``scene`` (a
-        ``dacrt.Scene``) whose meshes have ``materials``; ``query`` goes to ``Scene.closest`` /
-        ``Scene.hits`` (strategy, threads, cull, mask, stats)."""
-        return capture(scene, [self.shot(pose)], materials, **query)[0]
+        ``dacrt.Scene``) whose meshes have ``materials``; ``pose_end`` (with ``period_s``) is
+        the sensor's pose at the sweep's end (None: it stays at ``pose``); ``query`` goes to
+        ``Scene.closest`` / ``Scene.hits`` (strategy, threads, cull, mask, stats)."""
+        return capture(scene, [self.shot(pose, pose_end)], materials, **query)[0]
 
-    def shot(self, pose) -> Shot:
-        """The lidar at ``pose``, ready to trace (for a batch of sensors)."""
-        beams = self._beams(check_pose(pose))
+    def shot(self, pose, pose_end=None) -> Shot:
+        """The lidar at ``pose`` (to ``pose_end``), ready to trace (for a batch of sensors)."""
+        pose = check_pose(pose)
+        if pose_end is not None:
+            if self.period_s is None:
+                raise InputError("pose_end needs period_s (the sweep's duration)")
+            pose_end = check_pose(pose_end, "pose_end")
+        beams = self._beams(pose, pose_end)
         generator = None if self.noise is None else np.random.default_rng(self.noise.seed)
         azimuth, elevation, axes = beams.azimuth, beams.elevation, beams.directions
         if generator is not None and self.noise.angle_sigma_deg > 0:
@@ -271,49 +302,64 @@ class Lidar:
             directions = subray_directions(
                 beams.pose, azimuth, elevation, axes, self.beam_divergence_deg, self.beam_samples
             )
-        origins = np.tile(beams.origin, (len(directions), 1))
+        if beams.origins is None:
+            origins = np.tile(beams.origin, (len(directions), 1))
+        else:
+            origins = np.repeat(beams.origins, self.beam_samples, axis=0)
         max_hits = self.max_returns if self.return_mode == "all" else None
-        rays = Rays(origins, directions, self.min_range, self.max_range, max_hits)
+        tau = None if beams.tau is None else np.repeat(beams.tau, self.beam_samples)
+        rays = Rays(origins, directions, self.min_range, self.max_range, max_hits, tau)
         return Shot(
             rays,
             lambda traced, materials: self._points(beams, directions, generator, traced, materials),
         )
 
-    def _beams(self, pose: np.ndarray) -> Beams:
+    def _beams(self, pose: np.ndarray, pose_end: np.ndarray | None) -> Beams:
         if self.pattern is not None:
             azimuth = np.radians(self.pattern.azimuth_deg)
             elevation = np.radians(self.pattern.elevation_deg)
             n = len(azimuth)
             ring = np.zeros(n, np.int16) if self.pattern.channel is None else self.pattern.channel
             time = None if self.pattern.time_s is None else self.pattern.time_s.astype(np.float32)
-            return Beams(
-                pose=pose,
-                origin=pose[:3, 3].astype(np.float32),
-                directions=beam_directions(pose, azimuth, elevation),
-                azimuth=azimuth,
-                elevation=elevation,
-                ring=ring,
-                azimuth_out=azimuth.astype(np.float32),
-                elevation_out=elevation.astype(np.float32),
-                time=time,
-                layout=None,
-            )
-        scan = make_scan(pose, self.elevations_deg, self.horizontal_steps, 0.0, math.inf)
-        origins, directions = scan.rays()
-        elevation, azimuth = scan.angles()
-        ring = np.repeat(np.arange(scan.n_rings), scan.steps)
-        step = np.tile(np.arange(scan.steps), scan.n_rings)
+            tau = None
+            if self.period_s is not None:
+                tau = np.minimum(self.pattern.time_s / self.period_s, 1.0).astype(np.float32)
+            layout = None
+        else:
+            scan = make_scan(pose, self.elevations_deg, self.horizontal_steps, 0.0, math.inf)
+            elevation, azimuth = scan.angles()
+            ring = np.repeat(np.arange(scan.n_rings), scan.steps)
+            step = np.tile(np.arange(scan.steps), scan.n_rings)
+            azimuth_out = azimuth.astype(np.float32)[step]
+            elevation_out = elevation.astype(np.float32)[ring]
+            azimuth, elevation, ring = azimuth[step], elevation[ring], ring.astype(np.int16)
+            time = tau = None
+            if self.period_s is not None:
+                # Column s fires at s / steps of the sweep.
+                tau = (step / scan.steps).astype(np.float32)
+                time = (step / scan.steps * self.period_s).astype(np.float32)
+            layout = (scan.n_rings, scan.steps)
+        moving = pose_end is not None and not np.array_equal(pose, pose_end)
+        poses = poses_at(pose, pose_end, tau) if moving else pose
+        origins = poses[:, :3, 3].astype(np.float32) if moving else None
+        if layout is not None and not moving:
+            directions = scan.rays()[1]
+        else:
+            directions = beam_directions(poses, azimuth, elevation)
         return Beams(
-            pose=pose,
-            origin=origins[0],
+            pose=poses,
+            origin=pose[:3, 3].astype(np.float32),
             directions=directions,
-            azimuth=azimuth[step],
-            elevation=elevation[ring],
-            ring=ring.astype(np.int16),
-            azimuth_out=azimuth.astype(np.float32)[step],
-            elevation_out=elevation.astype(np.float32)[ring],
-            time=None,
-            layout=(scan.n_rings, scan.steps),
+            azimuth=azimuth,
+            elevation=elevation,
+            ring=ring,
+            azimuth_out=azimuth.astype(np.float32) if layout is None else azimuth_out,
+            elevation_out=elevation.astype(np.float32) if layout is None else elevation_out,
+            time=time,
+            layout=layout,
+            origins=origins,
+            tau=tau,
+            sensor_velocity=_sensor_velocity(pose, pose_end, self.period_s),
         )
 
     def _points(
@@ -365,13 +411,29 @@ class Lidar:
             "intensity": intensity,
             "label": labels[mesh[hit]],
         }
+        if beams.origins is not None:  # a moving sensor: each beam from where it fired
+            arrays["xyz"] = beams.origins[beam] + distance[:, None] * beams.directions[beam]
         if beams.time is not None:
             arrays["time"] = beams.time[beam]
+        if beams.tau is not None:
+            arrays.update(self._speeds(beams, beam, traced, ray, hit))
         if self.organized:
             arrays = self._organize(arrays, beam, beams)
         elif self.non_hits == "keep":
             arrays = _keep_non_hits(arrays, beam, beams)
         return LidarPoints(arrays, self.organized, traced.stats)
+
+    def _speeds(self, beams: Beams, beam, traced: Traced, ray, hit) -> dict:
+        """``velocity`` (M, 3) float32, the hit surface's in scene units a second, and
+        ``radial_speed`` (M,) float32, (surface - sensor velocity) along the unit beam, positive
+        receding."""
+        motion = traced.motion[ray] if traced.offsets is None else traced.motion
+        velocity = motion[hit] / self.period_s
+        axis = beams.directions[beam].astype(np.float64)
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        relative = velocity - beams.sensor_velocity
+        radial = np.einsum("ij,ij->i", relative, axis)
+        return {"velocity": velocity.astype(np.float32), "radial_speed": radial.astype(np.float32)}
 
     def _organize(self, arrays: dict, beam: np.ndarray, beams: Beams) -> dict:
         """Arrays of shape (n_beams, slots) filled with FILL, each point in its beam's row at its
@@ -401,8 +463,18 @@ class Beams:
     ring: np.ndarray  #: (n,) int16
     azimuth_out: np.ndarray  #: (n,) float32: the points' azimuth
     elevation_out: np.ndarray  #: (n,) float32
-    time: np.ndarray | None  #: (n,) float32 seconds, a pattern's
+    time: np.ndarray | None  #: (n,) float32 seconds, a pattern's or with period_s
     layout: tuple[int, int] | None  #: (rings, steps) of a spinning lidar
+    origins: np.ndarray | None = None  #: (n, 3) float32 of a sensor moving in its sweep
+    tau: np.ndarray | None = None  #: (n,) float32 in [0, 1], each beam's instant (period_s)
+    sensor_velocity: np.ndarray | None = None  #: (3,) float64 scene units a second
+
+
+def _sensor_velocity(pose, pose_end, period_s) -> np.ndarray:
+    """The sensor's velocity during the sweep (its translation is linear in time)."""
+    if pose_end is None or period_s is None:
+        return np.zeros(3)
+    return (pose_end[:3, 3] - pose[:3, 3]) / period_s
 
 
 def _filled(beams: Beams, arrays: dict) -> dict:

@@ -139,10 +139,12 @@ def options(value, kind: type, key: str):
 
 def beam_directions(pose: np.ndarray, azimuth: np.ndarray, elevation: np.ndarray) -> np.ndarray:
     """(n, 3) float32: ``cos e (cos a R[:, 0] + sin a R[:, 1]) + sin e R[:, 2]`` per beam, in
-    float64 then float32 (the spinning lidar's arithmetic, beam by beam)."""
-    rotation = pose[:3, :3]
-    level = np.cos(azimuth)[:, None] * rotation[:, 0] + np.sin(azimuth)[:, None] * rotation[:, 1]
-    directions = np.cos(elevation)[:, None] * level + np.sin(elevation)[:, None] * rotation[:, 2]
+    float64 then float32 (the spinning lidar's arithmetic, beam by beam); ``pose`` (4, 4), or
+    (n, 4, 4) one per beam (a sensor moving during its sweep)."""
+    rotation = pose[..., :3, :3]
+    r0, r1, r2 = rotation[..., :, 0], rotation[..., :, 1], rotation[..., :, 2]
+    level = np.cos(azimuth)[:, None] * r0 + np.sin(azimuth)[:, None] * r1
+    directions = np.cos(elevation)[:, None] * level + np.sin(elevation)[:, None] * r2
     return np.ascontiguousarray(directions, dtype=np.float32)
 
 
@@ -163,11 +165,12 @@ def subray_directions(
 ) -> np.ndarray:
     """(n_beams * samples, 3) float32, beam-major: sub-ray 0 of each beam is its axis (``axes``,
     as given); sub-ray k leans from the axis d toward ``cos(around) u + sin(around) v``, u and v
-    the directions of growing azimuth and elevation: ``cos(lean) d + sin(lean) (...)``."""
+    the directions of growing azimuth and elevation: ``cos(lean) d + sin(lean) (...)``;
+    ``pose`` (4, 4), or (n_beams, 4, 4) one per beam."""
     lean, around = subray_offsets(divergence_deg, samples)
     ca, sa = np.cos(azimuth)[:, None], np.sin(azimuth)[:, None]
     ce, se = np.cos(elevation)[:, None], np.sin(elevation)[:, None]
-    r0, r1, r2 = pose[:3, 0], pose[:3, 1], pose[:3, 2]
+    r0, r1, r2 = pose[..., :3, 0], pose[..., :3, 1], pose[..., :3, 2]
     # the axis and its two perpendiculars, turned into the scene once a beam
     axis = (ce * ca) * r0 + (ce * sa) * r1 + se * r2
     u = -sa * r0 + ca * r1

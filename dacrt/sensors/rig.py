@@ -26,10 +26,20 @@ class Rig:
         self.sensors = dict(sensors)
 
     def capture(
-        self, scene, poses: Mapping[str, object], materials: Materials | None = None, **query
+        self,
+        scene,
+        poses: Mapping[str, object],
+        materials: Materials | None = None,
+        poses_end: Mapping[str, object] | None = None,
+        **query,
     ) -> dict[str, CameraImage | LidarPoints]:
         """{name: answer} of every sensor at its pose in ``poses`` (4x4 sensor-to-scene), traced
-        together; ``materials`` and ``query`` as for a sensor alone."""
+        together; ``poses_end`` names the lidars (with ``period_s``) that move during their
+        sweep and their poses at its end; ``materials`` and ``query`` as for a sensor alone."""
+        poses_end = dict(poses_end or {})
+        for name in poses_end:
+            if not isinstance(self.sensors.get(name), Lidar):
+                raise InputError(f"poses_end.{name}: only a lidar of the rig takes pose_end")
         missing = [name for name in self.sensors if name not in poses]
         unknown = [name for name in poses if name not in self.sensors]
         if missing or unknown:
@@ -40,7 +50,10 @@ class Rig:
         shots = []
         for name, sensor in self.sensors.items():
             try:
-                shots.append(sensor.shot(poses[name]))
+                if name in poses_end:
+                    shots.append(sensor.shot(poses[name], poses_end[name]))
+                else:
+                    shots.append(sensor.shot(poses[name]))
             except InputError as error:
                 raise InputError(f"sensors.{name}: {error}") from None
         answers = capture(scene, shots, materials, **query)
