@@ -46,8 +46,17 @@ _MASK = {
     "anyOf": [_MASK_VALUE, {"type": "array", "items": _MASK_VALUE}, {"type": "null"}],
     "description": "visibility mask, one for the batch or one per ray (decimal); null: all ones",
 }
+_TIME = {
+    "anyOf": [
+        {"type": "number", "minimum": 0, "maximum": 1},
+        {"type": "array", "items": {"type": "number", "minimum": 0, "maximum": 1}},
+        {"type": "null"},
+    ],
+    "description": "each ray's instant in the frame's interval, in [0, 1]; null: 0",
+}
 RAYS_JSON = _object(
-    {"origins": _POINTS, "directions": _POINTS}, {"tmin": _BOUND, "tmax": _BOUND, "mask": _MASK}
+    {"origins": _POINTS, "directions": _POINTS},
+    {"tmin": _BOUND, "tmax": _BOUND, "mask": _MASK, "time": _TIME},
 )
 POINTS_JSON = _object({"points": _POINTS})
 MESH_JSON = _object({"vertices": _POINTS, "faces": _TRIANGLES})
@@ -78,13 +87,14 @@ FRAME_JSON = {
         r"^.+\.vertices$": _POINTS,
         r"^.+\.faces$": _TRIANGLES,
         r"^.+\.transform$": _MATRIX,
+        r"^.+\.transform_end$": _MATRIX,
         r"^.+\.mask$": _MASK,
         r"^.+\.instance_of$": _MESH_NAME,
     },
 }
 TRACE_JSON = _object(
     {"vertices": _POINTS, "faces": _TRIANGLES, "origins": _POINTS, "directions": _POINTS},
-    {"tmin": _BOUND, "tmax": _BOUND, "mask": _MASK},
+    {"tmin": _BOUND, "tmax": _BOUND, "mask": _MASK, "time": _TIME},
 )
 ERROR = {
     "type": "object",
@@ -107,6 +117,10 @@ MESH_INFO = {
         "version": {"type": "integer", "description": "scene version of the mesh's last change"},
         "mask": {"type": "integer", "description": "the mesh's visibility mask (uint32)"},
         "transform": {**_MATRIX, "description": "the mesh's placement (identity by default)"},
+        "transform_end": {
+            "anyOf": [_MATRIX, {"type": "null"}],
+            "description": "its placement at the end of the frame's interval; null: static",
+        },
         "instance_of": {
             "anyOf": [{"type": "string"}, {"type": "null"}],
             "description": "the mesh whose arrays this instance shares; null for a mesh",

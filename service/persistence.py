@@ -122,6 +122,15 @@ def _transform(value: Any) -> np.ndarray | None:
     return None if value is None else check_matrix(value, "transform")
 
 
+def _transform_end(value: Any) -> np.ndarray | None:
+    """A manifest's end placement (absent: static), checked, read-only."""
+    if value is None:
+        return None
+    matrix = check_matrix(value, "transform_end")
+    matrix.setflags(write=False)
+    return matrix
+
+
 def checksum(array: np.ndarray) -> int:
     return crc32(memoryview(np.ascontiguousarray(array)).cast("B"))
 
@@ -306,6 +315,8 @@ class DataDir:
             }
             if mesh.transform is not None:
                 record["transform"] = mesh.transform.tolist()
+            if mesh.transform_end is not None:
+                record["transform_end"] = mesh.transform_end.tolist()
             if mesh.instance_of is not None:
                 record["instance_of"] = mesh.instance_of
             else:
@@ -412,6 +423,7 @@ class DataDir:
                     parse_mask(item.get("mask", 0xFFFFFFFF), "mask"),
                     owned_transform(_transform(item.get("transform"))),
                     item.get("instance_of"),
+                    _transform_end(item.get("transform_end")),
                 )
             next_index = record["next_index"]
             for name, mesh in meshes.items():

@@ -74,6 +74,13 @@ def referenced_bounds(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     ).astype(np.float32)
 
 
+def _same_end(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    """Whether two end placements (None: static) are the same."""
+    if a is None or b is None:
+        return a is b
+    return np.array_equal(a, b)
+
+
 def owned_transform(matrix: np.ndarray | None) -> np.ndarray | None:
     """A checked (4, 4) matrix as the store keeps it: None for the identity, else a read-only
     float64 copy."""
@@ -145,6 +152,8 @@ class Mesh:
     mask: int = ALL_MASKS  #: uint32; a ray sees the mesh where ray mask & mask != 0
     transform: np.ndarray | None = None  #: (4, 4) float64 read-only row-major; None: identity
     instance_of: str | None = None  #: the source mesh whose Geometry this instance shares
+    #: (4, 4) float64 read-only: the placement at the end of the frame's interval; None: static
+    transform_end: np.ndarray | None = None
 
     @property
     def vertices(self) -> np.ndarray:
@@ -176,16 +185,24 @@ class Mesh:
             "version": self.version,
             "mask": self.mask,
             "transform": (IDENTITY if self.transform is None else self.transform).tolist(),
+            "transform_end": None if self.transform_end is None else self.transform_end.tolist(),
             "instance_of": self.instance_of,
         }
 
 
 def placed(mesh: Mesh) -> Mesh:
-    """``mesh`` with bounds of its geometry as its transform places it; 422 if the transform
-    places a vertex beyond the float32 range (the engine could not trace it)."""
+    """``mesh`` with bounds of its geometry as its transform places it (and its transform_end:
+    the box of both); 422 if a transform places a vertex beyond the float32 range (the engine
+    could not trace it)."""
     if mesh.transform is not None:
         mesh.geometry.check_placeable(mesh.transform, f"transform of mesh {mesh.name!r}")
-    return replace(mesh, bounds=mesh.geometry.placed_bounds(mesh.transform))
+    bounds = mesh.geometry.placed_bounds(mesh.transform)
+    if mesh.transform_end is not None:
+        name = f"transform_end of mesh {mesh.name!r}"
+        mesh.geometry.check_placeable(mesh.transform_end, name)
+        end = mesh.geometry.placed_bounds(mesh.transform_end)
+        bounds = np.stack([np.minimum(bounds[0], end[0]), np.maximum(bounds[1], end[1])])
+    return replace(mesh, bounds=bounds)
 
 
 def new_mesh(
@@ -371,11 +388,12 @@ class Store:
             return self._commit(scene, old, {name: mesh}).meshes[name]
 
     def set_transform(self, scene: str, name: str, transform: np.ndarray | None) -> Mesh:
-        """Place a mesh by a checked (4, 4) matrix (None: the identity); its arrays are kept."""
+        """Place a mesh by a checked (4, 4) matrix (None: the identity); its arrays are kept, and
+        it is static again (no transform_end), as after a frame that places it."""
         with self._lock:
             old = self.snapshot(scene)
             matrix = IDENTITY if transform is None else transform
-            mesh = self._changed(old.mesh(name), name, transform=matrix)
+            mesh = self._changed(old.mesh(name), name, transform=matrix, transform_end=None)
             return self._commit(scene, old, {name: mesh}).meshes[name]
 
     def set_mask(self, scene: str, name: str, mask: int) -> Mesh:
@@ -393,9 +411,16 @@ class Store:
         """Change several meshes in one version (``wire.FrameChange``, or a (vertices, faces)
         pair): vertices with faces add or replace a mesh, vertices alone move an existing mesh's
         vertices, ``instance_of`` makes the mesh an instance, and ``transform`` and ``mask`` set
-        its placement and mask (kept where not given)."""
+        its placement and mask (kept where not given); ``transform_end`` sets its placement at
+        the interval's end, and a ``transform`` without one makes the mesh static again."""
         check_name("scene", scene)
         changes = {name: FrameChange(*change) for name, change in changes.items()}
+        # A new start placement without an end makes the mesh static; an end alone keeps its start.
+        ends = {
+            name: change.transform_end
+            for name, change in changes.items()
+            if change.transform_end is not None or change.transform is not None
+        }
         for name in changes:
             check_name("mesh", name)
         added = {
@@ -408,13 +433,19 @@ class Store:
             meshes: dict[str, Mesh] = {}
             for name, change in changes.items():
                 before = old.meshes.get(name) if old is not None else None
+                end = ends.get(name, ...)
                 if name in added:
                     meshes[name] = self._changed(
-                        before, name, change.transform, change.mask, added[name], None
+                        before, name, change.transform, change.mask, added[name], None, end
                     )
                 elif change.instance_of is not None:
                     meshes[name] = self._changed(
-                        before, name, change.transform, change.mask, instance_of=change.instance_of
+                        before,
+                        name,
+                        change.transform,
+                        change.mask,
+                        instance_of=change.instance_of,
+                        transform_end=end,
                     )
                 elif before is None:
                     raise NotFound(
@@ -426,7 +457,9 @@ class Store:
                     mesh = before
                     if change.vertices is not None:
                         mesh = self._moved(before, change.vertices, scene)
-                    meshes[name] = self._changed(mesh, name, change.transform, change.mask)
+                    meshes[name] = self._changed(
+                        mesh, name, change.transform, change.mask, transform_end=end
+                    )
             return self._commit(scene, old, meshes)
 
     def restore(self, snapshots: list[Snapshot], last_versions: Mapping[str, int]) -> None:
@@ -465,10 +498,11 @@ class Store:
         mask: int | None = None,
         geometry: Geometry | None = None,
         instance_of: str | None = ...,  # type: ignore[assignment]
+        transform_end: np.ndarray | None = ...,  # type: ignore[assignment]
     ) -> Mesh:
         """``before`` (or a new mesh) with what is given changed; ``instance_of=None`` makes it a
-        mesh of its own, ``...`` keeps what it was. An instance's geometry is linked by
-        ``_commit``."""
+        mesh of its own, ``transform_end=None`` static, ``...`` keeps what it was. An instance's
+        geometry is linked by ``_commit``."""
         if before is None:
             before = Mesh(name, -1, geometry or EMPTY, EMPTY.bounds, 0)
         changes: dict[str, Any] = {}
@@ -480,6 +514,10 @@ class Store:
             changes["geometry"] = geometry
         if instance_of is not ...:
             changes["instance_of"] = instance_of
+        if transform_end is not ... and not _same_end(before.transform_end, transform_end):
+            changes["transform_end"] = (
+                None if transform_end is None else _owned(transform_end, "<f8")
+            )
         return placed(replace(before, **changes)) if changes else before
 
     @staticmethod

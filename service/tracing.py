@@ -39,7 +39,8 @@ class EngineScene:
     mesh_index: (
         np.ndarray | None
     )  #: (n_meshes + 1,) int32 ending in -1, or None if positions are indices
-    #: per engine mesh position, the (index, vertices, faces, mask, transform) it was built from
+    #: per engine mesh position, the (index, vertices, faces, mask, transform, transform_end) it
+    #: was built from
     meshes: tuple[tuple, ...] = ()
 
     def map_mesh(self, positions: np.ndarray) -> np.ndarray:
@@ -50,19 +51,24 @@ class EngineScene:
 
 
 def build_engine_scene(meshes: Iterable[tuple], scene_type: Any = dacrt.Scene) -> EngineScene:
-    """The engine scene of (index, vertices, faces[, mask[, transform]]) tuples (mask: uint32,
-    default all ones; transform: (4, 4) or None, the identity); meshes without triangles are left
-    out. Meshes may share arrays (instances): the engine places each by its own transform.
+    """The engine scene of (index, vertices, faces[, mask[, transform[, transform_end]]])
+    tuples (mask: uint32, default all ones; transform: (4, 4) or None, the identity;
+    transform_end: (4, 4) or None, static); meshes without triangles are left out. Meshes may
+    share arrays (instances): the engine places each by its own transform.
     ``scene_type`` builds the scene from (meshes, masks=, transforms=): ``dacrt.Scene``, or a
     ``dacrt.distributed.DistributedScene`` bound to a client (``service.cluster``)."""
     kept = [tuple(mesh) for mesh in meshes if len(mesh[2])]
     indices = np.array([mesh[0] for mesh in kept] + [-1], dtype=np.int32)
     masks = np.array([mesh[3] if len(mesh) > 3 else 0xFFFFFFFF for mesh in kept], np.uint32)
     transforms = [mesh[4] if len(mesh) > 4 else None for mesh in kept]
+    ends = [mesh[5] if len(mesh) > 5 else None for mesh in kept]
+    # Only a moving scene names transforms_end (a cluster's scene type takes none).
+    moving = {} if all(end is None for end in ends) else {"transforms_end": ends}
     scene = scene_type(
         [(mesh[1], mesh[2]) for mesh in kept],
         masks=None if (masks == 0xFFFFFFFF).all() else masks,
         transforms=None if all(t is None for t in transforms) else transforms,
+        **moving,
     )
     identity = np.array_equal(indices[:-1], np.arange(len(kept)))
     return EngineScene(scene, None if identity else indices, tuple(kept))
@@ -72,7 +78,10 @@ def _snapshot_engine(snapshot: Snapshot, scene_type: Any = dacrt.Scene) -> Engin
     """The engine scene of a version: changed from an earlier version's (``with_changes``,
     which packs only what changed) where the meshes are the same but for their placements,
     vertices and masks; else built whole."""
-    meshes = [(m.index, m.vertices, m.faces, m.mask, m.transform) for m in snapshot.meshes.values()]
+    meshes = [
+        (m.index, m.vertices, m.faces, m.mask, m.transform, m.transform_end)
+        for m in snapshot.meshes.values()
+    ]
     earlier = snapshot.earlier("dacrt") if scene_type is dacrt.Scene else None
     if earlier is not None:
         changed = changed_engine_scene(earlier[1], meshes)
@@ -88,7 +97,7 @@ def changed_engine_scene(engine: EngineScene, meshes: list[tuple]) -> EngineScen
     kept = [mesh for mesh in meshes if len(mesh[2])]
     if len(kept) != len(engine.meshes):
         return None
-    transforms, vertices, masks = {}, {}, {}
+    transforms, vertices, masks, ends = {}, {}, {}, {}
     for i, (old, new) in enumerate(zip(engine.meshes, kept)):
         if old[0] != new[0] or old[2] is not new[2] or len(old[1]) != len(new[1]):
             return None
@@ -98,10 +107,20 @@ def changed_engine_scene(engine: EngineScene, meshes: list[tuple]) -> EngineScen
             masks[i] = new[3]
         if not _same_transform(old[4], new[4]):
             transforms[i] = new[4]
-    if not (transforms or vertices or masks):
+        if not _same_transform(_end(old), _end(new)):
+            ends[i] = _end(new)
+    if not (transforms or vertices or masks or ends):
         return replace(engine, meshes=tuple(kept))
-    scene = engine.scene.with_changes(transforms=transforms, vertices=vertices, masks=masks)
+    moving = {"transforms_end": ends} if ends else {}
+    scene = engine.scene.with_changes(
+        transforms=transforms, vertices=vertices, masks=masks, **moving
+    )
     return replace(engine, scene=scene, meshes=tuple(kept))
+
+
+def _end(mesh: tuple) -> np.ndarray | None:
+    """A mesh tuple's end placement (None: static)."""
+    return mesh[5] if len(mesh) > 5 else None
 
 
 def _same_transform(a: np.ndarray | None, b: np.ndarray | None) -> bool:
@@ -133,7 +152,11 @@ def trace(
     on the cluster's workers, on the same version; in process when the cluster cannot take it."""
     start = time.perf_counter()
     engine = snapshot.cached("dacrt", _snapshot_engine)
-    if cluster is not None:
+    # The cluster's workers trace no motion: rays with times, or a moving scene, stay here.
+    timed = rays.time is not None or any(
+        mesh.transform_end is not None for mesh in snapshot.meshes.values()
+    )
+    if cluster is not None and not timed:
         try:
             remote = cluster.engine_for(snapshot, len(rays), _snapshot_engine)
             if remote is not None:
@@ -178,6 +201,8 @@ def _run(
         "threads": options.threads if where == "process" else None,
         "stats": options.stats,
     }
+    if rays.time is not None:
+        kwargs["time"] = rays.time
     if options.kind is Query.HITS:
         kwargs["max_hits"] = options.max_hits
     query = getattr(engine.scene, Query(options.kind).value)

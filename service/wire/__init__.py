@@ -47,15 +47,18 @@ Rays (``decode_rays``; formats npy, npz, json)
     npy  float32 (N, 6) ``[ox, oy, oz, dx, dy, dz]`` or (N, 8) ``[..., tmin, tmax]``.
     npz  ``origins`` float32 (N, 3), ``directions`` float32 (N, 3); optional ``tmin``, ``tmax``
          float32 of shape (N,) or () (one value for the batch); optional ``mask`` uint32 of
-         shape (N,) or (). No other keys.
+         shape (N,) or (); optional ``time`` float32 (N,) or () in [0, 1], each ray's instant
+         in the frame's interval (API.md "Motion"). No other keys.
     json ``{"origins": [[x, y, z], ...], "directions": [...], "tmin": number | [..] | null,
-         "tmax": number | [..] | null, "mask": integer | [..] | null}``; a null field means the
+         "tmax": number | [..] | null, "mask": integer | [..] | null, "time": number | [..] |
+         null}``; a null field means the
          default, a null element of tmin or tmax +inf; mask values are decimal integers in
          [0, 2**32).
-    Defaults: tmin 0, tmax +inf, mask 0xFFFFFFFF. An npy body has no mask: the query string's
-    ``?mask=`` gives one mask to a batch of any format (with a body mask too, 422). More than
+    Defaults: tmin 0, tmax +inf, mask 0xFFFFFFFF, time 0. An npy body has no mask (nor time):
+    the query string's ``?mask=`` gives one mask to a batch of any format (with a body mask too,
+    422). More than
     ``max_rays`` rays is 413. Values (finite, non-zero directions, tmin <= tmax) are checked by the
-    engine, which names the first bad ray.
+    engine, which names the first bad ray (or time).
 
 Points (``decode_points``; formats npy, npz, json)
     npy  float32 (N, 3) ``[x, y, z]``.
@@ -82,12 +85,15 @@ Frames (``decode_frame``; formats npz, json)
     Each mesh may also have ``MESH.transform``: a (4, 4) row-major affine matrix (npz: float32 or
     float64; JSON: 4 lists of 4 numbers), checked by the engine (``check_matrix``);
     ``MESH.mask``: a uint32 (npz: an integer array of one element; JSON: an integer or a string
-    in decimal or ``0x`` hex, ``parse_mask``); and, in JSON only, ``MESH.instance_of``: the name
-    of the mesh whose arrays it shares, never with ``MESH.vertices`` or ``MESH.faces``.
+    in decimal or ``0x`` hex, ``parse_mask``); ``MESH.transform_end``: its placement at the end
+    of the frame's interval (as ``MESH.transform``; a frame that gives a mesh ``MESH.transform``
+    and no ``MESH.transform_end`` makes it static again); and, in JSON only,
+    ``MESH.instance_of``: the name of the mesh whose arrays it shares, never with
+    ``MESH.vertices`` or ``MESH.faces``.
 
 One-shot trace (``decode_trace``; formats npz, json)
     The keys of a mesh (``vertices``, ``faces``) and of rays (``origins``, ``directions``,
-    ``tmin``, ``tmax``, ``mask``) in one body.
+    ``tmin``, ``tmax``, ``mask``, ``time``) in one body.
 
 Answers (``negotiate`` and ``encode_answer``)
     ``Accept`` picks ``application/x-npz``, ``application/x-npy`` or ``application/json`` (q-values

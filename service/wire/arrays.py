@@ -25,6 +25,7 @@ class Rays:
     tmin: np.ndarray | float | None  #: (N,) float32, one value, or None (0)
     tmax: np.ndarray | float | None  #: (N,) float32, one value, or None (+inf)
     mask: np.ndarray | int | None = None  #: (N,) uint32, one value, or None (all ones)
+    time: np.ndarray | float | None = None  #: (N,) float32 in [0, 1], one value, or None (0)
 
     def __len__(self) -> int:
         return len(self.origins)

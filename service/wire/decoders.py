@@ -115,11 +115,12 @@ def decode_points(
 
 
 #: The optional keys of a ray batch in an npz or JSON body.
-RAY_OPTIONAL_KEYS = ("tmin", "tmax", "mask")
+RAY_OPTIONAL_KEYS = ("tmin", "tmax", "mask", "time")
 
 
 def rays_from_mapping(mapping: Mapping[str, Any], max_rays: int | None) -> Rays:
-    """Rays from the keys origins, directions, tmin, tmax, mask of an npz or JSON body."""
+    """Rays from the keys origins, directions, tmin, tmax, mask, time of an npz or JSON body
+    (time's values, finite and in [0, 1], are checked by the engine)."""
     origins = mapping["origins"]
     n = (
         origins.shape[0]
@@ -132,7 +133,7 @@ def rays_from_mapping(mapping: Mapping[str, Any], max_rays: int | None) -> Rays:
     if len(directions) != len(origins):
         raise Invalid(f"origins has {len(origins)} rays but directions has {len(directions)}")
     bounds = []
-    for key in ("tmin", "tmax"):
+    for key in ("tmin", "tmax", "time"):
         value = mapping.get(key)
         if value is not None:
             value = float_array(value, key, None)
@@ -144,7 +145,8 @@ def rays_from_mapping(mapping: Mapping[str, Any], max_rays: int | None) -> Rays:
     mask = mapping.get("mask")
     if mask is not None:
         mask = mask_array(mask, "mask", len(origins))
-    return Rays(origins, directions, *bounds, mask)
+    tmin, tmax, time = bounds
+    return Rays(origins, directions, tmin, tmax, mask, time)
 
 
 def _check_ray_count(n: int, max_rays: int | None) -> None:
@@ -187,6 +189,7 @@ class FrameChange(NamedTuple):
     transform: np.ndarray | None = None  #: (4, 4) float64, checked by ``check_matrix``
     mask: int | None = None  #: uint32
     instance_of: str | None = None  #: the mesh whose arrays this one shares
+    transform_end: np.ndarray | None = None  #: (4, 4) float64: the placement at the interval's end
 
 
 #: The parts of a mesh a frame can set, as the suffixes of its keys.
@@ -207,7 +210,7 @@ def decode_frame(body: Buffer, fmt: str, max_bytes: int | None = None) -> dict[s
         if not mesh or kind not in FRAME_PARTS:
             raise BadBody(
                 f"frame key {key!r} is not MESH.vertices or MESH.faces, nor MESH.transform, "
-                "MESH.mask or MESH.instance_of"
+                "MESH.transform_end, MESH.mask or MESH.instance_of"
             )
         parts.setdefault(mesh, {})[kind] = value
     if not parts:
@@ -223,7 +226,7 @@ def _frame_change(mesh: str, arrays: dict[str, Any]) -> FrameChange:
             f"frame has {mesh}.instance_of and {mesh}.vertices: an instance shares its "
             "source's arrays, so send one or the other"
         )
-    vertices = faces = transform = mask = source = None
+    vertices = faces = transform = transform_end = mask = source = None
     if "vertices" in arrays:
         vertices = check_vertices(
             float_array(arrays["vertices"], f"{mesh}.vertices", 3), f"{mesh}.vertices"
@@ -233,6 +236,8 @@ def _frame_change(mesh: str, arrays: dict[str, Any]) -> FrameChange:
         faces = check_faces(faces, len(vertices), f"{mesh}.faces")
     if "transform" in arrays:
         transform = check_matrix(arrays["transform"], f"{mesh}.transform")
+    if "transform_end" in arrays:
+        transform_end = check_matrix(arrays["transform_end"], f"{mesh}.transform_end")
     if "mask" in arrays:
         mask = parse_mask(arrays["mask"], f"{mesh}.mask")
     if "instance_of" in arrays:
@@ -242,7 +247,7 @@ def _frame_change(mesh: str, arrays: dict[str, Any]) -> FrameChange:
                 f"{mesh}.instance_of must be a mesh name (a JSON string); an .npz frame cannot "
                 "hold one: send it in a JSON frame or PUT the instance"
             )
-    return FrameChange(vertices, faces, transform, mask, source)
+    return FrameChange(vertices, faces, transform, mask, source, transform_end)
 
 
 #: What a mask may be written as, in a query string or a JSON string.

@@ -1,0 +1,111 @@
+"""Motion through the service: ``MESH.transform_end`` in frames and ``time`` in ray bodies
+(../shared/API.md, "Motion"). A ray at time tau sees a mesh where the linear interpolation of
+its placements puts it (a numpy reference: a floor moving up); a frame that places a mesh and
+gives no end makes it static again; mesh info and a restart keep the end; bad values are 422
+naming them."""
+
+from __future__ import annotations
+
+import in_process
+import numpy as np
+from service_helpers import NPZ, npz_bytes, quad
+
+from service.settings import Settings
+
+RISE = 4.0  # the floor rises this far over the interval
+
+
+def lift(z: float) -> list[list[float]]:
+    m = np.eye(4)
+    m[2, 3] = z
+    return m.tolist()
+
+
+def rays(n: int = 64, seed: int = 1):
+    """Rays straight down onto the floor's middle from z = 10, at times spread over [0, 1]."""
+    rng = np.random.default_rng(seed)
+    origins = np.column_stack([rng.uniform(-4, 4, (n, 2)), np.full(n, 10.0)]).astype(np.float32)
+    directions = np.tile(np.float32([0, 0, -1]), (n, 1))
+    times = rng.uniform(0, 1, n).astype(np.float32)
+    times[:4] = [0, 1, 0.5, 0.25]
+    return origins, directions, times
+
+
+def upload_floor(http, scene: str) -> None:
+    response = http.put(
+        f"/v1/scenes/{scene}/meshes/floor",
+        content=npz_bytes(**dict(zip(("vertices", "faces"), quad(-9, 9, -9, 9, 0)))),
+        headers=NPZ,
+    )
+    assert response.status_code == 201, response.text
+
+
+def closest_json(http, scene: str, origins, directions, times=None) -> dict:
+    body = {"origins": origins.tolist(), "directions": directions.tolist()}
+    if times is not None:
+        body["time"] = times.tolist()
+    response = http.post(f"/v1/scenes/{scene}/closest", json=body)
+    assert response.status_code == 200, response.text
+    return response.json()
+
+
+def test_rays_at_their_times_see_a_mesh_moving_during_the_frame(app_client, scene_name):
+    upload_floor(app_client, scene_name)
+    o, d, times = rays()
+    # The version before the frame has its engine scene: the frame's is derived from it.
+    np.testing.assert_allclose(closest_json(app_client, scene_name, o, d, times)["t"], 10.0)
+    frame = {"floor.transform": lift(1.0), "floor.transform_end": lift(1.0 + RISE)}
+    response = app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame)
+    assert response.status_code == 200, response.text
+    mesh = {m["mesh"]: m for m in response.json()["meshes"]}["floor"]
+    assert mesh["transform_end"] == lift(1.0 + RISE)
+    assert mesh["bounds"] == [[-9, -9, 1], [9, 9, 1 + RISE]]
+    want = 10.0 - (1.0 + RISE * times.astype(np.float64))
+    np.testing.assert_allclose(closest_json(app_client, scene_name, o, d, times)["t"], want, 1e-6)
+    # npz bodies carry time too; no time is every ray at 0
+    body = npz_bytes(origins=o, directions=d, time=times)
+    answer = app_client.post(
+        f"/v1/scenes/{scene_name}/closest",
+        content=body,
+        headers={**NPZ, "Accept": "application/json"},
+    )
+    assert answer.status_code == 200, answer.text
+    np.testing.assert_allclose(answer.json()["t"], want, 1e-6)
+    np.testing.assert_allclose(closest_json(app_client, scene_name, o, d)["t"], 9.0)
+    # a frame that places the floor and gives no end makes it static
+    response = app_client.post(f"/v1/scenes/{scene_name}/frame", json={"floor.transform": lift(2)})
+    assert {m["mesh"]: m for m in response.json()["meshes"]}["floor"]["transform_end"] is None
+    np.testing.assert_allclose(closest_json(app_client, scene_name, o, d, times)["t"], 8.0)
+    # an end alone keeps the start
+    frame = {"floor.transform_end": lift(3)}
+    response = app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame)
+    np.testing.assert_allclose(
+        closest_json(app_client, scene_name, o, d, times)["t"], 8.0 - times, 1e-6
+    )
+
+
+def test_bad_ends_and_times_are_422_naming_them(app_client, scene_name):
+    upload_floor(app_client, scene_name)
+    frame = {"floor.transform_end": np.zeros((4, 4)).tolist()}
+    response = app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame)
+    assert response.status_code == 422 and "floor.transform_end" in response.text
+    o, d, times = rays(4)
+    for bad, words in (([0.0, 0.5, 1.5, 0.0], "time[2]"), ([0.0, 0.5], "time has 2 values")):
+        body = {"origins": o.tolist(), "directions": d.tolist(), "time": bad}
+        response = app_client.post(f"/v1/scenes/{scene_name}/closest", json=body)
+        assert response.status_code == 422 and words in response.text, response.text
+
+
+def test_a_restart_restores_end_placements(tmp_path):
+    settings = Settings(token=None, load_demo=False, data_dir=tmp_path)
+    o, d, times = rays()
+    with in_process.serve(settings) as http:
+        upload_floor(http, "s")
+        frame = {"floor.transform_end": lift(RISE)}
+        assert http.post("/v1/scenes/s/frame", json=frame).status_code == 200
+        before = http.get("/v1/scenes/s/meshes/floor").json()
+        answer = closest_json(http, "s", o, d, times)["t"]
+    with in_process.serve(settings) as http:
+        assert http.get("/v1/scenes/s/meshes/floor").json() == before
+        assert before["transform_end"] == lift(RISE)
+        np.testing.assert_array_equal(closest_json(http, "s", o, d, times)["t"], answer)
