@@ -63,8 +63,14 @@ SENSOR_FIELDS: dict[Sensor, tuple[str, ...]] = {
         "return",
         "cos_incidence",
         "ray",
+        # a sweep over time's (``period_s``): absent from an instant's answer
+        "time",
+        "velocity",
+        "radial_speed",
     ),
 }
+#: The lidar answer's keys that only a sweep over time (``period_s``) has.
+MOTION_FIELDS = ("time", "velocity", "radial_speed")
 #: The keys of a hits answer with one value per hit: they come with ``offsets`` (CSR), listed in
 #: ``?fields=`` or not.
 PER_HIT_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")

@@ -11,7 +11,7 @@ engine with rays it would refuse: a camera's focal length must keep its edge ray
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal, TypeVar
+from typing import Annotated, Literal, NamedTuple, TypeVar
 
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -183,9 +183,13 @@ class LidarRequest(Body):
     min_range: NonNegative = 0.0
     max_range: Positive | None = None
     max_returns: Annotated[int, Field(strict=True, ge=1, le=MAX_RETURNS)] = 1
+    period_s: Positive | None = None  #: the sweep's duration: columns fire over it (motion)
+    pose_end: Matrix4 | None = None  #: the sensor's pose at the sweep's end (needs period_s)
 
     @model_validator(mode="after")
     def _one_pattern(self) -> LidarRequest:
+        if self.pose_end is not None and self.period_s is None:
+            raise ValueError("pose_end needs period_s (the sweep's duration in seconds)")
         if (self.model is None) == (self.vertical_angles_deg is None):
             raise ValueError(
                 "give exactly one beam pattern: model (one of "
@@ -207,6 +211,14 @@ class LidarRequest(Body):
     def n_rays(self) -> int:
         return len(self.elevations_deg) * self.horizontal_steps
 
+    def motion(self) -> Motion | None:
+        """The sweep over time (None: one instant); CameraError (422) for a pose_end that is not
+        rigid."""
+        if self.period_s is None:
+            return None
+        end = None if self.pose_end is None else check_pose(self.pose_end, "pose_end")
+        return Motion(self.period_s, end)
+
     def scan(self) -> Scan:
         """The revolution to trace; CameraError (422) for a pose that is not rigid."""
         return make_scan(
@@ -216,6 +228,13 @@ class LidarRequest(Body):
             self.min_range,
             math.inf if self.max_range is None else self.max_range,
         )
+
+
+class Motion(NamedTuple):
+    """A lidar sweep over time: its duration, and the sensor's pose at its end (None: still)."""
+
+    period_s: float
+    pose_end: np.ndarray | None
 
 
 Model = TypeVar("Model", bound=Body)

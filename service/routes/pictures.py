@@ -130,7 +130,7 @@ async def camera(
     responses={
         **openapi.answers(
             "per point: xyz, range, ring, azimuth, elevation, mesh, prim, return, cos_incidence, "
-            "ray"
+            "ray; with period_s also time, velocity, radial_speed"
         ),
         **SENSOR_ERRORS,
     },
@@ -150,12 +150,12 @@ async def lidar(
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(LidarRequest, body, "lidar")
         check_rays(wanted.n_rays * wanted.max_returns, settings, "beams x steps x max_returns")
-        value = (wanted.scan(), wanted.max_returns)
+        value = (wanted.scan(), wanted.max_returns, wanted.motion())
         return sensor_decoded(value, body, wanted.n_rays, answer_format, wanted.max_returns)
 
     def trace(value) -> TraceResult:
-        scan, max_returns = value
-        return sensing.lidar_scan(store.snapshot(scene), scan, max_returns, options)
+        scan, max_returns, motion = value
+        return sensing.lidar_scan(store.snapshot(scene), scan, max_returns, options, motion)
 
     steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode_arrays)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
