@@ -230,3 +230,20 @@ def test_bad_motion_options_are_input_errors_naming_them(case):
     make, words = BAD[case]
     with pytest.raises(ValueError, match=words):
         make()
+
+
+def test_points_in_the_sensor_frame_at_the_sweep_start():
+    """frame="sensor": xyz and velocity are the scene's moved into the start pose's frame."""
+    v, f = box_mesh((-50.0, 10.0, -5.0), (50.0, 11.0, 5.0))
+    scene = dacrt.Scene([(v, f)], transforms_end=[translation((0.0, 1.0, 0.0))])
+    start = yaw_pose(30.0, (1.0, 2.0, 0.5))
+    end = yaw_pose(40.0, (2.0, 2.0, 0.5))
+    options = dict(vertical_angles_deg=[0.0, 2.0], horizontal_steps=90, period_s=PERIOD)
+    scene_points = Lidar(**options).scan(scene, start, pose_end=end)
+    sensor_points = Lidar(**options, frame="sensor").scan(scene, start, pose_end=end)
+    r, t = start[:3, :3], start[:3, 3]
+    np.testing.assert_allclose(sensor_points["xyz"], (scene_points["xyz"] - t) @ r, atol=1e-4)
+    np.testing.assert_allclose(sensor_points["velocity"], scene_points["velocity"] @ r, atol=1e-5)
+    np.testing.assert_array_equal(sensor_points["radial_speed"], scene_points["radial_speed"])
+    with pytest.raises(InputError, match="frame"):
+        Lidar(model="VLP-16", frame="vehicle")

@@ -161,6 +161,8 @@ FILL = {
     "radial_speed": np.float32(np.nan),
 }
 NON_HITS = ("drop", "keep")
+#: Where a lidar's points are given: the scene's frame, or the sensor's at the sweep's start.
+FRAMES = ("scene", "sensor")
 
 
 @dataclass(frozen=True, eq=False)
@@ -184,6 +186,8 @@ class Lidar:
         moving by ``transforms_end``); points then carry ``time`` (seconds from the sweep's
         start), ``velocity`` (the hit surface's, scene units a second) and ``radial_speed``
         (along the beam, relative to the sensor, positive receding)
+    frame : ``scene`` (default) or ``sensor``: xyz (and velocity) in the sensor's frame at the
+        sweep's start (``pose``), as a driver that does not undo the sensor's motion reports them
     """
 
     model: str | None = None
@@ -203,6 +207,7 @@ class Lidar:
     non_hits: str = "drop"
     organized: bool = False
     period_s: float | None = None
+    frame: str = "scene"
 
     def __post_init__(self) -> None:
         given = [self.model, self.vertical_angles_deg, self.pattern]
@@ -232,6 +237,7 @@ class Lidar:
         object.__setattr__(self, "dropout", physics.options(self.dropout, Dropout, "dropout"))
         choice(self.non_hits, "non_hits", NON_HITS)
         flag(self.organized, "organized")
+        choice(self.frame, "frame", FRAMES)
         if self.period_s is not None:
             number(self.period_s, "period_s", above=0)
             if self.pattern is not None and self.pattern.time_s is None:
@@ -360,6 +366,7 @@ class Lidar:
             origins=origins,
             tau=tau,
             sensor_velocity=_sensor_velocity(pose, pose_end, self.period_s),
+            pose_start=pose,
         )
 
     def _points(
@@ -417,6 +424,8 @@ class Lidar:
             arrays["time"] = beams.time[beam]
         if beams.tau is not None:
             arrays.update(self._speeds(beams, beam, traced, ray, hit))
+        if self.frame == "sensor":
+            arrays.update(_in_sensor_frame(arrays, beams.pose_start))
         if self.organized:
             arrays = self._organize(arrays, beam, beams)
         elif self.non_hits == "keep":
@@ -468,6 +477,17 @@ class Beams:
     origins: np.ndarray | None = None  #: (n, 3) float32 of a sensor moving in its sweep
     tau: np.ndarray | None = None  #: (n,) float32 in [0, 1], each beam's instant (period_s)
     sensor_velocity: np.ndarray | None = None  #: (3,) float64 scene units a second
+    pose_start: np.ndarray | None = None  #: (4, 4) float64: the pose at the sweep's start
+
+
+def _in_sensor_frame(arrays: dict, pose: np.ndarray) -> dict:
+    """``xyz`` (and ``velocity``) moved from the scene into the frame of ``pose``, in float64
+    then float32."""
+    rotation, origin = pose[:3, :3], pose[:3, 3]
+    moved = {"xyz": ((arrays["xyz"].astype(np.float64) - origin) @ rotation).astype(np.float32)}
+    if "velocity" in arrays:
+        moved["velocity"] = (arrays["velocity"].astype(np.float64) @ rotation).astype(np.float32)
+    return moved
 
 
 def _sensor_velocity(pose, pose_end, period_s) -> np.ndarray:
