@@ -34,16 +34,20 @@ def warmup() -> float:
     placed = Scene([(vertices, faces)] * 3, transforms=[None, moved, np.diag([-1.0, 1, 1, 1])])
     placed = placed.with_changes(transforms={1: moved @ moved}, vertices={2: vertices})
     masks = np.array([1, 2, 3, 1], np.uint32)
+    # Rays onto the mesh as given, the mirrored instance (x in [-1, 0]) and the moved one (x in
+    # [4, 5], moving to [2, 3]): the instances' kernels run too.
+    spread = origins.copy()
+    spread[:, 0] = (0.25, -0.75, 4.25, 2.25)
     for mask in (None, masks):
-        placed.closest(origins, directions, mask=mask, threads=1)
-        placed.occluded(origins, directions, mask=mask, threads=1)
-        placed.hits(origins, directions, mask=mask, threads=1)
-        placed.count(origins, directions, mask=mask, threads=1)
+        placed.closest(spread, directions, mask=mask, threads=1)
+        placed.occluded(spread, directions, mask=mask, threads=1)
+        placed.hits(spread, directions, mask=mask, threads=1)
+        placed.count(spread, directions, mask=mask, threads=1)
     # A moving instance and rays at their own times (``rays_to_mesh_space_at``).
     moving = placed.with_changes(transforms_end={1: moved})
     times = np.linspace(0.0, 1.0, len(origins), dtype=np.float32)
-    moving.closest(origins, directions, time=times, threads=1)
-    moving.hits(origins, directions, time=times, threads=1)
+    moving.closest(spread, directions, time=times, threads=1)
+    moving.hits(spread, directions, time=times, threads=1)
     # Point queries: one mask for the batch, a mask per point, and the parity of crossings.
     scene.nearest(origins, threads=1)
     scene.nearest(origins, mask=np.arange(1, 5, dtype=np.uint32), threads=1)
