@@ -17,7 +17,8 @@ medians of ``--repeats`` rounds. Every round's answers are checked: t bit for bi
 (mesh, prim) bit for bit between file and morton and between shuffled and shuffled+morton, and
 the shuffled scenes' prims through the permutation against file order (they differ only where a
 ray hits two faces at one t, an edge they share: counted as ``ties``). ``pack ms`` is the time to
-build each Scene; its difference between morton and file is the sort's cost.
+build each Scene (medians of ``--repeats`` builds); its difference between morton and file is the
+sort's cost.
 
 ``--modes file`` alone times the faces' order only: run so on an older checkout of dacrt (one
 without Morton order) for its figure beside these.
@@ -73,11 +74,13 @@ def compare(name, vertices, faces, ray_sets, repeats, threads, seed, modes) -> l
     """The rows of one scene's table: per ray count, each mode's median ms (and its spread)."""
     perm = np.random.default_rng(seed).permutation(len(faces))
     shuffled = np.ascontiguousarray(faces[perm])
-    scenes, pack_ms = {}, {}
-    for mode in modes:
-        scenes[mode], pack_ms[mode] = build(
-            vertices, shuffled if mode.startswith("shuffled") else faces, mode.endswith("morton")
-        )
+    scenes, packs = {}, {mode: [] for mode in modes}
+    for _ in range(repeats):
+        for mode in modes:
+            given = shuffled if mode.startswith("shuffled") else faces
+            scenes[mode], ms = build(vertices, given, mode.endswith("morton"))
+            packs[mode].append(ms)
+    pack_ms = {mode: statistics.median(packs[mode]) for mode in modes}
     rows = []
     for n_rays, (origins, directions) in ray_sets.items():
         times = {mode: [] for mode in modes}
@@ -104,6 +107,8 @@ def compare(name, vertices, faces, ray_sets, repeats, threads, seed, modes) -> l
             }
         )
         print(row_line(rows[-1]), flush=True)
+        spread = ", ".join(f"{m} {lo:.0f}-{hi:.0f}" for m, (lo, hi) in rows[-1]["range"].items())
+        print(f"  (ms from-to: {spread})", flush=True)
     return rows
 
 

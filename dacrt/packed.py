@@ -18,10 +18,13 @@ import numpy as np
 from . import config
 from .chunks import DENSITY_GRID, centre_counts
 from .contracts import FLOAT, INDEX
-from .points import triangle_codes
+from .points import MORTON_BITS, triangle_codes
 from .results import unit_normals
 from .triangles import gather_triangles
 
+# The Morton codes (3 * MORTON_BITS = 30 bits) are sorted as two halves of 15 bits.
+MORTON_HALF_BITS = 3 * MORTON_BITS // 2
+MORTON_HALF_MASK = (1 << MORTON_HALF_BITS) - 1
 # The box of no triangles: grows to the first one.
 EMPTY_BOX = np.array([np.inf] * 3 + [-np.inf] * 3, FLOAT)
 
@@ -94,10 +97,14 @@ def pack_meshes(meshes, first_rows):
         live[k + 1] = n_live
         if config.MORTON_ORDER:
             rows = slice(live[k], live[k + 1])
-            order = morton_order(bounds[rows], boxes[k])
-            verts[rows] = verts[rows][order]
-            bounds[rows] = bounds[rows][order]
-            ids[rows] = ids[rows][order]
+            face_rows = ids[rows][morton_order(bounds[rows], boxes[k])]
+            # Gathered again in that order: moving the gathered rows instead reads 60 bytes a
+            # row at random, several times slower. The boxes grow by nothing new.
+            gather_triangles(
+                vertices, faces[face_rows - first_row], first_row, live[k], verts, bounds, ids,
+                corner_boxes[k], boxes[k],
+            )  # fmt: skip
+            ids[rows] = face_rows
     packed = Packed(
         verts[:n_live],
         bounds[:n_live],
@@ -118,7 +125,10 @@ def morton_order(bounds, box):
     """The rows of ``bounds`` (F, 6) float32 sorted (stably) by the 30-bit Morton code of their
     box centres over ``box`` (6,) float32, the rows' box."""
     codes = triangle_codes(bounds, np.arange(len(bounds), dtype=INDEX), box)
-    return np.argsort(codes, kind="stable")
+    # NumPy sorts 16-bit keys stably by radix, in O(F): the low half, then the high half.
+    low = np.argsort((codes & MORTON_HALF_MASK).astype(np.uint16), kind="stable")
+    high = (codes[low] >> MORTON_HALF_BITS).astype(np.uint16)
+    return low[np.argsort(high, kind="stable")]
 
 
 def union_box(boxes):
