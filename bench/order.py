@@ -20,15 +20,21 @@ ray hits two faces at one t, an edge they share: counted as ``ties``). ``pack ms
 build each Scene (medians of ``--repeats`` builds); its difference between morton and file is the
 sort's cost.
 
-``--modes file`` alone times the faces' order only: run so on an older checkout of dacrt (one
-without Morton order) for its figure beside these.
+``--baseline DIR`` adds a fifth scene, ``base``: the faces as given in an older copy of the
+engine, imported from DIR as the package ``dacrt_base`` (its imports are all relative), timed in
+the same rounds and checked bit for bit against ``file``; for the engine before Morton order:
+
+    git archive c770b47 dacrt | tar -x -C /tmp/base && mv /tmp/base/dacrt /tmp/base/dacrt_base
+    python -m bench.order --baseline /tmp/base
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import importlib
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -44,17 +50,18 @@ LIDAR_RAYS = 131072
 MODES = ("file", "morton", "shuffled", "shuffled+morton")
 
 
-def build(vertices, faces, morton: bool) -> tuple[dacrt.Scene, float]:
-    """(Scene, ms to build it) with each mesh packed in Morton order or in the faces' order."""
-    saved = getattr(dacrt.config, "MORTON_ORDER", False)  # an older dacrt has none
-    dacrt.config.MORTON_ORDER = morton
+def build(engine, vertices, faces, morton: bool) -> tuple[dacrt.Scene, float]:
+    """(Scene, ms to build it) of the ``engine`` package, with each mesh packed in Morton order
+    or in the faces' order."""
+    saved = getattr(engine.config, "MORTON_ORDER", False)  # an older dacrt has none
+    engine.config.MORTON_ORDER = morton
     try:
         gc.collect()
         start = time.perf_counter()
-        scene = dacrt.Scene([(vertices, faces)])
+        scene = engine.Scene([(vertices, faces)])
         return scene, 1e3 * (time.perf_counter() - start)
     finally:
-        dacrt.config.MORTON_ORDER = saved
+        engine.config.MORTON_ORDER = saved
 
 
 def camera_rays(vertices, faces, scene_path: Path, n_rays: int):
@@ -70,15 +77,17 @@ def world_rays(length: float, n_rays: int):
     return lidar_rays(lidar_poses(max(1, n_rays // LIDAR_RAYS), 0, length))
 
 
-def compare(name, vertices, faces, ray_sets, repeats, threads, seed, modes) -> list[dict]:
-    """The rows of one scene's table: per ray count, each mode's median ms (and its spread)."""
+def compare(name, vertices, faces, ray_sets, repeats, threads, seed, modes, base) -> list[dict]:
+    """The rows of one scene's table: per ray count, each mode's median ms (and its spread);
+    ``base`` is the package of mode ``base`` (or None)."""
     perm = np.random.default_rng(seed).permutation(len(faces))
     shuffled = np.ascontiguousarray(faces[perm])
     scenes, packs = {}, {mode: [] for mode in modes}
     for _ in range(repeats):
         for mode in modes:
             given = shuffled if mode.startswith("shuffled") else faces
-            scenes[mode], ms = build(vertices, given, mode.endswith("morton"))
+            engine = base if mode == "base" else dacrt
+            scenes[mode], ms = build(engine, vertices, given, mode.endswith("morton"))
             packs[mode].append(ms)
     pack_ms = {mode: statistics.median(packs[mode]) for mode in modes}
     rows = []
@@ -93,7 +102,9 @@ def compare(name, vertices, faces, ray_sets, repeats, threads, seed, modes) -> l
                 answers[mode] = scenes[mode].closest(origins, directions, threads=threads)
                 if round_:  # the first round is untimed
                     times[mode].append(1e3 * (time.perf_counter() - start))
-            ties = check(answers, perm) if len(modes) == len(MODES) else 0
+            ties = check(answers, perm) if set(MODES) <= set(modes) else 0
+            if "base" in modes and "file" in modes:
+                same(answers["base"], answers["file"], ("base", "file"))
         rows.append(
             {
                 "scene": name,
@@ -120,19 +131,25 @@ def check(answers, perm) -> int:
         assert np.array_equal(answers[mode].t.view(np.uint32), file.t.view(np.uint32)), mode
         assert np.array_equal(answers[mode].mesh, file.mesh), mode
     for a, b in (("file", "morton"), ("shuffled", "shuffled+morton")):
-        for field in ("prim", "u", "v", "normal"):
-            x, y = getattr(answers[a], field), getattr(answers[b], field)
-            assert np.array_equal(x.view(np.uint32), y.view(np.uint32)), (a, b, field)
+        same(answers[a], answers[b], (a, b))
     prim = answers["shuffled"].prim
     mapped = np.where(prim >= 0, perm[np.maximum(prim, 0)], prim)
     return int((mapped != file.prim).sum())
 
 
+def same(a, b, what) -> None:
+    """Assert two closest answers are identical, bit for bit."""
+    for field in ("t", "mesh", "prim", "u", "v", "normal"):
+        x, y = getattr(a, field), getattr(b, field)
+        assert np.array_equal(x.view(np.uint32), y.view(np.uint32)), (what, field)
+
+
 def row_line(row) -> str:
-    ms = {mode: row["ms"].get(mode, float("nan")) for mode in MODES}
+    ms = {mode: row["ms"].get(mode, float("nan")) for mode in ("base",) + MODES}
     return (
-        f"| {row['scene']} | {row['triangles']:,} | {row['rays']:,} | "
+        f"| {row['scene']} | {row['triangles']:,} | {row['rays']:,} | {ms['base']:.0f} | "
         + " | ".join(f"{ms[mode]:.0f}" for mode in MODES)
+        + f" | {ms['file'] / ms['base']:.2f} | {ms['morton'] / ms['base']:.2f}"
         + f" | {ms['morton'] / ms['file']:.2f} | {ms['shuffled+morton'] / ms['file']:.2f} |"
         + f" {row['ties']} |"
     )
@@ -140,23 +157,25 @@ def row_line(row) -> str:
 
 def table(rows) -> str:
     lines = [
-        "| scene | triangles | rays | file ms | morton ms | shuffled ms | shuffled+morton ms "
-        "| morton / file | shuffled+morton / file | ties |",
-        "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|",
+        "| scene | triangles | rays | base ms | file ms | morton ms | shuffled ms "
+        "| shuffled+morton ms | file / base | morton / base | morton / file "
+        "| shuffled+morton / file | ties |",
+        "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|",
     ]
     lines += [row_line(row) for row in rows]
-    lines += ["", "| scene | triangles | pack ms: " + " | ".join(MODES) + " | sort ms per 1M |"]
-    lines += ["|---|--:|" + "--:|" * (len(MODES) + 1)]
+    packs = ("base",) + MODES
+    lines += ["", "| scene | triangles | pack ms: " + " | ".join(packs) + " | sort ms per 1M |"]
+    lines += ["|---|--:|" + "--:|" * (len(packs) + 1)]
     seen = set()
     for row in rows:
         if row["scene"] in seen:
             continue
         seen.add(row["scene"])
-        pack = {mode: row["pack_ms"].get(mode, float("nan")) for mode in MODES}
+        pack = {mode: row["pack_ms"].get(mode, float("nan")) for mode in packs}
         per_million = (pack["morton"] - pack["file"]) * 1e6 / row["triangles"]
         lines.append(
             f"| {row['scene']} | {row['triangles']:,} | "
-            + " | ".join(f"{pack[mode]:.0f}" for mode in MODES)
+            + " | ".join(f"{pack[mode]:.0f}" for mode in packs)
             + f" | {per_million:.0f} |"
         )
     return "\n".join(lines)
@@ -172,8 +191,15 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="of the shuffle")
     parser.add_argument("--shared", type=Path, default=find_shared())
     parser.add_argument("--modes", default=",".join(MODES), help="of " + ", ".join(MODES))
+    parser.add_argument("--baseline", type=Path, default=None, help="folder of dacrt_base")
     args = parser.parse_args(argv)
     modes = args.modes.split(",")
+    base = None
+    if args.baseline:
+        sys.path.insert(0, str(args.baseline))
+        base = importlib.import_module("dacrt_base")
+        base.warmup()
+        modes = ["base", *modes]
     counts = [int(n) for n in args.rays.split(",")]
     dacrt.warmup()
     rows = []
@@ -183,7 +209,7 @@ def main(argv=None) -> int:
         vertices, faces = load_mesh(path)
         ray_sets = {n: camera_rays(vertices, faces, path, n) for n in counts}
         rows += compare(
-            name, vertices, faces, ray_sets, args.repeats, args.threads, args.seed, modes
+            name, vertices, faces, ray_sets, args.repeats, args.threads, args.seed, modes, base
         )
     if args.world:
         start = time.perf_counter()
@@ -193,7 +219,7 @@ def main(argv=None) -> int:
         ray_sets = {n: world_rays(world.length, n) for n in counts}
         rows += compare(
             "world", world.vertices, world.faces, ray_sets, args.repeats, args.threads, args.seed,
-            modes,
+            modes, base,
         )  # fmt: skip
     print()
     print(table(rows))
