@@ -17,6 +17,7 @@ from . import wire
 from .admission import Ticket
 from .errors import Invalid, NotReady, TooLarge, Unauthorized
 from .metrics import Metrics
+from .patterns import Patterns
 from .settings import Settings
 from .store import Store
 from .wire.body import BodyBuffer
@@ -40,6 +41,10 @@ def get_store(request: Request) -> Store:
     return request.app.state.store
 
 
+def get_patterns(request: Request) -> Patterns:
+    return request.app.state.patterns
+
+
 def get_metrics(request: Request) -> Metrics:
     return request.app.state.metrics
 
@@ -52,6 +57,7 @@ def get_readiness(request: Request) -> Readiness:
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 StoreDep = Annotated[Store, Depends(get_store)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
+PatternsDep = Annotated[Patterns, Depends(get_patterns)]
 ReadinessDep = Annotated[Readiness, Depends(get_readiness)]
 
 

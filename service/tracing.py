@@ -71,6 +71,11 @@ def _snapshot_engine(snapshot: Snapshot, scene_type: Any = dacrt.Scene) -> Engin
     )
 
 
+def engine_scene(snapshot: Snapshot) -> EngineScene:
+    """The engine scene of one scene version, built once per version (the sensors' too)."""
+    return snapshot.cached("dacrt", _snapshot_engine)
+
+
 @dataclass(frozen=True)
 class TraceResult:
     """The arrays of an answer (a query's or a sensor's), the scene version it was traced on,

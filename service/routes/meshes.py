@@ -1,5 +1,5 @@
-"""Meshes and the scenes that hold them: upload, instance, deform, place, mask, frame, inspect,
-delete."""
+"""Meshes and the scenes that hold them: upload, instance, deform, place, mask, material, frame,
+inspect, delete."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from fastapi import APIRouter, Depends, Request, Response
 
 from .. import footprint, openapi, wire
 from ..deps import SettingsDep, StoreDep, read_body, reject_unknown_query, require_token
-from ..errors import Invalid
+from ..errors import BadBody, Invalid
 from ..params import FrameFormat, Mask, MeshFormat, MeshName, SceneName, VertexFormat
 from ..store import check_name
 
@@ -34,14 +34,17 @@ TRANSFORM_BODY = openapi.request_body(
 MASK_BODY = openapi.request_body(
     ("json",), openapi.MASK_JSON, "the mesh's visibility mask: a uint32, decimal or 0x hex"
 )
+MATERIAL_BODY = openapi.request_body(
+    ("json",), openapi.MATERIAL_JSON, "the mesh's material: reflectivity, label, or both"
+)
 VERTICES_BODY = openapi.request_body(
     wire.VERTEX_FORMATS, openapi.VERTICES_JSON, "vertex positions, as many as the mesh has"
 )
 FRAME_BODY = openapi.request_body(
     wire.FRAME_FORMATS,
     openapi.FRAME_JSON,
-    "MESH.vertices (and MESH.faces), MESH.transform, MESH.mask (and, in JSON, MESH.instance_of) "
-    "for several meshes",
+    "MESH.vertices (and MESH.faces), MESH.transform, MESH.mask, MESH.reflectivity, MESH.label "
+    "(and, in JSON, MESH.instance_of) for several meshes",
 )
 CHANGE_ERRORS = openapi.errors(400, 401, 404, 408, 409, 413, 415, 422, 503, 507)
 READ_ERRORS = openapi.errors(401, 404, 422)
@@ -162,12 +165,41 @@ async def put_mask(
     return (await run_sync(store.set_mask, scene, mesh, value)).info(scene)
 
 
-async def _json_body(request: Request, settings: SettingsDep, key: str, what: str) -> dict:
-    """The JSON object ``{key: ...}`` of a small body (415 for another Content-Type)."""
+@router.put("/{scene}/meshes/{mesh}/material", openapi_extra=MATERIAL_BODY, responses=CHANGE_ERRORS)
+async def put_material(
+    scene: SceneName, mesh: MeshName, request: Request, settings: SettingsDep, store: StoreDep
+) -> dict:
+    """Set a mesh's reflectivity and label (either alone keeps the other); everything else is
+    kept."""
+    check_name("scene", scene), check_name("mesh", mesh)
+    store.snapshot(scene).mesh(mesh)  # 404 before reading the body
+    what = "PUT /v1/scenes/{scene}/meshes/{mesh}/material"
+    doc = await _json_body(request, settings, (), what, ("reflectivity", "label"))
+    if not doc:
+        raise BadBody("the body names no material key; give reflectivity, label or both")
+    material = (
+        wire.parse_reflectivity(doc["reflectivity"], "reflectivity")
+        if "reflectivity" in doc
+        else None,
+        wire.parse_label(doc["label"], "label") if "label" in doc else None,
+    )
+    return (await run_sync(store.set_material, scene, mesh, *material)).info(scene)
+
+
+async def _json_body(
+    request: Request,
+    settings: SettingsDep,
+    keys: str | tuple[str, ...],
+    what: str,
+    optional: tuple[str, ...] = (),
+) -> dict:
+    """The JSON object of a small body with ``keys`` (and ``optional`` ones); 415 for another
+    Content-Type."""
+    keys = (keys,) if isinstance(keys, str) else keys
     body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
     wire.resolve_format(request.headers.get("content-type"), None, ("json",), body, what)
-    doc = wire.read_json(body, key)
-    wire.check_keys(doc, (key,))
+    doc = wire.read_json(body, ", ".join(keys + optional))
+    wire.check_keys(doc, keys, optional)
     return doc
 
 

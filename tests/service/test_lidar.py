@@ -26,6 +26,8 @@ FIELDS = (
     "return",
     "cos_incidence",
     "ray",
+    "intensity",
+    "label",
 )
 #: The data sheets' vertical angles, written out here independently of service/lidar.py.
 PUBLISHED = {
@@ -68,6 +70,7 @@ def expected_points(app_api, scene, pose, elevations, steps, tmin=None, tmax=Non
     ray = np.flatnonzero(np.isfinite(hits.t))
     d = directions[ray].astype(np.float64)
     unit = d / np.linalg.norm(d, axis=1, keepdims=True)
+    cosine = np.abs((unit * hits.normal[ray]).sum(1))
     return {
         "xyz": origins[ray] + hits.t[ray, None] * directions[ray],  # float32 arithmetic
         "range": hits.t[ray],
@@ -77,8 +80,11 @@ def expected_points(app_api, scene, pose, elevations, steps, tmin=None, tmax=Non
         "mesh": hits.mesh[ray],
         "prim": hits.prim[ray],
         "return": np.zeros(len(ray), np.int16),
-        "cos_incidence": np.abs((unit * hits.normal[ray]).sum(1)).astype(np.float32),
+        "cos_incidence": cosine.astype(np.float32),
         "ray": ray.astype(np.int32),
+        # API.md: reflectivity (0.5 by default) x cos_incidence x exp(-0.004 range)
+        "intensity": (0.5 * cosine * np.exp(-0.004 * hits.t[ray])).astype(np.float32),
+        "label": np.zeros(len(ray), np.uint32),  # every mesh's default label
     }
 
 
@@ -86,7 +92,7 @@ def assert_same_points(answer, expected):
     assert list(answer) == list(FIELDS)
     for name in FIELDS:
         assert answer[name].dtype == expected[name].dtype, name
-        if name == "cos_incidence":  # a dot product: summation order may differ by an ulp
+        if name in ("cos_incidence", "intensity"):  # a dot product: an ulp's difference
             assert np.allclose(answer[name], expected[name], rtol=1e-6, atol=1e-7), name
         else:
             assert np.array_equal(answer[name], expected[name]), name
