@@ -226,6 +226,9 @@ class Snapshot:
     next_index: int  #: the index the next new mesh gets (indices are never reused)
     _cache: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
     _cache_lock: threading.Lock = field(default_factory=threading.Lock, compare=False, repr=False)
+    #: the latest earlier version with something cached, whose derived things this version's may
+    #: be made from (``earlier``); held until this version caches its own
+    _earlier: list[Snapshot] = field(default_factory=list, compare=False, repr=False)
 
     @property
     def n_triangles(self) -> int:
@@ -285,7 +288,21 @@ class Snapshot:
         with self._cache_lock:
             if key not in self._cache:
                 self._cache[key] = build(self)
+                self._earlier.clear()  # this version's own is built: the earlier one may go
             return self._cache[key]
+
+    def earlier(self, key: str) -> tuple[Snapshot, Any] | None:
+        """An earlier version of the scene and what it cached under ``key`` (e.g. its engine
+        scene, for this version's to reuse what did not change), or None."""
+        for earlier in self._earlier:
+            if key in earlier._cache:
+                return earlier, earlier._cache[key]
+        return None
+
+    def _basis(self) -> list[Snapshot]:
+        """What a next version keeps as its ``_earlier``: this version if it cached something,
+        else this version's own earlier one."""
+        return [self] if self._cache else list(self._earlier)
 
 
 class Store:
@@ -540,6 +557,11 @@ class Store:
         _link_instances(scene, meshes, [n for n, m in changes.items() if m is not None], version)
         meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))
         snapshot = Snapshot(scene, version, MappingProxyType(meshes), next_index)
+        if old is not None and any(
+            name in old.meshes and old.meshes[name].geometry is mesh.geometry
+            for name, mesh in meshes.items()
+        ):  # something is kept: the new version may reuse what the old one derived from it
+            snapshot._earlier.extend(old._basis())
         if snapshot.n_triangles > self.max_triangles_per_scene:
             raise TooLarge(
                 f"scene {scene!r} would hold {snapshot.n_triangles} triangles, over the limit "

@@ -11,6 +11,7 @@ import zipfile
 
 import httpx
 import numpy as np
+import placed_checks
 import pytest
 import reference
 from service_helpers import NPY, NPZ, down_rays, grid, npy_bytes, npz_bytes, quad, rays_at
@@ -648,7 +649,16 @@ def test_set_transform_places_the_mesh_for_hits_and_count(app_api, scene_name, t
     expected = reference.all_hits(placed, faces, origins, directions, perturbation="shear")
     assert np.array_equal(hits.offsets, expected.offsets) and expected.offsets[-1] > 300
     assert np.array_equal(hits.prim, expected.prim) and (hits.mesh == 0).all()
-    np.testing.assert_allclose(hits.t, expected.t, rtol=1e-5)
+    # The instance is traced in its mesh's space: t agrees across the surface within the
+    # rounding docs/engine.md states (grazing hits may differ more along the ray).
+    ray = np.repeat(np.arange(len(origins)), np.diff(expected.offsets))
+    corners = placed[faces[expected.prim]].astype(np.float64)
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    err = placed_checks.across_surface_ulps(
+        hits.t, expected.t, origins[ray], directions[ray], normals
+    )
+    assert err.max() <= placed_checks.T_ULPS
     count = app_api.count(scene_name, origins, directions).count
     assert np.array_equal(count, np.diff(expected.offsets))
 
