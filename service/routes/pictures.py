@@ -18,7 +18,7 @@ from ..deps import (
     reject_unknown_query,
     require_token,
 )
-from ..errors import TooLarge
+from ..errors import Invalid, TooLarge
 from ..params import (
     CameraOptions,
     LidarOptions,
@@ -240,8 +240,10 @@ def rig_sensors(wanted: SensorsRequest, patterns: Patterns) -> dict[str, sensing
             placed[name] = (
                 body.sensor(patterns.for_lidar) if body.kind == "lidar" else body.sensor()
             )
-        except ValueError as error:  # the engine's InputError, or a missing pattern
+        except ValueError as error:  # the engine's InputError: 422
             raise type(error)(f"sensors.{name}: {error}") from None
+        except Invalid as error:  # a pattern that is not there
+            raise Invalid(f"sensors.{name}: {error.detail}") from None
     return placed
 
 

@@ -282,6 +282,11 @@ BAD_SENSOR_VALUES = [
     ("sensors", {"sensors": {"x": {"kind": "radar", **LIDAR}}}, "does not match any of the"),
     ("sensors", {"sensors": {"a b": {"kind": "lidar", **LIDAR}}}, "sensors.a b.[key]"),
     ("sensors", {"sensors": {}}, "sensors: Dictionary should have at least 1 item"),
+    (
+        "sensors",
+        {"sensors": {"roof": {"kind": "lidar", "pose": LIDAR["pose"], "pattern": "no-such"}}},
+        "sensors.roof: pattern: no pattern 'no-such'",
+    ),
 ]
 #: (route with its query, headers kind, body, status, a phrase of the detail that names the
 #: request's key) for point queries: values the engine refuses, JSON that is not numbers, keys
