@@ -255,6 +255,8 @@ def sensor_decoded(value, body: memoryview, sensors: list, answer_format: str) -
     for sensor in sensors:
         rays = sensing.traced_rays(sensor)
         peak += footprint.sensor_bytes(rays, sensing.hits_per_ray(sensor))
+        if isinstance(sensor, Lidar) and (sensor.organized or sensor.non_hits == "keep"):
+            peak += sensor.n_beams * sensor.slots * footprint.FILLED_POINT_BYTES
         n_rays += rays
     return Decoded(value, n_rays, peak, answer_format)
 
