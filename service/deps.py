@@ -13,7 +13,7 @@ from fastapi import Depends, Request
 from fastapi.routing import APIRoute
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from . import wire
+from . import footprint, wire
 from .admission import Ticket
 from .errors import Invalid, NotReady, TooLarge, Unauthorized
 from .metrics import Metrics
@@ -150,3 +150,16 @@ async def read_body(request: Request, limit: int, estimate: Estimate) -> memoryv
             await ticket.hold(estimate(held, fmt), what.format(held))
         body.add(chunk)
     return body.finish()
+
+
+async def read_change(
+    request: Request, settings: Settings, format: str | None, formats: tuple[str, ...]
+) -> tuple[memoryview, str]:
+    """The body of a change (a mesh, vertices, a frame, a pattern: ``read_body`` within
+    DACRT_MAX_BODY_BYTES, held at the decoders' estimate) and its format, 415 naming
+    ``formats`` and the route."""
+    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
+    route = f"{request.method} {request.scope['route'].path}"
+    return body, wire.resolve_format(
+        request.headers.get("content-type"), format, formats, body, route
+    )

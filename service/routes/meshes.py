@@ -9,8 +9,8 @@ import numpy as np
 from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request, Response
 
-from .. import footprint, openapi, wire
-from ..deps import SettingsDep, StoreDep, read_body, reject_unknown_query, require_token
+from .. import openapi, wire
+from ..deps import SettingsDep, StoreDep, read_change, reject_unknown_query, require_token
 from ..errors import BadBody, Invalid
 from ..params import FrameFormat, Mask, MeshFormat, MeshName, SceneName, VertexFormat
 from ..store import check_name
@@ -75,14 +75,7 @@ async def put_mesh(
     scene, sharing its arrays."""
     check_name("scene", scene), check_name("mesh", mesh)
     mask_value = None if mask is None else wire.parse_mask(mask, "?mask")
-    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
-    fmt = wire.resolve_format(
-        request.headers.get("content-type"),
-        format,
-        wire.MESH_FORMATS,
-        body,
-        "PUT /v1/scenes/{scene}/meshes/{mesh}",
-    )
+    body, fmt = await read_change(request, settings, format, wire.MESH_FORMATS)
     decoded = await run_sync(partial(_decode_mesh_or_instance, body, fmt, settings.max_body_bytes))
     if isinstance(decoded, wire.MeshArrays):
         stored, created = await run_sync(store.put_mesh, scene, mesh, decoded, mask_value)
@@ -124,14 +117,7 @@ async def put_vertices(
     """New vertex positions for a mesh, same count (409 otherwise); faces are kept."""
     check_name("scene", scene), check_name("mesh", mesh)
     store.snapshot(scene).mesh(mesh)  # 404 before reading the body
-    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
-    fmt = wire.resolve_format(
-        request.headers.get("content-type"),
-        format,
-        wire.VERTEX_FORMATS,
-        body,
-        "PUT /v1/scenes/{scene}/meshes/{mesh}/vertices",
-    )
+    body, fmt = await read_change(request, settings, format, wire.VERTEX_FORMATS)
     vertices = await run_sync(partial(wire.decode_vertices, body, fmt, settings.max_body_bytes))
     stored = await run_sync(store.update_vertices, scene, mesh, vertices)
     return stored.info(scene)
@@ -146,9 +132,7 @@ async def put_transform(
     """Place a mesh in the scene by a 4x4 row-major affine matrix; its arrays are kept."""
     check_name("scene", scene), check_name("mesh", mesh)
     store.snapshot(scene).mesh(mesh)  # 404 before reading the body
-    doc = await _json_body(
-        request, settings, "matrix", "PUT /v1/scenes/{scene}/meshes/{mesh}/transform"
-    )
+    doc = await _json_body(request, settings, "matrix")
     matrix = wire.check_matrix(doc["matrix"], "matrix")
     return (await run_sync(store.set_transform, scene, mesh, matrix)).info(scene)
 
@@ -160,7 +144,7 @@ async def put_mask(
     """Set a mesh's visibility mask; everything else is kept."""
     check_name("scene", scene), check_name("mesh", mesh)
     store.snapshot(scene).mesh(mesh)  # 404 before reading the body
-    doc = await _json_body(request, settings, "mask", "PUT /v1/scenes/{scene}/meshes/{mesh}/mask")
+    doc = await _json_body(request, settings, "mask")
     value = wire.parse_mask(doc["mask"], "mask")
     return (await run_sync(store.set_mask, scene, mesh, value)).info(scene)
 
@@ -173,8 +157,7 @@ async def put_material(
     kept."""
     check_name("scene", scene), check_name("mesh", mesh)
     store.snapshot(scene).mesh(mesh)  # 404 before reading the body
-    what = "PUT /v1/scenes/{scene}/meshes/{mesh}/material"
-    doc = await _json_body(request, settings, (), what, ("reflectivity", "label"))
+    doc = await _json_body(request, settings, (), ("reflectivity", "label"))
     if not doc:
         raise BadBody("the body names no material key; give reflectivity, label or both")
     material = (
@@ -190,14 +173,12 @@ async def _json_body(
     request: Request,
     settings: SettingsDep,
     keys: str | tuple[str, ...],
-    what: str,
     optional: tuple[str, ...] = (),
 ) -> dict:
     """The JSON object of a small body with ``keys`` (and ``optional`` ones); 415 for another
     Content-Type."""
     keys = (keys,) if isinstance(keys, str) else keys
-    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
-    wire.resolve_format(request.headers.get("content-type"), None, ("json",), body, what)
+    body, _ = await read_change(request, settings, None, ("json",))
     doc = wire.read_json(body, ", ".join(keys + optional))
     wire.check_keys(doc, keys, optional)
     return doc
@@ -214,14 +195,7 @@ async def post_frame(
     """Change several meshes in one version, atomically: their vertices, faces, transforms and
     masks, and new instances."""
     check_name("scene", scene)
-    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
-    fmt = wire.resolve_format(
-        request.headers.get("content-type"),
-        format,
-        wire.FRAME_FORMATS,
-        body,
-        "POST /v1/scenes/{scene}/frame",
-    )
+    body, fmt = await read_change(request, settings, format, wire.FRAME_FORMATS)
     frame = await run_sync(partial(wire.decode_frame, body, fmt, settings.max_body_bytes))
     snapshot = await run_sync(store.apply_frame, scene, frame)
     return snapshot.info()

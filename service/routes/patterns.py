@@ -11,8 +11,8 @@ from fastapi import APIRouter, Depends, Request, Response
 
 from dacrt.sensors import Pattern
 
-from .. import footprint, openapi, wire
-from ..deps import PatternsDep, SettingsDep, read_body, reject_unknown_query, require_token
+from .. import openapi, wire
+from ..deps import PatternsDep, SettingsDep, read_change, reject_unknown_query, require_token
 from ..params import PatternName, body_format
 from ..store import check_name
 
@@ -66,14 +66,7 @@ async def put_pattern(
 ) -> dict:
     """Add (201) or replace (200) a scan pattern: its info."""
     check_name("pattern", name)
-    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
-    fmt = wire.resolve_format(
-        request.headers.get("content-type"),
-        format,
-        wire.PATTERN_FORMATS,
-        body,
-        "PUT /v1/patterns/{name}",
-    )
+    body, fmt = await read_change(request, settings, format, wire.PATTERN_FORMATS)
     decode = partial(wire.decode_pattern, body, fmt, patterns.max_rays, settings.max_body_bytes)
     pattern = await run_sync(decode)
     created = await run_sync(patterns.put, name, pattern)
