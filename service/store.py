@@ -22,10 +22,11 @@ import threading
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from dacrt.sensors.physics import DEFAULT_LABEL, DEFAULT_REFLECTIVITY
 from dacrt.validation import place_vertices
 
 from .errors import Conflict, Invalid, NotFound, TooLarge
@@ -80,6 +81,16 @@ def owned_transform(matrix: np.ndarray | None) -> np.ndarray | None:
     if matrix is None or np.array_equal(matrix, IDENTITY):
         return None
     return _owned(matrix, "<f8")
+
+
+class Material(NamedTuple):
+    """A mesh's material as a change gives it (checked by ``wire``); None keeps a part."""
+
+    reflectivity: float | None = None
+    label: int | None = None
+
+
+NO_MATERIAL = Material()
 
 
 @dataclass(frozen=True, eq=False)
@@ -145,6 +156,8 @@ class Mesh:
     mask: int = ALL_MASKS  #: uint32; a ray sees the mesh where ray mask & mask != 0
     transform: np.ndarray | None = None  #: (4, 4) float64 read-only row-major; None: identity
     instance_of: str | None = None  #: the source mesh whose Geometry this instance shares
+    reflectivity: float = DEFAULT_REFLECTIVITY  #: in [0, 1]: a lidar's intensity of its hits
+    label: int = DEFAULT_LABEL  #: uint32: a semantic class, the label of a lidar's points
 
     @property
     def vertices(self) -> np.ndarray:
@@ -177,6 +190,8 @@ class Mesh:
             "mask": self.mask,
             "transform": (IDENTITY if self.transform is None else self.transform).tolist(),
             "instance_of": self.instance_of,
+            "reflectivity": self.reflectivity,
+            "label": self.label,
         }
 
 
@@ -211,6 +226,9 @@ class Snapshot:
     next_index: int  #: the index the next new mesh gets (indices are never reused)
     _cache: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
     _cache_lock: threading.Lock = field(default_factory=threading.Lock, compare=False, repr=False)
+    #: the latest earlier version with something cached, whose derived things this version's may
+    #: be made from (``earlier``); held until this version caches its own
+    _earlier: list[Snapshot] = field(default_factory=list, compare=False, repr=False)
 
     @property
     def n_triangles(self) -> int:
@@ -270,7 +288,21 @@ class Snapshot:
         with self._cache_lock:
             if key not in self._cache:
                 self._cache[key] = build(self)
+                self._earlier.clear()  # this version's own is built: the earlier one may go
             return self._cache[key]
+
+    def earlier(self, key: str) -> tuple[Snapshot, Any] | None:
+        """An earlier version of the scene and what it cached under ``key`` (e.g. its engine
+        scene, for this version's to reuse what did not change), or None."""
+        for earlier in self._earlier:
+            if key in earlier._cache:
+                return earlier, earlier._cache[key]
+        return None
+
+    def _basis(self) -> list[Snapshot]:
+        """What a next version keeps as its ``_earlier``: this version if it cached something,
+        else this version's own earlier one."""
+        return [self] if self._cache else list(self._earlier)
 
 
 class Store:
@@ -368,6 +400,15 @@ class Store:
             mesh = self._changed(old.mesh(name), name, mask=mask)
             return self._commit(scene, old, {name: mesh}).meshes[name]
 
+    def set_material(
+        self, scene: str, name: str, reflectivity: float | None, label: int | None
+    ) -> Mesh:
+        """Set a mesh's reflectivity and label (checked; None keeps one); the rest is kept."""
+        with self._lock:
+            old = self.snapshot(scene)
+            mesh = self._changed(old.mesh(name), name, material=Material(reflectivity, label))
+            return self._commit(scene, old, {name: mesh}).meshes[name]
+
     def apply_frame(
         self,
         scene: str,
@@ -391,13 +432,19 @@ class Store:
             meshes: dict[str, Mesh] = {}
             for name, change in changes.items():
                 before = old.meshes.get(name) if old is not None else None
+                material = Material(change.reflectivity, change.label)
                 if name in added:
                     meshes[name] = self._changed(
-                        before, name, change.transform, change.mask, added[name], None
+                        before, name, change.transform, change.mask, added[name], None, material
                     )
                 elif change.instance_of is not None:
                     meshes[name] = self._changed(
-                        before, name, change.transform, change.mask, instance_of=change.instance_of
+                        before,
+                        name,
+                        change.transform,
+                        change.mask,
+                        instance_of=change.instance_of,
+                        material=material,
                     )
                 elif before is None:
                     raise NotFound(
@@ -409,7 +456,9 @@ class Store:
                     mesh = before
                     if change.vertices is not None:
                         mesh = self._moved(before, change.vertices, scene)
-                    meshes[name] = self._changed(mesh, name, change.transform, change.mask)
+                    meshes[name] = self._changed(
+                        mesh, name, change.transform, change.mask, material=material
+                    )
             return self._commit(scene, old, meshes)
 
     def restore(self, snapshots: list[Snapshot], last_versions: Mapping[str, int]) -> None:
@@ -448,6 +497,7 @@ class Store:
         mask: int | None = None,
         geometry: Geometry | None = None,
         instance_of: str | None = ...,  # type: ignore[assignment]
+        material: Material = NO_MATERIAL,
     ) -> Mesh:
         """``before`` (or a new mesh) with what is given changed; ``instance_of=None`` makes it a
         mesh of its own, ``...`` keeps what it was. An instance's geometry is linked by
@@ -463,6 +513,10 @@ class Store:
             changes["geometry"] = geometry
         if instance_of is not ...:
             changes["instance_of"] = instance_of
+        if material.reflectivity is not None:
+            changes["reflectivity"] = float(material.reflectivity)
+        if material.label is not None:
+            changes["label"] = int(material.label)
         return placed(replace(before, **changes)) if changes else before
 
     @staticmethod
@@ -503,6 +557,11 @@ class Store:
         _link_instances(scene, meshes, [n for n, m in changes.items() if m is not None], version)
         meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))
         snapshot = Snapshot(scene, version, MappingProxyType(meshes), next_index)
+        if old is not None and any(
+            name in old.meshes and old.meshes[name].geometry is mesh.geometry
+            for name, mesh in meshes.items()
+        ):  # something is kept: the new version may reuse what the old one derived from it
+            snapshot._earlier.extend(old._basis())
         if snapshot.n_triangles > self.max_triangles_per_scene:
             raise TooLarge(
                 f"scene {scene!r} would hold {snapshot.n_triangles} triangles, over the limit "

@@ -1,16 +1,18 @@
 """Queries: how the dacrt engine answers what a request asks (``options``) of a scene.
 
-The only module that runs the engine's queries. It builds one ``dacrt.Scene`` per scene version
-(cached in the snapshot), maps the engine's mesh positions to the meshes' stable indices, picks the
-answer's keys (``Options.pick``) and lets the engine's ``InputError`` (bad rays, named by the
-engine) through: ``errors`` maps it to 422.
+The only module that runs the engine's queries. It makes one ``dacrt.Scene`` per scene version
+(cached in the snapshot), from the earlier version's by ``Scene.with_changes`` where only
+placements, vertices and masks changed (a frame that moves actors packs only them), maps the
+engine's mesh positions to the meshes' stable indices, picks the answer's keys (``Options.pick``)
+and lets the engine's ``InputError`` (bad rays, named by the engine) through: ``errors`` maps it
+to 422.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
@@ -37,6 +39,8 @@ class EngineScene:
     mesh_index: (
         np.ndarray | None
     )  #: (n_meshes + 1,) int32 ending in -1, or None if positions are indices
+    #: per engine mesh position, the (index, vertices, faces, mask, transform) it was built from
+    meshes: tuple[tuple, ...] = ()
 
     def map_mesh(self, positions: np.ndarray) -> np.ndarray:
         """Engine mesh positions (-1 on a miss) -> stable indices (-1 on a miss)."""
@@ -61,14 +65,54 @@ def build_engine_scene(meshes: Iterable[tuple], scene_type: Any = dacrt.Scene) -
         transforms=None if all(t is None for t in transforms) else transforms,
     )
     identity = np.array_equal(indices[:-1], np.arange(len(kept)))
-    return EngineScene(scene, None if identity else indices)
+    return EngineScene(scene, None if identity else indices, tuple(kept))
 
 
 def _snapshot_engine(snapshot: Snapshot, scene_type: Any = dacrt.Scene) -> EngineScene:
-    return build_engine_scene(
-        ((m.index, m.vertices, m.faces, m.mask, m.transform) for m in snapshot.meshes.values()),
-        scene_type,
-    )
+    """The engine scene of a version: changed from an earlier version's (``with_changes``,
+    which packs only what changed) where the meshes are the same but for their placements,
+    vertices and masks; else built whole."""
+    meshes = [(m.index, m.vertices, m.faces, m.mask, m.transform) for m in snapshot.meshes.values()]
+    earlier = snapshot.earlier("dacrt") if scene_type is dacrt.Scene else None
+    if earlier is not None:
+        changed = changed_engine_scene(earlier[1], meshes)
+        if changed is not None:
+            return changed
+    return build_engine_scene(meshes, scene_type)
+
+
+def changed_engine_scene(engine: EngineScene, meshes: list[tuple]) -> EngineScene | None:
+    """``engine`` changed into the engine scene of ``meshes`` (as ``build_engine_scene`` takes
+    them, each with mask and transform) by ``Scene.with_changes``, or None where they differ by
+    more than placements, vertices (as many, the same faces) and masks."""
+    kept = [mesh for mesh in meshes if len(mesh[2])]
+    if len(kept) != len(engine.meshes):
+        return None
+    transforms, vertices, masks = {}, {}, {}
+    for i, (old, new) in enumerate(zip(engine.meshes, kept)):
+        if old[0] != new[0] or old[2] is not new[2] or len(old[1]) != len(new[1]):
+            return None
+        if new[1] is not old[1]:
+            vertices[i] = new[1]
+        if new[3] != old[3]:
+            masks[i] = new[3]
+        if not _same_transform(old[4], new[4]):
+            transforms[i] = new[4]
+    if not (transforms or vertices or masks):
+        return replace(engine, meshes=tuple(kept))
+    scene = engine.scene.with_changes(transforms=transforms, vertices=vertices, masks=masks)
+    return replace(engine, scene=scene, meshes=tuple(kept))
+
+
+def _same_transform(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    if a is None or b is None:
+        return a is b
+    return a is b or np.array_equal(a, b)
+
+
+def engine_scene(snapshot: Snapshot) -> EngineScene:
+    """The engine scene of one scene version, built once per version (the sensors' too)."""
+    return snapshot.cached("dacrt", _snapshot_engine)
 
 
 @dataclass(frozen=True)
