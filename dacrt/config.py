@@ -133,6 +133,12 @@ CHUNK_SAMPLE_RAYS = 4096
 # over the scene): a ray that starts among many triangles costs more.
 DENSITY_GRID = 16
 
+# ---- Storage order (packed)
+# Each mesh's rows are stored along a Morton curve of their box centres, once per mesh: a node's
+# triangles then share cache lines whatever order the faces came in. Read when a mesh is packed
+# (not by the kernels): False keeps the faces' order, for measuring (bench.order).
+MORTON_ORDER = True
+
 # ---- Point queries (points)
 # Triangles beside a point's Morton code that it measures before any partition: its first radius.
 POINT_SEEDS = 4

@@ -33,8 +33,9 @@ def leaf_scratch():
     """Scratch for intersect_leaf, one tuple: a block's corners (9 rows of LEAF_BLOCK) and
     distances; for a block of rays, their best triangles and ``block_rows`` (u and v, then the
     rays' fields: RAY_ROWS); and the crossings found for ``record_crossings`` (records, then
-    t; their triangles go in the best-triangle row), up to 2 LEAF_BLOCK. Zeros, so padding
-    lanes that were never written compute on ordinary numbers."""
+    t; their triangles go in the best-triangle row), up to 2 LEAF_BLOCK; and a block of rays'
+    best triangles' tie keys (``tri_keys``). Zeros, so padding lanes that were never written
+    compute on ordinary numbers."""
     return (
         np.zeros(9 * LEAF_BLOCK, np.float64),
         np.zeros(LEAF_BLOCK, np.float32),
@@ -42,7 +43,14 @@ def leaf_scratch():
         np.zeros((2 + RAY_ROWS, LEAF_BLOCK), np.float32),
         np.zeros(2 * LEAF_BLOCK, np.int32),
         np.zeros(2 * LEAF_BLOCK, np.float32),
+        np.zeros(LEAF_BLOCK, np.int32),
     )
+
+
+@inline
+def tie_key(tri_keys, row):
+    """The tie key of kernel row ``row`` (``QueryArrays.tri_keys``), NO_HIT for no triangle."""
+    return NO_HIT if row == NO_HIT else tri_keys[row]
 
 
 @inline
@@ -127,11 +135,11 @@ def rays_to_rows(rays, block_lo, n, block_rows):
 
 
 @inline
-def update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows):
-    """Test the block's n rays (rows 2-8 of ``block_rows``) against one triangle and keep, per
-    ray, the better of its hit and the block's best so far (``t_block``, ``tri_block``, rows 0-1
-    of ``block_rows``): the leaf of many rays and few triangles, one vectorised loop
-    (``watertight_setup`` and ``pick`` are selects).
+def update_block(any_hit, n, tri_verts, tri, key, t_block, tri_block, key_block, block_rows):
+    """Test the block's n rays (rows 2-8 of ``block_rows``) against one triangle (its tie key
+    ``key``) and keep, per ray, the better of its hit and the block's best so far (``t_block``,
+    ``tri_block``, ``key_block``, rows 0-1 of ``block_rows``): the leaf of many rays and few
+    triangles, one vectorised loop (``watertight_setup`` and ``pick`` are selects).
     u and v come from ``woop_hit``, the same arithmetic as the scalar ``intersect_triangle``:
     the same bits."""
     p0x = np.float64(tri_verts[tri, 0])
@@ -151,6 +159,7 @@ def update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows):
     dz_row = block_rows[7, :n]
     tmin_row = block_rows[8, :n]
     tri32 = np.int32(tri)
+    key32 = np.int32(key)
     u_row = block_rows[0]
     v_row = block_rows[1]
     for i in range(n):
@@ -172,10 +181,11 @@ def update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows):
             p2z,
         )
         best = t_block[i]
-        # A miss is NaN and fails every comparison; ties go to the lower triangle.
-        take = (t >= tmin_row[i]) & ((t < best) | ((t == best) & (tri32 < tri_block[i])))
+        # A miss is NaN and fails every comparison; ties go to the lower tie key.
+        take = (t >= tmin_row[i]) & ((t < best) | ((t == best) & (key32 < key_block[i])))
         t_block[i] = (NEG_INF32 if any_hit else t) if take else best
         tri_block[i] = tri32 if take else tri_block[i]
+        key_block[i] = key32 if take else key_block[i]
         u_row[i] = np.float32(u) if take else u_row[i]
         v_row[i] = np.float32(v) if take else v_row[i]
 
@@ -184,7 +194,8 @@ def update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows):
 def intersect_leaf(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch):
     """Test rays ``ray_lo:ray_hi`` against triangles ``tris.ids[tri_lo:tri_hi]`` (``Triangles``).
 
-    Keeps, per ray, the hit with the smallest (t, triangle index) in [tmin, best_t]; best_t
+    Keeps, per ray, the hit with the smallest (t, tie key) in [tmin, best_t] (``tri_keys``: a
+    row's triangle in the meshes' numbering, so storage order changes no tie); best_t
     lives in the ray record, the rest in ``arrays`` (``QueryArrays``) indexed by ray id. With
     ANY_HIT in ``flags`` a ray stops at its first hit and its best_t becomes -inf; with COUNT it
     counts its hits, with ALL_HITS it keeps its nearest in its list (``record_crossings``); culled
@@ -230,11 +241,12 @@ def leaf_by_rays(
     a distance in the ray's [tmin, best_t] is a candidate, confirmed by the half-open
     ``crossing``, the ray's mask and culling, and the block's crossings go to
     ``record_crossings``. ``collect`` is a constant at each call: each variant compiles alone."""
-    _, t_block, tri_block, block_rows, found_at, found_t = scratch
+    _, t_block, tri_block, block_rows, found_at, found_t, key_block = scratch
     tri_verts = tris.verts
     tri_ids = tris.ids
     # Arrays are taken from the record once: each access in a loop would count a reference.
     best_tri = arrays.best_tri
+    tri_keys = arrays.tri_keys
     hit_u = arrays.hit_u
     hit_v = arrays.hit_v
     ray_masks = arrays.ray_masks
@@ -257,11 +269,15 @@ def leaf_by_rays(
             for i in range(n):
                 t_block[i] = field(rays, BEST_T, block_lo + i)
                 tri_block[i] = NO_HIT
+                key_block[i] = NO_HIT
         for k in range(tri_lo, tri_hi):
             n_tests += n
             tri = tri_ids[k]
             if not collect:
-                update_block(any_hit, n, tri_verts, tri, t_block, tri_block, block_rows)
+                update_block(
+                    any_hit, n, tri_verts, tri, tri_keys[tri], t_block, tri_block, key_block,
+                    block_rows,
+                )  # fmt: skip
                 continue
             block_crossing_distances(n, tri_verts, tri, block_rows, t_block)
             for i in range(n):
@@ -287,8 +303,9 @@ def leaf_by_rays(
             # The next triangle finds at most LEAF_BLOCK more.
             if n_found > LEAF_BLOCK or (n_found and k == tri_hi - 1):
                 record_crossings(
-                    count_only, n_hits, list_t, list_tri, rays, ray_ids, scratch, n_found
-                )
+                    count_only, n_hits, list_t, list_tri, tri_keys, rays, ray_ids, scratch,
+                    n_found,
+                )  # fmt: skip
                 n_found = 0
         if collect:
             continue
@@ -299,7 +316,8 @@ def leaf_by_rays(
             tri = tri_block[i]
             if tri == NO_HIT:
                 continue
-            if not (t_block[i] < field(rays, BEST_T, r) or tri < best_tri[ray]):
+            better = t_block[i] < field(rays, BEST_T, r)
+            if not (better or key_block[i] < tie_key(tri_keys, best_tri[ray])):
                 continue
             set_field(rays, BEST_T, r, t_block[i])
             best_tri[ray] = tri
@@ -320,11 +338,12 @@ def leaf_by_triangles(
     come from the scalar test, which is the same arithmetic. Collecting (``collect`` true), the
     ray's crossings of the block (``collect_hits``) go to ``record_crossings``. ``collect`` is a
     constant at each call."""
-    corners, t_block, _, _, _, _ = scratch
+    corners, t_block, _, _, _, _, _ = scratch
     tri_verts = tris.verts
     tri_ids = tris.ids
     # Arrays are taken from the record once: each access in a loop would count a reference.
     best_tri = arrays.best_tri
+    tri_keys = arrays.tri_keys
     hit_u = arrays.hit_u
     hit_v = arrays.hit_v
     ray_masks = arrays.ray_masks
@@ -375,17 +394,21 @@ def leaf_by_triangles(
                 # The next ray finds at most LEAF_BLOCK more.
                 if n_found > LEAF_BLOCK or (n_found and r == ray_hi - 1):
                     record_crossings(
-                        count_only, n_hits, list_t, list_tri, rays, ray_ids, scratch, n_found
-                    )
+                        count_only, n_hits, list_t, list_tri, tri_keys, rays, ray_ids, scratch,
+                        n_found,
+                    )  # fmt: skip
                     n_found = 0
                 continue
-            # The smallest (t, triangle) below (best, the ray's triangle) wins; with any_hit, the
+            # The smallest (t, tie key) below (best, the ray's triangle's) wins; with any_hit, the
             # first such hit. Only a hit that would win is checked for culling: few are.
             winner = -1
             winner_tri = best_tri[ray]
+            winner_key = tie_key(tri_keys, winner_tri)
             for k in range(n):
                 t = t_block[k]
-                if t >= t_lo and (t < best or (t == best and tri_ids[block_lo + k] < winner_tri)):
+                if t >= t_lo and (
+                    t < best or (t == best and tri_keys[tri_ids[block_lo + k]] < winner_key)
+                ):
                     if cull_side != 0.0 and culled(
                         tri_verts,
                         tri_ids[block_lo + k],
@@ -404,6 +427,7 @@ def leaf_by_triangles(
                     best = t
                     winner = k
                     winner_tri = tri_ids[block_lo + k]
+                    winner_key = tri_keys[winner_tri]
                     if any_hit:
                         break
             if winner >= 0:
@@ -499,7 +523,7 @@ def collect_hits(first, scratch, tri_ids, block_lo, n, t_lo, best, r, frame, cul
     index ``first`` on; returns how many. A distance in [t_lo, best] is a candidate, confirmed
     by the half-open ``crossing`` (a subset of the inclusive test that gave it), then by
     culling. ``frame`` is the ray's ``ray_frame``."""
-    corners, t_block, found_tri, _, found_at, found_t = scratch
+    corners, t_block, found_tri, _, found_at, found_t, _ = scratch
     kx, ky, kz, sx, sy, sz, okx, oky, okz = frame
     n_found = first
     for k in range(n):
@@ -530,15 +554,17 @@ def collect_hits(first, scratch, tri_ids, block_lo, n, t_lo, best, r, frame, cul
 
 
 @inline
-def record_crossings(count_only, n_hits, list_t, list_tri, rays, ray_ids, scratch, n_found):
+def record_crossings(
+    count_only, n_hits, list_t, list_tri, tri_keys, rays, ray_ids, scratch, n_found
+):
     """Record a block's ``n_found`` crossings (the found rows of ``scratch``: record, triangle,
     t): count them in ``n_hits`` (``count_only``), or insert each into its ray's list
-    (``list_t``, ``list_tri``), kept sorted by (t, kernel row) and at most as long as the lists'
-    rows (the farthest falls off). A ray's best_t stays tmax while its list has room,
-    then becomes its last entry's t, which bounds the boxes it still visits. Crossings are
-    gathered and recorded by the dozen: a call per crossing would count references to its
-    arrays each time."""
-    _, _, found_tri, _, found_at, found_t = scratch
+    (``list_t``, ``list_tri``), kept sorted by (t, tie key: ``tri_keys`` of the row) and at most
+    as long as the lists' rows (the farthest falls off). A ray's best_t stays tmax while its
+    list has room, then becomes its last entry's t, which bounds the boxes it still visits.
+    Crossings are gathered and recorded by the dozen: a call per crossing would count references
+    to its arrays each time."""
+    _, _, found_tri, _, found_at, found_t, _ = scratch
     list_size = list_t.shape[1]
     last = list_size - 1
     for j in range(n_found):
@@ -550,14 +576,17 @@ def record_crossings(count_only, n_hits, list_t, list_tri, rays, ray_ids, scratc
             continue
         t = found_t[j]
         tri = found_tri[j]
+        key = tri_keys[tri]
         if n_held == list_size and not (
-            t < list_t[ray, last] or (t == list_t[ray, last] and tri < list_tri[ray, last])
+            t < list_t[ray, last]
+            or (t == list_t[ray, last] and key < tri_keys[list_tri[ray, last]])
         ):
             continue
         # Insertion: shift the farther entries down by one.
         p = n_held if n_held < list_size else last
         while p > 0 and (
-            t < list_t[ray, p - 1] or (t == list_t[ray, p - 1] and tri < list_tri[ray, p - 1])
+            t < list_t[ray, p - 1]
+            or (t == list_t[ray, p - 1] and key < tri_keys[list_tri[ray, p - 1]])
         ):
             list_t[ray, p] = list_t[ray, p - 1]
             list_tri[ray, p] = list_tri[ray, p - 1]

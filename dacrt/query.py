@@ -47,6 +47,7 @@ QueryArrays = namedtuple(
         "hit_v",
         "ray_masks",
         "tri_masks",
+        "tri_keys",
         "n_hits",
         "list_t",
         "list_tri",
@@ -61,9 +62,12 @@ best_tri : (n,) int32 kernel row of each ray's best hit, NO_HIT for none; by ray
 hit_u, hit_v : (n,) float32 barycentrics of that hit; by ray id
 ray_masks : (n,) uint32 by ray id, or (0,) when the MASKED bit is clear
 tri_masks : (F,) uint32 by kernel row, or (0,) when the MASKED bit is clear
+tri_keys : (F,) int32 by kernel row: its triangle in the meshes' numbering (``Packed.ids``), which
+    ties in t compare, so answers do not depend on the order the rows are stored in
 n_hits : (n,) int32 by ray id: hits counted (COUNT) or held in the ray's list (ALL_HITS), else (0,)
-list_t, list_tri : (n, L) by ray id: each ray's nearest hits (t, kernel row) in that order, its
-    first n_hits entries in use (ALL_HITS), else (0, 0); u and v are found when they are finished
+list_t, list_tri : (n, L) by ray id: each ray's nearest hits (t, kernel row) in (t, tie key)
+    order, its first n_hits entries in use (ALL_HITS), else (0, 0); u and v are found when they
+    are finished
 hit_mask : (m,) bool scratch, one entry per record of the chunk
 tri_bins : (F,) uint8 scratch, each triangle's bin from binning to partition
 stats : (len(STAT_NAMES),) int64 counters

@@ -80,10 +80,10 @@ def finish_hits(
     normal,
 ):
     """Copy the first offsets[i + 1] - offsets[i] entries of each ray i's list (t and kernel
-    row, sorted by (t, row)) into the CSR rows offsets[i]:offsets[i + 1], as (mesh, prim), with
-    u and v from the ray's watertight test (the arithmetic that found the hit, so the same bits)
-    and unit normals (``normals`` as for ``finish_closest``). Kernel rows rise with global
-    triangle indices, so the lists' order is the (t, mesh, prim) order."""
+    row, sorted by (t, tie key)) into the CSR rows offsets[i]:offsets[i + 1], as (mesh, prim),
+    with u and v from the ray's watertight test (the arithmetic that found the hit, so the same
+    bits) and unit normals (``normals`` as for ``finish_closest``). The tie key is ``tri_global``
+    of the row, so the lists' order is the (t, mesh, prim) order."""
     have_normals = normals.shape[0] > 0
     m = 0
     for ray in range(offsets.shape[0] - 1):

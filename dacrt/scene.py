@@ -1096,6 +1096,7 @@ class Scene:
             hit_v=np.zeros(n_rays, FLOAT),
             ray_masks=ray_masks,
             tri_masks=tri_masks,
+            tri_keys=level.ids,
             n_hits=np.zeros(n_rays if flags & COLLECT else 0, INDEX),
             list_t=np.empty(lists, FLOAT),
             list_tri=np.empty(lists, INDEX),
@@ -1158,7 +1159,7 @@ class Scene:
     ):
         """Trace a closest or occlusion batch on two threads, each with every ray against one
         half of the level's triangles (split at the middle of its box); then each ray keeps the
-        better of its two answers, the smaller (t, row), as one trace would. Writes best_t and
+        better of its two answers, the smaller (t, tie key), as one trace would. Writes best_t and
         ``answer``'s best_tri, hit_u and hit_v; returns each half's stats."""
         n_rays = len(origins)
         tri_ids = (
@@ -1196,8 +1197,8 @@ class Scene:
             return t, arrays
 
         (t0, first), (t1, second) = map_on_threads(run, 2, 2)
-        # Where the second half's (t, row) is smaller, it is the answer.
-        take = (t1 < t0) | ((t1 == t0) & (second.best_tri < first.best_tri))
+        # Where the second half's (t, tie key) is smaller, it is the answer.
+        take = (t1 < t0) | ((t1 == t0) & (tie_keys(level, second) < tie_keys(level, first)))
         best_t[:] = np.where(take, t1, t0)
         for name in ("best_tri", "hit_u", "hit_v"):
             np.copyto(getattr(answer, name), getattr(second, name), where=take)
@@ -1207,6 +1208,13 @@ class Scene:
 def _same_matrix(a, b):
     """Whether two placements (None or (4, 4)) are the same."""
     return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+
+
+def tie_keys(level, arrays):
+    """Each ray's tie key (``QueryArrays.tri_keys``) of its best row of ``level``, NO_HIT for
+    none."""
+    found = arrays.best_tri != NO_HIT
+    return np.where(found, level.ids[np.where(found, arrays.best_tri, 0)], NO_HIT)
 
 
 def add_counters(counters, per_chunk):

@@ -15,9 +15,10 @@ where Numba keeps the compiled kernels (``dacrt.cache.use_cache_dir``). Its modu
   ``footprint`` (what a request holds at its peak);
 - bodies: ``wire`` (every body format; its docstring is the spec), ``sensor_requests`` (the JSON
   bodies of the sensors);
-- scenes: ``store`` (immutable snapshots), ``persistence`` (DACRT_DATA_DIR's files);
-- the engine: ``tracing`` (queries), ``sensing``, ``cameras``, ``lidar`` and ``shading``
-  (pictures, depth cameras, lidar), ``cluster`` (DACRT_DASK_SCHEDULER);
+- scenes: ``store`` (immutable snapshots), ``persistence`` (DACRT_DATA_DIR's files),
+  ``patterns`` (uploaded lidar scan patterns);
+- the engine: ``tracing`` (queries), ``sensing`` (the engine's ``dacrt.sensors`` on a scene
+  version: cameras, lidars, rigs), ``shading`` (pictures), ``cluster`` (DACRT_DASK_SCHEDULER);
 - clients: ``client`` (NumPy in, NumPy out), ``transport`` (its urllib3 transport),
   ``intersector`` (trimesh's ray interface over HTTP).
 """

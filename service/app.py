@@ -24,8 +24,10 @@ from .cluster import Cluster
 from .deps import Readiness, require_ready
 from .logs import configure_logging
 from .metrics import Metrics, MetricsMiddleware
+from .patterns import Patterns
 from .persistence import DataDir
 from .routes import meshes, ops, pictures, points, queries
+from .routes import patterns as pattern_routes
 from .settings import Settings, load_settings_or_exit
 from .store import Store
 
@@ -42,6 +44,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     configure_logging(settings.log_level)
     journal = open_data_dir(settings)
     store = Store(settings.max_triangles_per_scene, settings.max_scene_bytes, journal)
+    patterns = Patterns(
+        settings.max_patterns, settings.max_pattern_rays, journal.root if journal else None
+    )
     metrics = Metrics(store.held_bytes, lambda: len(store.snapshots()), journal)
     admission = Admission(settings.inflight_budget(), settings.admission_wait)
     metrics.watch_admission(admission)
@@ -52,6 +57,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         dacrt.cache.use_cache_dir(settings.cache_dir)
         if journal is not None:
             restore(store, journal)
+            patterns.restore()
         if settings.load_demo:
             load_demo(store, settings)
         threading.Thread(
@@ -74,6 +80,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings, app.state.store, app.state.metrics = settings, store, metrics
     app.state.readiness, app.state.admission = Readiness(), admission
+    app.state.patterns = patterns
     app.state.cluster = (
         Cluster(settings.dask_scheduler, settings.dask_min_rays)
         if settings.dask_scheduler is not None
@@ -81,7 +88,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     errors.install(app)
     # each router carries its full prefix (route templates in metrics) and its /v1 token check
-    for module in (meshes, queries, points, pictures):
+    for module in (meshes, queries, points, pictures, pattern_routes):
         app.include_router(
             module.router, dependencies=[Depends(require_ready)], responses=openapi.errors(503)
         )

@@ -8,6 +8,10 @@
         every = client.hits("demo", origins, directions, max_hits=8)
         every.t[every.offsets[i]:every.offsets[i + 1]]         # the hits of ray i, nearest first
         client.count("demo", origins, directions, mask=0b10).count  # crossings, masked rays
+        points = client.lidar("demo", pose=pose, model="VLP-16", return_mode="dual")
+        points.xyz, points.intensity, points.label                # the body's keys as arguments
+        both = client.sensors("demo", {"roof": {"kind": "lidar", ...}, "front": {...}})
+        both["roof"].xyz, both["front"].depth                     # one batch, one version
 
 Binary by default (.npy rays in, .npz answers out); arrays are converted to the wire dtypes
 (float32, int32) here, so any float or int arrays may be passed. Errors raise ``APIError`` with
@@ -45,6 +49,18 @@ ANSWER_DTYPES = {
     "point": np.float32,
     "inside": np.bool_,
     "signed_distance": np.float32,
+    "xyz": np.float32,
+    "range": np.float32,
+    "ring": np.int16,
+    "azimuth": np.float32,
+    "elevation": np.float32,
+    "return": np.int16,
+    "cos_incidence": np.float32,
+    "ray": np.int32,
+    "intensity": np.float32,
+    "label": np.uint32,
+    "time": np.float32,
+    "depth": np.float32,
 }
 _SUFFIX_FORMATS = {
     ".obj": "obj",
@@ -331,6 +347,17 @@ class Client:
                 arrays[f"{name}.faces"] = np.asarray(faces, dtype="<i4")
         return self._binary("POST", f"/v1/scenes/{scene}/frame", arrays).json()
 
+    def set_material(
+        self, scene: str, mesh: str, reflectivity: float | None = None, label: int | None = None
+    ) -> dict[str, Any]:
+        """Set a mesh's ``reflectivity`` (in [0, 1]) and/or ``label`` (uint32); answers mesh
+        info."""
+        body = {"reflectivity": reflectivity, "label": label}
+        body = {key: value for key, value in body.items() if value is not None}
+        return self.request(
+            "PUT", f"/v1/scenes/{scene}/meshes/{mesh}/material", json=_json_ready(body)
+        ).json()
+
     def delete(self, scene: str) -> None:
         self.request("DELETE", f"/v1/scenes/{scene}")
 
@@ -469,6 +496,124 @@ class Client:
             headers={"Accept": wire.MEDIA_TYPES[answer]},
         )
 
+    # ---- sensors
+
+    def render(self, scene: str, **body: Any) -> bytes:
+        """The PNG of a look-at camera (``width``, ``height``, ``eye``, ``target``, ``up``,
+        ``fov_deg``, ``shading``: the body of ``/render``, docs/sensors.md)."""
+        return self.request("POST", f"/v1/scenes/{scene}/render", json=_json_ready(body)).content
+
+    def camera(
+        self,
+        scene: str,
+        *,
+        fields: Any = None,
+        strategy: str | None = None,
+        stats: bool = False,
+        cull: str = "none",
+        mask: int | None = None,
+        **body: Any,
+    ) -> Answer:
+        """A depth image: ``body`` is the keys of ``/camera`` (a look-at camera, or ``fx``, ``fy``,
+        ``cx``, ``cy`` and a 4x4 ``pose``; ``near``, ``far``); answers ``depth``, ``range``,
+        ``mesh``, ``prim`` (H, W) and ``normal`` (H, W, 3)."""
+        params = _sensor_params(fields, strategy, stats, cull, mask)
+        return self._sensor(f"/v1/scenes/{scene}/camera", body, params)
+
+    def lidar(
+        self,
+        scene: str,
+        *,
+        fields: Any = None,
+        strategy: str | None = None,
+        stats: bool = False,
+        cull: str = "none",
+        mask: int | None = None,
+        pcd: bool = False,
+        **body: Any,
+    ) -> Answer | bytes:
+        """A lidar's points: ``body`` is the keys of ``/lidar`` (``pose``, ``model`` or
+        ``vertical_angles_deg`` or ``pattern``, the physics: ``return_mode``, ``noise``, ...);
+        answers ``xyz``, ``range``, ``ring``, ... ``intensity``, ``label``; with ``pcd`` the
+        bytes of a binary PCD file instead."""
+        params = _sensor_params(fields, strategy, stats, cull, mask)
+        path = f"/v1/scenes/{scene}/lidar"
+        if pcd:
+            headers = {"Accept": wire.PCD}
+            return self.request(
+                "POST", path, json=_json_ready(body), params=params, headers=headers
+            ).content
+        return self._sensor(path, body, params)
+
+    def sensors(
+        self,
+        scene: str,
+        sensors: Mapping[str, Mapping[str, Any]],
+        *,
+        fields: Any = None,
+        strategy: str | None = None,
+        stats: bool = False,
+        cull: str = "none",
+        mask: int | None = None,
+    ) -> dict[str, Answer]:
+        """A rig: ``{name: {"kind": "lidar" | "camera", ...its body}}`` traced as one batch on one
+        scene version; answers ``{name: Answer}``, each with that version."""
+        params = _sensor_params(fields, strategy, stats, cull, mask)
+        whole = self._sensor(f"/v1/scenes/{scene}/sensors", {"sensors": sensors}, params)
+        answers: dict[str, dict[str, np.ndarray]] = {name: {} for name in sensors}
+        for key, array in whole.arrays.items():
+            name, _, part = key.rpartition(".")
+            answers[name][part] = array
+        return {
+            name: Answer(arrays, whole.version, whole.timing, whole.stats)
+            for name, arrays in answers.items()
+        }
+
+    def _sensor(self, path: str, body: Mapping[str, Any], params: dict[str, str]) -> Answer:
+        response, content = self.fetch(
+            "POST", path, json=_json_ready(body), params=params, headers={"Accept": wire.NPZ}
+        )
+        return Answer(
+            read_answer(response, content),
+            int(response.headers["x-scene-version"]),
+            parse_server_timing(response.headers.get("server-timing", "")),
+            json.loads(response.headers["x-trace-stats"])
+            if "x-trace-stats" in response.headers
+            else None,
+        )
+
+    # ---- scan patterns
+
+    def put_pattern(
+        self,
+        name: str,
+        azimuth_deg: Any,
+        elevation_deg: Any,
+        time_s: Any = None,
+        channel: Any = None,
+    ) -> dict[str, Any]:
+        """Upload a scan pattern (M rays: azimuth and elevation in degrees, optional firing time
+        in seconds and channel); answers its info."""
+        arrays = {
+            "azimuth_deg": np.asarray(azimuth_deg, dtype="<f8"),
+            "elevation_deg": np.asarray(elevation_deg, dtype="<f8"),
+        }
+        if time_s is not None:
+            arrays["time_s"] = np.asarray(time_s, dtype="<f8")
+        if channel is not None:
+            arrays["channel"] = np.asarray(channel, dtype="<u2")
+        return self._binary("PUT", f"/v1/patterns/{name}", arrays).json()
+
+    def pattern(self, name: str) -> dict[str, np.ndarray]:
+        """A pattern's arrays, as uploaded."""
+        return wire.read_npz(self.request("GET", f"/v1/patterns/{name}").content)
+
+    def patterns(self) -> list[dict[str, Any]]:
+        return self.request("GET", "/v1/patterns").json()["patterns"]
+
+    def delete_pattern(self, name: str) -> None:
+        self.request("DELETE", f"/v1/patterns/{name}")
+
     def trace(
         self,
         vertices: Any,
@@ -559,6 +704,26 @@ def _params(fields: Any, strategy: str | None, stats: bool, cull: str) -> dict[s
     if cull != "none":
         params["cull"] = cull
     return params
+
+
+def _sensor_params(
+    fields: Any, strategy: str | None, stats: bool, cull: str, mask: int | None
+) -> dict[str, str]:
+    params = _params(fields, strategy, stats, cull)
+    if mask is not None:
+        params["mask"] = str(_mask_value(mask, "mask"))
+    return params
+
+
+def _json_ready(value: Any) -> Any:
+    """A sensor's body for JSON: NumPy arrays and scalars as lists and numbers."""
+    if isinstance(value, Mapping):
+        return {key: _json_ready(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(item) for item in value]
+    if isinstance(value, (np.ndarray, np.generic)):
+        return value.tolist()
+    return value
 
 
 def _api_error(response: httpx.Response) -> APIError:

@@ -13,10 +13,11 @@ from fastapi import Depends, Request
 from fastapi.routing import APIRoute
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from . import wire
+from . import footprint, wire
 from .admission import Ticket
 from .errors import Invalid, NotReady, TooLarge, Unauthorized
 from .metrics import Metrics
+from .patterns import Patterns
 from .settings import Settings
 from .store import Store
 from .wire.body import BodyBuffer
@@ -40,6 +41,10 @@ def get_store(request: Request) -> Store:
     return request.app.state.store
 
 
+def get_patterns(request: Request) -> Patterns:
+    return request.app.state.patterns
+
+
 def get_metrics(request: Request) -> Metrics:
     return request.app.state.metrics
 
@@ -52,6 +57,7 @@ def get_readiness(request: Request) -> Readiness:
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 StoreDep = Annotated[Store, Depends(get_store)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
+PatternsDep = Annotated[Patterns, Depends(get_patterns)]
 ReadinessDep = Annotated[Readiness, Depends(get_readiness)]
 
 
@@ -144,3 +150,16 @@ async def read_body(request: Request, limit: int, estimate: Estimate) -> memoryv
             await ticket.hold(estimate(held, fmt), what.format(held))
         body.add(chunk)
     return body.finish()
+
+
+async def read_change(
+    request: Request, settings: Settings, format: str | None, formats: tuple[str, ...]
+) -> tuple[memoryview, str]:
+    """The body of a change (a mesh, vertices, a frame, a pattern: ``read_body`` within
+    DACRT_MAX_BODY_BYTES, held at the decoders' estimate) and its format, 415 naming
+    ``formats`` and the route."""
+    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
+    route = f"{request.method} {request.scope['route'].path}"
+    return body, wire.resolve_format(
+        request.headers.get("content-type"), format, formats, body, route
+    )

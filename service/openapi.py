@@ -79,6 +79,12 @@ _MESH_NAME = {"type": "string", "pattern": f"^{NAME.pattern}$"}
 INSTANCE_JSON = _object({"instance_of": _MESH_NAME}, {"transform": _MATRIX})
 TRANSFORM_JSON = _object({"matrix": _MATRIX})
 MASK_JSON = _object({"mask": _MASK})
+_REFLECTIVITY = {"type": "number", "minimum": 0, "maximum": 1, "description": "lidar intensity"}
+_LABEL = {"type": "integer", "minimum": 0, "maximum": 0xFFFFFFFF, "description": "a class"}
+MATERIAL_JSON = {
+    **_object({}, {"reflectivity": _REFLECTIVITY, "label": _LABEL}),
+    "minProperties": 1,
+}
 FRAME_JSON = {
     "type": "object",
     "minProperties": 1,
@@ -90,6 +96,8 @@ FRAME_JSON = {
         r"^.+\.transform_end$": _MATRIX,
         r"^.+\.mask$": _MASK,
         r"^.+\.instance_of$": _MESH_NAME,
+        r"^.+\.reflectivity$": _REFLECTIVITY,
+        r"^.+\.label$": _LABEL,
     },
 }
 TRACE_JSON = _object(

@@ -16,6 +16,7 @@ from enum import Enum
 import numpy as np
 
 import dacrt
+from dacrt.sensors import CAMERA_FIELDS, LIDAR_FIELDS
 from dacrt.validation import check_cull, check_strategy
 
 from . import footprint
@@ -38,6 +39,7 @@ class Sensor(str, Enum):  # noqa: UP042 - as Query
     RENDER = "render"
     CAMERA = "camera"
     LIDAR = "lidar"
+    RIG = "sensors"
 
 
 #: The answer keys of each query, in answer order; ``?fields=`` picks a subset.
@@ -47,30 +49,15 @@ FIELDS: dict[Query, tuple[str, ...]] = {
     Query.HITS: ("offsets", "t", "mesh", "prim", "u", "v", "normal", "truncated"),
     Query.COUNT: ("count",),
 }
-#: The answer keys of each sensor, in answer order: a camera's are (height, width) (``normal``
-#: (height, width, 3)), a lidar's one row per point, and a picture is one PNG (no keys).
+#: The answer keys of each sensor, in answer order (the engine's): a camera's are (height, width)
+#: (``normal`` (height, width, 3)), a lidar's one row per point (``time`` for a pattern with
+#: times only), a picture is one PNG (no keys), and a rig's sensors answer those of their kind.
 SENSOR_FIELDS: dict[Sensor, tuple[str, ...]] = {
     Sensor.RENDER: (),
-    Sensor.CAMERA: ("depth", "range", "mesh", "prim", "normal"),
-    Sensor.LIDAR: (
-        "xyz",
-        "range",
-        "ring",
-        "azimuth",
-        "elevation",
-        "mesh",
-        "prim",
-        "return",
-        "cos_incidence",
-        "ray",
-        # a sweep over time's (``period_s``): absent from an instant's answer
-        "time",
-        "velocity",
-        "radial_speed",
-    ),
+    Sensor.CAMERA: CAMERA_FIELDS,
+    Sensor.LIDAR: LIDAR_FIELDS,
+    Sensor.RIG: LIDAR_FIELDS + tuple(name for name in CAMERA_FIELDS if name not in LIDAR_FIELDS),
 }
-#: The lidar answer's keys that only a sweep over time (``period_s``) has.
-MOTION_FIELDS = ("time", "velocity", "radial_speed")
 #: The keys of a hits answer with one value per hit: they come with ``offsets`` (CSR), listed in
 #: ``?fields=`` or not.
 PER_HIT_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")

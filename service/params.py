@@ -25,6 +25,9 @@ SceneName = Annotated[
 MeshName = Annotated[
     str, Path(description="1-64 characters of A-Z a-z 0-9 _ - .", json_schema_extra=_NAME)
 ]
+PatternName = Annotated[
+    str, Path(description="1-64 characters of A-Z a-z 0-9 _ - .", json_schema_extra=_NAME)
+]
 Fields = Annotated[
     str | None,
     Query(description="comma-separated answer keys to send (default: all of the query's keys)"),
@@ -175,6 +178,7 @@ TraceOptions = Annotated[Options, Depends(trace_options)]
 RenderOptions = Annotated[Options, Depends(render_options)]
 CameraOptions = options_of(Sensor.CAMERA)
 LidarOptions = options_of(Sensor.LIDAR)
+RigOptions = options_of(Sensor.RIG)
 
 
 def body_format(formats: tuple[str, ...]):

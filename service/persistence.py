@@ -8,8 +8,9 @@ Layout, one folder per scene (scene names are safe file names)::
     DATA_DIR/scenes/SCENE/INDEX.VERSION.faces.npy    (F, 3) int32, written at VERSION
 
 An instance has no array files: its manifest entry names its source (``instance_of``) and is
-restored sharing the source's arrays. Each entry also holds the mesh's ``mask`` and, unless it is
-the identity, its ``transform`` (16 numbers, row-major, exact in JSON); a mask or transform change
+restored sharing the source's arrays. Each entry also holds the mesh's ``mask``, its material
+(``reflectivity``, ``label``; read with the defaults where absent) and, unless it is the identity,
+its ``transform`` (16 numbers, row-major, exact in JSON); a mask, material or transform change
 writes only the manifest. Manifests of format 1 (without these) are read with the defaults.
 
 Every file is written to ``NAME.tmp``, fsynced, renamed to ``NAME``, and its folder fsynced. A
@@ -46,6 +47,8 @@ from typing import Any
 import numpy as np
 
 from dacrt import InputError
+from dacrt.sensors.physics import DEFAULT_LABEL
+from dacrt.sensors.physics import DEFAULT_REFLECTIVITY as REFLECTIVITY
 
 try:
     from isal.isal_zlib import crc32
@@ -54,7 +57,7 @@ except ImportError:  # pragma: no cover - isal is a dependency; zlib gives the s
 
 from .errors import DataDirUnavailable, InsufficientStorage, Invalid
 from .store import Geometry, Mesh, Snapshot, owned_transform, placed, referenced_bounds
-from .wire import check_matrix, parse_mask
+from .wire import check_matrix, parse_label, parse_mask, parse_reflectivity
 
 log = logging.getLogger("service")
 
@@ -312,6 +315,8 @@ class DataDir:
                 "index": mesh.index,
                 "version": mesh.version,
                 "mask": mesh.mask,
+                "reflectivity": mesh.reflectivity,
+                "label": mesh.label,
             }
             if mesh.transform is not None:
                 record["transform"] = mesh.transform.tolist()
@@ -423,6 +428,8 @@ class DataDir:
                     parse_mask(item.get("mask", 0xFFFFFFFF), "mask"),
                     owned_transform(_transform(item.get("transform"))),
                     item.get("instance_of"),
+                    parse_reflectivity(item.get("reflectivity", REFLECTIVITY), "reflectivity"),
+                    parse_label(item.get("label", DEFAULT_LABEL), "label"),
                     _transform_end(item.get("transform_end")),
                 )
             next_index = record["next_index"]

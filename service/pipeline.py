@@ -36,7 +36,7 @@ Encoded = tuple[Iterable[wire.Buffer], int | None, str]
 class Decoded:
     """A body decoded: what the route's trace step takes, and what tracing it will hold."""
 
-    value: Any  #: rays, a mesh and rays, a camera or a scan
+    value: Any  #: rays, a mesh and rays, or the engine's sensors and their poses
     n_rays: int
     peak: int  #: bytes the request holds at its peak from here on (body, work and answer)
     answer_format: str  #: npz, npy or json (``wire.negotiate``), or png

@@ -1,30 +1,40 @@
-"""The JSON bodies of ``/render``, ``/camera`` and ``/lidar``, as pydantic models.
+"""The JSON bodies of ``/render``, ``/camera``, ``/lidar`` and ``/sensors`` (a rig), as pydantic
+models that become the engine's sensors (``dacrt.sensors``).
 
 ``parse`` reads a body into a model: a body that is not a JSON object, or that lacks a required
-key or has an unknown one, is 400 (API.md: "wrong keys"); a value of the wrong type or out of range
-is 422, naming the key (``pose[3][0]: ...``). Numbers must be JSON numbers (not strings or
-booleans), finite and within float32's range (the rays are float32); ``null`` stands for a default
-where the model says so. What the values make is checked here too, so that no request reaches the
-engine with rays it would refuse: a camera's focal length must keep its edge rays within float32.
+key or has an unknown one (at any depth: ``noise.sigma``), is 400 (API.md: "wrong keys"); a value of
+the wrong JSON type is 422, naming the key (``pose[3][0]: ...``). Numbers must be JSON numbers (not
+strings or booleans), finite and within float32's range (the rays are float32); ``null`` stands for
+a default where the model says so. Each model's ``sensor`` makes the engine's ``Camera`` or
+``Lidar``, whose own checks (ranges, poses, edge rays) raise ``dacrt.InputError`` naming the same
+key (``noise.range_sigma must be >= 0``): 422 through ``errors``' table.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal, NamedTuple, TypeVar
+from collections.abc import Callable
+from typing import Annotated, Literal, TypeVar
 
 import numpy as np
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    StringConstraints,
+    ValidationError,
+    model_validator,
+)
+
+from dacrt.sensors import MODELS, RETURN_MODES, Camera, Lidar, Pattern, check_pose, look_at_pose
+from dacrt.sensors.lidar import MAX_BEAMS, MAX_RETURNS, NON_HITS
 
 from . import wire
-from .cameras import Pinhole, check_pose, look_at
 from .errors import BadBody, Invalid
-from .lidar import MODELS, Scan, make_scan
 from .shading import SHADINGS
-
-#: Most beams (rings) of a lidar pattern, and most returns per ray.
-MAX_BEAMS = 1024
-MAX_RETURNS = 64
+from .store import NAME
 
 #: The largest float32: every number of a sensor ends up in float32 rays or bounds.
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -44,12 +54,14 @@ Matrix4 = Annotated[
     Field(min_length=4, max_length=4, description="4x4, row-major"),
 ]
 Pixels = Annotated[int, Field(strict=True, gt=0)]
+Integer = Annotated[int, Field(strict=True)]
 Positive = Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False), Float32]
 NonNegative = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False), Float32]
 FieldOfView = Annotated[
     float,
     Field(strict=True, gt=0, lt=180, description="vertical field of view, degrees"),
 ]
+Name = Annotated[str, StringConstraints(pattern=f"^{NAME.pattern}$")]
 
 
 class Body(BaseModel):
@@ -68,10 +80,11 @@ class LookAtCamera(Body):
     up: Vector3 = [0.0, 1.0, 0.0]
     fov_deg: FieldOfView = 60.0
 
-    def pinhole(self) -> Pinhole:
-        """The camera as a pinhole; CameraError (422) for eye == target, or up zero or parallel to
-        the view."""
-        return look_at(self.eye, self.target, self.up, self.fov_deg, self.width, self.height)
+    def sensor(self) -> tuple[Camera, np.ndarray]:
+        """(the engine's camera, its camera-to-scene pose); CameraError (422) for eye == target,
+        up zero or parallel to the view, or a field of view too small for float32."""
+        camera = Camera.from_fov(self.width, self.height, self.fov_deg)
+        return camera, look_at_pose(self.eye, self.target, self.up)
 
 
 class RenderRequest(LookAtCamera):
@@ -116,9 +129,6 @@ class CameraRequest(Body):
             )
         if self.far is not None and self.far <= self.near:
             raise ValueError(f"far ({self.far}) must be greater than near ({self.near})")
-        intrinsics = (self.fx, self.cx, self.fy, self.cy)
-        if None not in intrinsics:  # else 400 for the missing keys (``parse``)
-            check_edge_rays(self.fx, self.cx, self.width, self.fy, self.cy, self.height)
         return self
 
     def missing(self) -> list[str]:
@@ -127,73 +137,81 @@ class CameraRequest(Body):
             return [k for k in INTRINSIC_KEYS if getattr(self, k) is None]
         return [k for k in ("eye", "target") if getattr(self, k) is None]
 
-    def pinhole(self) -> Pinhole:
+    def sensor(self) -> tuple[Camera, np.ndarray]:
+        """(the engine's camera, its camera-to-scene pose); its InputError (422) names the key."""
+        far = math.inf if self.far is None else self.far
         if self.pose is None:
-            return LookAtCamera(
-                width=self.width,
-                height=self.height,
-                eye=self.eye,
-                target=self.target,
-                up=self.up,
-                fov_deg=self.fov_deg,
-            ).pinhole()
-        pose = check_pose(self.pose)  # CameraError (422) naming the pose's fault
-        return Pinhole(self.width, self.height, self.fx, self.fy, self.cx, self.cy, pose)
-
-    @property
-    def max_depth(self) -> float:
-        return math.inf if self.far is None else self.far
+            camera = Camera.from_fov(self.width, self.height, self.fov_deg, self.near, far)
+            return camera, look_at_pose(self.eye, self.target, self.up)
+        camera = Camera(self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.near, far)
+        return camera, check_pose(self.pose)
 
 
-def edge_ray(focal: float, centre: float, pixels: int) -> float:
-    """The largest ``|k - centre| / focal`` over the pixel coordinates k of ``pixels``: the
-    camera-frame slope of the outermost rays (float64; inf when it overflows)."""
-    with np.errstate(over="ignore"):
-        return float(np.float64(max(abs(centre), abs(pixels - 1 - centre))) / np.float64(focal))
+class NoiseBody(Body):
+    """``noise``: Gaussian noise of range and direction (the engine checks the bounds)."""
+
+    range_sigma: Finite = 0.0
+    range_sigma_per_m: Finite = 0.0
+    angle_sigma_deg: Finite = 0.0
+    seed: Integer = 0
 
 
-def check_edge_rays(fx: float, cx: float, width: int, fy: float, cy: float, height: int) -> None:
-    """ValueError naming fx or fy if the rays of the picture's edge overflow float32: a direction
-    ``x * R[:, 0] + y * R[:, 1] + R[:, 2]`` (R a rotation) has components of at most
-    ``|x| + |y| + 1``, which must stay within FLOAT32_MAX."""
-    x, y = edge_ray(fx, cx, width), edge_ray(fy, cy, height)
-    if x + y + 1 <= FLOAT32_MAX:
-        return
-    key, focal, centre_key, centre, slope, along = (
-        ("fx", fx, "cx", cx, x, "column") if x >= y else ("fy", fy, "cy", cy, y, "row")
-    )
-    raise ValueError(
-        f"{key}: {focal!r} is too small for {centre_key} {centre!r}: the slope of the edge rays, "
-        f"({along} - {centre_key}) / {key}, reaches {slope:.3g}, beyond the float32 range"
-    )
+class DropoutBody(Body):
+    """``dropout``: points lost below an intensity and at a rate (the engine checks the bounds)."""
+
+    rate: Finite = 0.0
+    min_intensity: Finite = 0.0
+    seed: Integer = 0
 
 
 Elevation = Annotated[float, Field(strict=True, ge=-90, le=90, allow_inf_nan=False)]
 Elevations = Annotated[list[Elevation], Field(min_length=1, max_length=MAX_BEAMS)]
+#: The lidar options passed to the engine's ``Lidar`` as they are (it checks their bounds).
+PHYSICS_KEYS = (
+    "beam_divergence_deg",
+    "beam_samples",
+    "range_resolution",
+    "attenuation",
+    "non_hits",
+    "organized",
+)
 
 
 class LidarRequest(Body):
-    """``POST /lidar``: a sensor pose, a beam pattern (``model`` or ``vertical_angles_deg``), the
-    rays per revolution, the range window and the returns per ray."""
+    """``POST /lidar``: a sensor pose, a beam pattern (``model``, ``vertical_angles_deg`` or an
+    uploaded ``pattern``), the rays per revolution, the range window, the returns and the physics
+    of API.md "Lidar physics"."""
 
     pose: Matrix4
     model: Literal[tuple(MODELS)] | None = None
     vertical_angles_deg: Elevations | None = None
+    pattern: Name | None = None
     horizontal_steps: Pixels = 1024
     min_range: NonNegative = 0.0
     max_range: Positive | None = None
     max_returns: Annotated[int, Field(strict=True, ge=1, le=MAX_RETURNS)] = 1
-    period_s: Positive | None = None  #: the sweep's duration: columns fire over it (motion)
+    return_mode: Literal[RETURN_MODES] | None = None
+    beam_divergence_deg: Finite = 0.0
+    beam_samples: Integer = 1
+    range_resolution: Finite = 0.1
+    attenuation: Finite = 0.004
+    noise: NoiseBody | None = None
+    dropout: DropoutBody | None = None
+    non_hits: Literal[NON_HITS] = "drop"
+    organized: bool = Field(False, strict=True)
+    period_s: Positive | None = None  #: the sweep's duration: its columns fire over it (motion)
     pose_end: Matrix4 | None = None  #: the sensor's pose at the sweep's end (needs period_s)
 
     @model_validator(mode="after")
     def _one_pattern(self) -> LidarRequest:
         if self.pose_end is not None and self.period_s is None:
             raise ValueError("pose_end needs period_s (the sweep's duration in seconds)")
-        if (self.model is None) == (self.vertical_angles_deg is None):
+        given = [self.model, self.vertical_angles_deg, self.pattern]
+        if sum(value is not None for value in given) != 1:
             raise ValueError(
                 "give exactly one beam pattern: model (one of "
-                f"{', '.join(MODELS)}) or vertical_angles_deg (a list of elevations in degrees)"
+                f"{', '.join(MODELS)}), vertical_angles_deg (a list of elevations in degrees) "
+                "or pattern (the name of an uploaded pattern)"
             )
         if self.max_range is not None and self.max_range <= self.min_range:
             raise ValueError(
@@ -201,46 +219,56 @@ class LidarRequest(Body):
             )
         return self
 
-    @property
-    def elevations_deg(self) -> list[float]:
-        if self.model is not None:
-            return list(MODELS[self.model].vertical_angles_deg)
-        return self.vertical_angles_deg
-
-    @property
-    def n_rays(self) -> int:
-        return len(self.elevations_deg) * self.horizontal_steps
-
-    def motion(self) -> Motion | None:
-        """The sweep over time (None: one instant); CameraError (422) for a pose_end that is not
-        rigid."""
-        if self.period_s is None:
-            return None
-        end = None if self.pose_end is None else check_pose(self.pose_end, "pose_end")
-        return Motion(self.period_s, end)
-
-    def scan(self) -> Scan:
-        """The revolution to trace; CameraError (422) for a pose that is not rigid."""
-        return make_scan(
-            self.pose,
-            self.elevations_deg,
-            self.horizontal_steps,
-            self.min_range,
-            math.inf if self.max_range is None else self.max_range,
+    def sensor(self, patterns: Callable[[str], Pattern]) -> tuple[Lidar, np.ndarray]:
+        """(the engine's lidar, its sensor-to-scene pose); ``patterns`` gives the uploaded
+        pattern of a name. Without ``return_mode``, ``max_returns`` > 1 means ``all`` (every
+        surface the beam crosses), as /lidar answered before return modes."""
+        mode = self.return_mode or ("all" if self.max_returns > 1 else "first")
+        lidar = Lidar(
+            model=self.model,
+            vertical_angles_deg=self.vertical_angles_deg,
+            pattern=None if self.pattern is None else patterns(self.pattern),
+            horizontal_steps=self.horizontal_steps,
+            min_range=self.min_range,
+            max_range=self.max_range,
+            max_returns=self.max_returns,
+            return_mode=mode,
+            noise=None if self.noise is None else self.noise.model_dump(),
+            dropout=None if self.dropout is None else self.dropout.model_dump(),
+            **{key: getattr(self, key) for key in PHYSICS_KEYS},
+            period_s=self.period_s,
         )
+        return lidar, check_pose(self.pose)
+
+    def end_pose(self) -> np.ndarray | None:
+        """The sensor's pose at the sweep's end (None: it stays at ``pose``); CameraError (422)
+        naming ``pose_end`` when it is not rigid."""
+        return None if self.pose_end is None else check_pose(self.pose_end, "pose_end")
 
 
-class Motion(NamedTuple):
-    """A lidar sweep over time: its duration, and the sensor's pose at its end (None: still)."""
+class LidarInRig(LidarRequest):
+    kind: Literal["lidar"]
 
-    period_s: float
-    pose_end: np.ndarray | None
+
+class CameraInRig(CameraRequest):
+    kind: Literal["camera"]
+
+
+class SensorsRequest(Body):
+    """``POST /sensors``: a rig, named sensors each with the body of ``/lidar`` or ``/camera``
+    and its ``kind``."""
+
+    sensors: Annotated[
+        dict[Name, Annotated[LidarInRig | CameraInRig, Discriminator("kind")]],
+        Field(min_length=1),
+    ]
 
 
 Model = TypeVar("Model", bound=Body)
 
-#: Error types that mean the body has the wrong keys (400) rather than wrong values (422).
-_KEY_ERRORS = ("missing", "extra_forbidden")
+#: Error types that mean the body has the wrong keys (400) rather than wrong values (422): a key
+#: missing or unknown at any depth, or a rig's sensor without its ``kind``.
+_KEY_ERRORS = ("missing", "extra_forbidden", "union_tag_not_found")
 
 
 def parse(model: type[Model], body: wire.Buffer, what: str) -> Model:
@@ -252,21 +280,32 @@ def parse(model: type[Model], body: wire.Buffer, what: str) -> Model:
         value = model.model_validate(doc)
     except ValidationError as error:
         errors = error.errors(include_url=False)
-        wrong_keys = [e for e in errors if e["type"] in _KEY_ERRORS and len(e["loc"]) == 1]
+        wrong_keys = [e for e in errors if e["type"] in _KEY_ERRORS]
         if wrong_keys:
             raise BadBody(f"{what}: {describe(wrong_keys)}; the body's keys are {keys}") from None
         raise Invalid(f"{what}: {describe(errors)}") from None
-    missing = value.missing() if isinstance(value, CameraRequest) else []
-    if missing:
-        raise BadBody(f"{what}: the camera lacks {', '.join(missing)}; the body's keys are {keys}")
+    cameras = {"": value} if isinstance(value, CameraRequest) else {}
+    if isinstance(value, SensorsRequest):
+        sensors = value.sensors.items()
+        cameras = {f"sensors.{name}: ": s for name, s in sensors if s.kind == "camera"}
+    for where, camera in cameras.items():
+        missing = camera.missing()
+        if missing:
+            raise BadBody(
+                f"{what}: {where}the camera lacks {', '.join(missing)}; the body's keys are {keys}"
+            )
     return value
 
 
 def describe(errors: list[dict]) -> str:
-    """One clause per pydantic error: ``pose[3][0]: Input should be a finite number``."""
+    """One clause per pydantic error: ``pose[3][0]: Input should be a finite number``; a rig's
+    ``sensors.NAME.KEY`` (without the tag of its kind)."""
     parts = []
     for error in errors:
-        path = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in error["loc"])
+        loc = list(error["loc"])
+        if loc[:1] == ["sensors"] and len(loc) > 3 and loc[2] in ("lidar", "camera"):
+            del loc[2]  # the discriminator's tag, which the body does not name
+        path = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc)
         path = path.removeprefix(".")
         message = error["msg"].removeprefix("Value error, ")
         if error["type"] == "missing":

@@ -53,6 +53,8 @@ class Settings(BaseSettings):
     #: largest hit buffers of one hits query: rays x (max_hits + 1) x 48 bytes
     #: (``footprint.HIT_SLOT_BYTES``: the engine's lists and the answer's keys of a filled slot)
     max_hits_bytes: Bytes = 2 * GiB
+    max_patterns: PositiveInt = 64  #: most scan patterns (``PUT /v1/patterns/{name}``) held
+    max_pattern_rays: PositiveInt = 1 * MiB  #: most rays of one scan pattern
     threads: int | None = Field(None, gt=0)  #: engine threads per query (None: every core)
     #: .npz (vertices, faces) for the demo scene; None: the teapot shipped with the package
     demo_scene: Path | None = None
@@ -119,6 +121,8 @@ class Settings(BaseSettings):
             "max_scene_bytes": self.max_scene_bytes,
             "max_hits": self.max_hits,
             "max_hits_bytes": self.max_hits_bytes,
+            "max_patterns": self.max_patterns,
+            "max_pattern_rays": self.max_pattern_rays,
             "max_inflight_bytes": self.inflight_budget(),
         }
 

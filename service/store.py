@@ -22,10 +22,11 @@ import threading
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from dacrt.sensors.physics import DEFAULT_LABEL, DEFAULT_REFLECTIVITY
 from dacrt.validation import place_vertices
 
 from .errors import Conflict, Invalid, NotFound, TooLarge
@@ -87,6 +88,16 @@ def owned_transform(matrix: np.ndarray | None) -> np.ndarray | None:
     if matrix is None or np.array_equal(matrix, IDENTITY):
         return None
     return _owned(matrix, "<f8")
+
+
+class Material(NamedTuple):
+    """A mesh's material as a change gives it (checked by ``wire``); None keeps a part."""
+
+    reflectivity: float | None = None
+    label: int | None = None
+
+
+NO_MATERIAL = Material()
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,6 +163,8 @@ class Mesh:
     mask: int = ALL_MASKS  #: uint32; a ray sees the mesh where ray mask & mask != 0
     transform: np.ndarray | None = None  #: (4, 4) float64 read-only row-major; None: identity
     instance_of: str | None = None  #: the source mesh whose Geometry this instance shares
+    reflectivity: float = DEFAULT_REFLECTIVITY  #: in [0, 1]: a lidar's intensity of its hits
+    label: int = DEFAULT_LABEL  #: uint32: a semantic class, the label of a lidar's points
     #: (4, 4) float64 read-only: the placement at the end of the frame's interval; None: static
     transform_end: np.ndarray | None = None
 
@@ -187,6 +200,8 @@ class Mesh:
             "transform": (IDENTITY if self.transform is None else self.transform).tolist(),
             "transform_end": None if self.transform_end is None else self.transform_end.tolist(),
             "instance_of": self.instance_of,
+            "reflectivity": self.reflectivity,
+            "label": self.label,
         }
 
 
@@ -403,6 +418,15 @@ class Store:
             mesh = self._changed(old.mesh(name), name, mask=mask)
             return self._commit(scene, old, {name: mesh}).meshes[name]
 
+    def set_material(
+        self, scene: str, name: str, reflectivity: float | None, label: int | None
+    ) -> Mesh:
+        """Set a mesh's reflectivity and label (checked; None keeps one); the rest is kept."""
+        with self._lock:
+            old = self.snapshot(scene)
+            mesh = self._changed(old.mesh(name), name, material=Material(reflectivity, label))
+            return self._commit(scene, old, {name: mesh}).meshes[name]
+
     def apply_frame(
         self,
         scene: str,
@@ -434,9 +458,17 @@ class Store:
             for name, change in changes.items():
                 before = old.meshes.get(name) if old is not None else None
                 end = ends.get(name, ...)
+                material = Material(change.reflectivity, change.label)
                 if name in added:
                     meshes[name] = self._changed(
-                        before, name, change.transform, change.mask, added[name], None, end
+                        before,
+                        name,
+                        change.transform,
+                        change.mask,
+                        added[name],
+                        None,
+                        material,
+                        transform_end=end,
                     )
                 elif change.instance_of is not None:
                     meshes[name] = self._changed(
@@ -445,6 +477,7 @@ class Store:
                         change.transform,
                         change.mask,
                         instance_of=change.instance_of,
+                        material=material,
                         transform_end=end,
                     )
                 elif before is None:
@@ -458,7 +491,12 @@ class Store:
                     if change.vertices is not None:
                         mesh = self._moved(before, change.vertices, scene)
                     meshes[name] = self._changed(
-                        mesh, name, change.transform, change.mask, transform_end=end
+                        mesh,
+                        name,
+                        change.transform,
+                        change.mask,
+                        material=material,
+                        transform_end=end,
                     )
             return self._commit(scene, old, meshes)
 
@@ -498,6 +536,7 @@ class Store:
         mask: int | None = None,
         geometry: Geometry | None = None,
         instance_of: str | None = ...,  # type: ignore[assignment]
+        material: Material = NO_MATERIAL,
         transform_end: np.ndarray | None = ...,  # type: ignore[assignment]
     ) -> Mesh:
         """``before`` (or a new mesh) with what is given changed; ``instance_of=None`` makes it a
@@ -514,6 +553,10 @@ class Store:
             changes["geometry"] = geometry
         if instance_of is not ...:
             changes["instance_of"] = instance_of
+        if material.reflectivity is not None:
+            changes["reflectivity"] = float(material.reflectivity)
+        if material.label is not None:
+            changes["label"] = int(material.label)
         if transform_end is not ... and not _same_end(before.transform_end, transform_end):
             changes["transform_end"] = (
                 None if transform_end is None else _owned(transform_end, "<f8")

@@ -90,11 +90,6 @@ def _snapshot_engine(snapshot: Snapshot, scene_type: Any = dacrt.Scene) -> Engin
     return build_engine_scene(meshes, scene_type)
 
 
-def engine_of(snapshot: Snapshot) -> EngineScene:
-    """The in-process engine scene of a version, built once (``_snapshot_engine``)."""
-    return snapshot.cached("dacrt", _snapshot_engine)
-
-
 def changed_engine_scene(engine: EngineScene, meshes: list[tuple]) -> EngineScene | None:
     """``engine`` changed into the engine scene of ``meshes`` (as ``build_engine_scene`` takes
     them, each with mask and transform) by ``Scene.with_changes``, or None where they differ by
@@ -132,6 +127,11 @@ def _same_transform(a: np.ndarray | None, b: np.ndarray | None) -> bool:
     if a is None or b is None:
         return a is b
     return a is b or np.array_equal(a, b)
+
+
+def engine_scene(snapshot: Snapshot) -> EngineScene:
+    """The engine scene of one scene version, built once per version (the sensors' too)."""
+    return snapshot.cached("dacrt", _snapshot_engine)
 
 
 @dataclass(frozen=True)

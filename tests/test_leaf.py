@@ -72,6 +72,7 @@ def run_leaf(
         hit_v=hit_v,
         ray_masks=no_masks if ray_masks is None else ray_masks,
         tri_masks=no_masks if tri_masks is None else tri_masks,
+        tri_keys=np.arange(len(tri_verts), dtype=np.int32),
         n_hits=n_hits,
         list_t=list_t,
         list_tri=list_tri,

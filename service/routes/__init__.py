@@ -1,3 +1,4 @@
 """HTTP routes, a few lines each: ``meshes`` (meshes and their scenes), ``queries`` (ray batches),
 ``points`` (point queries: ``/nearest``), ``pictures`` (sensors: ``/render``, ``/camera``,
-``/lidar``), ``ops`` (the viewer, health, metrics, capabilities)."""
+``/lidar``, rigs: ``/sensors``), ``patterns`` (lidar scan patterns), ``ops`` (the viewer, health,
+metrics, capabilities)."""

@@ -1,5 +1,5 @@
-"""Meshes and the scenes that hold them: upload, instance, deform, place, mask, frame, inspect,
-delete."""
+"""Meshes and the scenes that hold them: upload, instance, deform, place, mask, material, frame,
+inspect, delete."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request, Response
 
-from .. import footprint, openapi, wire
-from ..deps import SettingsDep, StoreDep, read_body, reject_unknown_query, require_token
-from ..errors import Invalid
+from .. import openapi, wire
+from ..deps import SettingsDep, StoreDep, read_change, reject_unknown_query, require_token
+from ..errors import BadBody, Invalid
 from ..params import FrameFormat, Mask, MeshFormat, MeshName, SceneName, VertexFormat
 from ..store import check_name
 
@@ -34,14 +34,17 @@ TRANSFORM_BODY = openapi.request_body(
 MASK_BODY = openapi.request_body(
     ("json",), openapi.MASK_JSON, "the mesh's visibility mask: a uint32, decimal or 0x hex"
 )
+MATERIAL_BODY = openapi.request_body(
+    ("json",), openapi.MATERIAL_JSON, "the mesh's material: reflectivity, label, or both"
+)
 VERTICES_BODY = openapi.request_body(
     wire.VERTEX_FORMATS, openapi.VERTICES_JSON, "vertex positions, as many as the mesh has"
 )
 FRAME_BODY = openapi.request_body(
     wire.FRAME_FORMATS,
     openapi.FRAME_JSON,
-    "MESH.vertices (and MESH.faces), MESH.transform, MESH.mask (and, in JSON, MESH.instance_of) "
-    "for several meshes",
+    "MESH.vertices (and MESH.faces), MESH.transform, MESH.mask, MESH.reflectivity, MESH.label "
+    "(and, in JSON, MESH.instance_of) for several meshes",
 )
 CHANGE_ERRORS = openapi.errors(400, 401, 404, 408, 409, 413, 415, 422, 503, 507)
 READ_ERRORS = openapi.errors(401, 404, 422)
@@ -72,14 +75,7 @@ async def put_mesh(
     scene, sharing its arrays."""
     check_name("scene", scene), check_name("mesh", mesh)
     mask_value = None if mask is None else wire.parse_mask(mask, "?mask")
-    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
-    fmt = wire.resolve_format(
-        request.headers.get("content-type"),
-        format,
-        wire.MESH_FORMATS,
-        body,
-        "PUT /v1/scenes/{scene}/meshes/{mesh}",
-    )
+    body, fmt = await read_change(request, settings, format, wire.MESH_FORMATS)
     decoded = await run_sync(partial(_decode_mesh_or_instance, body, fmt, settings.max_body_bytes))
     if isinstance(decoded, wire.MeshArrays):
         stored, created = await run_sync(store.put_mesh, scene, mesh, decoded, mask_value)
@@ -121,14 +117,7 @@ async def put_vertices(
     """New vertex positions for a mesh, same count (409 otherwise); faces are kept."""
     check_name("scene", scene), check_name("mesh", mesh)
     store.snapshot(scene).mesh(mesh)  # 404 before reading the body
-    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
-    fmt = wire.resolve_format(
-        request.headers.get("content-type"),
-        format,
-        wire.VERTEX_FORMATS,
-        body,
-        "PUT /v1/scenes/{scene}/meshes/{mesh}/vertices",
-    )
+    body, fmt = await read_change(request, settings, format, wire.VERTEX_FORMATS)
     vertices = await run_sync(partial(wire.decode_vertices, body, fmt, settings.max_body_bytes))
     stored = await run_sync(store.update_vertices, scene, mesh, vertices)
     return stored.info(scene)
@@ -143,9 +132,7 @@ async def put_transform(
     """Place a mesh in the scene by a 4x4 row-major affine matrix; its arrays are kept."""
     check_name("scene", scene), check_name("mesh", mesh)
     store.snapshot(scene).mesh(mesh)  # 404 before reading the body
-    doc = await _json_body(
-        request, settings, "matrix", "PUT /v1/scenes/{scene}/meshes/{mesh}/transform"
-    )
+    doc = await _json_body(request, settings, "matrix")
     matrix = wire.check_matrix(doc["matrix"], "matrix")
     return (await run_sync(store.set_transform, scene, mesh, matrix)).info(scene)
 
@@ -157,17 +144,43 @@ async def put_mask(
     """Set a mesh's visibility mask; everything else is kept."""
     check_name("scene", scene), check_name("mesh", mesh)
     store.snapshot(scene).mesh(mesh)  # 404 before reading the body
-    doc = await _json_body(request, settings, "mask", "PUT /v1/scenes/{scene}/meshes/{mesh}/mask")
+    doc = await _json_body(request, settings, "mask")
     value = wire.parse_mask(doc["mask"], "mask")
     return (await run_sync(store.set_mask, scene, mesh, value)).info(scene)
 
 
-async def _json_body(request: Request, settings: SettingsDep, key: str, what: str) -> dict:
-    """The JSON object ``{key: ...}`` of a small body (415 for another Content-Type)."""
-    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
-    wire.resolve_format(request.headers.get("content-type"), None, ("json",), body, what)
-    doc = wire.read_json(body, key)
-    wire.check_keys(doc, (key,))
+@router.put("/{scene}/meshes/{mesh}/material", openapi_extra=MATERIAL_BODY, responses=CHANGE_ERRORS)
+async def put_material(
+    scene: SceneName, mesh: MeshName, request: Request, settings: SettingsDep, store: StoreDep
+) -> dict:
+    """Set a mesh's reflectivity and label (either alone keeps the other); everything else is
+    kept."""
+    check_name("scene", scene), check_name("mesh", mesh)
+    store.snapshot(scene).mesh(mesh)  # 404 before reading the body
+    doc = await _json_body(request, settings, (), ("reflectivity", "label"))
+    if not doc:
+        raise BadBody("the body names no material key; give reflectivity, label or both")
+    material = (
+        wire.parse_reflectivity(doc["reflectivity"], "reflectivity")
+        if "reflectivity" in doc
+        else None,
+        wire.parse_label(doc["label"], "label") if "label" in doc else None,
+    )
+    return (await run_sync(store.set_material, scene, mesh, *material)).info(scene)
+
+
+async def _json_body(
+    request: Request,
+    settings: SettingsDep,
+    keys: str | tuple[str, ...],
+    optional: tuple[str, ...] = (),
+) -> dict:
+    """The JSON object of a small body with ``keys`` (and ``optional`` ones); 415 for another
+    Content-Type."""
+    keys = (keys,) if isinstance(keys, str) else keys
+    body, _ = await read_change(request, settings, None, ("json",))
+    doc = wire.read_json(body, ", ".join(keys + optional))
+    wire.check_keys(doc, keys, optional)
     return doc
 
 
@@ -182,14 +195,7 @@ async def post_frame(
     """Change several meshes in one version, atomically: their vertices, faces, transforms and
     masks, and new instances."""
     check_name("scene", scene)
-    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
-    fmt = wire.resolve_format(
-        request.headers.get("content-type"),
-        format,
-        wire.FRAME_FORMATS,
-        body,
-        "POST /v1/scenes/{scene}/frame",
-    )
+    body, fmt = await read_change(request, settings, format, wire.FRAME_FORMATS)
     frame = await run_sync(partial(wire.decode_frame, body, fmt, settings.max_body_bytes))
     snapshot = await run_sync(store.apply_frame, scene, frame)
     return snapshot.info()

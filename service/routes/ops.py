@@ -180,6 +180,7 @@ async def capabilities(settings: SettingsDep, cluster: ClusterDep) -> dict:
         "fields": {
             **{q.value: list(names) for q, names in options.FIELDS.items()},
             "nearest": [*tracing.NEAREST_FIELDS, *tracing.SIGN_FIELDS],
+            **{s.value: list(names) for s, names in options.SENSOR_FIELDS.items() if names},
         },
         "strategies": list(options.strategies()),
         "default_strategy": options.strategies()[0],
@@ -192,6 +193,8 @@ async def capabilities(settings: SettingsDep, cluster: ClusterDep) -> dict:
             "frame": media(wire.FRAME_FORMATS),
             "trace": media(wire.TRACE_FORMATS),
             "answers": media(wire.ANSWER_FORMATS),
+            "patterns": media(wire.PATTERN_FORMATS),
+            "lidar_answers": media((*wire.ANSWER_FORMATS, "pcd")),
         },
         "limits": settings.limits(),
         "auth": settings.token is not None,

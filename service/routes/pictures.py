@@ -1,18 +1,42 @@
-"""Sensors on a stored scene: a picture (``/render``), a depth camera (``/camera``) and a spinning
-lidar (``/lidar``), each a JSON body of a few numbers whose rays the server makes and traces."""
+"""Sensors on a stored scene: a picture (``/render``), a depth camera (``/camera``), a lidar
+(``/lidar``) and a rig of several (``/sensors``), each a JSON body of a few numbers that becomes the
+engine's sensors (``sensor_requests``), traced by ``dacrt.sensors`` (``sensing``)."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 
+from dacrt.sensors import Camera, Lidar
+
 from .. import footprint, openapi, sensing, shading, wire
-from ..deps import MetricsDep, SettingsDep, StoreDep, reject_unknown_query, require_token
-from ..errors import TooLarge
-from ..params import CameraOptions, LidarOptions, RenderOptions, SceneName, body_format
+from ..deps import (
+    MetricsDep,
+    PatternsDep,
+    SettingsDep,
+    StoreDep,
+    reject_unknown_query,
+    require_token,
+)
+from ..errors import Invalid, TooLarge
+from ..params import (
+    CameraOptions,
+    LidarOptions,
+    RenderOptions,
+    RigOptions,
+    SceneName,
+    body_format,
+)
+from ..patterns import Patterns
 from ..pipeline import Decoded, Steps, answer, encode_arrays
 from ..responses import BuffersResponse
-from ..sensor_requests import CameraRequest, LidarRequest, RenderRequest, parse
+from ..sensor_requests import (
+    CameraRequest,
+    LidarRequest,
+    RenderRequest,
+    SensorsRequest,
+    parse,
+)
 from ..settings import Settings
 from ..tracing import TraceResult
 
@@ -26,6 +50,9 @@ JSON_ONLY = ("json",)
 JsonFormat = body_format(JSON_ONLY)
 PNG = "image/png"
 SENSOR_ERRORS = openapi.errors(400, 401, 404, 406, 408, 413, 415, 422)
+#: A lidar answers a PCD file too (``Accept: application/x-pcd``); a rig npz or JSON.
+LIDAR_FORMATS = (*wire.ANSWER_FORMATS, "pcd")
+RIG_FORMATS = ("npz", "json")
 
 
 def json_body(model, description: str) -> dict:
@@ -67,13 +94,13 @@ async def render(
 
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(RenderRequest, body, "render")
-        check_pixels(wanted.width, wanted.height, settings)
-        pixels = wanted.width * wanted.height
-        return sensor_decoded((wanted.pinhole(), wanted.shading), body, pixels, "png")
+        camera, pose = wanted.sensor()
+        check_sensors({"render": camera}, settings)
+        return sensor_decoded((camera, pose, wanted.shading), body, [camera], "png")
 
     def trace(value) -> TraceResult:
-        pinhole, style = value
-        return sensing.render(store.snapshot(scene), pinhole, style, options)
+        camera, pose, style = value
+        return sensing.render(store.snapshot(scene), camera, pose, style, options)
 
     def encode(result: TraceResult, answer_format: str):
         picture = shading.png(result.arrays["pixels"])
@@ -108,14 +135,12 @@ async def camera(
     answer_format = wire.negotiate(request.headers.get("accept"), "json")
 
     def decode(body: memoryview, fmt: str) -> Decoded:
-        wanted = parse(CameraRequest, body, "camera")
-        check_pixels(wanted.width, wanted.height, settings)
-        value = (wanted.pinhole(), wanted.near, wanted.max_depth)
-        return sensor_decoded(value, body, wanted.width * wanted.height, answer_format)
+        sensor, pose = parse(CameraRequest, body, "camera").sensor()
+        check_sensors({"camera": sensor}, settings)
+        return sensor_decoded((sensor, pose), body, [sensor], answer_format)
 
     def trace(value) -> TraceResult:
-        pinhole, near, far = value
-        return sensing.depth_camera(store.snapshot(scene), pinhole, near, far, options)
+        return sensing.sense(store.snapshot(scene), *value, options)
 
     steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode_arrays)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
@@ -124,13 +149,15 @@ async def camera(
 @router.post(
     "/scenes/{scene}/lidar",
     openapi_extra=json_body(
-        LidarRequest, "a sensor pose, a beam pattern, rays per revolution and a range window"
+        LidarRequest,
+        "a sensor pose, a beam pattern (model, vertical_angles_deg or an uploaded pattern), "
+        "rays per revolution, a range window, returns and the lidar's physics",
     ),
     response_class=BuffersResponse,
     responses={
         **openapi.answers(
             "per point: xyz, range, ring, azimuth, elevation, mesh, prim, return, cos_incidence, "
-            "ray; with period_s also time, velocity, radial_speed"
+            "ray, intensity, label (and time with a pattern's times); or a binary PCD file"
         ),
         **SENSOR_ERRORS,
     },
@@ -140,54 +167,133 @@ async def lidar(
     request: Request,
     settings: SettingsDep,
     store: StoreDep,
+    patterns: PatternsDep,
     metrics: MetricsDep,
     options: LidarOptions,
     format: JsonFormat = None,
 ) -> BuffersResponse:
-    """One revolution of a spinning lidar: the points where its beams hit (docs/sensors.md)."""
-    answer_format = wire.negotiate(request.headers.get("accept"), "json")
+    """One sweep of a lidar: the points where its beams return, with intensity and label
+    (docs/sensors.md)."""
+    answer_format = wire.negotiate(request.headers.get("accept"), "json", LIDAR_FORMATS)
 
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(LidarRequest, body, "lidar")
-        check_rays(wanted.n_rays * wanted.max_returns, settings, "beams x steps x max_returns")
-        value = (wanted.scan(), wanted.max_returns, wanted.motion())
-        return sensor_decoded(value, body, wanted.n_rays, answer_format, wanted.max_returns)
+        sensor, pose = wanted.sensor(patterns.for_lidar)
+        check_sensors({"lidar": sensor}, settings)
+        return sensor_decoded((sensor, pose, wanted.end_pose()), body, [sensor], answer_format)
 
     def trace(value) -> TraceResult:
-        scan, max_returns, motion = value
-        return sensing.lidar_scan(store.snapshot(scene), scan, max_returns, options, motion)
+        sensor, pose, pose_end = value
+        return sensing.sense(store.snapshot(scene), sensor, pose, options, pose_end)
 
     steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode_arrays)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
-def sensor_decoded(
-    value, body: memoryview, n_rays: int, answer_format: str, max_returns: int = 1
-) -> Decoded:
-    """A sensor's body decoded into ``value``, holding its body, its ``n_rays`` rays traced for
-    ``max_returns`` returns each and its answer in ``answer_format``."""
-    peak = (
-        len(body)
-        + footprint.sensor_bytes(n_rays, max_returns)
-        + footprint.answer_bytes(answer_format)
-    )
+@router.post(
+    "/scenes/{scene}/sensors",
+    openapi_extra=json_body(
+        SensorsRequest,
+        "a rig: named sensors, each the body of /lidar or /camera with its kind",
+    ),
+    response_class=BuffersResponse,
+    responses={
+        **openapi.answers(
+            "each sensor's answer: .npz keys NAME.KEY (roof.xyz, front.depth), or JSON "
+            "{NAME: {KEY: ...}}"
+        ),
+        **SENSOR_ERRORS,
+    },
+)
+async def sensors(
+    scene: SceneName,
+    request: Request,
+    settings: SettingsDep,
+    store: StoreDep,
+    patterns: PatternsDep,
+    metrics: MetricsDep,
+    options: RigOptions,
+    format: JsonFormat = None,
+) -> BuffersResponse:
+    """A rig: every sensor's rays traced as one batch on one scene version; each sensor answers
+    what it answers alone (``?fields=`` picks the keys each has)."""
+    answer_format = wire.negotiate(request.headers.get("accept"), "json", RIG_FORMATS)
+
+    def decode(body: memoryview, fmt: str) -> Decoded:
+        wanted = parse(SensorsRequest, body, "sensors")
+        rig = rig_sensors(wanted, patterns)
+        check_sensors({name: sensor for name, (sensor, _) in rig.items()}, settings)
+        ends = {
+            name: sensor.end_pose()
+            for name, sensor in wanted.sensors.items()
+            if sensor.kind == "lidar" and sensor.pose_end is not None
+        }
+        sensors = [sensor for sensor, _ in rig.values()]
+        return sensor_decoded((rig, ends), body, sensors, answer_format)
+
+    def trace(value) -> TraceResult:
+        rig, ends = value
+        return sensing.sense_rig(store.snapshot(scene), rig, options, ends)
+
+    def encode(result: TraceResult, answer_format: str):
+        return wire.encode_rig_answer(result.arrays, answer_format)
+
+    steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode)
+    return await answer(request, settings, store, metrics, options, scene, format, steps)
+
+
+def rig_sensors(wanted: SensorsRequest, patterns: Patterns) -> dict[str, sensing.Placed]:
+    """Each sensor of a rig as the engine's, at its pose; an InputError names the sensor."""
+    placed = {}
+    for name, body in wanted.sensors.items():
+        try:
+            placed[name] = (
+                body.sensor(patterns.for_lidar) if body.kind == "lidar" else body.sensor()
+            )
+        except ValueError as error:  # the engine's InputError: 422
+            raise type(error)(f"sensors.{name}: {error}") from None
+        except Invalid as error:  # a pattern that is not there
+            raise Invalid(f"sensors.{name}: {error.detail}") from None
+    return placed
+
+
+def sensor_decoded(value, body: memoryview, sensors: list, answer_format: str) -> Decoded:
+    """Sensors' body decoded into ``value``, holding its body, the sensors' rays and hits and
+    its answer in ``answer_format``."""
+    peak = len(body) + footprint.answer_bytes(answer_format)
+    n_rays = 0
+    for sensor in sensors:
+        rays = sensing.traced_rays(sensor)
+        peak += footprint.sensor_bytes(rays, sensing.hits_per_ray(sensor))
+        if isinstance(sensor, Lidar) and (sensor.organized or sensor.non_hits == "keep"):
+            peak += sensor.n_beams * sensor.slots * footprint.FILLED_POINT_BYTES
+        n_rays += rays
     return Decoded(value, n_rays, peak, answer_format)
 
 
-def check_pixels(width: int, height: int, settings: Settings) -> None:
-    """413 for a picture over DACRT_MAX_IMAGE_PIXELS (or over DACRT_MAX_RAYS_PER_REQUEST)."""
-    if width * height > settings.max_image_pixels:
-        raise TooLarge(
-            f"{width} x {height} = {width * height} pixels is over the limit of "
-            f"{settings.max_image_pixels} pixels (DACRT_MAX_IMAGE_PIXELS)"
-        )
-    check_rays(width * height, settings, "width x height")
+#: What a sensor's rays are, for a 413.
+RAY_WORDS = {
+    Camera: "width x height",
+    Lidar: "beams x beam_samples (x max_returns with return_mode all)",
+}
 
 
-def check_rays(n_rays: int, settings: Settings, what: str) -> None:
-    """413 for more rays than DACRT_MAX_RAYS_PER_REQUEST."""
-    if n_rays > settings.max_rays_per_request:
+def check_sensors(sensors: dict, settings: Settings) -> None:
+    """413 for a picture over DACRT_MAX_IMAGE_PIXELS, or for more rays (and hits) than
+    DACRT_MAX_RAYS_PER_REQUEST in all the sensors of a request together."""
+    total = 0
+    for name, sensor in sensors.items():
+        if isinstance(sensor, Camera) and sensor.width * sensor.height > settings.max_image_pixels:
+            pixels = sensor.width * sensor.height
+            raise TooLarge(
+                f"{name}: {sensor.width} x {sensor.height} = {pixels} pixels is over the limit "
+                f"of {settings.max_image_pixels} pixels (DACRT_MAX_IMAGE_PIXELS)"
+            )
+        total += sensing.traced_rays(sensor) * sensing.hits_per_ray(sensor)
+    if total > settings.max_rays_per_request:
+        (name, sensor), *others = sensors.items()
+        what = "the sensors' rays together" if others else RAY_WORDS[type(sensor)]
         raise TooLarge(
-            f"{what} = {n_rays} rays is over the limit of {settings.max_rays_per_request} rays "
-            "per request (DACRT_MAX_RAYS_PER_REQUEST)"
+            f"{what} = {total} rays is over the limit of "
+            f"{settings.max_rays_per_request} rays per request (DACRT_MAX_RAYS_PER_REQUEST)"
         )

@@ -85,11 +85,17 @@ Frames (``decode_frame``; formats npz, json)
     Each mesh may also have ``MESH.transform``: a (4, 4) row-major affine matrix (npz: float32 or
     float64; JSON: 4 lists of 4 numbers), checked by the engine (``check_matrix``);
     ``MESH.mask``: a uint32 (npz: an integer array of one element; JSON: an integer or a string
-    in decimal or ``0x`` hex, ``parse_mask``); ``MESH.transform_end``: its placement at the end
-    of the frame's interval (as ``MESH.transform``; a frame that gives a mesh ``MESH.transform``
-    and no ``MESH.transform_end`` makes it static again); and, in JSON only,
-    ``MESH.instance_of``: the name of the mesh whose arrays it shares, never with
-    ``MESH.vertices`` or ``MESH.faces``.
+    in decimal or ``0x`` hex, ``parse_mask``); ``MESH.reflectivity`` (a number in [0, 1]) and
+    ``MESH.label`` (an integer in [0, 2**32)), as JSON numbers or npz arrays of one element;
+    ``MESH.transform_end``: its placement at the end of the frame's interval (as
+    ``MESH.transform``; a frame that gives a mesh ``MESH.transform`` and no
+    ``MESH.transform_end`` makes it static again); and, in JSON only, ``MESH.instance_of``: the
+    name of the mesh whose arrays it shares, never with ``MESH.vertices`` or ``MESH.faces``.
+
+Scan patterns (``decode_pattern``; formats npz, json)
+    ``azimuth_deg`` and ``elevation_deg`` (M,), optional ``time_s`` (M,) and ``channel`` (M,)
+    integers (npz: uint16); no other keys. More than ``max_rays`` rays is 413; values are checked
+    by the engine's ``dacrt.sensors.Pattern``, which names the key and the first bad row.
 
 One-shot trace (``decode_trace``; formats npz, json)
     The keys of a mesh (``vertices``, ``faces``) and of rays (``origins``, ``directions``,
@@ -105,15 +111,18 @@ Answers (``negotiate`` and ``encode_answer``)
          field each (``a["t"]``, ``a["normal"]`` of shape (N, 3)). So every field must have one
          row per ray: a hits answer in CSR form (``offsets`` and per-hit keys) is npz or JSON only
          (the route's ``formats`` for ``negotiate``).
+    pcd  a lidar's points only (``Accept: application/x-pcd``): a binary PCD v0.7 file of its
+         fields (``x y z`` for ``xyz``), ``dacrt.sensors.pcd``.
     json ``{"t": [...], ...}``; float32 values in their shortest round-trip form, so
          ``np.float32(json_value)`` gives back the binary answer bit for bit; inf (and nan) are
-         null.
+         null. A rig's answer is ``{"NAME": {"KEY": [...], ...}, ...}`` (npz: keys ``NAME.KEY``).
 """
 
 from .answers import (
     check_accepts,
     encode_answer,
     encode_json,
+    encode_rig_answer,
     json_ready,
     negotiate,
     npy_parts,
@@ -136,11 +145,14 @@ from .decoders import (
     check_matrix,
     decode_frame,
     decode_mesh,
+    decode_pattern,
     decode_points,
     decode_rays,
     decode_trace,
     decode_vertices,
+    parse_label,
     parse_mask,
+    parse_reflectivity,
     read_json,
     read_mapping,
 )
@@ -154,6 +166,8 @@ from .formats import (
     MESH_FORMATS,
     NPY,
     NPZ,
+    PATTERN_FORMATS,
+    PCD,
     POINT_FORMATS,
     RAY_FORMATS,
     TRACE_FORMATS,
@@ -177,6 +191,8 @@ __all__ = [
     "MESH_FORMATS",
     "NPY",
     "NPZ",
+    "PATTERN_FORMATS",
+    "PCD",
     "POINT_FORMATS",
     "RAY_FORMATS",
     "TRACE_FORMATS",
@@ -191,10 +207,12 @@ __all__ = [
     "check_faces",
     "check_keys",
     "check_accepts",
+    "encode_rig_answer",
     "check_matrix",
     "check_vertices",
     "decode_frame",
     "decode_mesh",
+    "decode_pattern",
     "decode_points",
     "decode_rays",
     "decode_trace",
@@ -211,7 +229,9 @@ __all__ = [
     "npy_parts",
     "npz_parts",
     "nulls_to_inf",
+    "parse_label",
     "parse_mask",
+    "parse_reflectivity",
     "read_json",
     "read_mapping",
     "read_npy",

@@ -8,8 +8,10 @@ from typing import Any
 
 import numpy as np
 
+from dacrt.sensors.pcd import pcd_bytes
+
 from ..errors import NotAcceptable
-from .formats import ANSWER_FORMATS, CONTENT_TYPES, JSON, NPY, NPZ, Buffer
+from .formats import ANSWER_FORMATS, CONTENT_TYPES, JSON, NPY, NPZ, PCD, Buffer
 from .npy import array_bytes, npy_header
 from .npz_writer import NpzBody
 
@@ -84,7 +86,33 @@ def encode_answer(
         return parts, sum(len(part) for part in parts), NPY
     if fmt == "json":
         return json_pieces(arrays), None, JSON
+    if fmt == "pcd":
+        body = pcd_bytes(arrays)
+        return [body], len(body), PCD
     raise ValueError(f"unknown answer format {fmt!r}")
+
+
+def encode_rig_answer(
+    arrays: Mapping[str, np.ndarray], fmt: str
+) -> tuple[Iterable[Buffer], int | None, str]:
+    """A rig's answer of ``NAME.KEY`` arrays: the npz as they are named, or JSON ``{"NAME":
+    {"KEY": [...]}}`` (a name may hold dots: the key is what follows the last one)."""
+    if fmt != "json":
+        return encode_answer(arrays, fmt)
+    sensors: dict[str, dict[str, np.ndarray]] = {}
+    for name, array in arrays.items():
+        sensor, _, key = name.rpartition(".")
+        sensors.setdefault(sensor, {})[key] = array
+    return _nested_pieces(sensors), None, JSON
+
+
+def _nested_pieces(sensors: Mapping[str, Mapping[str, np.ndarray]]) -> Iterator[bytes]:
+    separator = "{"
+    for name, arrays in sensors.items():
+        yield f"{separator}{json.dumps(name)}:".encode()
+        yield from json_pieces(arrays)
+        separator = ","
+    yield b"}" if sensors else b"{}"
 
 
 def npy_parts(arrays: Mapping[str, np.ndarray]) -> list[Buffer]:

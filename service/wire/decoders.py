@@ -10,6 +10,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 import dacrt
+import dacrt.sensors
 
 from ..errors import BadBody, Invalid, TooLarge, UnsupportedMediaType
 from .arrays import (
@@ -189,6 +190,8 @@ class FrameChange(NamedTuple):
     transform: np.ndarray | None = None  #: (4, 4) float64, checked by ``check_matrix``
     mask: int | None = None  #: uint32
     instance_of: str | None = None  #: the mesh whose arrays this one shares
+    reflectivity: float | None = None  #: in [0, 1]
+    label: int | None = None  #: uint32
     transform_end: np.ndarray | None = None  #: (4, 4) float64: the placement at the interval's end
 
 
@@ -210,7 +213,7 @@ def decode_frame(body: Buffer, fmt: str, max_bytes: int | None = None) -> dict[s
         if not mesh or kind not in FRAME_PARTS:
             raise BadBody(
                 f"frame key {key!r} is not MESH.vertices or MESH.faces, nor MESH.transform, "
-                "MESH.transform_end, MESH.mask or MESH.instance_of"
+                "MESH.transform_end, MESH.mask, MESH.instance_of, MESH.reflectivity or MESH.label"
             )
         parts.setdefault(mesh, {})[kind] = value
     if not parts:
@@ -247,7 +250,37 @@ def _frame_change(mesh: str, arrays: dict[str, Any]) -> FrameChange:
                 f"{mesh}.instance_of must be a mesh name (a JSON string); an .npz frame cannot "
                 "hold one: send it in a JSON frame or PUT the instance"
             )
-    return FrameChange(vertices, faces, transform, mask, source, transform_end)
+    reflectivity = label = None
+    if "reflectivity" in arrays:
+        reflectivity = parse_reflectivity(arrays["reflectivity"], f"{mesh}.reflectivity")
+    if "label" in arrays:
+        label = parse_label(arrays["label"], f"{mesh}.label")
+    return FrameChange(vertices, faces, transform, mask, source, reflectivity, label, transform_end)
+
+
+def _one_value(value: Any, name: str, kinds: str) -> Any:
+    """A JSON scalar, or the one element of an npz array of a dtype kind in ``kinds``."""
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in kinds or value.size != 1:
+            raise Invalid(f"{name} must be one number, got {value.dtype} {value.shape}")
+        return value.ravel()[0].item()
+    return value
+
+
+def parse_reflectivity(value: Any, name: str) -> float:
+    """A mesh's reflectivity: a number in [0, 1] (JSON number or one-element npz array)."""
+    value = _one_value(value, name, "fiu")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 1:
+        raise Invalid(f"{name} must be a number in [0, 1], got {value!r}")
+    return float(value)
+
+
+def parse_label(value: Any, name: str) -> int:
+    """A mesh's label: an integer in [0, 2**32) (JSON integer or one-element npz array)."""
+    value = _one_value(value, name, "iu")
+    if type(value) is not int or not 0 <= value <= MAX_MASK:
+        raise Invalid(f"{name} must be an integer from 0 to {MAX_MASK}, got {value!r}")
+    return value
 
 
 #: What a mask may be written as, in a query string or a JSON string.
@@ -303,3 +336,39 @@ def decode_trace(
     check_keys(mapping, ("vertices", "faces", "origins", "directions"), RAY_OPTIONAL_KEYS)
     rays = rays_from_mapping(mapping, max_rays)
     return mesh_arrays(mapping["vertices"], mapping["faces"]), rays
+
+
+#: The keys of a scan pattern's body (``dacrt.sensors.Pattern``): required, then optional.
+PATTERN_KEYS = ("azimuth_deg", "elevation_deg")
+PATTERN_OPTIONAL_KEYS = ("time_s", "channel")
+
+
+def decode_pattern(
+    body: Buffer, fmt: str, max_rays: int, max_bytes: int | None = None
+) -> dacrt.sensors.Pattern:
+    """A scan pattern from an npz (or JSON) body of ``azimuth_deg``, ``elevation_deg`` and
+    optional ``time_s``, ``channel`` (M,) each; more than ``max_rays`` rays is 413, bad values are
+    the engine's InputError naming the key (422)."""
+    mapping = read_mapping(body, fmt, "azimuth_deg, elevation_deg", max_bytes)
+    check_keys(mapping, PATTERN_KEYS, PATTERN_OPTIONAL_KEYS)
+    arrays = {key: _pattern_array(value, key) for key, value in mapping.items()}
+    n_rays = arrays["azimuth_deg"].size
+    if n_rays > max_rays:
+        raise TooLarge(
+            f"the pattern has {n_rays} rays, over the limit of {max_rays} (DACRT_MAX_PATTERN_RAYS)"
+        )
+    return dacrt.sensors.Pattern(**arrays)
+
+
+def _pattern_array(value: Any, key: str) -> np.ndarray:
+    """An npz array as it is, or a JSON list of numbers (integers for ``channel``) as an array."""
+    if isinstance(value, np.ndarray):
+        return value
+    integers = key == "channel"
+    if not isinstance(value, list) or any(isinstance(item, list) for item in value):
+        raise Invalid(f"{key} must be a list of {'integers' if integers else 'numbers'}")
+    check_json_numbers(value, key, (int,) if integers else (int, float))
+    try:
+        return np.asarray(value, np.int64 if integers else np.float64)
+    except OverflowError:
+        raise Invalid(f"{key} holds a number beyond the range of its dtype") from None

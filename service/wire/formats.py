@@ -7,6 +7,7 @@ from collections.abc import Iterable
 from ..errors import UnsupportedMediaType
 
 NPY, NPZ, JSON = "application/x-npy", "application/x-npz", "application/json"
+PCD = "application/x-pcd"  #: a lidar's answer only
 Buffer = bytes | memoryview  #: a part of a body
 
 #: Content-Type (lower case, no parameters) -> format.
@@ -25,6 +26,7 @@ CONTENT_TYPES: dict[str, str] = {
     "model/gltf-binary": "glb",
     "model/off": "off",
     "application/off": "off",
+    PCD: "pcd",
 }
 #: The preferred Content-Type of each format (for messages and for the client).
 MEDIA_TYPES: dict[str, str] = {
@@ -36,6 +38,7 @@ MEDIA_TYPES: dict[str, str] = {
     "stl": "model/stl",
     "glb": "model/gltf-binary",
     "off": "model/off",
+    "pcd": PCD,
 }
 MESH_FILE_FORMATS = ("obj", "ply", "stl", "glb", "off")
 
@@ -45,6 +48,7 @@ MESH_FORMATS = ("npz", "json", *MESH_FILE_FORMATS)
 VERTEX_FORMATS = ("npy", "npz", "json")
 FRAME_FORMATS = ("npz", "json")
 TRACE_FORMATS = ("npz", "json")
+PATTERN_FORMATS = ("npz", "json")
 ANSWER_FORMATS = ("npz", "npy", "json")
 
 _SNIFF = (

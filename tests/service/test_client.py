@@ -60,6 +60,9 @@ def test_capabilities_list_formats_fields_strategies_and_limits(app_api):
         "model/obj" in caps["formats"]["meshes"] and "application/x-npy" in caps["formats"]["rays"]
     )
     assert caps["limits"]["max_rays_per_request"] == 16 * 2**20 and caps["auth"] is False
+    assert caps["fields"]["lidar"][-2:] == ["label", "time"] and "pcd" not in caps["fields"]
+    assert "application/x-pcd" in caps["formats"]["lidar_answers"]
+    assert caps["limits"]["max_patterns"] == 64
 
 
 def test_metrics_count_requests_rays_and_memory(app_api, app_client, teapot_scene):
@@ -101,6 +104,8 @@ def test_put_mesh_is_201_then_200_with_mesh_info(app_client, scene_name):
         "mask": 0xFFFFFFFF,
         "transform": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
         "instance_of": None,
+        "reflectivity": 0.5,
+        "label": 0,
     }
     assert again.json()["version"] == 2 and again.json()["index"] == 0
 
@@ -656,3 +661,78 @@ def test_set_transform_places_the_mesh_for_hits_and_count(app_api, scene_name, t
     assert err.max() <= placed_checks.T_ULPS
     count = app_api.count(scene_name, origins, directions).count
     assert np.array_equal(count, np.diff(expected.offsets))
+
+
+# ---- sensors through the client, on the real server
+
+
+@pytest.fixture
+def server_room(client, scene_name):
+    from sensor_helpers import put_room
+
+    put_room(client, scene_name)
+    return scene_name
+
+
+def test_client_sensors_answer_what_the_engine_answers(client, server_room):
+    """``render``, ``camera``, ``lidar`` and ``sensors`` over uvicorn equal ``dacrt.sensors`` in
+    process on the same meshes and materials, bit for bit."""
+    from sensor_helpers import MESHES, rigid_pose
+
+    from dacrt.sensors import Camera, Lidar, Materials, Rig, look_at_pose
+
+    client.set_material(server_room, "sphere", reflectivity=0.9, label=3)
+    info = client.set_material(server_room, "box", label=8)
+    assert (info["reflectivity"], info["label"]) == (0.5, 8)
+    scene = dacrt.Scene(list(MESHES.values()))
+    materials = Materials(reflectivity=[0.5, 0.9, 0.5], label=[0, 3, 8])
+    pose = rigid_pose(15, 0, (0.0, -3.0, 1.2))
+    physics = {"return_mode": "dual", "beam_divergence_deg": 1.0, "beam_samples": 3,
+               "noise": {"range_sigma": 0.01, "seed": 2}}  # fmt: skip
+    points = client.lidar(server_room, pose=pose, model="VLP-16", horizontal_steps=180, **physics)
+    expected = Lidar("VLP-16", horizontal_steps=180, **physics).scan(scene, pose, materials)
+    assert points.version == 5 and list(points) == list(expected) and expected.n_points > 100
+    for key in expected:
+        assert (
+            np.array_equal(points[key], expected[key]) and points[key].dtype == expected[key].dtype
+        )
+    assert set(np.unique(points.label)) == {0, 3, 8}
+    look = {"eye": [6.0, -6.0, 4.0], "target": [0.0, 0.0, 0.5], "up": [0.0, 0.0, 1.0]}
+    image = client.camera(server_room, width=32, height=24, fov_deg=50.0, **look)
+    camera = Camera.from_fov(32, 24, 50.0)
+    want = camera.capture(scene, look_at_pose(**look))
+    assert all(np.array_equal(image[k], want[k]) for k in want) and list(image) == list(want)
+    png = client.render(server_room, width=32, height=24, shading="depth", **look)
+    assert png.startswith(b"\x89PNG")
+    roof = {"kind": "lidar", "pose": pose, "model": "VLP-16", "horizontal_steps": 180, **physics}
+    rig = {"roof": roof, "front": {"kind": "camera", "width": 32, "height": 24, **look}}
+    rig["front"]["fov_deg"] = 50.0
+    both = client.sensors(server_room, rig, stats=True)
+    assert set(both) == {"roof", "front"} and both["roof"].version == 5
+    assert both["roof"].stats["rays"] == 16 * 180 * 3 + 32 * 24  # one batch
+    together = Rig({"roof": Lidar("VLP-16", horizontal_steps=180, **physics), "front": camera})
+    poses = {"roof": pose, "front": look_at_pose(**look)}
+    for name, arrays in together.capture(scene, poses, materials).items():
+        assert list(both[name]) == list(arrays)
+        assert all(np.array_equal(both[name][k], arrays[k], equal_nan=True) for k in arrays)
+    pcd = client.lidar(server_room, pose=pose, model="VLP-16", horizontal_steps=180, pcd=True)
+    assert pcd.startswith(b"# .PCD v0.7") and b"\nDATA binary\n" in pcd
+    with pytest.raises(APIError) as refused:
+        client.lidar(server_room, pose=pose, model="VLP-16", noise={"range_sigma": -1})
+    assert refused.value.status == 422 and "noise.range_sigma" in refused.value.detail
+
+
+def test_client_patterns(client, server_room, scene_name):
+    from sensor_helpers import rigid_pose
+
+    azimuth, elevation = np.linspace(-40, 40, 200), np.linspace(-20, 5, 200)
+    info = client.put_pattern(scene_name, azimuth, elevation, time_s=np.linspace(0, 0.1, 200))
+    assert info == {"pattern": scene_name, "rays": 200, "time_s": True, "channel": False}
+    assert info in client.patterns()
+    assert np.array_equal(client.pattern(scene_name)["azimuth_deg"], azimuth)
+    points = client.lidar(server_room, pose=rigid_pose(0, 0, (-6.0, 0.0, 1.0)), pattern=scene_name)
+    assert len(points.ray) > 50 and points.time.dtype == np.float32
+    client.delete_pattern(scene_name)
+    with pytest.raises(APIError) as gone:
+        client.pattern(scene_name)
+    assert gone.value.status == 404

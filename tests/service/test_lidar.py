@@ -26,6 +26,8 @@ FIELDS = (
     "return",
     "cos_incidence",
     "ray",
+    "intensity",
+    "label",
 )
 #: The data sheets' vertical angles, written out here independently of service/lidar.py.
 PUBLISHED = {
@@ -68,6 +70,7 @@ def expected_points(app_api, scene, pose, elevations, steps, tmin=None, tmax=Non
     ray = np.flatnonzero(np.isfinite(hits.t))
     d = directions[ray].astype(np.float64)
     unit = d / np.linalg.norm(d, axis=1, keepdims=True)
+    cosine = np.abs((unit * hits.normal[ray]).sum(1))
     return {
         "xyz": origins[ray] + hits.t[ray, None] * directions[ray],  # float32 arithmetic
         "range": hits.t[ray],
@@ -77,8 +80,11 @@ def expected_points(app_api, scene, pose, elevations, steps, tmin=None, tmax=Non
         "mesh": hits.mesh[ray],
         "prim": hits.prim[ray],
         "return": np.zeros(len(ray), np.int16),
-        "cos_incidence": np.abs((unit * hits.normal[ray]).sum(1)).astype(np.float32),
+        "cos_incidence": cosine.astype(np.float32),
         "ray": ray.astype(np.int32),
+        # API.md: reflectivity (0.5 by default) x cos_incidence x exp(-0.004 range)
+        "intensity": (0.5 * cosine * np.exp(-0.004 * hits.t[ray])).astype(np.float32),
+        "label": np.zeros(len(ray), np.uint32),  # every mesh's default label
     }
 
 
@@ -86,7 +92,7 @@ def assert_same_points(answer, expected):
     assert list(answer) == list(FIELDS)
     for name in FIELDS:
         assert answer[name].dtype == expected[name].dtype, name
-        if name == "cos_incidence":  # a dot product: summation order may differ by an ulp
+        if name in ("cos_incidence", "intensity"):  # a dot product: an ulp's difference
             assert np.allclose(answer[name], expected[name], rtol=1e-6, atol=1e-7), name
         else:
             assert np.array_equal(answer[name], expected[name]), name
@@ -281,3 +287,96 @@ def test_the_query_strings_mask_is_every_beams_ray_mask(app_client, inside_spher
     assert len(npz(lidar(app_client, inside_sphere, body).content)["xyz"]) == 16 * 8
     hidden = npz(lidar(app_client, inside_sphere, body, "?mask=0").content)
     assert len(hidden["xyz"]) == 0
+
+
+def read_pcd(content: bytes) -> tuple[dict[str, str], np.ndarray]:
+    """(header, records) of a binary PCD v0.7 file, read by its own rules: header lines up to
+    ``DATA binary``, then the points, each field's SIZE and TYPE in FIELDS order, no padding."""
+    end = content.index(b"DATA binary\n") + len(b"DATA binary\n")
+    lines = content[:end].decode("ascii").splitlines()
+    header = dict(line.split(" ", 1) for line in lines if not line.startswith("#"))
+    names, sizes, kinds = (header[k].split() for k in ("FIELDS", "SIZE", "TYPE"))
+    letters = {"F": "f", "I": "i", "U": "u"}
+    dtype = np.dtype([(n, f"<{letters[t]}{s}") for n, s, t in zip(names, sizes, kinds)])
+    return header, np.frombuffer(content[end:], dtype)
+
+
+def test_accept_pcd_answers_the_points_as_a_binary_pcd_file(app_client, room):
+    body = {"pose": POSES[0].tolist(), "model": "VLP-16", "horizontal_steps": 90}
+    points = npz(lidar(app_client, room, body).content)
+    response = lidar(app_client, room, body, "?fields=xyz,intensity,ring,label", Accept=PCD)
+    assert response.status_code == 200 and response.headers["content-type"] == PCD
+    header, records = read_pcd(response.content)
+    assert header["VERSION"] == "0.7" and header["FIELDS"] == "x y z ring intensity label"
+    assert header["TYPE"] == "F F F I F U" and header["SIZE"] == "4 4 4 2 4 4"
+    assert int(header["POINTS"]) == int(header["WIDTH"]) == len(points["xyz"]) > 100
+    assert header["HEIGHT"] == "1"
+    for axis, name in enumerate("xyz"):
+        assert np.array_equal(records[name], points["xyz"][:, axis])
+    for name in ("ring", "intensity", "label"):
+        assert np.array_equal(records[name], points[name])
+    # an organized scan is HEIGHT rings by WIDTH steps
+    organized = lidar(app_client, room, {**body, "organized": True}, "?fields=xyz", Accept=PCD)
+    header, records = read_pcd(organized.content)
+    assert (header["HEIGHT"], header["WIDTH"]) == ("16", "90") and len(records) == 16 * 90
+    # a camera has no PCD form
+    camera = {"width": 4, "height": 3, "eye": [0, -5, 1], "target": [0, 0, 1], "up": [0, 0, 1]}
+    refused = app_client.post(f"/v1/scenes/{room}/camera", json=camera, headers={"Accept": PCD})
+    assert refused.status_code == 406
+
+
+PCD = "application/x-pcd"
+STEPS = 64
+
+
+def test_return_modes_and_max_returns(app_client, inside_sphere):
+    """From inside one closed sphere, every beam returns exactly one surface: every mode gives
+    one point a beam; max_returns > 1 without return_mode sees through (here: still one)."""
+    body = {"pose": np.eye(4).tolist(), "model": "VLP-16", "horizontal_steps": STEPS}
+    counts = {}
+    for mode in ("first", "last", "strongest", "dual", "all"):
+        answer = npz(lidar(app_client, inside_sphere, {**body, "return_mode": mode}).content)
+        counts[mode] = len(answer["ray"])
+        assert np.array_equal(answer["ray"], np.arange(16 * STEPS)), mode
+        assert np.allclose(answer["range"], 40.0, rtol=0.02)  # the sphere's radius
+    assert set(counts.values()) == {16 * STEPS}
+
+
+def test_non_hits_keep_and_organized_answers(app_client, room):
+    body = {"pose": POSES[0].tolist(), "vertical_angles_deg": [-10.0, 30.0], "horizontal_steps": 8}
+    hits = npz(lidar(app_client, room, body).content)
+    kept = npz(lidar(app_client, room, {**body, "non_hits": "keep"}).content)
+    assert np.array_equal(kept["ray"], np.arange(16))  # one point a beam, in ray order
+    silent = ~np.isin(kept["ray"], hits["ray"])
+    assert silent.any() and np.isinf(kept["range"][silent]).all()
+    assert (kept["mesh"][silent] == -1).all() and np.isnan(kept["xyz"][silent]).all()
+    assert np.array_equal(kept["range"][~silent], hits["range"])
+    grid = npz(lidar(app_client, room, {**body, "organized": True}).content)
+    assert grid["range"].shape == (2, 8) and grid["xyz"].shape == (2, 8, 3)
+    assert np.array_equal(grid["range"].reshape(-1), kept["range"])
+
+
+def test_noise_is_seeded_and_dropout_drops(app_client, room):
+    body = {"pose": POSES[0].tolist(), "model": "VLP-16", "horizontal_steps": 180}
+    plain = npz(lidar(app_client, room, body).content)
+    noise = {"range_sigma": 0.05, "seed": 11}
+    noisy = npz(lidar(app_client, room, {**body, "noise": noise}).content)
+    again = npz(lidar(app_client, room, {**body, "noise": noise}).content)
+    other = npz(lidar(app_client, room, {**body, "noise": {**noise, "seed": 12}}).content)
+    assert np.array_equal(noisy["range"], again["range"])
+    assert not np.array_equal(noisy["range"], other["range"])
+    error = noisy["range"].astype(np.float64) - plain["range"]
+    assert 0.03 < error.std() < 0.07 and abs(error.mean()) < 0.01
+    dropped = npz(lidar(app_client, room, {**body, "dropout": {"rate": 0.5, "seed": 1}}).content)
+    assert 0.4 < len(dropped["ray"]) / len(plain["ray"]) < 0.6
+    assert np.isin(dropped["ray"], plain["ray"]).all()
+
+
+def test_every_sub_ray_counts_against_the_ray_limit(app_client, room):
+    body = {"pose": POSE, "model": "OS1-128", "horizontal_steps": 2049, "beam_samples": 64}
+    response = lidar(app_client, room, body)
+    assert response.status_code == 413, response.text
+    assert "DACRT_MAX_RAYS_PER_REQUEST" in response.json()["detail"]
+    rig = {"sensors": {f"l{k}": {"kind": "lidar", **body, "beam_samples": 32} for k in range(2)}}
+    response = app_client.post(f"/v1/scenes/{room}/sensors", json=rig)
+    assert response.status_code == 413 and "together" in response.json()["detail"]

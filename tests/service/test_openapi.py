@@ -20,6 +20,7 @@ BODIES = {
     ("PUT", "/v1/scenes/{scene}/meshes/{mesh}/vertices"): wire.VERTEX_FORMATS,
     ("PUT", "/v1/scenes/{scene}/meshes/{mesh}/transform"): ("json",),
     ("PUT", "/v1/scenes/{scene}/meshes/{mesh}/mask"): ("json",),
+    ("PUT", "/v1/scenes/{scene}/meshes/{mesh}/material"): ("json",),
     ("POST", "/v1/scenes/{scene}/frame"): wire.FRAME_FORMATS,
     ("POST", "/v1/scenes/{scene}/closest"): wire.RAY_FORMATS,
     ("POST", "/v1/scenes/{scene}/occluded"): wire.RAY_FORMATS,
@@ -30,6 +31,8 @@ BODIES = {
     ("POST", "/v1/scenes/{scene}/render"): ("json",),
     ("POST", "/v1/scenes/{scene}/camera"): ("json",),
     ("POST", "/v1/scenes/{scene}/lidar"): ("json",),
+    ("POST", "/v1/scenes/{scene}/sensors"): ("json",),
+    ("PUT", "/v1/patterns/{name}"): wire.PATTERN_FORMATS,
 }
 
 

@@ -388,6 +388,29 @@ def test_a_placement_change_writes_only_the_manifest(tmp_path, placed, change):
     assert_same_scenes(open_store(tmp_path), placed)
 
 
+def test_materials_are_restored(tmp_path, changed):
+    changed.set_material("s", "a", 0.8, None)
+    changed.apply_frame("s", {"c": FrameChange(reflectivity=0.25, label=12)})
+    restored = open_store(tmp_path)
+    assert_same_scenes(restored, changed)
+    meshes = restored.snapshot("s").meshes
+    assert {name: (m.reflectivity, m.label) for name, m in meshes.items()} == {
+        "a": (0.8, 0),
+        "c": (0.25, 12),
+    }
+
+
+def test_a_material_change_writes_only_the_manifest(tmp_path):
+    store = open_store(tmp_path)
+    store.put_mesh("s", "a", MeshArrays(*grid(4)))
+    before = files(tmp_path)
+    store.set_material("s", "a", None, 7)
+    after = files(tmp_path)
+    arrays = {name: inode for name, inode in before.items() if name.endswith(".npy")}
+    assert {name: after[name] for name in arrays} == arrays
+    assert open_store(tmp_path).snapshot("s").mesh("a").label == 7
+
+
 def test_a_format_1_manifest_is_read_with_the_defaults(tmp_path):
     store = open_store(tmp_path)
     store.put_mesh("s", "a", MeshArrays(*grid(4)))
@@ -396,7 +419,7 @@ def test_a_format_1_manifest_is_read_with_the_defaults(tmp_path):
     assert record["format"] == 2 and record["meshes"][0]["mask"] == 0xFFFFFFFF
     record["format"] = 1
     for item in record["meshes"]:
-        del item["mask"]
+        del item["mask"], item["reflectivity"], item["label"]
     path.write_text(json.dumps(record))
     assert_same_scenes(open_store(tmp_path), store)
 
@@ -409,6 +432,8 @@ def test_a_format_1_manifest_is_read_with_the_defaults(tmp_path):
         (lambda m: m.update(transform=np.zeros((4, 4)).tolist()), "transform is not affine"),
         (lambda m: m.update(transform=[[1, 2]]), "transform must have shape (4, 4)"),
         (lambda m: m.update(mask=-1), "mask=-1 is negative"),
+        (lambda m: m.update(reflectivity=2), "reflectivity must be a number in [0, 1]"),
+        (lambda m: m.update(label="x"), "label must be an integer"),
         (lambda m: m.pop("instance_of"), "lacks 'vertices'"),
     ],
 )

@@ -34,6 +34,28 @@ pose = st.one_of(
     st.just([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 1], [0, 0, 0, 1]]),
 )
 size = st.one_of(st.integers(1, 24), numbers)
+#: The physics of API.md "Lidar physics", sub-rays kept few: each example is traced.
+PHYSICS = {
+    "return_mode": st.sampled_from(["first", "last", "strongest", "dual", "all", "both"]),
+    "beam_divergence_deg": numbers,
+    "beam_samples": st.one_of(st.integers(-1, 6), st.sampled_from([65, 2.5, True])),
+    "range_resolution": numbers,
+    "attenuation": numbers,
+    "noise": st.fixed_dictionaries(
+        {},
+        optional={
+            "range_sigma": numbers,
+            "range_sigma_per_m": numbers,
+            "angle_sigma_deg": numbers,
+            "seed": numbers,
+        },
+    ),
+    "dropout": st.fixed_dictionaries(
+        {}, optional={"rate": numbers, "min_intensity": numbers, "seed": numbers}
+    ),
+    "non_hits": st.sampled_from(["drop", "keep", "x"]),
+    "organized": st.sampled_from([True, False, 1]),
+}
 LOOK_AT = {"width": size, "height": size, "eye": vector, "target": vector}
 #: (required keys, optional keys) of the bodies of each route, and of each kind of camera.
 SHAPES = {
@@ -64,6 +86,7 @@ SHAPES = {
                 "max_range": numbers,
                 "max_returns": numbers,
                 "vertical_angles_deg": st.lists(numbers, max_size=6),
+                **PHYSICS,
             },
         ),
         (
@@ -73,9 +96,31 @@ SHAPES = {
                 "min_range": numbers,
                 "max_range": numbers,
                 "max_returns": numbers,
+                **PHYSICS,
             },
         ),
     ],  # fmt: skip
+    "sensors": [
+        (
+            {
+                "sensors": st.dictionaries(
+                    st.sampled_from(["roof", "front", "a.b", "?"]),
+                    st.one_of(
+                        st.fixed_dictionaries(
+                            {"kind": st.just("lidar"), "pose": pose, "model": st.just("VLP-16")},
+                            optional={"horizontal_steps": size, **PHYSICS},
+                        ),
+                        st.fixed_dictionaries(
+                            {"kind": st.sampled_from(["camera", "radar"]), **LOOK_AT},
+                            optional={"fov_deg": numbers, "far": numbers},
+                        ),
+                    ),
+                    max_size=3,
+                )
+            },
+            {},
+        ),
+    ],
 }
 
 

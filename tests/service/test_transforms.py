@@ -258,7 +258,11 @@ def test_a_json_frame_sets_transforms_masks_and_makes_instances(app_client, scen
         ({"a.transform": np.zeros((4, 4))}, 422, "a.transform is not affine"),
         ({"zz.transform": np.eye(4)}, 404, "no mesh 'zz'"),
         ({"a.instance_of": np.zeros(1)}, 422, "a.instance_of must be a mesh name"),
-        ({"a.normals": np.eye(4)}, 400, "MESH.transform_end, MESH.mask or MESH.instance_of"),
+        (
+            {"a.normals": np.eye(4)},
+            400,
+            "MESH.transform_end, MESH.mask, MESH.instance_of, MESH.reflectivity or MESH.label",
+        ),
     ],
 )
 def test_a_bad_frame_transform_is_refused_and_changes_nothing(
