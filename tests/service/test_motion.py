@@ -196,3 +196,31 @@ def test_a_lidar_end_pose_needs_a_period(app_client, scene_name):
     body = {"pose": np.eye(4).tolist(), "model": "VLP-16", "period_s": 0}
     response = app_client.post(f"/v1/scenes/{scene_name}/lidar", json=body)
     assert response.status_code == 422 and "period_s" in response.text
+
+
+def test_a_rigs_lidar_takes_period_and_end_pose_as_lidar_does(app_client, scene_name):
+    frame = box_frame("wall", (-50.0, 10.0, -5.0), (50.0, 11.0, 5.0))
+    assert app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame).status_code == 200
+    end = np.eye(4)
+    end[0, 3] = 1.0
+    body = {
+        "pose": np.eye(4).tolist(),
+        "vertical_angles_deg": [0.0],
+        "horizontal_steps": 64,
+        "period_s": 0.1,
+        "pose_end": end.tolist(),
+    }
+    alone = lidar_npz(app_client, scene_name, body)
+    rig = {"sensors": {"roof": {"kind": "lidar", **body}}}
+    response = app_client.post(
+        f"/v1/scenes/{scene_name}/sensors", json=rig, headers={"Accept": "application/x-npz"}
+    )
+    assert response.status_code == 200, response.text
+    import io
+
+    with np.load(io.BytesIO(response.content)) as archive:
+        for name in ("xyz", "range", "time", "velocity", "radial_speed"):
+            np.testing.assert_array_equal(archive[f"roof.{name}"], alone[name])
+    np.testing.assert_allclose(
+        alone["radial_speed"], -10.0 * np.cos(2 * np.pi * alone["ray"] / 64), atol=1e-4
+    )
