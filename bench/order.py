@@ -6,8 +6,8 @@ side by side in one process.
 
 For each scene, four ``dacrt.Scene`` of the same triangles, each built once:
 
-  file             the faces as given, packed in that order (``dacrt.config.MORTON_ORDER`` off)
-  morton           the faces as given, packed in Morton order (the engine's default)
+  file             the faces as given, packed in that order (``order="file"``)
+  morton           the faces as given, packed in Morton order (``order="morton"``)
   shuffled         the faces in a seeded random order, packed in that order
   shuffled+morton  the shuffled faces packed in Morton order
 
@@ -52,16 +52,12 @@ MODES = ("file", "morton", "shuffled", "shuffled+morton")
 
 def build(engine, vertices, faces, morton: bool) -> tuple[dacrt.Scene, float]:
     """(Scene, ms to build it) of the ``engine`` package, with each mesh packed in Morton order
-    or in the faces' order."""
-    saved = getattr(engine.config, "MORTON_ORDER", False)  # an older dacrt has none
-    engine.config.MORTON_ORDER = morton
-    try:
-        gc.collect()
-        start = time.perf_counter()
-        scene = engine.Scene([(vertices, faces)])
-        return scene, 1e3 * (time.perf_counter() - start)
-    finally:
-        engine.config.MORTON_ORDER = saved
+    or in the faces' order (an engine without ``order=`` packs in the faces' order)."""
+    order = {"order": "morton" if morton else "file"} if hasattr(engine, "packed") else {}
+    gc.collect()
+    start = time.perf_counter()
+    scene = engine.Scene([(vertices, faces)], **order)
+    return scene, 1e3 * (time.perf_counter() - start)
 
 
 def camera_rays(vertices, faces, scene_path: Path, n_rays: int):

@@ -1,10 +1,11 @@
 """Triangles packed for the kernels once, then shared: a mesh's packed arrays serve every
 instance of it and every later version of a Scene that keeps it (``Scene.with_changes``).
 
-Each mesh's rows are stored along a Morton curve of their box centres (``MORTON_ORDER``), whatever
-order its faces come in: neighbouring rows are neighbouring triangles, so the partitions' and
-leaves' reads of a node's rows stay in few cache lines. Nothing depends on that order: ``ids``
-keeps each row's face, and every tie compares ids, never rows.
+A mesh's rows may be stored along a Morton curve of their box centres (``order``, config's
+``COHERENCE_BITS``), whatever order its faces come in: neighbouring rows are then neighbouring
+triangles, so the partitions' and leaves' reads of a node's rows stay in few cache lines.
+Nothing depends on that order: ``ids`` keeps each row's face, and every tie compares ids, never
+rows.
 
 A ``Packed`` is never written after it is made: the kernels only read it, and a new version of
 a mesh gets a new ``Packed``. Its arrays stay writable because Numba compiles a read-only array
@@ -22,6 +23,8 @@ from .points import MORTON_BITS, triangle_codes
 from .results import unit_normals
 from .triangles import gather_triangles
 
+#: The storage orders of a mesh's rows (``Scene(order=)``).
+ORDERS = ("auto", "morton", "file")
 # The Morton codes (3 * MORTON_BITS = 30 bits) are sorted as two halves of 15 bits.
 MORTON_HALF_BITS = 3 * MORTON_BITS // 2
 MORTON_HALF_MASK = (1 << MORTON_HALF_BITS) - 1
@@ -74,10 +77,10 @@ class Packed:
         return int(sum(array.nbytes for array in held))
 
 
-def pack_meshes(meshes, first_rows):
+def pack_meshes(meshes, first_rows, order="auto"):
     """One ``Packed`` of the checked ``meshes`` ((vertices float32, faces) pairs) in their
     order, each triangle's id being its face row plus that mesh's entry of ``first_rows``; each
-    mesh's rows in Morton order (``morton_order``).
+    mesh's rows in the storage ``order`` ("auto", "morton" or "file": ``rows_in_order``).
 
     Returns (packed, live, boxes, corner_boxes): mesh k's rows are live[k]:live[k + 1] (live:
     (n + 1,) int64), and boxes, corner_boxes (n, 6) float32 hold each mesh's box of rows and
@@ -95,9 +98,10 @@ def pack_meshes(meshes, first_rows):
             vertices, faces, first_row, n_live, verts, bounds, ids, corner_boxes[k], boxes[k]
         )
         live[k + 1] = n_live
-        if config.MORTON_ORDER:
-            rows = slice(live[k], live[k + 1])
-            face_rows = np.take(ids[rows], morton_order(bounds[rows], boxes[k]))
+        rows = slice(live[k], live[k + 1])
+        order_of = rows_in_order(bounds[rows], boxes[k], order)
+        if order_of is not None:
+            face_rows = np.take(ids[rows], order_of)
             # Gathered again in that order: moving the gathered rows instead reads 60 bytes a
             # row at random, several times slower. The boxes grow by nothing new.
             in_order = np.take(faces, face_rows - INDEX(first_row), axis=0)
@@ -116,16 +120,28 @@ def pack_meshes(meshes, first_rows):
     return packed, live, boxes, corner_boxes
 
 
-def pack_mesh(vertices, faces):
+def pack_mesh(vertices, faces, order="auto"):
     """The ``Packed`` of one checked mesh, its ids being its face rows."""
-    packed, _, _, _ = pack_meshes([(vertices, faces)], [0])
+    packed, _, _, _ = pack_meshes([(vertices, faces)], [0], order)
     return packed
 
 
-def morton_order(bounds, box):
-    """The rows of ``bounds`` (F, 6) float32 sorted (stably) by the 30-bit Morton code of their
-    box centres over ``box`` (6,) float32, the rows' box."""
+def rows_in_order(bounds, box, order):
+    """The rows of ``bounds`` (F, 6) float32 in Morton order of their box centres over ``box``
+    (``morton_order``), or None to keep them as they are: ``order`` "file", or "auto" for
+    faces that come coherent (``COHERENCE_BITS``)."""
+    if order == "file" or len(bounds) < 2:
+        return None
     codes = triangle_codes(bounds, np.arange(len(bounds), dtype=INDEX), box)
+    if order == "auto":
+        cells = codes >> (3 * MORTON_BITS - config.COHERENCE_BITS)
+        if np.count_nonzero(cells[1:] != cells[:-1]) <= config.INCOHERENT_JUMPS * len(codes):
+            return None
+    return morton_order(codes)
+
+
+def morton_order(codes):
+    """The indices that sort ``codes`` (F,) int64, 30-bit Morton codes, stably."""
     # NumPy sorts 16-bit keys stably by radix, in O(F): the low half, then the high half.
     low = np.argsort((codes & MORTON_HALF_MASK).astype(np.uint16), kind="stable")
     high = (np.take(codes, low) >> MORTON_HALF_BITS).astype(np.uint16)

@@ -50,13 +50,17 @@ class EngineScene:
         return self.mesh_index[positions]  # a miss (-1) picks the trailing -1
 
 
-def build_engine_scene(meshes: Iterable[tuple], scene_type: Any = dacrt.Scene) -> EngineScene:
+def build_engine_scene(
+    meshes: Iterable[tuple], scene_type: Any = dacrt.Scene, order: str = "morton"
+) -> EngineScene:
     """The engine scene of (index, vertices, faces[, mask[, transform[, transform_end]]])
     tuples (mask: uint32, default all ones; transform: (4, 4) or None, the identity;
     transform_end: (4, 4) or None, static); meshes without triangles are left out. Meshes may
     share arrays (instances): the engine places each by its own transform.
     ``scene_type`` builds the scene from (meshes, masks=, transforms=): ``dacrt.Scene``, or a
-    ``dacrt.distributed.DistributedScene`` bound to a client (``service.cluster``)."""
+    ``dacrt.distributed.DistributedScene`` bound to a client (``service.cluster``). ``order``
+    is a ``dacrt.Scene``'s storage order: "morton" for a stored mesh, packed once for every
+    version that keeps it."""
     kept = [tuple(mesh) for mesh in meshes if len(mesh[2])]
     indices = np.array([mesh[0] for mesh in kept] + [-1], dtype=np.int32)
     masks = np.array([mesh[3] if len(mesh) > 3 else 0xFFFFFFFF for mesh in kept], np.uint32)
@@ -69,6 +73,7 @@ def build_engine_scene(meshes: Iterable[tuple], scene_type: Any = dacrt.Scene) -
         masks=None if (masks == 0xFFFFFFFF).all() else masks,
         transforms=None if all(t is None for t in transforms) else transforms,
         **moving,
+        **({"order": order} if scene_type is dacrt.Scene else {}),
     )
     identity = np.array_equal(indices[:-1], np.arange(len(kept)))
     return EngineScene(scene, None if identity else indices, tuple(kept))
@@ -176,7 +181,7 @@ def trace(
 def trace_once(mesh: MeshArrays, rays: Rays, options: Options) -> TraceResult:
     """Answer a query on a mesh sent with the rays (mesh index 0; version 0: no stored scene)."""
     start = time.perf_counter()
-    engine = build_engine_scene([(0, mesh.vertices, mesh.faces)])
+    engine = build_engine_scene([(0, mesh.vertices, mesh.faces)], order="auto")
     return _run(engine, rays, options, 0, start)
 
 

@@ -1,5 +1,5 @@
-"""Storage order: each mesh's rows are packed along a Morton curve (``dacrt.config.MORTON_ORDER``),
-and that changes no answer. Ties in t (and in distance) compare (mesh, prim), never rows, so a
+"""Storage order: a mesh's rows may be packed along a Morton curve (``Scene(order=)``), and that
+changes no answer. Ties in t (and in distance) compare (mesh, prim), never rows, so a
 scene packed in Morton order answers bit for bit as one packed in its faces' order, for every
 query, strategy and thread count; and a mesh given in another face order answers the same up
 to the permutation (but for ties, which go to the lowest prim of the order given).
@@ -74,11 +74,9 @@ def _answers(scene, o, d, strategy, threads):
     return answers
 
 
-def _file_order_scene(meshes, monkeypatch):
+def _file_order_scene(meshes):
     """The Scene of ``meshes`` packed in their faces' order."""
-    with monkeypatch.context() as patch:
-        patch.setattr(dacrt.config, "MORTON_ORDER", False)
-        return dacrt.Scene(meshes)
+    return dacrt.Scene(meshes, order="file")
 
 
 def _assert_same(got, expected, what):
@@ -92,11 +90,11 @@ def _assert_same(got, expected, what):
 @pytest.mark.parametrize("threads", [1, 2])
 @pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
 @pytest.mark.parametrize("case", list(CASES))
-def test_morton_order_answers_as_file_order(case, strategy, threads, monkeypatch):
+def test_morton_order_answers_as_file_order(case, strategy, threads):
     """Bit for bit: closest, occluded, hits, count, nearest and contains."""
     meshes, o, d = CASES[case]()
-    morton = dacrt.Scene(meshes)
-    in_file_order = _file_order_scene(meshes, monkeypatch)
+    morton = dacrt.Scene(meshes, order="morton")
+    in_file_order = _file_order_scene(meshes)
     # The rows really are in another order.
     assert not np.array_equal(morton._base.ids, in_file_order._base.ids)
     expected = _answers(in_file_order, o, d, strategy, threads)
@@ -109,7 +107,7 @@ def test_exact_ties_go_to_the_lowest_mesh_and_prim_in_any_storage_order(strategy
     """The coplanar faces tie everywhere: the lowest (mesh, prim) wins, although Morton order
     stores another face first, and hit lists sort their ties by (mesh, prim)."""
     meshes, o, d = _coplanar()
-    scene = dacrt.Scene(meshes)
+    scene = dacrt.Scene(meshes, order="morton")
     assert scene._base.ids[0] != 0  # another face is stored first
     hits = scene.closest(o, d, strategy=strategy, threads=threads)
     np.testing.assert_array_equal(hits.t, np.ones(len(o), np.float32))
@@ -123,16 +121,16 @@ def test_exact_ties_go_to_the_lowest_mesh_and_prim_in_any_storage_order(strategy
     np.testing.assert_array_equal(nearest.mesh, np.zeros(len(o)))
 
 
-def test_with_changes_and_instances_keep_the_tie_rule(monkeypatch):
+def test_with_changes_and_instances_keep_the_tie_rule():
     """A deformed mesh is packed again in Morton order, and a placed one (an instance) is traced
     from its own Morton-ordered rows: both answer as a Scene packed in file order."""
     (first, second), o, d = _coplanar()
     lifted = first[0] + np.float32([0, 0, 0.25])
     moved = np.eye(4)
     moved[2, 3] = -0.25
-    scene = dacrt.Scene([first, second], transforms=[None, moved])
+    scene = dacrt.Scene([first, second], transforms=[None, moved], order="morton")
     scene = scene.with_changes(vertices={0: lifted})
-    expected = _file_order_scene([(lifted, first[1]), second], monkeypatch)
+    expected = _file_order_scene([(lifted, first[1]), second])
     expected = expected.with_changes(transforms={1: moved})
     for threads in (1, 2):
         _assert_same(
@@ -198,9 +196,26 @@ def test_shuffled_faces_answer_as_file_order(case):
 def test_morton_order_sorts_rows_by_their_box_centres():
     """A mesh's rows follow the Morton codes of their box centres, and ids keep the face rows."""
     v, f = pg.triangle_soup(3000, np.random.default_rng(52))
-    packed = dacrt.packed.pack_mesh(v, f)
+    packed = dacrt.packed.pack_mesh(v, f, "morton")
     codes = dacrt.points.triangle_codes(
         packed.bounds, np.arange(len(packed), dtype=np.int32), packed.box
     )
     assert np.all(np.diff(codes) >= 0)
     np.testing.assert_array_equal(packed.verts, v[f[packed.ids]].reshape(-1, 9))
+
+
+def test_auto_order_sorts_faces_that_come_incoherent_and_keeps_coherent_ones():
+    """The "auto" order keeps a grid's faces, which come row by row, in their order, and sorts
+    the same faces shuffled; "file" keeps even shuffled faces; a bad order is the caller's
+    error."""
+    v, f = pg.grid(40, 2.0)
+    shuffled = f[np.random.default_rng(53).permutation(len(f))]
+    rows = np.arange(len(f))
+    assert np.array_equal(dacrt.Scene([(v, f)])._base.ids, rows)
+    assert not np.array_equal(dacrt.Scene([(v, f)], order="morton")._base.ids, rows)
+    assert np.array_equal(dacrt.Scene([(v, shuffled)], order="file")._base.ids, rows)
+    auto = dacrt.Scene([(v, shuffled)])._base
+    codes = dacrt.points.triangle_codes(auto.bounds, rows.astype(np.int32), auto.box)
+    assert np.all(np.diff(codes) >= 0)
+    with pytest.raises(dacrt.InputError, match="order must be one of auto, morton, file"):
+        dacrt.Scene([(v, f)], order="sorted")
