@@ -25,7 +25,11 @@ def load_shared():
 
 @pytest.fixture(scope="session", autouse=True)
 def warm_engine():
-    """Compile every engine kernel once, before the first test, so that no test pays for it."""
+    """Compile every engine kernel once, before the first test, so that no test pays for it;
+    kept where the service keeps them, so that a ``python -m service.warmup`` before (as in CI)
+    has compiled them already."""
     import dacrt  # Lazily: collection must work without importing the engine.
+    import dacrt.cache
 
+    dacrt.cache.use_cache_dir()
     return dacrt.warmup()
