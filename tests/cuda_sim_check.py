@@ -11,6 +11,7 @@ assert os.environ.get("NUMBA_ENABLE_CUDASIM") == "1", "run under Numba's CUDA si
 
 import dacrt  # noqa: E402
 from dacrt import cuda as dcuda  # noqa: E402
+from dacrt.cuda.traversal import MAX_PAIRS as DEFAULT  # noqa: E402
 
 
 def soup(rng, n_tri):
@@ -72,6 +73,16 @@ def compare(label, scene, o, d, max_pairs, **kw):
         same(f"{label} closest {field}", getattr(gpu, field), getattr(cpu, field))
     occ_cpu = scene.occluded(o, d, **kw).occluded
     occ_gpu = dcuda.occluded(scene, o, d, max_pairs=max_pairs, **kw).occluded
+    if max_pairs == DEFAULT:
+        # Scene's device="cuda" is dacrt.cuda with its default frontier size.
+        by_scene = scene.closest(o, d, device="cuda", **kw)
+        same(f"{label} Scene(device=cuda) t", by_scene.t, cpu.t)
+        same(f"{label} Scene(device=cuda) prim", by_scene.prim, cpu.prim)
+        same(
+            f"{label} Scene(device=cuda) occluded",
+            scene.occluded(o, d, device="cuda", **kw).occluded,
+            occ_cpu,
+        )
     same(f"{label} occluded", occ_gpu, occ_cpu)
     print(label, "hits", int((cpu.mesh >= 0).sum()), "of", len(o), flush=True)
 
@@ -83,19 +94,19 @@ def main():
     rng = np.random.default_rng(7)
     scene = dacrt.Scene(soup(rng, 120), masks=np.array([1, 2], np.uint32))
     o, d = random_rays(rng, 80)
-    compare("soup", scene, o, d, 1 << 20)
+    compare("soup", scene, o, d, DEFAULT)
     # A frontier of at most n rays' slots is cut into runs of nodes.
     compare("soup batched", scene, o, d, 16)
     masks = rng.integers(0, 4, len(o)).astype(np.uint32)
-    compare("soup cull back, masks", scene, o, d, 1 << 20, cull="back", mask=masks)
+    compare("soup cull back, masks", scene, o, d, DEFAULT, cull="back", mask=masks)
     tmin = (rng.random(len(o)) * 0.3).astype(np.float32)
     tmax = (0.3 + rng.random(len(o))).astype(np.float32)
-    compare("soup cull front, tmin tmax", scene, o, d, 1 << 20, cull="front", tmin=tmin, tmax=tmax)
+    compare("soup cull front, tmin tmax", scene, o, d, DEFAULT, cull="front", tmin=tmin, tmax=tmax)
     k = 4
     g = dacrt.Scene(grid(k))
     go, gd = grid_rays(k, rng)
-    compare("grid", g, go, gd, 1 << 20)
-    compare("grid tmax at hit", g, go, gd, 1 << 20, tmax=2.0)
+    compare("grid", g, go, gd, DEFAULT)
+    compare("grid tmax at hit", g, go, gd, DEFAULT, tmax=2.0)
     print("ok")
 
 

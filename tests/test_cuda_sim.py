@@ -41,3 +41,7 @@ def test_cuda_refuses_unsupported_options():
     scene = dacrt.Scene([(verts, [[0, 1, 2]])])
     with pytest.raises(InputError, match="time="):
         dcuda.occluded(scene, [[0.2, 0.2, 1]], [[0, 0, -1]], time=0.5)
+    with pytest.raises(InputError, match="stats"):
+        scene.closest([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda", stats=True)
+    with pytest.raises(InputError, match="unknown device"):
+        scene.occluded([[0.2, 0.2, 1]], [[0, 0, -1]], device="tpu")
