@@ -85,6 +85,9 @@ class Settings(BaseSettings):
     max_inflight_bytes: Bytes | None = None
     #: seconds a request waits for room in that budget before it is answered 503
     admission_wait: Annotated[float, Field(ge=0)] = 5
+    #: where queries are traced: "cpu", or "cuda" (``dacrt.cuda``; refused at start for now:
+    #: with no GPU, and the service does not route queries to it yet)
+    device: Literal["cpu", "cuda"] = "cpu"
 
     @field_validator("dask_scheduler", mode="before")
     @classmethod
@@ -172,11 +175,27 @@ def load_settings(**overrides: object) -> Settings:
         settings = Settings(**overrides)
     except ValidationError as error:
         raise SettingsError(describe(error)) from None
+    check_device(settings.device)
     if settings.token_file is None:
         return settings
     if settings.token is not None:
         raise SettingsError("set DACRT_TOKEN or DACRT_TOKEN_FILE, not both")
     return settings.model_copy(update={"token": read_token(settings.token_file)})
+
+
+def check_device(device: str) -> None:
+    """Refuse DACRT_DEVICE=cuda in one line: without a GPU it cannot run, and with one the
+    service does not yet route queries to ``dacrt.cuda`` (``Scene.closest(device="cuda")``)."""
+    if device == "cpu":
+        return
+    from dacrt import cuda  # numba.cuda is imported only for this setting
+
+    if not cuda.is_available():
+        raise SettingsError("DACRT_DEVICE='cuda': no CUDA GPU is available on this machine")
+    raise SettingsError(
+        "DACRT_DEVICE='cuda': the service does not route queries to the GPU yet; "
+        "use dacrt.Scene.closest(..., device='cuda') from Python"
+    )
 
 
 def read_token(path: Path) -> SecretStr:

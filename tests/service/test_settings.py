@@ -150,6 +150,17 @@ def test_a_bad_value_names_the_variable_in_one_line(environ):
     assert "max_body_bytes" not in message and "validation error" not in message
 
 
+def test_the_device_is_the_cpu_by_default_and_cuda_is_refused_in_one_line(environ):
+    assert load_settings().device == "cpu"
+    environ(DACRT_DEVICE="cuda")
+    # No GPU here: "no CUDA GPU"; with one, the service does not route to it yet.
+    with pytest.raises(SettingsError, match="^DACRT_DEVICE='cuda': (no CUDA GPU|the service)"):
+        load_settings()
+    environ(DACRT_DEVICE="tpu")
+    with pytest.raises(SettingsError, match="DACRT_DEVICE='tpu'"):
+        load_settings()
+
+
 def test_load_settings_reads_the_environment_and_overrides(environ):
     environ(DACRT_MAX_CONNECTIONS="7", DACRT_BODY_TIMEOUT="2.5", DACRT_LOAD_DEMO="false")
     settings = load_settings(load_demo=True)
