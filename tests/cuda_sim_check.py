@@ -11,12 +11,14 @@ assert os.environ.get("NUMBA_ENABLE_CUDASIM") == "1", "run under Numba's CUDA si
 
 import dacrt  # noqa: E402
 from dacrt import cuda as dcuda  # noqa: E402
+from dacrt.cuda import traversal  # noqa: E402
 from dacrt.cuda.traversal import MAX_PAIRS as DEFAULT  # noqa: E402
 
 
 def soup(rng, n_tri):
-    """Random triangles in the unit cube, two meshes."""
+    """Random triangles in the unit cube, two meshes; a few degenerate (a repeated corner)."""
     v = rng.random((3 * n_tri, 3)).astype(np.float32)
+    v[3:30:9] = v[4:31:9]
     f = np.arange(3 * n_tri).reshape(-1, 3)
     half = 3 * (n_tri // 2)
     return [(v[:half], f[: n_tri // 2]), (v[half:], f[n_tri // 2 :] - half)]
@@ -96,7 +98,14 @@ def main():
     o, d = random_rays(rng, 80)
     compare("soup", scene, o, d, DEFAULT)
     # A frontier of at most n rays' slots is cut into runs of nodes.
+    cut = traversal.cut
+    runs = []
+    traversal.cut = lambda frontier, limit: runs.append(cut(frontier, limit)) or runs[-1]
     compare("soup batched", scene, o, d, 16)
+    traversal.cut = cut
+    assert max(len(r) for r in runs) > 1, "no frontier was cut"
+    # Hits behind the origin: negative t in the (t, triangle) keys.
+    compare("soup negative tmin", scene, o, d, DEFAULT, tmin=-0.5)
     masks = rng.integers(0, 4, len(o)).astype(np.uint32)
     compare("soup cull back, masks", scene, o, d, DEFAULT, cull="back", mask=masks)
     tmin = (rng.random(len(o)) * 0.3).astype(np.float32)
@@ -107,6 +116,15 @@ def main():
     go, gd = grid_rays(k, rng)
     compare("grid", g, go, gd, DEFAULT)
     compare("grid tmax at hit", g, go, gd, DEFAULT, tmax=2.0)
+    # No rays, and a bad ray: the CPU engine's answer and error.
+    assert len(dcuda.closest(scene, np.zeros((0, 3)), np.zeros((0, 3)))) == 0
+    d[3] = 0.0
+    try:
+        dcuda.occluded(scene, o, d)
+    except ValueError as error:
+        assert "directions[3] is zero" in str(error), error
+    else:
+        raise AssertionError("a zero direction was accepted")
     print("ok")
 
 

@@ -10,6 +10,7 @@ children whose boxes it reaches.
 import numpy as np
 from numba import cuda
 
+from .arith import float_bits
 from .boxes import hits_box
 from .watertight import ray_frame, triangle_hit
 
@@ -26,9 +27,7 @@ LOW32 = np.uint64(0xFFFFFFFF)
 @cuda.jit(device=True)
 def tie_order_key(t, tri_id):
     """(t, tri_id) as one uint64 whose order is theirs: t's bits made monotonic, then the id."""
-    cell = cuda.local.array(1, np.float32)
-    cell[0] = t
-    bits = np.uint64(cell.view(np.uint32)[0])
+    bits = np.uint64(float_bits(t)) & LOW32
     bits = (bits ^ LOW32) if bits >= SIGN32 else (bits | SIGN32)
     return (bits << np.uint64(32)) | np.uint64(tri_id)
 
