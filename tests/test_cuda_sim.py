@@ -17,6 +17,7 @@ import dacrt
 from dacrt.validation import InputError
 
 CHECK = Path(__file__).with_name("cuda_sim_check.py")
+PTX_CHECK = Path(__file__).with_name("cuda_ptx_check.py")
 
 
 def test_cuda_answers_match_cpu_under_simulator():
@@ -26,6 +27,15 @@ def test_cuda_answers_match_cpu_under_simulator():
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert done.stdout.rstrip().endswith("ok")
+
+
+def test_cuda_kernels_compile_to_ptx_without_fused_float64_products():
+    """Only where numba-cuda and its NVVM are installed (not in CI): see cuda_ptx_check.py."""
+    pytest.importorskip("numba_cuda")
+    done = subprocess.run(
+        [sys.executable, str(PTX_CHECK)], capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
 
 
 def test_cuda_refuses_unsupported_options():
