@@ -163,6 +163,23 @@ def rays_reaching_boxes(
                 at[b] += 1
 
 
+@inline
+def ray_to_mesh_space(origins, directions, ray, to_mesh, out_o, out_d, i):
+    """Ray ``ray`` by ``to_mesh`` (3, 4) float64 into row ``i`` of ``out_o``, ``out_d``: the
+    origin by the affine map, the direction by its linear part, in float64 then rounded."""
+    ox = np.float64(origins[ray, 0])
+    oy = np.float64(origins[ray, 1])
+    oz = np.float64(origins[ray, 2])
+    dx = np.float64(directions[ray, 0])
+    dy = np.float64(directions[ray, 1])
+    dz = np.float64(directions[ray, 2])
+    for a in range(3):
+        out_o[i, a] = np.float32(
+            to_mesh[a, 0] * ox + to_mesh[a, 1] * oy + to_mesh[a, 2] * oz + to_mesh[a, 3]
+        )
+        out_d[i, a] = np.float32(to_mesh[a, 0] * dx + to_mesh[a, 1] * dy + to_mesh[a, 2] * dz)
+
+
 @jit
 def rays_to_mesh_space(
     origins, directions, tmin, limit, ray_ids, to_mesh, out_o, out_d, out_tmin, out_tmax
@@ -172,17 +189,7 @@ def rays_to_mesh_space(
     linear part, in float64 then rounded; tmin as given, tmax from ``limit``."""
     for i in range(ray_ids.shape[0]):
         ray = ray_ids[i]
-        ox = np.float64(origins[ray, 0])
-        oy = np.float64(origins[ray, 1])
-        oz = np.float64(origins[ray, 2])
-        dx = np.float64(directions[ray, 0])
-        dy = np.float64(directions[ray, 1])
-        dz = np.float64(directions[ray, 2])
-        for a in range(3):
-            out_o[i, a] = np.float32(
-                to_mesh[a, 0] * ox + to_mesh[a, 1] * oy + to_mesh[a, 2] * oz + to_mesh[a, 3]
-            )
-            out_d[i, a] = np.float32(to_mesh[a, 0] * dx + to_mesh[a, 1] * dy + to_mesh[a, 2] * dz)
+        ray_to_mesh_space(origins, directions, ray, to_mesh, out_o, out_d, i)
         out_tmin[i] = tmin[ray]
         out_tmax[i] = limit[ray]
 
@@ -258,15 +265,7 @@ def rays_to_mesh_space_at(
                 out_o[i, a] = 0.0
                 out_d[i, a] = 0.0
             continue
-        ox = np.float64(origins[ray, 0])
-        oy = np.float64(origins[ray, 1])
-        oz = np.float64(origins[ray, 2])
-        dx = np.float64(directions[ray, 0])
-        dy = np.float64(directions[ray, 1])
-        dz = np.float64(directions[ray, 2])
-        for a in range(3):
-            out_o[i, a] = np.float32(inv[a, 0] * ox + inv[a, 1] * oy + inv[a, 2] * oz + inv[a, 3])
-            out_d[i, a] = np.float32(inv[a, 0] * dx + inv[a, 1] * dy + inv[a, 2] * dz)
+        ray_to_mesh_space(origins, directions, ray, inv, out_o, out_d, i)
 
 
 @inline

@@ -60,7 +60,9 @@ def test_capabilities_list_formats_fields_strategies_and_limits(app_api):
         "model/obj" in caps["formats"]["meshes"] and "application/x-npy" in caps["formats"]["rays"]
     )
     assert caps["limits"]["max_rays_per_request"] == 16 * 2**20 and caps["auth"] is False
-    assert caps["fields"]["lidar"][-2:] == ["label", "time"] and "pcd" not in caps["fields"]
+    lidar = caps["fields"]["lidar"]
+    assert lidar[-4:] == ["label", "time", "velocity", "radial_speed"]
+    assert "pcd" not in caps["fields"]
     assert "application/x-pcd" in caps["formats"]["lidar_answers"]
     assert caps["limits"]["max_patterns"] == 64
 
@@ -106,6 +108,7 @@ def test_put_mesh_is_201_then_200_with_mesh_info(app_client, scene_name):
         "instance_of": None,
         "reflectivity": 0.5,
         "label": 0,
+        "transform_end": None,
     }
     assert again.json()["version"] == 2 and again.json()["index"] == 0
 
