@@ -635,13 +635,23 @@ class Scene:
         threads: int | None = None,
         stats: bool = False,
         time: ArrayLike | float | None = None,
+        device: Device = "cpu",
     ) -> HitList:
         """Every hit of each ray with tmin <= t <= tmax, nearest first, at most ``max_hits``.
 
         Same arguments as ``closest``, and max_hits (a positive int). A ray through an edge or
         vertex shared by two triangles crosses one of them, not both (``count``). Returns
         ``HitList``: ray i's hits are rows offsets[i]:offsets[i + 1], sorted by (t, mesh, prim);
-        truncated[i] where it had more than max_hits, of which the nearest are kept."""
+        truncated[i] where it had more than max_hits, of which the nearest are kept.
+        With device="cuda" each ray holds min(max_hits, triangles) 8-byte keys in device memory:
+        a batch needing over 2 GiB for them is refused (InputError naming max_hits)."""
+        if check_device(device, stats) == "cuda":
+            from . import cuda
+
+            return cuda.hits(
+                self, origins, directions, tmin, tmax, max_hits=max_hits, cull=cull, mask=mask,
+                time=time,
+            )  # fmt: skip
         max_hits = check_max_hits(max_hits)
         # One entry beyond max_hits tells a truncated list from a full one; a ray has no more
         # hits than the level has triangles.
@@ -748,12 +758,19 @@ class Scene:
         threads: int | None = None,
         stats: bool = False,
         time: ArrayLike | float | None = None,
+        device: Device = "cpu",
     ) -> Counts:
         """How many triangles each ray crosses with tmin <= t <= tmax.
 
         Same arguments as ``closest``. A crossing through an edge or vertex shared by several
         triangles counts once (``geometry.crossing``): from outside a closed mesh a ray counts an
         even number, from inside an odd one. Returns ``Counts``."""
+        if check_device(device, stats) == "cuda":
+            from . import cuda
+
+            return cuda.count(
+                self, origins, directions, tmin, tmax, cull=cull, mask=mask, time=time
+            )
         query, traced = self._trace(
             COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time
         )

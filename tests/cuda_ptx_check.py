@@ -24,6 +24,7 @@ def array(dtype, ndim=1):
 I8, I32, I64, U8, U32, U64 = (
     array(t) for t in (nt.int8, nt.int32, nt.int64, nt.uint8, nt.uint32, nt.uint64)
 )
+U64_2 = array(nt.uint64, 2)
 F32, F32_2 = array(nt.float32), array(nt.float32, 2)
 TRI = (I32, I32, I8, I64, I64, I32, F32)
 RAY_LEAF = (I32, I32, I8, I64, I64, I32, F32_2, F32_2, F32, F32, F32_2)
@@ -35,6 +36,7 @@ SIGNATURES = {
     "scatter_rays": (I32, I32, I8, I64, I64, I64, I32, I32),
     "leaf_closest": (*RAY_LEAF, I32, U32, U32, nt.float64, U64),
     "leaf_any": (*RAY_LEAF, U32, U32, nt.float64, U8),
+    "leaf_crossings": (*RAY_LEAF, I32, U32, U32, nt.float64, I32, U64_2),
     "finish_best": (U64, I32, F32_2, F32_2, F32_2, nt.int64, F32, I32, F32, F32),
 }
 

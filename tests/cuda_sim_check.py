@@ -11,6 +11,7 @@ assert os.environ.get("NUMBA_ENABLE_CUDASIM") == "1", "run under Numba's CUDA si
 
 import dacrt  # noqa: E402
 from dacrt import cuda as dcuda  # noqa: E402
+from dacrt.cuda import query as cuda_query  # noqa: E402
 from dacrt.cuda import traversal  # noqa: E402
 from dacrt.cuda.traversal import MAX_PAIRS as DEFAULT  # noqa: E402
 
@@ -89,6 +90,30 @@ def compare(label, scene, o, d, max_pairs, **kw):
     print(label, "hits", int((cpu.mesh >= 0).sum()), "of", len(o), flush=True)
 
 
+def compare_crossings(label, scene, o, d, max_hits, by_scene=False, **kw):
+    """count and hits (max_hits) against the CPU's; by_scene: through Scene(device="cuda")."""
+    cpu = scene.count(o, d, **kw).count
+    if by_scene:
+        gpu = scene.count(o, d, device="cuda", **kw).count
+    else:
+        gpu = dcuda.count(scene, o, d, **kw).count
+    same(f"{label} count", gpu, cpu)
+    cpu_hits = scene.hits(o, d, max_hits=max_hits, **kw)
+    if by_scene:
+        gpu_hits = scene.hits(o, d, max_hits=max_hits, device="cuda", **kw)
+    else:
+        gpu_hits = dcuda.hits(scene, o, d, max_hits=max_hits, **kw)
+    for field in ("offsets", "t", "mesh", "prim", "u", "v", "normal", "truncated"):
+        a, b = getattr(gpu_hits, field), getattr(cpu_hits, field)
+        assert a.dtype == b.dtype, (label, field, a.dtype, b.dtype)
+        same(f"{label} hits {field}", a, b)
+    print(
+        label, "crossings", int(cpu.sum()), "kept", len(cpu_hits.t), "truncated",
+        int(cpu_hits.truncated.sum()), flush=True,
+    )  # fmt: skip
+    return cpu
+
+
 def main():
     # 0 * inf in the slab test is NaN by design (``geometry.intersect_box``); the simulator's
     # threads would warn of it.
@@ -111,11 +136,38 @@ def main():
     tmin = (rng.random(len(o)) * 0.3).astype(np.float32)
     tmax = (0.3 + rng.random(len(o))).astype(np.float32)
     compare("soup cull front, tmin tmax", scene, o, d, DEFAULT, cull="front", tmin=tmin, tmax=tmax)
+    crossed = compare_crossings("soup", scene, o, d, 3, by_scene=True)
+    assert crossed.max() > 3, "no list was truncated"
+    compare_crossings("soup cull back, masks", scene, o, d, 16, cull="back", mask=masks)
+    compare_crossings(
+        "soup cull front, tmin tmax", scene, o, d, 2, cull="front", tmin=tmin, tmax=tmax
+    )
     k = 4
     g = dacrt.Scene(grid(k))
     go, gd = grid_rays(k, rng)
     compare("grid", g, go, gd, DEFAULT)
     compare("grid tmax at hit", g, go, gd, DEFAULT, tmax=2.0)
+    # Through vertices and edges each mesh is crossed once; the duplicate ties in t (mesh order).
+    crossed = compare_crossings("grid", g, go, gd, 1)
+    assert (crossed[: (k + 1) ** 2] == 2).any() and (crossed == 1).sum() == 0, crossed
+    compare_crossings("grid tmax at hit", g, go, gd, 4, tmax=2.0)
+    # No rays, and a scene without triangles.
+    none = np.zeros((0, 3), np.float32)
+    assert len(dcuda.count(scene, none, none)) == 0
+    empty_hits = dcuda.hits(scene, none, none, max_hits=2)
+    assert len(empty_hits) == 0 and list(empty_hits.offsets) == [0]
+    empty = dacrt.Scene([(np.zeros((0, 3), np.float32), np.zeros((0, 3), int))])
+    compare_crossings("no triangles", empty, o[:3], d[:3], 2)
+    # Lists beyond the device bound are refused, naming max_hits.
+    bound = cuda_query.MAX_LIST_BYTES
+    cuda_query.MAX_LIST_BYTES = 8 * len(o) * 3 - 1
+    try:
+        dcuda.hits(scene, o, d, max_hits=3)
+    except ValueError as error:
+        assert "max_hits=3" in str(error), error
+    else:
+        raise AssertionError("lists over the bound were accepted")
+    cuda_query.MAX_LIST_BYTES = bound
     # No rays, and a bad ray: the CPU engine's answer and error.
     assert len(dcuda.closest(scene, np.zeros((0, 3)), np.zeros((0, 3)))) == 0
     d[3] = 0.0

@@ -1,9 +1,11 @@
 """The CUDA backend under Numba's CUDA simulator: the same answers as the CPU engine.
 
 The simulator must be chosen before numba is imported, so the comparison runs in a subprocess
-(``cuda_sim_check.py``): random soups (two meshes with masks; culling, masks, tmin/tmax,
-frontiers cut into runs), and a grid with rays through its vertices and edges over a coplanar
-duplicate of itself (ties in t go to the lower mesh).
+(``cuda_sim_check.py``): closest, occluded, count and hits (lists truncated by a small
+max_hits) on random soups (two meshes with masks; culling, masks, tmin/tmax, frontiers cut into
+runs), and on a grid with rays through its vertices and edges over a coplanar duplicate of
+itself (ties in t go to the lower mesh; each mesh crossed once); no rays, no triangles, and
+hit lists over the device bound refused.
 """
 
 import os
@@ -53,5 +55,11 @@ def test_cuda_refuses_unsupported_options():
         dcuda.occluded(scene, [[0.2, 0.2, 1]], [[0, 0, -1]], time=0.5)
     with pytest.raises(InputError, match="stats"):
         scene.closest([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda", stats=True)
+    with pytest.raises(InputError, match="placed meshes"):
+        placed.count([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda")
+    with pytest.raises(InputError, match="stats"):
+        scene.hits([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda", stats=True)
+    with pytest.raises(InputError, match="max_hits"):
+        dcuda.hits(scene, [[0.2, 0.2, 1]], [[0, 0, -1]], max_hits=0)
     with pytest.raises(InputError, match="unknown device"):
         scene.occluded([[0.2, 0.2, 1]], [[0, 0, -1]], device="tpu")

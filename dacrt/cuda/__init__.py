@@ -1,12 +1,13 @@
-"""The CUDA backend: ``closest`` and ``occluded`` through Numba's CUDA target, with the CPU
-engine's answers (tested under Numba's CUDA simulator only; unmeasured on a GPU).
+"""The CUDA backend: ``closest``, ``occluded``, ``hits`` and ``count`` through Numba's CUDA
+target, with the CPU engine's answers (tested under Numba's CUDA simulator only; unmeasured on
+a GPU).
 
 ``dacrt.cuda.closest(scene, ...)`` is ``scene.closest(..., device="cuda")``.
 """
 
 from numba import cuda
 
-from .query import closest, occluded
+from .query import closest, count, hits, occluded
 
 
 def is_available() -> bool:
@@ -17,4 +18,4 @@ def is_available() -> bool:
         return False
 
 
-__all__ = ["closest", "is_available", "occluded"]
+__all__ = ["closest", "count", "hits", "is_available", "occluded"]

@@ -12,7 +12,7 @@ from numba import cuda
 
 from .arith import float_bits
 from .boxes import hits_box
-from .watertight import ray_frame, triangle_hit
+from .watertight import crossing, ray_frame, triangle_hit
 
 LEAF = 0
 # A node split at the middle of its box, or into the halves of its slot range.
@@ -195,6 +195,67 @@ def leaf_any(
         if hit and t >= tmin[r] and t <= tmax[r] and not det * cull_side > 0.0:
             occluded[r] = 1
             return
+
+
+@cuda.jit(device=True)
+def keep_nearest(lists, r, key):
+    """Put ``key`` into ray r's row of ``lists`` in place of its largest entry, where it is
+    smaller: the row then holds the smallest keys given to it (NO_KEY filling the rest),
+    whatever the threads' order. Lock-free: each slot only ever decreases, so a value read
+    earlier is at least the slot's value now, and a compare-and-swap on the largest read
+    replaces the row's largest now; a failed one was beaten by another thread and retries
+    with slots read atomically (plain reads may come from a stale cache line)."""
+    exact = False
+    while True:
+        worst = 0
+        worst_key = lists[r, 0] if not exact else cuda.atomic.or_(lists, (r, 0), np.uint64(0))
+        for k in range(1, lists.shape[1]):
+            held = lists[r, k] if not exact else cuda.atomic.or_(lists, (r, k), np.uint64(0))
+            if held > worst_key:
+                worst = k
+                worst_key = held
+        if key >= worst_key:
+            return
+        if cuda.atomic.cas(lists, (r, worst), worst_key, key) == worst_key:
+            return
+        exact = True
+
+
+@cuda.jit
+def leaf_crossings(
+    ray_ids, ray_node, kind, tri_lo, tri_n, rows, origins, directions, tmin, tmax, verts,
+    tri_keys, ray_masks, tri_masks, cull_side, counts, lists,
+):  # fmt: skip
+    """Each leaf ray slot's crossings (``watertight.crossing``) of its leaf's triangles:
+    counts[ray] adds them, and where lists has columns its row keeps the ray's smallest
+    (t, tie key) keys (``keep_nearest``). Each triangle lives in one leaf, which a ray visits
+    once, so every crossing is counted once."""
+    p = cuda.grid(1)
+    if p >= ray_ids.shape[0]:
+        return
+    node = ray_node[p]
+    if kind[node] != LEAF:
+        return
+    r = ray_ids[p]
+    kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_frame(
+        origins[r, 0], origins[r, 1], origins[r, 2],
+        directions[r, 0], directions[r, 1], directions[r, 2],
+    )  # fmt: skip
+    keep = lists.shape[1] > 0
+    found = 0
+    for s in range(tri_lo[node], tri_lo[node] + tri_n[node]):
+        row = rows[s]
+        if not seen(r, row, ray_masks, tri_masks):
+            continue
+        crossed, t, det = crossing(verts, row, kx, ky, kz, sx, sy, sz, okx, oky, okz)
+        # Ranges are decided on the float32 t that is reported, as on the CPU.
+        if not crossed or not (t >= tmin[r] and t <= tmax[r]) or det * cull_side > 0.0:
+            continue
+        found += 1
+        if keep:
+            keep_nearest(lists, r, tie_order_key(t, tri_keys[row]))
+    if found:
+        cuda.atomic.add(counts, r, found)
 
 
 @cuda.jit

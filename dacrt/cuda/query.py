@@ -1,16 +1,30 @@
-"""``closest`` and ``occluded`` on the GPU: check the query as the CPU engine does, trace the
-scene's base level breadth-first (``traversal``), finish the answers with the CPU's code."""
+"""``closest``, ``occluded``, ``hits`` and ``count`` on the GPU: check the query as the CPU
+engine does, trace the scene's base level breadth-first (``traversal``), finish the answers with
+the CPU's code."""
+
+from typing import NamedTuple
 
 import numpy as np
 from numba import cuda
 
-from ..contracts import FLOAT, INDEX, Hits, Occlusion
+from ..contracts import FLOAT, INDEX, Counts, HitList, Hits, Occlusion
 from ..leaf import NO_HIT
 from ..query import CULL_BACK, CULL_FLAGS, CULL_FRONT
 from ..results import finish_closest
-from ..validation import InputError, check_cull, check_masks, check_rays, explain_bad_rays
+from ..validation import (
+    InputError,
+    check_cull,
+    check_masks,
+    check_max_hits,
+    check_rays,
+    explain_bad_rays,
+)
 from . import kernels
 from .traversal import MAX_PAIRS, launch, traverse
+
+# The most device memory ``hits`` takes for its lists: 8 bytes a key, min(max_hits, triangles)
+# keys a ray.
+MAX_LIST_BYTES = 1 << 31
 
 
 def check_supported(scene, time):
@@ -140,3 +154,98 @@ def occluded(scene, origins, directions, tmin=None, tmax=None, *, cull="none", m
 
     traverse((centroids, tri_box, box), (o, inv_d, lo, hi), run_leaves, max_pairs)
     return Occlusion(hit.copy_to_host().astype(bool))
+
+
+def count(scene, origins, directions, tmin=None, tmax=None, *, cull="none", mask=None,
+          time=None, max_pairs=MAX_PAIRS):  # fmt: skip
+    """``Scene.count`` on the GPU: the same ``Counts`` (no ``stats``)."""
+    check_supported(scene, time)
+    counts, _, _ = crossings(scene, origins, directions, tmin, tmax, cull, mask, 0, max_pairs)
+    return Counts(counts)
+
+
+def hits(scene, origins, directions, tmin=None, tmax=None, *, max_hits=16, cull="none",
+         mask=None, time=None, max_pairs=MAX_PAIRS):  # fmt: skip
+    """``Scene.hits`` on the GPU: the same ``HitList`` (no ``stats``).
+
+    Each ray keeps its min(max_hits, triangles) nearest keys on the device, 8 bytes each: a
+    batch that needs more than ``MAX_LIST_BYTES`` (2 GiB) for them is refused (InputError
+    naming max_hits); split it into batches of fewer rays."""
+    check_supported(scene, time)
+    max_hits = check_max_hits(max_hits)
+    counts, keys, checked = crossings(
+        scene, origins, directions, tmin, tmax, cull, mask, max_hits, max_pairs
+    )
+    origins, directions = checked
+    # Each row's keys, nearest first (NO_KEY, the largest, after the held ones).
+    keys.sort(axis=1)
+    held = keys != kernels.NO_KEY
+    row_of_key = np.zeros(scene.n_triangles, INDEX)
+    row_of_key[scene._base.ids] = np.arange(len(scene._base.ids), dtype=INDEX)
+    rows = row_of_key[np.where(held, keys & kernels.LOW32, 0).astype(np.int64)]
+    lists = CrossingLists(counts, key_distances(keys), rows)
+    offsets, t, mesh, prim, u, v, normal = scene._finish_hits(
+        TracedLists(lists), origins, directions, scene._base, scene.mesh_offsets, max_hits
+    )
+    return HitList(offsets, t, mesh, prim, u, v, normal, counts > max_hits)
+
+
+class CrossingLists(NamedTuple):
+    """The fields of ``QueryArrays`` that ``Scene._finish_hits`` reads: each ray's crossing
+    count, and its nearest crossings' t and kernel rows, sorted by (t, tie key)."""
+
+    n_hits: np.ndarray
+    list_t: np.ndarray
+    list_tri: np.ndarray
+
+
+class TracedLists(NamedTuple):
+    """A trace's answer as ``Scene._finish_hits`` takes it."""
+
+    arrays: CrossingLists
+
+
+def key_distances(keys):
+    """The float32 t of ``kernels.tie_order_key`` keys (the inverse of its monotonic bits)."""
+    bits = keys >> np.uint64(32)
+    positive = bits >= kernels.SIGN32
+    bits = np.where(positive, bits ^ kernels.SIGN32, bits ^ kernels.LOW32)
+    return bits.astype(np.uint32).view(FLOAT)
+
+
+def crossings(scene, origins, directions, tmin, tmax, cull, mask, max_hits, max_pairs):
+    """Each ray's crossing count (int32) and, for max_hits > 0, its min(max_hits, triangles)
+    smallest (t, tie key) keys, unsorted, NO_KEY where it has fewer: (counts, keys (n, K)
+    uint64, (origins, directions) checked)."""
+    origins, directions, tmin, tmax, cull_side, device = prepare(
+        scene, origins, directions, tmin, tmax, cull, mask
+    )
+    n = len(origins)
+    n_rows = len(scene._base.ids)
+    width = min(max_hits, n_rows)
+    if n * width * 8 > MAX_LIST_BYTES:
+        raise InputError(
+            f"max_hits={max_hits} for {n} rays needs {n * width * 8 / 2**30:.1f} GiB of device "
+            f"memory for the hit lists, over device='cuda''s {MAX_LIST_BYTES / 2**30:.0f} GiB: "
+            "pass fewer rays a call or a smaller max_hits"
+        )
+    counts = np.zeros(n, INDEX)
+    keys = np.full((n, width), kernels.NO_KEY, np.uint64)
+    if n and n_rows:
+        o, d, inv_d, lo, hi, ray_masks, tri_masks = device
+        verts, tie_keys, centroids, tri_box, box = scene_arrays(scene)
+        counts_d = cuda.to_device(counts)
+        keys_d = cuda.to_device(keys)
+
+        def run_leaves(frontier, kind):
+            launch(
+                kernels.leaf_crossings, frontier.ray_ids.shape[0], frontier.ray_ids,
+                frontier.ray_node, kind, cuda.to_device(frontier.tri_lo),
+                cuda.to_device(frontier.tri_n), frontier.rows, o, d, lo, hi, verts, tie_keys,
+                ray_masks, tri_masks, cull_side, counts_d, keys_d,
+            )  # fmt: skip
+
+        traverse((centroids, tri_box, box), (o, inv_d, lo, hi), run_leaves, max_pairs)
+        counts = counts_d.copy_to_host()
+        keys = keys_d.copy_to_host()
+    return counts, keys, (origins, directions)
