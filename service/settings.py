@@ -85,8 +85,9 @@ class Settings(BaseSettings):
     max_inflight_bytes: Bytes | None = None
     #: seconds a request waits for room in that budget before it is answered 503
     admission_wait: Annotated[float, Field(ge=0)] = 5
-    #: where queries are traced: "cpu", or "cuda" (``dacrt.cuda``; refused at start for now:
-    #: with no GPU, and the service does not route queries to it yet)
+    #: where queries are traced: "cpu", or "cuda" (``dacrt.cuda``: closest, occluded, hits and
+    #: count on scenes without placed meshes, rays without times, no ?stats; the CPU traces the
+    #: rest); "cuda" is refused at start where no GPU (nor Numba's CUDA simulator) is available
     device: Literal["cpu", "cuda"] = "cpu"
 
     @field_validator("dask_scheduler", mode="before")
@@ -184,18 +185,14 @@ def load_settings(**overrides: object) -> Settings:
 
 
 def check_device(device: str) -> None:
-    """Refuse DACRT_DEVICE=cuda in one line: without a GPU it cannot run, and with one the
-    service does not yet route queries to ``dacrt.cuda`` (``Scene.closest(device="cuda")``)."""
+    """Refuse DACRT_DEVICE=cuda in one line where the CUDA backend cannot run: no GPU (nor
+    Numba's CUDA simulator, NUMBA_ENABLE_CUDASIM=1)."""
     if device == "cpu":
         return
     from dacrt import cuda  # numba.cuda is imported only for this setting
 
     if not cuda.is_available():
         raise SettingsError("DACRT_DEVICE='cuda': no CUDA GPU is available on this machine")
-    raise SettingsError(
-        "DACRT_DEVICE='cuda': the service does not route queries to the GPU yet; "
-        "use dacrt.Scene.closest(..., device='cuda') from Python"
-    )
 
 
 def read_token(path: Path) -> SecretStr:

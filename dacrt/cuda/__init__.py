@@ -7,7 +7,7 @@ a GPU).
 
 from numba import cuda
 
-from .query import closest, count, hits, occluded
+from .query import closest, count, hits, lacks, occluded
 
 
 def is_available() -> bool:
@@ -18,4 +18,4 @@ def is_available() -> bool:
         return False
 
 
-__all__ = ["closest", "count", "hits", "is_available", "occluded"]
+__all__ = ["closest", "count", "hits", "is_available", "lacks", "occluded"]

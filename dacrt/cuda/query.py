@@ -27,13 +27,26 @@ from .traversal import MAX_PAIRS, launch, traverse
 MAX_LIST_BYTES = 1 << 31
 
 
+def lacks(scene, time=None, stats=False):
+    """What of a query this backend does not have: "placed meshes" (the scene's transforms),
+    "time" or "stats"; None where it answers it."""
+    if scene._instances:
+        return "placed meshes"
+    if time is not None:
+        return "time"
+    if stats:
+        return "stats"
+    return None
+
+
 def check_supported(scene, time):
     """InputError naming an option this backend does not have yet."""
-    if scene._instances:
+    lacking = lacks(scene, time)
+    if lacking == "placed meshes":
         raise InputError(
             "device='cuda' does not support placed meshes yet (transforms, transforms_end)"
         )
-    if time is not None:
+    if lacking == "time":
         raise InputError("device='cuda' does not support time= yet")
 
 
