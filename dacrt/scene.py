@@ -96,6 +96,8 @@ from .validation import (
 #: The values of ``cull=`` and ``strategy=`` (``CULL_MODES``, ``STRATEGIES``).
 Cull = Literal["none", "back", "front"]
 Strategy = Literal["sampling", "sah", "middle", "rayspace"]
+Device = Literal["cpu", "cuda"]
+DEVICES = ("cpu", "cuda")
 
 Traced = namedtuple("Traced", ["best_t", "arrays", "stats"])
 Traced.__doc__ = """What the kernels leave of one level's trace: each ray's best_t, the
@@ -498,6 +500,7 @@ class Scene:
         threads: int | None = None,
         stats: bool = False,
         time: ArrayLike | float | None = None,
+        device: Device = "cpu",
     ) -> Hits:
         """Nearest hit of each ray ``origins + t * directions`` with tmin <= t <= tmax.
 
@@ -511,8 +514,16 @@ class Scene:
         threads : None for every core, or a positive int
         time : None (every ray at 0), a number, or (n,) float in [0, 1]: the instant of each
             ray in the frame's interval, where meshes move (``transforms_end``)
+        device : "cpu", or "cuda" (``dacrt.cuda``: the same answers on an NVIDIA GPU; no
+            placed meshes, ``time`` or ``stats`` yet; strategy and threads do not apply)
         Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
         """
+        if check_device(device, stats) == "cuda":
+            from . import cuda
+
+            return cuda.closest(
+                self, origins, directions, tmin, tmax, cull=cull, mask=mask, time=time
+            )
         query, traced = self._trace(
             0, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time
         )
@@ -584,10 +595,17 @@ class Scene:
         threads: int | None = None,
         stats: bool = False,
         time: ArrayLike | float | None = None,
+        device: Device = "cpu",
     ) -> Occlusion:
         """Whether each ray hits anything with tmin <= t <= tmax (it stops at its first hit).
 
         Same arguments as ``closest``. Returns ``Occlusion``."""
+        if check_device(device, stats) == "cuda":
+            from . import cuda
+
+            return cuda.occluded(
+                self, origins, directions, tmin, tmax, cull=cull, mask=mask, time=time
+            )
         query, traced = self._trace(
             ANY_HIT, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time
         )
@@ -617,13 +635,23 @@ class Scene:
         threads: int | None = None,
         stats: bool = False,
         time: ArrayLike | float | None = None,
+        device: Device = "cpu",
     ) -> HitList:
         """Every hit of each ray with tmin <= t <= tmax, nearest first, at most ``max_hits``.
 
         Same arguments as ``closest``, and max_hits (a positive int). A ray through an edge or
         vertex shared by two triangles crosses one of them, not both (``count``). Returns
         ``HitList``: ray i's hits are rows offsets[i]:offsets[i + 1], sorted by (t, mesh, prim);
-        truncated[i] where it had more than max_hits, of which the nearest are kept."""
+        truncated[i] where it had more than max_hits, of which the nearest are kept.
+        With device="cuda" each ray holds min(max_hits, triangles) 8-byte keys in device memory:
+        a batch needing over 2 GiB for them is refused (InputError naming max_hits)."""
+        if check_device(device, stats) == "cuda":
+            from . import cuda
+
+            return cuda.hits(
+                self, origins, directions, tmin, tmax, max_hits=max_hits, cull=cull, mask=mask,
+                time=time,
+            )  # fmt: skip
         max_hits = check_max_hits(max_hits)
         # One entry beyond max_hits tells a truncated list from a full one; a ray has no more
         # hits than the level has triangles.
@@ -730,12 +758,19 @@ class Scene:
         threads: int | None = None,
         stats: bool = False,
         time: ArrayLike | float | None = None,
+        device: Device = "cpu",
     ) -> Counts:
         """How many triangles each ray crosses with tmin <= t <= tmax.
 
         Same arguments as ``closest``. A crossing through an edge or vertex shared by several
         triangles counts once (``geometry.crossing``): from outside a closed mesh a ray counts an
         even number, from inside an odd one. Returns ``Counts``."""
+        if check_device(device, stats) == "cuda":
+            from . import cuda
+
+            return cuda.count(
+                self, origins, directions, tmin, tmax, cull=cull, mask=mask, time=time
+            )
         query, traced = self._trace(
             COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time
         )
@@ -1213,6 +1248,15 @@ class Scene:
         for name in ("best_tri", "hit_u", "hit_v"):
             np.copyto(getattr(answer, name), getattr(second, name), where=take)
         return [first.stats, second.stats]
+
+
+def check_device(device, stats):
+    """``device`` ("cpu" or "cuda"), or InputError; stats are counted on the CPU only."""
+    if device not in DEVICES:
+        raise InputError(f"unknown device {device!r}; use one of {', '.join(DEVICES)}")
+    if device == "cuda" and stats:
+        raise InputError("device='cuda' does not support stats=True yet")
+    return device
 
 
 def _same_matrix(a, b):

@@ -47,6 +47,12 @@ class Metrics:
         self.rays = Counter(
             "dacrt_rays_traced", "Rays traced, by query", ("query",), registry=self.registry
         )
+        self.cuda_fallbacks = Counter(
+            "dacrt_cuda_fallbacks",
+            "Queries traced on the CPU although DACRT_DEVICE=cuda, by what the CUDA backend lacks",
+            ("reason",),
+            registry=self.registry,
+        )
         self.trace_seconds = Histogram(
             "dacrt_trace_seconds",
             "Engine time per query batch",

@@ -89,6 +89,9 @@ class Options:
     cull: str = "none"
     max_hits: int | None = None  #: hits kept per ray (hits only)
     mask: int | None = None  #: ``?mask=``: one mask for every ray of the batch
+    #: DACRT_DEVICE: "cuda" traces closest, occluded, hits and count on the GPU where the CUDA
+    #: backend answers them (``tracing.device_for``)
+    device: str = "cpu"
 
     def pick(self, get: Callable[[str], np.ndarray]) -> dict[str, np.ndarray]:
         """The answer's arrays: ``get(key)`` for each of ``fields``, in answer order (``get``
@@ -138,6 +141,7 @@ def make_options(
     max_hits: int | None = None,
     mask: int | None = None,
     max_hits_limit: int | None = None,
+    device: str = "cpu",
 ) -> Options:
     """The options of one request, from its query-string values; 422 naming the choices for an
     unknown value (the engine's own checks for strategy and cull). A ``kind`` given as text is a
@@ -157,7 +161,7 @@ def make_options(
         raise Invalid(f"max_hits applies to the hits query only, not to {kind.value}")
     # the engine's own checks, before the body is read: its InputError is 422 (errors.install)
     strategy = strategies()[0] if strategy is None else check_strategy(strategy)
-    return Options(kind, chosen, strategy, stats, threads, check_cull(cull), max_hits, mask)
+    return Options(kind, chosen, strategy, stats, threads, check_cull(cull), max_hits, mask, device)
 
 
 def query_named(name: str) -> Query:

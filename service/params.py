@@ -104,7 +104,8 @@ def _options(
     mask: str | None = None,
     max_hits: int | None = None,
 ) -> Options:
-    """A request's options: the query string's values, the server's threads and DACRT_MAX_HITS."""
+    """A request's options: the query string's values, the server's threads, DACRT_MAX_HITS and
+    DACRT_DEVICE."""
     return make_options(
         kind,
         fields,
@@ -115,6 +116,7 @@ def _options(
         max_hits,
         None if mask is None else wire.parse_mask(mask, "?mask"),
         settings.max_hits,
+        settings.device,
     )
 
 

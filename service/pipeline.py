@@ -130,10 +130,13 @@ def encode_arrays(result: TraceResult, answer_format: str) -> Encoded:
 def respond(
     metrics: Metrics, kind: str, result: TraceResult, encoded: Encoded, timing: ServerTiming
 ) -> BuffersResponse:
-    """The answer of a query or sensor ``kind``: counted in the metrics, with X-Scene-Version,
+    """The answer of a query or sensor ``kind``: counted in the metrics (with its CPU fallback,
+    where DACRT_DEVICE=cuda), with X-Scene-Version,
     Server-Timing (with the cluster's time when it traced), X-Trace-Stats and the result's own
     headers."""
     metrics.traced(kind, result.n_rays, result.seconds)
+    if result.fallback is not None:
+        metrics.cuda_fallbacks.labels(result.fallback).inc()
     if result.where != "process":  # e.g. cluster;dur=...: traced on the dask cluster
         timing.seconds[result.where] = result.seconds
     headers = {

@@ -85,6 +85,10 @@ class Settings(BaseSettings):
     max_inflight_bytes: Bytes | None = None
     #: seconds a request waits for room in that budget before it is answered 503
     admission_wait: Annotated[float, Field(ge=0)] = 5
+    #: where queries are traced: "cpu", or "cuda" (``dacrt.cuda``: closest, occluded, hits and
+    #: count on scenes without placed meshes, rays without times, no ?stats; the CPU traces the
+    #: rest); "cuda" is refused at start where no GPU (nor Numba's CUDA simulator) is available
+    device: Literal["cpu", "cuda"] = "cpu"
 
     @field_validator("dask_scheduler", mode="before")
     @classmethod
@@ -172,11 +176,23 @@ def load_settings(**overrides: object) -> Settings:
         settings = Settings(**overrides)
     except ValidationError as error:
         raise SettingsError(describe(error)) from None
+    check_device(settings.device)
     if settings.token_file is None:
         return settings
     if settings.token is not None:
         raise SettingsError("set DACRT_TOKEN or DACRT_TOKEN_FILE, not both")
     return settings.model_copy(update={"token": read_token(settings.token_file)})
+
+
+def check_device(device: str) -> None:
+    """Refuse DACRT_DEVICE=cuda in one line where the CUDA backend cannot run: no GPU (nor
+    Numba's CUDA simulator, NUMBA_ENABLE_CUDASIM=1)."""
+    if device == "cpu":
+        return
+    from dacrt import cuda  # numba.cuda is imported only for this setting
+
+    if not cuda.is_available():
+        raise SettingsError("DACRT_DEVICE='cuda': no CUDA GPU is available on this machine")
 
 
 def read_token(path: Path) -> SecretStr:

@@ -5,7 +5,8 @@ The only module that runs the engine's queries. It makes one ``dacrt.Scene`` per
 placements, vertices and masks changed (a frame that moves actors packs only them), maps the
 engine's mesh positions to the meshes' stable indices, picks the answer's keys (``Options.pick``)
 and lets the engine's ``InputError`` (bad rays, named by the engine) through: ``errors`` maps it
-to 422.
+to 422. With DACRT_DEVICE=cuda, closest, occluded, hits and count run on the GPU where the CUDA
+backend answers them, and on the CPU otherwise (``device_for``: placed meshes, times, stats).
 """
 
 from __future__ import annotations
@@ -151,6 +152,8 @@ class TraceResult:
     n_rays: int  #: rays traced
     where: str = "process"  #: where it was traced: "process", or "cluster" (``service.cluster``)
     headers: dict[str, str] = field(default_factory=dict)  #: a sensor's own (X-Depth-Range)
+    #: what the CUDA backend lacks, where DACRT_DEVICE=cuda and the CPU traced the query
+    fallback: str | None = None
 
 
 def trace(
@@ -215,6 +218,9 @@ def _run(
         kwargs["time"] = rays.time
     if options.kind is Query.HITS:
         kwargs["max_hits"] = options.max_hits
+    device, fallback = device_for(engine, rays, options, where)
+    if device == "cuda":
+        kwargs["device"] = device
     query = getattr(engine.scene, Query(options.kind).value)
     # a bad ray is the engine's InputError, naming the first and how many: 422 (errors.install)
     answer = query(rays.origins, rays.directions, rays.tmin, rays.tmax, **kwargs)
@@ -225,7 +231,23 @@ def _run(
     if stats is not None:
         stats = {**stats, "strategy": options.strategy, "where": where}
     seconds = time.perf_counter() - start
-    return TraceResult(arrays, version, stats, seconds, len(rays), where)
+    return TraceResult(arrays, version, stats, seconds, len(rays), where, fallback=fallback)
+
+
+def device_for(
+    engine: EngineScene, rays: Rays, options: Options, where: str
+) -> tuple[str, str | None]:
+    """Where a query is traced: ("cuda", None) where DACRT_DEVICE=cuda and the CUDA backend
+    answers it; else "cpu" and what that backend lacks ("placed meshes", "time", "stats", or
+    "cluster": a dask cluster's workers trace on their CPUs), None where DACRT_DEVICE=cpu."""
+    if options.device != "cuda":
+        return "cpu", None
+    if where != "process":
+        return "cpu", "cluster"
+    from dacrt import cuda  # numba.cuda is imported only where DACRT_DEVICE=cuda
+
+    lacking = cuda.lacks(engine.scene, rays.time, options.stats)
+    return ("cpu", lacking) if lacking is not None else ("cuda", None)
 
 
 #: The answer keys of a point query (``/nearest``), and those ``?sign=true`` adds.

@@ -150,6 +150,21 @@ def test_a_bad_value_names_the_variable_in_one_line(environ):
     assert "max_body_bytes" not in message and "validation error" not in message
 
 
+def test_the_device_is_the_cpu_by_default_and_cuda_is_refused_in_one_line_without_a_gpu(environ):
+    assert load_settings().device == "cpu"
+    environ(DACRT_DEVICE="cuda")
+    from dacrt import cuda
+
+    if cuda.is_available():  # a GPU, or the simulator: queries are routed to it (test_device)
+        assert load_settings().device == "cuda"
+    else:
+        with pytest.raises(SettingsError, match="^DACRT_DEVICE='cuda': no CUDA GPU[^\n]*$"):
+            load_settings()
+    environ(DACRT_DEVICE="tpu")
+    with pytest.raises(SettingsError, match="DACRT_DEVICE='tpu'"):
+        load_settings()
+
+
 def test_load_settings_reads_the_environment_and_overrides(environ):
     environ(DACRT_MAX_CONNECTIONS="7", DACRT_BODY_TIMEOUT="2.5", DACRT_LOAD_DEMO="false")
     settings = load_settings(load_demo=True)

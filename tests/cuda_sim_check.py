@@ -1,0 +1,184 @@
+"""Run under NUMBA_ENABLE_CUDASIM=1 (``test_cuda_sim``): dacrt.cuda's answers against the CPU
+engine's on small scenes; prints ``ok`` and exits 0 when every answer is identical."""
+
+import os
+import sys
+import warnings
+
+import numpy as np
+
+assert os.environ.get("NUMBA_ENABLE_CUDASIM") == "1", "run under Numba's CUDA simulator"
+
+import dacrt  # noqa: E402
+from dacrt import cuda as dcuda  # noqa: E402
+from dacrt.cuda import query as cuda_query  # noqa: E402
+from dacrt.cuda import traversal  # noqa: E402
+from dacrt.cuda.traversal import MAX_PAIRS as DEFAULT  # noqa: E402
+
+
+def soup(rng, n_tri):
+    """Random triangles in the unit cube, two meshes; a few degenerate (a repeated corner)."""
+    v = rng.random((3 * n_tri, 3)).astype(np.float32)
+    v[3:30:9] = v[4:31:9]
+    f = np.arange(3 * n_tri).reshape(-1, 3)
+    half = 3 * (n_tri // 2)
+    return [(v[:half], f[: n_tri // 2]), (v[half:], f[n_tri // 2 :] - half)]
+
+
+def grid(k):
+    """A k x k grid of quads in z = 0 split into triangles, plus a coplanar duplicate mesh."""
+    xs, ys = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
+    v = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1).astype(np.float32)
+    faces = []
+    for i in range(k):
+        for j in range(k):
+            a, b, c, d = i * (k + 1) + j, (i + 1) * (k + 1) + j, i * (k + 1) + j + 1, 0
+            d = (i + 1) * (k + 1) + j + 1
+            faces += [(a, b, d), (a, d, c)]
+    f = np.array(faces)
+    return [(v, f), (v.copy(), f[::-1].copy())]
+
+
+def grid_rays(k, rng):
+    """Rays down onto the grid through its vertices, edge middles and random points."""
+    pts = [(i, j) for i in range(k + 1) for j in range(k + 1)]
+    pts += [(i + 0.5, j) for i in range(k) for j in range(k + 1)]
+    pts += [(i + 0.5, j + 0.5) for i in range(k) for j in range(k)]
+    xy = np.array(pts, np.float32)
+    xy = np.concatenate([xy, (rng.random((40, 2)) * k).astype(np.float32)])
+    o = np.concatenate([xy, np.full((len(xy), 1), 2.0, np.float32)], axis=1)
+    d = np.tile(np.array([[0, 0, -1]], np.float32), (len(o), 1))
+    d[::3, :2] = 0.1 * (rng.random((len(d[::3]), 2)) - 0.5)
+    return o, d
+
+
+def random_rays(rng, n):
+    o = (rng.random((n, 3)) * 1.4 - 0.2).astype(np.float32)
+    d = (rng.random((n, 3)) - 0.5).astype(np.float32)
+    return o, d
+
+
+def same(name, a, b):
+    """Exit 1 naming the first difference, bit for bit (NaN-free arrays)."""
+    a, b = np.asarray(a), np.asarray(b)
+    if a.shape != b.shape or a.tobytes() != b.tobytes():
+        diff = np.flatnonzero((a != b).reshape(len(a), -1).any(axis=1))
+        print(
+            f"FAIL {name}: {len(diff)} rows differ, first {diff[:5]} {a[diff[:3]]} vs {b[diff[:3]]}"
+        )
+        sys.exit(1)
+
+
+def compare(label, scene, o, d, max_pairs, **kw):
+    cpu = scene.closest(o, d, **kw)
+    gpu = dcuda.closest(scene, o, d, max_pairs=max_pairs, **kw)
+    for field in ("t", "mesh", "prim", "u", "v", "normal"):
+        same(f"{label} closest {field}", getattr(gpu, field), getattr(cpu, field))
+    occ_cpu = scene.occluded(o, d, **kw).occluded
+    occ_gpu = dcuda.occluded(scene, o, d, max_pairs=max_pairs, **kw).occluded
+    if max_pairs == DEFAULT:
+        # Scene's device="cuda" is dacrt.cuda with its default frontier size.
+        by_scene = scene.closest(o, d, device="cuda", **kw)
+        same(f"{label} Scene(device=cuda) t", by_scene.t, cpu.t)
+        same(f"{label} Scene(device=cuda) prim", by_scene.prim, cpu.prim)
+        same(
+            f"{label} Scene(device=cuda) occluded",
+            scene.occluded(o, d, device="cuda", **kw).occluded,
+            occ_cpu,
+        )
+    same(f"{label} occluded", occ_gpu, occ_cpu)
+    print(label, "hits", int((cpu.mesh >= 0).sum()), "of", len(o), flush=True)
+
+
+def compare_crossings(label, scene, o, d, max_hits, by_scene=False, **kw):
+    """count and hits (max_hits) against the CPU's; by_scene: through Scene(device="cuda")."""
+    cpu = scene.count(o, d, **kw).count
+    if by_scene:
+        gpu = scene.count(o, d, device="cuda", **kw).count
+    else:
+        gpu = dcuda.count(scene, o, d, **kw).count
+    same(f"{label} count", gpu, cpu)
+    cpu_hits = scene.hits(o, d, max_hits=max_hits, **kw)
+    if by_scene:
+        gpu_hits = scene.hits(o, d, max_hits=max_hits, device="cuda", **kw)
+    else:
+        gpu_hits = dcuda.hits(scene, o, d, max_hits=max_hits, **kw)
+    for field in ("offsets", "t", "mesh", "prim", "u", "v", "normal", "truncated"):
+        a, b = getattr(gpu_hits, field), getattr(cpu_hits, field)
+        assert a.dtype == b.dtype, (label, field, a.dtype, b.dtype)
+        same(f"{label} hits {field}", a, b)
+    print(
+        label, "crossings", int(cpu.sum()), "kept", len(cpu_hits.t), "truncated",
+        int(cpu_hits.truncated.sum()), flush=True,
+    )  # fmt: skip
+    return cpu
+
+
+def main():
+    # 0 * inf in the slab test is NaN by design (``geometry.intersect_box``); the simulator's
+    # threads would warn of it.
+    warnings.simplefilter("ignore", RuntimeWarning)
+    rng = np.random.default_rng(7)
+    scene = dacrt.Scene(soup(rng, 120), masks=np.array([1, 2], np.uint32))
+    o, d = random_rays(rng, 80)
+    compare("soup", scene, o, d, DEFAULT)
+    # A frontier of at most n rays' slots is cut into runs of nodes.
+    cut = traversal.cut
+    runs = []
+    traversal.cut = lambda frontier, limit: runs.append(cut(frontier, limit)) or runs[-1]
+    compare("soup batched", scene, o, d, 16)
+    traversal.cut = cut
+    assert max(len(r) for r in runs) > 1, "no frontier was cut"
+    # Hits behind the origin: negative t in the (t, triangle) keys.
+    compare("soup negative tmin", scene, o, d, DEFAULT, tmin=-0.5)
+    masks = rng.integers(0, 4, len(o)).astype(np.uint32)
+    compare("soup cull back, masks", scene, o, d, DEFAULT, cull="back", mask=masks)
+    tmin = (rng.random(len(o)) * 0.3).astype(np.float32)
+    tmax = (0.3 + rng.random(len(o))).astype(np.float32)
+    compare("soup cull front, tmin tmax", scene, o, d, DEFAULT, cull="front", tmin=tmin, tmax=tmax)
+    crossed = compare_crossings("soup", scene, o, d, 3, by_scene=True)
+    assert crossed.max() > 3, "no list was truncated"
+    compare_crossings("soup cull back, masks", scene, o, d, 16, cull="back", mask=masks)
+    compare_crossings(
+        "soup cull front, tmin tmax", scene, o, d, 2, cull="front", tmin=tmin, tmax=tmax
+    )
+    k = 4
+    g = dacrt.Scene(grid(k))
+    go, gd = grid_rays(k, rng)
+    compare("grid", g, go, gd, DEFAULT)
+    compare("grid tmax at hit", g, go, gd, DEFAULT, tmax=2.0)
+    # Through vertices and edges each mesh is crossed once; the duplicate ties in t (mesh order).
+    crossed = compare_crossings("grid", g, go, gd, 1)
+    assert (crossed[: (k + 1) ** 2] == 2).any() and (crossed == 1).sum() == 0, crossed
+    compare_crossings("grid tmax at hit", g, go, gd, 4, tmax=2.0)
+    # No rays, and a scene without triangles.
+    none = np.zeros((0, 3), np.float32)
+    assert len(dcuda.count(scene, none, none)) == 0
+    empty_hits = dcuda.hits(scene, none, none, max_hits=2)
+    assert len(empty_hits) == 0 and list(empty_hits.offsets) == [0]
+    empty = dacrt.Scene([(np.zeros((0, 3), np.float32), np.zeros((0, 3), int))])
+    compare_crossings("no triangles", empty, o[:3], d[:3], 2)
+    # Lists beyond the device bound are refused, naming max_hits.
+    bound = cuda_query.MAX_LIST_BYTES
+    cuda_query.MAX_LIST_BYTES = 8 * len(o) * 3 - 1
+    try:
+        dcuda.hits(scene, o, d, max_hits=3)
+    except ValueError as error:
+        assert "max_hits=3" in str(error), error
+    else:
+        raise AssertionError("lists over the bound were accepted")
+    cuda_query.MAX_LIST_BYTES = bound
+    # No rays, and a bad ray: the CPU engine's answer and error.
+    assert len(dcuda.closest(scene, np.zeros((0, 3)), np.zeros((0, 3)))) == 0
+    d[3] = 0.0
+    try:
+        dcuda.occluded(scene, o, d)
+    except ValueError as error:
+        assert "directions[3] is zero" in str(error), error
+    else:
+        raise AssertionError("a zero direction was accepted")
+    print("ok")
+
+
+if __name__ == "__main__":
+    main()

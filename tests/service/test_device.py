@@ -1,0 +1,89 @@
+"""DACRT_DEVICE=cuda: queries traced by the CUDA backend where it answers them (the same answers
+as the CPU's, under Numba's CUDA simulator in a subprocess), and on the CPU, naming what the
+backend lacks, where it does not."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+from service_helpers import REPO, quad
+
+from service import tracing, wire
+from service.options import make_options
+
+IDENTITY = np.eye(4)
+
+
+def rays(**extra) -> wire.Rays:
+    origins = np.array([[0.5, 0.5, 1], [2.5, 0.5, 1], [1.0, 1.0, 1]], np.float32)
+    return wire.Rays(origins, np.tile(np.float32([0, 0, -1]), (3, 1)), None, None, **extra)
+
+
+def test_the_cpu_traces_what_the_cuda_backend_lacks_and_says_what():
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    plain = tracing.build_engine_scene([(0, vertices, faces)])
+    placed = tracing.build_engine_scene([(0, vertices, faces, 1, IDENTITY)])
+    cuda = make_options("closest", device="cuda")
+    assert tracing.device_for(plain, rays(), cuda, "process") == ("cuda", None)
+    assert tracing.device_for(plain, rays(), make_options("count"), "process") == ("cpu", None)
+    assert tracing.device_for(placed, rays(), cuda, "process") == ("cpu", "placed meshes")
+    assert tracing.device_for(plain, rays(time=0.5), cuda, "process") == ("cpu", "time")
+    stats = make_options("hits", stats=True, device="cuda")
+    assert tracing.device_for(plain, rays(), stats, "process") == ("cpu", "stats")
+    assert tracing.device_for(plain, rays(), cuda, "cluster") == ("cpu", "cluster")
+
+
+# Run under the simulator: DACRT_DEVICE=cuda is accepted, and its answers are the CPU's.
+UNDER_SIMULATOR = """
+import numpy as np
+from service_helpers import quad
+from service import tracing, wire
+from service.options import make_options
+from service.settings import load_settings
+from service.store import Store
+
+settings = load_settings()
+assert settings.device == "cuda", settings.device
+store = Store(2**20, 2**30)
+for name, x in (("a", 0), ("b", 1)):
+    store.put_mesh("s", name, wire.mesh_arrays(*quad(x, x + 1, 0, 1, 0)))
+# Through a quad's middle, its shared diagonal's end, the edge between the quads, and beside.
+origins = np.array([[0.5, 0.5, 1], [1, 1, 1], [1, 0.5, 1], [0.25, 0.75, 1], [3, 3, 1]], np.float32)
+rays = wire.Rays(origins, np.tile(np.float32([0, 0, -1]), (5, 1)), None, None)
+for kind, stats in (("closest", False), ("count", False), ("hits", False), ("closest", True)):
+    gpu = tracing.trace(
+        store.snapshot("s"), rays, make_options(kind, stats=stats, device=settings.device)
+    )
+    cpu = tracing.trace(store.snapshot("s"), rays, make_options(kind, stats=stats))
+    assert gpu.fallback == ("stats" if stats else None), gpu.fallback
+    assert gpu.arrays.keys() == cpu.arrays.keys()
+    for name, array in gpu.arrays.items():
+        assert array.dtype == cpu.arrays[name].dtype, name
+        assert array.tobytes() == cpu.arrays[name].tobytes(), (kind, name)
+    print(kind, "stats" if stats else "", {k: v.tolist() for k, v in gpu.arrays.items()})
+print("ok")
+"""
+
+
+def test_cuda_device_answers_as_the_cpu_under_the_simulator():
+    env = {
+        **{k: v for k, v in os.environ.items() if not k.startswith("DACRT_")},
+        "NUMBA_ENABLE_CUDASIM": "1",
+        "DACRT_DEVICE": "cuda",
+        "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "tests" / "service")]),
+    }
+    done = subprocess.run(
+        [sys.executable, "-c", UNDER_SIMULATOR],
+        env=env,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert done.stdout.rstrip().endswith("ok")
+    # Along a diagonal and the quads' shared edge one crossing; the outline's corner (1, 1) none.
+    assert "count  {'count': [1, 0, 1, 1, 0]}" in done.stdout, done.stdout

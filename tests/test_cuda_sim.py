@@ -1,0 +1,65 @@
+"""The CUDA backend under Numba's CUDA simulator: the same answers as the CPU engine.
+
+The simulator must be chosen before numba is imported, so the comparison runs in a subprocess
+(``cuda_sim_check.py``): closest, occluded, count and hits (lists truncated by a small
+max_hits) on random soups (two meshes with masks; culling, masks, tmin/tmax, frontiers cut into
+runs), and on a grid with rays through its vertices and edges over a coplanar duplicate of
+itself (ties in t go to the lower mesh; each mesh crossed once); no rays, no triangles, and
+hit lists over the device bound refused.
+"""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import dacrt
+from dacrt.validation import InputError
+
+CHECK = Path(__file__).with_name("cuda_sim_check.py")
+PTX_CHECK = Path(__file__).with_name("cuda_ptx_check.py")
+
+
+def test_cuda_answers_match_cpu_under_simulator():
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
+    done = subprocess.run(
+        [sys.executable, str(CHECK)], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert done.stdout.rstrip().endswith("ok")
+
+
+def test_cuda_kernels_compile_to_ptx_without_fused_float64_products():
+    """Only where numba-cuda and its NVVM are installed (not in CI): see cuda_ptx_check.py."""
+    pytest.importorskip("numba_cuda")
+    done = subprocess.run(
+        [sys.executable, str(PTX_CHECK)], capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+
+
+def test_cuda_refuses_unsupported_options():
+    from dacrt import cuda as dcuda
+
+    verts = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    placed = dacrt.Scene(
+        [(verts, [[0, 1, 2]])],
+        transforms=[[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]],
+    )
+    with pytest.raises(InputError, match="placed meshes"):
+        dcuda.closest(placed, [[0.2, 0.2, 1]], [[0, 0, -1]])
+    scene = dacrt.Scene([(verts, [[0, 1, 2]])])
+    with pytest.raises(InputError, match="time="):
+        dcuda.occluded(scene, [[0.2, 0.2, 1]], [[0, 0, -1]], time=0.5)
+    with pytest.raises(InputError, match="stats"):
+        scene.closest([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda", stats=True)
+    with pytest.raises(InputError, match="placed meshes"):
+        placed.count([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda")
+    with pytest.raises(InputError, match="stats"):
+        scene.hits([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda", stats=True)
+    with pytest.raises(InputError, match="max_hits"):
+        dcuda.hits(scene, [[0.2, 0.2, 1]], [[0, 0, -1]], max_hits=0)
+    with pytest.raises(InputError, match="unknown device"):
+        scene.occluded([[0.2, 0.2, 1]], [[0, 0, -1]], device="tpu")
