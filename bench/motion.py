@@ -173,6 +173,7 @@ def compare_hits(ours, theirs, tau, scene) -> dict:
     same_mesh = both & (ours.mesh == mesh)
     same = same_mesh & (ours.prim == prim)
     rays = np.flatnonzero(same)
+    other = np.flatnonzero(same_mesh & ~same)
     exact = reference_t(rays, mesh[rays], prim[rays], tau, *scene)
     on_car = mesh[rays] > 0
     result = {
@@ -183,6 +184,10 @@ def compare_hits(ours, theirs, tau, scene) -> dict:
         "other_prim": int((same_mesh & ~same).sum()),
         "same_prim": int(same.sum()),
         "car_hits_same_prim": int(on_car.sum()),
+        # another triangle at the same t: a tie at an edge or vertex the two triangles share
+        "other_prim_same_t": int(
+            (ulps_from(t[other], ours.t[other].astype(np.float64)) <= 4).sum()
+        ),
         "max_dt_m": float(np.abs(ours.t[rays].astype(np.float64) - t[rays]).max()),
     }
     for engine, values in (("dacrt", ours.t[rays]), ("embree", t[rays])):
@@ -340,7 +345,7 @@ def markdown(result: dict) -> str:
         "their answers differ:",
         "",
         "| Embree frame | dacrt / Embree, frame | trace | hit or miss differ | other mesh "
-        "| other triangle | same triangle | of which cars |",
+        "| other triangle (at the same t) | same triangle | of which cars |",
         "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for name, check in result["checks"].items():
@@ -348,7 +353,8 @@ def markdown(result: dict) -> str:
         ratio = (ours["scene"] + ours["trace"]) / (theirs["scene"] + theirs["trace"])
         lines.append(
             f"| {name} | {ratio:.2f} | {ours['trace'] / theirs['trace']:.2f} "
-            f"| {check['hit_miss_differ']:,} | {check['other_mesh']:,} | {check['other_prim']:,} "
+            f"| {check['hit_miss_differ']:,} | {check['other_mesh']:,} "
+            f"| {check['other_prim']:,} ({check['other_prim_same_t']:,}) "
             f"| {check['same_prim']:,} | {check['car_hits_same_prim']:,} |"
         )
     lines += [
