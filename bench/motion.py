@@ -296,6 +296,7 @@ def main(argv=None) -> int:
         "embree_variants": embree_of,
         "reps": args.reps,
         "ms": {n: {k: statistics.median(v) for k, v in t.items()} for n, t in times.items()},
+        "all_ms": times,  # every timed repetition, in order
         "embree_build_ms": statistics.median(embree_build) if embree_build else None,
         "car_hits": {n: int(np.sum(mesh_of(answers[n]) > 0)) for n in variants},
         "tests": {n: int(answers[n].stats["ray_triangle_tests"]) for n in VARIANTS},
