@@ -34,7 +34,7 @@ static world in both and no car in either agree exactly), the moving scene at t=
 static one (bit for bit), and each engine frame against Embree's of the same kind: rays whose hit
 or miss differ, whose hit is on another mesh or triangle, and the difference in t in float32 ulps
 among the rays both hit on the same triangle (counted, not asserted). Prints Markdown tables;
-``--out`` gets ``motion.json`` and ``motion.md``.
+``--out`` gets ``motion.json`` and ``motion.md``; ``--report motion.json`` prints its tables again.
 """
 
 from __future__ import annotations
@@ -212,7 +212,11 @@ def main(argv=None) -> int:
     parser.add_argument("--build-dir", type=Path, default=None, help="where Embree's program goes")
     parser.add_argument("--shared", type=Path, default=find_shared())
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--report", type=Path, default=None, help="print a motion.json's tables")
     args = parser.parse_args(argv)
+    if args.report:
+        print(markdown(json.loads(args.report.read_text())))
+        return 0
     if args.shared is None:
         parser.error("the shared scenes are not found: give --shared")
     import dacrt.cache
@@ -244,7 +248,8 @@ def main(argv=None) -> int:
     if embree:
         for threads in embree_threads:
             for mode in ("static", "moving"):
-                suffix = f", {threads} threads" if len(embree_threads) > 1 else ""
+                plural = "s" if threads > 1 else ""
+                suffix = f", {threads} thread{plural}" if len(embree_threads) > 1 else ""
                 embree_of[f"Embree {mode}{suffix}"] = (mode, threads)
         variants += list(embree_of)
     print(
@@ -325,7 +330,7 @@ def markdown(result: dict) -> str:
         f"(Embree {', '.join(map(str, result['embree_threads'])) or 'left out'}), "
         f"median of {result['reps']}",
         "",
-        "| frame | scene or commit ms | trace ms | frame ms | frame vs its static "
+        "| frame | scene or commit ms | trace ms (min) | frame ms (min) | frame vs its static "
         "| ray-triangle tests | car hits |",
         "|---|---:|---:|---:|---:|---:|---:|",
     ]
@@ -333,8 +338,11 @@ def markdown(result: dict) -> str:
         frame = parts["scene"] + parts["trace"]
         static = ms[static_of[embree_of[name][1]]] if name in embree_of else ms["static"]
         tests = result["tests"].get(name)
+        each = result["all_ms"][name]
+        fastest = min(a + b for a, b in zip(each["scene"], each["trace"]))
         lines.append(
-            f"| {name} | {parts['scene']:.1f} | {parts['trace']:.0f} | {frame:.0f} "
+            f"| {name} | {parts['scene']:.1f} | {parts['trace']:.0f} ({min(each['trace']):.0f}) "
+            f"| {frame:.0f} ({fastest:.0f}) "
             f"| {frame / (static['scene'] + static['trace']):.2f}x "
             f"| {'' if tests is None else f'{tests:,}'} | {result['car_hits'][name]:,} |"
         )
