@@ -309,7 +309,7 @@ class Scene:
             return packed, parts
         pieces = []
         for i, first_row in zip(base_meshes, first_rows):
-            part = old._parts[i]
+            part = old._parts.get(i)  # none for a mesh that deformed in ``old``
             if i in changed:
                 piece = pack_mesh(*self._meshes[i], self._order)
                 pieces.append(
