@@ -21,7 +21,7 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
-from .config import inline, jit
+from .config import inline
 from .geometry import (
     corners_from_origin,
     crossing,
@@ -187,11 +187,3 @@ def _leaf_for(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays
         return leaf(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch)
 
     return impl
-
-
-@jit
-def deforming_hit_corners(verts, verts_end, rows, times, out):
-    """``out`` (k, 9) float32: rows ``rows`` (k,) at ``times`` (k,) (``corners_at_times``)."""
-    for k in range(rows.shape[0]):
-        for c in range(9):
-            out[k, c] = vertex_at_kernel(verts[rows[k], c], verts_end[rows[k], c], times[k])
