@@ -159,3 +159,43 @@ def union_box(boxes):
 def live_box(box):
     """``box`` as the kernels' root box: zeros for the box of no triangles (EMPTY_BOX)."""
     return box if box[0] <= box[3] else np.zeros(6, FLOAT)
+
+
+class DeformingPacked(Packed):
+    """The deforming meshes' rows, as a ``Packed`` whose bounds hold each row over the whole
+    interval, with ``verts_end`` (F, 9) float32, each row's corners at the end. Every face gets a
+    row (a triangle degenerate at one instant may not be at another); the leaf skips a row that
+    is degenerate at the ray's instant, as the static packing drops it."""
+
+    def __init__(self, verts, verts_end, bounds, ids, box, corner_box):
+        super().__init__(verts, bounds, ids, box, corner_box)
+        self.verts_end = verts_end
+
+    @property
+    def nbytes(self) -> int:
+        return super().nbytes + int(self.verts_end.nbytes)
+
+
+def pack_deforming(meshes, first_rows):
+    """The ``DeformingPacked`` of ``meshes`` ((vertices, vertices_end, faces), checked, float32)
+    in their order, each row's id its face row plus its mesh's entry of ``first_rows``.
+
+    Returns (packed, corner_boxes): each mesh's box of the corners its faces use at 0 and at 1
+    (n, 6) float32, EMPTY_BOX for none."""
+    verts, verts_end, ids, corner_boxes = [], [], [], []
+    for (start, end, faces), first_row in zip(meshes, first_rows):
+        verts.append(start[faces].reshape(-1, 9))
+        verts_end.append(end[faces].reshape(-1, 9))
+        ids.append(np.arange(len(faces), dtype=np.int64) + first_row)
+        both = np.concatenate([verts[-1], verts_end[-1]]).reshape(-1, 3)
+        corner_boxes.append(union_box(np.hstack([both, both])))
+    verts = np.ascontiguousarray(np.concatenate(verts or [np.empty((0, 9), FLOAT)]), FLOAT)
+    verts_end = np.ascontiguousarray(np.concatenate(verts_end or [np.empty((0, 9), FLOAT)]), FLOAT)
+    ids = np.concatenate(ids or [np.empty(0, np.int64)]).astype(INDEX)
+    # A row's box over the interval: its corners' box at 0 and at 1 together.
+    corners = np.concatenate([verts.reshape(-1, 3, 3), verts_end.reshape(-1, 3, 3)], axis=1)
+    bounds = np.ascontiguousarray(np.concatenate([corners.min(axis=1), corners.max(axis=1)], 1))
+    packed = DeformingPacked(
+        verts, verts_end, bounds, ids, live_box(union_box(bounds)), union_box(corner_boxes)
+    )
+    return packed, np.array(corner_boxes, FLOAT).reshape(-1, 6)

@@ -31,8 +31,9 @@ from .contracts import (
     STAT_NODES,
     STAT_TRIANGLE_TESTS,
 )
+from .deforming import leaf_for
 from .geometry import cull_distance, pick
-from .leaf import intersect_leaf, leaf_scratch
+from .leaf import leaf_scratch
 from .partition import partition_by_mask, partition_scratch, triangle_bounds
 from .query import ANY_HIT, FIXED_ORIGIN, with_strategy
 from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN_QUAD, field, quad_view, swap_rays
@@ -443,7 +444,7 @@ def trace_ray_space(flags, tris, scene_box, rays, ray_ids, arrays):
                     )
                 else:
                     stats[STAT_LEAVES] += 1
-                    stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
+                    stats[STAT_TRIANGLE_TESTS] += leaf_for(
                         flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, leaf
                     )
                 continue

@@ -44,6 +44,7 @@ from .contracts import (
     Nearest,
     Occlusion,
 )
+from .deforming import DeformingTriangles, corners_at_times
 from .instances import (
     Instance,
     group_boxes,
@@ -56,7 +57,7 @@ from .instances import (
     rays_to_mesh_space_at,
 )
 from .leaf import NO_HIT
-from .packed import ORDERS, Packed, live_box, pack_mesh, pack_meshes, union_box
+from .packed import ORDERS, Packed, live_box, pack_deforming, pack_mesh, pack_meshes, union_box
 from .query import (
     ALL_HITS,
     ALL_MASKS,
@@ -73,7 +74,7 @@ from .query import (
 )
 from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
 from .rayspace import trace_ray_space
-from .results import finish_closest, finish_hits
+from .results import finish_closest, finish_hits, unit_normals
 from .traversal import split_middle, trace_object_split
 from .triangles import Triangles, all_finite
 from .validation import (
@@ -88,6 +89,7 @@ from .validation import (
     check_threads,
     check_time,
     check_transform,
+    check_vertices_end,
     explain_bad_rays,
     explain_bad_vertices,
     place_vertices,
@@ -98,6 +100,10 @@ Cull = Literal["none", "back", "front"]
 Strategy = Literal["sampling", "sah", "middle", "rayspace"]
 Device = Literal["cpu", "cuda"]
 DEVICES = ("cpu", "cuda")
+
+HitTriangles = namedtuple("HitTriangles", ["verts", "ids"])
+HitTriangles.__doc__ = """One row a hit, for ``Scene._finish_hits``: (k, 9) float32 corners (a
+deforming triangle's at its ray's time) and (k,) int32 global triangle ids."""
 
 Traced = namedtuple("Traced", ["best_t", "arrays", "stats"])
 Traced.__doc__ = """What the kernels leave of one level's trace: each ray's best_t, the
@@ -167,6 +173,7 @@ class Scene:
         transforms: Sequence[ArrayLike | None] | None = None,
         order: str = "auto",
         transforms_end: Sequence[ArrayLike | None] | None = None,
+        vertices_end: Sequence[ArrayLike | None] | None = None,
     ) -> None:
         watch()  # the first compile in process says so (``compiling``)
         if order not in ORDERS:
@@ -176,6 +183,15 @@ class Scene:
         checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in enumerate(meshes)]
         matrices = self._checked_transforms(transforms, len(checked), "transforms")
         ends = self._checked_transforms(transforms_end, len(checked), "transforms_end")
+        if vertices_end is not None and len(vertices_end) != len(checked):
+            raise InputError(
+                f"vertices_end has {len(vertices_end)} entries for {len(checked)} meshes"
+            )
+        deformed = {
+            i: check_vertices_end(i, end, checked[i][0], matrices[i], ends[i])
+            for i, end in enumerate(vertices_end or [])
+            if end is not None
+        }
         mesh_masks = check_masks(
             ALL_MASKS if masks is None else masks, len(checked), "masks", "mesh"
         )
@@ -188,7 +204,7 @@ class Scene:
                 if key not in packings:
                     packings[key] = pack_mesh(*checked[i], self._order)
                 packs[i] = packings[key]
-        self._assemble(checked, mesh_masks.copy(), matrices, ends, packs, None, set())
+        self._assemble(checked, mesh_masks.copy(), matrices, ends, deformed, packs, None, set())
 
     @staticmethod
     def _checked_transforms(transforms, n_meshes, name):
@@ -204,17 +220,19 @@ class Scene:
             for i, matrix in enumerate(transforms)
         ]
 
-    def _assemble(self, checked, masks, matrices, ends, packs, old, changed):
+    def _assemble(self, checked, masks, matrices, ends, deformed, packs, old, changed):
         """Set up the scene from its checked meshes, masks (n,) uint32, matrices and ends (None
-        or (4, 4) float64 each: placements at the start and end of the interval) and ``packs``
-        (mesh index: ``Packed`` of each placed mesh, one with a start or an end). With
-        ``old``, a scene of the same faces: its base level is shared when no untransformed mesh
-        changed (``changed``: the meshes given new vertices), else its rows are copied for
-        those that did not."""
+        or (4, 4) float64 each: placements at the start and end of the interval), ``deformed``
+        (mesh index: its checked vertices at the end of the interval, for each deforming mesh)
+        and ``packs`` (mesh index: ``Packed`` of each placed mesh, one with a start or an end).
+        With ``old``, a scene of the same faces: its base level is shared when no untransformed
+        mesh changed (``changed``: the meshes given new vertices or vertices_end), else its rows
+        are copied for those that did not; so is its deforming level."""
         self.n_meshes = len(checked)
         self._meshes = checked
         self._matrices = matrices
         self._ends = ends
+        self._vertices_end = deformed
         self.masks = masks
         self.masks.flags.writeable = False  # _row_masks is derived from it once
         if old is None:
@@ -224,8 +242,9 @@ class Scene:
         else:
             self.mesh_offsets = old.mesh_offsets
         self.n_triangles = int(self.mesh_offsets[-1])
-        base_meshes = [i for i in range(self.n_meshes) if i not in packs]
+        base_meshes = [i for i in range(self.n_meshes) if i not in packs and i not in deformed]
         self._base_meshes = np.array(base_meshes, np.int64)
+        self._assemble_deforming(old, changed)
         if (
             old is not None
             and list(old._base_meshes) == base_meshes
@@ -254,8 +273,27 @@ class Scene:
                 instances.append(Instance(i, packs[i], matrix, end))
         self._instances = instances
         self._instance_of = {instance.mesh: instance for instance in instances}
-        # Only a scene with a moving instance reads the rays' times.
-        self._moving = any(instance.moving for instance in instances)
+        # Only a scene with a moving instance or a deforming mesh reads the rays' times.
+        self._moving = self._deforming is not None or any(i.moving for i in instances)
+
+    def _assemble_deforming(self, old, changed):
+        """The deforming level (``DeformingPacked``, ids global) of the meshes with vertices at
+        the end, or None for none: ``old``'s when it has the same deforming meshes and none of
+        them is in ``changed``."""
+        meshes = sorted(self._vertices_end)
+        self._deforming_meshes = np.array(meshes, np.int64)
+        if not meshes:
+            self._deforming = None
+            self._deforming_corner_boxes = np.empty((0, 6), FLOAT)
+            return
+        if old is not None and list(old._deforming_meshes) == meshes and not changed & set(meshes):
+            self._deforming = old._deforming
+            self._deforming_corner_boxes = old._deforming_corner_boxes
+            return
+        self._deforming, self._deforming_corner_boxes = pack_deforming(
+            [(self._meshes[i][0], self._vertices_end[i], self._meshes[i][1]) for i in meshes],
+            [self.mesh_offsets[i] for i in meshes],
+        )
 
     def _pack_base(self, base_meshes, old, changed):
         """The base level (``Packed``, ids global) of the untransformed ``base_meshes``, and
@@ -273,7 +311,7 @@ class Scene:
             return packed, parts
         pieces = []
         for i, first_row in zip(base_meshes, first_rows):
-            part = old._parts[i]
+            part = old._parts.get(i)  # none for a mesh that deformed in ``old``
             if i in changed:
                 piece = pack_mesh(*self._meshes[i], self._order)
                 pieces.append(
@@ -337,6 +375,7 @@ class Scene:
         vertices: dict[int, ArrayLike] | None = None,
         masks: dict[int, int] | None = None,
         transforms_end: dict[int, ArrayLike | None] | None = None,
+        vertices_end: dict[int, ArrayLike | None] | None = None,
     ) -> "Scene":
         """A new Scene: this one with some meshes moved, deformed or masked; this one is left
         as it is, and keeps answering as before.
@@ -347,6 +386,9 @@ class Scene:
         masks : {mesh index: mask}, an integer in [0, 2**32)
         transforms_end : {mesh index: (4, 4) affine matrix, its placement at the end of the
             interval, or None for static}; a mesh not named keeps its end (``Scene``)
+        vertices_end : {mesh index: (V, 3) float, the mesh's vertices at the end of the
+            interval, or None for static}; a mesh not named keeps its end, also when given new
+            ``vertices`` (``Scene``)
         Every other mesh keeps its packed arrays, shared with this scene: a placed mesh costs
         nothing to move, and a deformed one is packed again alone. A change to the meshes as
         given (the base level: new vertices, or a mesh placed or put back as given) copies the
@@ -357,6 +399,7 @@ class Scene:
         vertices = self._by_mesh(vertices, "vertices")
         masks = self._by_mesh(masks, "masks")
         transforms_end = self._by_mesh(transforms_end, "transforms_end")
+        vertices_end = self._by_mesh(vertices_end, "vertices_end")
         matrices = list(self._matrices)
         for i, matrix in transforms.items():
             matrices[i] = None if matrix is None else check_transform(matrix, f"transforms[{i}]")
@@ -369,7 +412,18 @@ class Scene:
         new_masks = self.masks.copy()
         for i, mask in masks.items():
             new_masks[i] = check_masks(mask, 1, f"masks[{i}]", "mesh")[0]
-        changed = set(vertices)
+        deformed = dict(self._vertices_end)
+        for i, end in vertices_end.items():
+            deformed.pop(i, None)
+            if end is not None:
+                deformed[i] = end
+        for i in sorted(deformed):
+            if i in vertices_end or i in vertices or i in transforms or i in transforms_end:
+                deformed[i] = check_vertices_end(
+                    i, deformed[i], checked[i][0], matrices[i], ends[i]
+                )
+        # A mesh that starts or stops deforming, or deforms anew, is packed again.
+        changed = set(vertices) | set(vertices_end)
         packings = {}
         packs = {}
         for i, (matrix, end) in enumerate(zip(matrices, ends)):
@@ -380,13 +434,13 @@ class Scene:
             elif i not in changed:  # as given before, placed now: its rows of the base level
                 packs[i] = self._packed_from_base(i)
             else:
-                key = id(vertices[i])
+                key = id(vertices[i]) if i in vertices else ("mesh", i)
                 if key not in packings:
                     packings[key] = pack_mesh(*checked[i], self._order)
                 packs[i] = packings[key]
         scene = object.__new__(Scene)
         scene._order = self._order
-        scene._assemble(checked, new_masks, matrices, ends, packs, self, changed)
+        scene._assemble(checked, new_masks, matrices, ends, deformed, packs, self, changed)
         return scene
 
     def _by_mesh(self, changes, name):
@@ -435,9 +489,10 @@ class Scene:
     def bounds(self):
         """(2, 3) float32: the box of every corner the faces refer to (degenerate triangles
         included), placed meshes' corners placed in float64 then rounded (a moving mesh's at
-        the start and at the end of the interval); zeros for no faces.
-        Derived on first use."""
+        the start and at the end of the interval, a deforming mesh's at both too); zeros for no
+        faces. Derived on first use."""
         boxes = [self._parts[i].corner_box for i in self._base_meshes]
+        boxes += list(self._deforming_corner_boxes)
         for i, (matrix, end) in enumerate(zip(self._matrices, self._ends)):
             if (matrix is None and end is None) or not len(self._meshes[i][1]):
                 continue
@@ -462,6 +517,8 @@ class Scene:
         on demand once they exist."""
         held = {id(self._base): self._base}
         held.update((id(i.packed), i.packed) for i in self._instances)
+        if self._deforming is not None:
+            held[id(self._deforming)] = self._deforming
         derived = self.__dict__.get("_row_masks")
         return int(
             sum(packed.nbytes for packed in held.values())
@@ -473,6 +530,12 @@ class Scene:
     def _centre_counts(self):
         """The base level's triangle centres per cell of the DENSITY_GRID grid (``Packed``)."""
         return self._base.centre_counts
+
+    @functools.cached_property
+    def _deforming_row_masks(self):
+        """Each deforming row's mesh mask (``_row_masks`` of the deforming level)."""
+        meshes = np.searchsorted(self.mesh_offsets, self._deforming.ids, side="right") - 1
+        return np.ascontiguousarray(self.masks[meshes])
 
     @functools.cached_property
     def _row_masks(self):
@@ -557,6 +620,10 @@ class Scene:
 
         map_on_threads(finish, n_parts, n_parts)
         per_level = [traced.stats]
+        if self._deforming is not None and n:
+            found = self._trace_deforming(query, np.where(mesh != MISS, t, query.tmax))
+            self._merge_deforming_closest(found, query, t, mesh, prim, u, v, normal)
+            per_level.append(found.stats)
         if self._instances and n:
             # The base level's best t bounds each ray's segment into the instances.
             limit = np.where(mesh != MISS, t, query.tmax)
@@ -611,6 +678,11 @@ class Scene:
         )
         occluded = traced.arrays.best_tri != NO_HIT
         per_level = [traced.stats]
+        open_rays = np.flatnonzero(~occluded) if self._deforming is not None else []
+        if len(open_rays):
+            found = self._trace_deforming(query, query.tmax[open_rays], open_rays)
+            occluded[open_rays[found.arrays.best_tri != NO_HIT]] = True
+            per_level.append(found.stats)
         if self._instances and len(occluded):
             # An occluded ray goes no further: -inf reaches no box.
             limit = np.where(occluded, -np.inf, query.tmax).astype(FLOAT)
@@ -670,16 +742,22 @@ class Scene:
             time,
         )
         n_rays = len(query.origins)
-        # With instances, each level keeps its max_hits + 1 nearest, merged below.
-        kept = max_hits + 1 if self._instances else max_hits
+        # With instances or deforming meshes, each level keeps its max_hits + 1 nearest, merged
+        # below.
+        levels = bool(self._instances) or self._deforming is not None
+        kept = max_hits + 1 if levels else max_hits
         offsets, t, mesh, prim, u, v, normal = self._finish_hits(
             traced, query.origins, query.directions, self._base, self.mesh_offsets, kept
         )
         n_held = traced.arrays.n_hits
         truncated = n_held > max_hits
         per_level = [traced.stats]
-        if self._instances and n_rays:
+        if levels and n_rays:
             parts = [(np.repeat(np.arange(n_rays), np.diff(offsets)), t, mesh, prim, u, v, normal)]
+            if self._deforming is not None:
+                deforming_hits, deforming_stats = self._deforming_hits(query, max_hits)
+                parts.append(deforming_hits)
+                per_level.append(deforming_stats)
             limit = np.require(query.tmax, FLOAT, ["C", "W"])
             for instance, ids, found in self._trace_instances(query, limit, ALL_HITS, max_hits):
                 packed = instance.packed
@@ -776,12 +854,105 @@ class Scene:
         )
         counts = traced.arrays.n_hits
         per_level = [traced.stats]
+        if self._deforming is not None and len(counts):
+            found = self._trace_deforming(query, query.tmax)
+            counts += found.arrays.n_hits
+            per_level.append(found.stats)
         if self._instances and len(counts):
             limit = np.require(query.tmax, FLOAT, ["C", "W"])
             for _, ids, found in self._trace_instances(query, limit, COUNT):
                 counts[ids] += found.arrays.n_hits
                 per_level.append(found.stats)
         return Counts(counts, self._counters(len(counts), per_level) if stats else None)
+
+    def _trace_deforming(self, query, tmax, rays=None, list_size=0):
+        """Trace the deforming level with the query's kind and options: its rays ``rays`` (ids,
+        None for all) with ``tmax`` (float32, one per traced ray), each at its time (0 where the
+        query gives none). Returns ``Traced``, by the traced rays' order."""
+        n_rays = len(query.origins)
+        times = np.zeros(n_rays, FLOAT) if query.times is None else query.times
+        origins, directions, tmin = query.origins, query.directions, query.tmin
+        ray_masks = query.ray_masks
+        if rays is not None:
+            origins, directions, tmin, times = (a[rays] for a in (origins, directions, tmin, times))
+            ray_masks = None if ray_masks is None else ray_masks[rays]
+        mask_flags, visible_rows, tri_masks = self._visible_rows(ray_masks, deforming=True)
+        return self._trace_level(
+            self._deforming,
+            query.flags | mask_flags,
+            origins,
+            directions,
+            tmin,
+            np.require(tmax, FLOAT, ["C", "W"]),
+            ray_masks if mask_flags else self._no_masks,
+            visible_rows,
+            tri_masks,
+            query.threads,
+            list_size,
+            np.require(times, FLOAT, ["C", "W"]),
+        )
+
+    def _hit_mesh_prim(self, ids):
+        """(mesh, prim) int32 of global triangle ids."""
+        mesh = np.searchsorted(self.mesh_offsets, ids, side="right") - 1
+        return mesh.astype(INDEX), (ids - self.mesh_offsets[mesh]).astype(INDEX)
+
+    def _merge_deforming_closest(self, traced, query, t, mesh, prim, u, v, normal):
+        """Merge the deforming level's closest hits (``traced``, every ray of ``query``) into
+        the answers by the tie rule (smaller t, then lower (mesh, prim)); a winner's normal is
+        its triangle's at the ray's time (``corners_at_times``, then ``unit_normals``, the
+        static level's arithmetic)."""
+        level = self._deforming
+        rays = np.flatnonzero(traced.arrays.best_tri != NO_HIT)
+        rows = traced.arrays.best_tri[rays]
+        hit_t = traced.best_t[rays] + FLOAT(0.0)  # -0.0 (a hit at the origin) as +0.0
+        hit_mesh, hit_prim = self._hit_mesh_prim(level.ids[rows])
+        was_t, was_mesh, was_prim = t[rays], mesh[rays], prim[rays]
+        lower_key = (hit_mesh < was_mesh) | ((hit_mesh == was_mesh) & (hit_prim < was_prim))
+        better = (hit_t < was_t) | ((hit_t == was_t) & lower_key)
+        rays, rows = rays[better], rows[better]
+        t[rays] = hit_t[better]
+        mesh[rays] = hit_mesh[better]
+        prim[rays] = hit_prim[better]
+        u[rays] = traced.arrays.hit_u[rays]
+        v[rays] = traced.arrays.hit_v[rays]
+        times = np.zeros(len(rays), FLOAT) if query.times is None else query.times[rays]
+        corners = corners_at_times(level.verts, level.verts_end, rows, times)
+        normals = np.empty((len(rows), 3), FLOAT)
+        unit_normals(corners, normals)
+        normal[rays] = normals
+
+    def _deforming_hits(self, query, max_hits):
+        """The deforming level's hits of a ``hits`` query, at most max_hits + 1 a ray: (ray, t,
+        mesh, prim, u, v, normal) arrays, one entry a hit (``merge_hit_lists``' part), and the
+        trace's stats. u, v and normals come from each hit's triangle at its ray's time
+        (``corners_at_times``), by ``results.finish_hits``, the static level's arithmetic."""
+        level = self._deforming
+        n_rays = len(query.origins)
+        traced = self._trace_deforming(query, query.tmax, list_size=min(max_hits, len(level)) + 1)
+        arrays = traced.arrays
+        held = np.minimum(arrays.n_hits, max_hits + 1)
+        listed = np.arange(arrays.list_tri.shape[1]) < held[:, None]
+        rows = arrays.list_tri[listed]
+        hit_rays = np.repeat(np.arange(n_rays), held)
+        times = np.zeros(n_rays, FLOAT) if query.times is None else query.times
+        # Each hit gets a row of its own: its triangle at its ray's time.
+        at_times = HitTriangles(
+            corners_at_times(level.verts, level.verts_end, rows, times[hit_rays]),
+            np.ascontiguousarray(level.ids[rows]),
+        )
+        list_tri = np.zeros_like(arrays.list_tri)
+        list_tri[listed] = np.arange(len(rows), dtype=INDEX)
+        offsets, t, mesh, prim, u, v, normal = self._finish_hits(
+            traced._replace(arrays=arrays._replace(list_tri=list_tri)),
+            query.origins,
+            query.directions,
+            at_times,
+            self.mesh_offsets,
+            max_hits + 1,
+        )
+        ray_of_hit = np.repeat(np.arange(n_rays), np.diff(offsets))
+        return (ray_of_hit, t, mesh, prim, u, v, normal), traced.stats
 
     def _counters(self, n_rays, per_level):
         """The counters of a query (a dict): the kernels' stats summed over every chunk of every
@@ -849,16 +1020,27 @@ class Scene:
 
     @property
     def moving(self) -> bool:
-        """Whether a mesh of the scene moves during the interval (``transforms_end``)."""
+        """Whether a mesh of the scene moves during the interval (``transforms_end`` or
+        ``vertices_end``)."""
         return self._moving
 
     def motion(
-        self, mesh: ArrayLike, points: ArrayLike, time: ArrayLike | float | None = None
+        self,
+        mesh: ArrayLike,
+        points: ArrayLike,
+        time: ArrayLike | float | None = None,
+        *,
+        prim: ArrayLike | None = None,
+        u: ArrayLike | None = None,
+        v: ArrayLike | None = None,
     ) -> np.ndarray:
         """(n, 3) float64: how fast each of ``points`` (n, 3), on mesh ``mesh[i]`` (-1 for
         none) at time ``time[i]``, moves, in scene units per interval: d/dtau of
-        M(tau) p = (M1 - M0) applied to p's mesh-space point inv(M(tau)) x. Zero on a static
-        mesh and for mesh -1 (divide by the interval's seconds for a velocity)."""
+        M(tau) p = (M1 - M0) applied to p's mesh-space point inv(M(tau)) x; on a deforming mesh
+        (``vertices_end``), of the point (1-u-v) p0 + u p1 + v p2 of triangle ``prim[i]``, so
+        (1-u-v) (p0' - p0) + u (p1' - p1) + v (p2' - p2), its corners' ends less their starts
+        (``prim``, ``u`` and ``v`` are then required: a hit's). Zero on a static mesh and for
+        mesh -1 (divide by the interval's seconds for a velocity)."""
         mesh = np.asarray(mesh, np.int64).reshape(-1)
         points = np.asarray(points, np.float64).reshape(-1, 3)
         if len(points) != len(mesh):
@@ -867,6 +1049,21 @@ class Scene:
         times = check_time(time, n)
         times = np.zeros(n) if times is None else times.astype(np.float64)
         velocity = np.zeros((n, 3))
+        for i, end in self._vertices_end.items():
+            rows = np.flatnonzero(mesh == i)
+            if not len(rows):
+                continue
+            if prim is None or u is None or v is None:
+                raise InputError(f"motion on the deforming mesh {i} needs prim, u and v")
+            faces = self._meshes[i][1][np.asarray(prim, np.int64).reshape(-1)[rows]]
+            change = end.astype(np.float64) - self._meshes[i][0].astype(np.float64)
+            hit_u = np.asarray(u, np.float64).reshape(-1)[rows, None]
+            hit_v = np.asarray(v, np.float64).reshape(-1)[rows, None]
+            velocity[rows] = (
+                (1.0 - hit_u - hit_v) * change[faces[:, 0]]
+                + hit_u * change[faces[:, 1]]
+                + hit_v * change[faces[:, 2]]
+            )
         for instance in self._instances:
             rows = np.flatnonzero(mesh == instance.mesh)
             if not instance.moving or not len(rows):
@@ -893,6 +1090,15 @@ class Scene:
         verts = [self._base.verts]
         ids = [self._base.ids]
         masks = [self._row_masks]
+        if self._deforming is not None:
+            # The deforming rows at time 0, less those degenerate then (as the static packing).
+            level = self._deforming
+            corners = level.verts.reshape(-1, 3, 3).astype(np.float64)
+            normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+            live = np.flatnonzero(normals.any(axis=1))
+            verts.append(level.verts[live])
+            ids.append(level.ids[live])
+            masks.append(self._deforming_row_masks[live])
         for instance in self._instances:
             corners = instance.packed.verts.reshape(-1, 3).astype(np.float64)
             placed = corners @ instance.matrix[:3, :3].T + instance.matrix[:3, 3]
@@ -906,18 +1112,21 @@ class Scene:
             np.ascontiguousarray(np.concatenate(masks)),
         )
 
-    def _visible_rows(self, ray_masks):
-        """How a batch's masks are traced on the base level: (flags, tri_ids, tri_masks). A
-        batch whose rays share one mask (or carry none) sees a fixed set of meshes: tri_ids
-        (int32) holds their kernel rows, or is None for every row, and the kernels check no
-        mask. Otherwise the MASKED flag and every row's mesh mask (``_row_masks``)."""
+    def _visible_rows(self, ray_masks, deforming=False):
+        """How a batch's masks are traced on the base level (or the deforming level):
+        (flags, tri_ids, tri_masks). A batch whose rays share one mask (or carry none) sees a
+        fixed set of meshes: tri_ids (int32) holds their kernel rows, or is None for every row,
+        and the kernels check no mask. Otherwise the MASKED flag and every row's mesh mask
+        (``_row_masks``, ``_deforming_row_masks``)."""
+        meshes = self._deforming_meshes if deforming else self._base_meshes
+        row_masks = (lambda: self._deforming_row_masks) if deforming else (lambda: self._row_masks)
         ray_mask = self._uniform_mask(ray_masks)
         if ray_mask is None:
-            return MASKED, None, self._row_masks
-        seen = (self.masks[self._base_meshes] & ray_mask) != 0
+            return MASKED, None, row_masks()
+        seen = (self.masks[meshes] & ray_mask) != 0
         if seen.all():
             return 0, None, self._no_masks
-        return 0, np.flatnonzero(self._row_masks & ray_mask).astype(INDEX), self._no_masks
+        return 0, np.flatnonzero(row_masks() & ray_mask).astype(INDEX), self._no_masks
 
     def _trace(
         self,
@@ -1126,12 +1335,14 @@ class Scene:
         tri_masks,
         threads,
         list_size,
+        times=None,
     ):
         """Run the kernels on one level (a ``Packed``) with ``flags`` (``dacrt.query``, the
         strategy's code included); ``ray_masks`` and ``tri_masks`` as ``QueryArrays`` holds
-        them, ``visible_rows`` the rows traced (None for all). Returns ``Traced``, whose stats
-        list is empty when no kernel ran (no rays or no rows) or a ray is invalid (then the
-        rays were not traced)."""
+        them, ``visible_rows`` the rows traced (None for all); ``times`` (n,) float32, each
+        ray's instant, for the deforming level (``DeformingPacked``), else None. Returns
+        ``Traced``, whose stats list is empty when no kernel ran (no rays or no rows) or a ray
+        is invalid (then the rays were not traced)."""
         n_rays = len(origins)
         best_t = tmax.copy()  # the records' best_t, scattered back after the trace
         lists = (n_rays, list_size) if flags & ALL_HITS else (0, 0)
@@ -1155,7 +1366,7 @@ class Scene:
         ray_space = (flags >> STRATEGY_SHIFT) & 3 == RAYSPACE
         if not ray_space and not flags & COLLECT and splits_triangles(n_rays, n_live, threads):
             per_half = self._trace_halves(
-                level, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t
+                level, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t, times
             )
             return Traced(best_t, answer, per_half)
         # The values are not checked yet (each chunk checks its own): a bad ray may make
@@ -1177,7 +1388,7 @@ class Scene:
             tri_ids = (
                 np.arange(n_live, dtype=INDEX) if visible_rows is None else visible_rows.copy()
             )
-            tris = Triangles(level.verts, level.bounds, tri_ids)
+            tris = level_triangles(level, tri_ids, times)
             chunk_stats = np.zeros(len(STAT_NAMES), np.int64)
             arrays = answer._replace(
                 hit_mask=np.empty(len(ray_ids), np.bool_),
@@ -1200,7 +1411,7 @@ class Scene:
         return Traced(best_t, answer, per_chunk)
 
     def _trace_halves(
-        self, level, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t
+        self, level, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t, times
     ):
         """Trace a closest or occlusion batch on two threads, each with every ray against one
         half of the level's triangles (split at the middle of its box); then each ray keeps the
@@ -1210,7 +1421,7 @@ class Scene:
         tri_ids = (
             np.arange(len(level), dtype=INDEX) if visible_rows is None else visible_rows.copy()
         )
-        tris = Triangles(level.verts, level.bounds, tri_ids)
+        tris = level_triangles(level, tri_ids, times)
         boxes = np.empty((3, 6), FLOAT)  # the halves' boxes, and scratch for split_middle
         _, tri_mid = split_middle(tris, 0, len(tri_ids), level.box, boxes)
         rays = new_records(n_rays)
@@ -1257,6 +1468,14 @@ def check_device(device, stats):
     if device == "cuda" and stats:
         raise InputError("device='cuda' does not support stats=True yet")
     return device
+
+
+def level_triangles(level, tri_ids, times):
+    """The kernels' record of a level's rows ``tri_ids``: ``Triangles``, or with ``times`` (each
+    ray's instant) ``DeformingTriangles`` of a ``DeformingPacked``."""
+    if times is None:
+        return Triangles(level.verts, level.bounds, tri_ids)
+    return DeformingTriangles(level.verts, level.bounds, tri_ids, level.verts_end, times)
 
 
 def _same_matrix(a, b):

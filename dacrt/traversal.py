@@ -38,8 +38,9 @@ from .contracts import (
     STAT_SKIPPED,
     STAT_TRIANGLE_TESTS,
 )
+from .deforming import leaf_for
 from .geometry import cull_distance, intersect_box
-from .leaf import intersect_leaf, leaf_scratch
+from .leaf import leaf_scratch
 from .partition import (
     bin_scale,
     bin_triangles,
@@ -117,7 +118,7 @@ def trace_object_split(
             continue
         if n_rays * n_tris <= LEAF_C_R * n_rays + LEAF_C_T * n_tris or depth >= MAX_DEPTH:
             stats[STAT_LEAVES] += 1
-            stats[STAT_TRIANGLE_TESTS] += intersect_leaf(
+            stats[STAT_TRIANGLE_TESTS] += leaf_for(
                 flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, leaf
             )
             continue

@@ -168,6 +168,32 @@ def check_threads(threads, n_cores):
     return int(threads)
 
 
+def check_vertices_end(i, end, vertices, matrix, matrix_end):
+    """Mesh i's vertices at the end of the interval as float32 (V, 3): as many rows as its
+    ``vertices``, finite, on a mesh with no placement (``matrix``, ``matrix_end``: its
+    transforms, None for none), since a deforming mesh is given in scene space. InputError
+    naming ``vertices_end[i]``."""
+    name = f"vertices_end[{i}]"
+    if matrix is not None or matrix_end is not None:
+        raise InputError(
+            f"{name}: mesh {i} is placed (transforms[{i}] or transforms_end[{i}]); a deforming "
+            f"mesh takes no placement, give its vertices in scene space"
+        )
+    if end is None or isinstance(end, str | bytes):
+        raise InputError(f"{name} must be a (V, 3) array of numbers")
+    try:
+        end = as_float_rows(end, name, check_finite=False)
+    except (TypeError, ValueError) as error:
+        if isinstance(error, InputError):
+            raise
+        raise InputError(f"{name} must be a (V, 3) array of numbers") from None
+    if len(end) != len(vertices):
+        raise InputError(f"{name} has {len(end)} rows; mesh {i} has {len(vertices)} vertices")
+    if not all_finite(end):
+        explain_bad_vertices(end, name)
+    return end
+
+
 def check_transform(matrix, name="matrix"):
     """A 4x4 row-major affine placement as float64 (4, 4): finite, last row exactly
     [0, 0, 0, 1], its 3x3 part invertible. ValueError naming ``name`` otherwise."""

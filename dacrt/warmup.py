@@ -48,6 +48,13 @@ def warmup() -> float:
     times = np.linspace(0.0, 1.0, len(origins), dtype=np.float32)
     moving.closest(spread, directions, time=times, threads=1)
     moving.hits(spread, directions, time=times, threads=1)
+    # A deforming mesh beside a static one: the traversals over ``DeformingTriangles``, for
+    # every strategy, with a mask per ray too.
+    lifted = vertices + np.float32([0.0, 0.0, 0.5])
+    deforming = Scene([(vertices, faces)] * 2, vertices_end=[None, lifted])
+    for strategy in STRATEGIES:
+        deforming.closest(origins, directions, time=times, strategy=strategy, threads=1)
+    deforming.hits(origins, directions, time=times, mask=masks, threads=1)
     # Point queries: one mask for the batch, a mask per point, and the parity of crossings.
     scene.nearest(origins, threads=1)
     scene.nearest(origins, mask=np.arange(1, 5, dtype=np.uint32), threads=1)
@@ -68,4 +75,7 @@ def warmup() -> float:
     assert splits_triangles(n_rays, grid_scene.n_triangles, 2)
     grid_scene.closest(scattered[:, :3], scattered[:, 3:], threads=2)
     grid_scene.occluded(scattered[:, :3], scattered[:, 3:], threads=2)
+    # ... and of a deforming grid's.
+    bent = Scene([(grid_vertices, grid_faces)], vertices_end=[grid_vertices * np.float32(1.5)])
+    bent.closest(scattered[:, :3], scattered[:, 3:], threads=2)
     return time.perf_counter() - start

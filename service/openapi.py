@@ -94,6 +94,7 @@ FRAME_JSON = {
         r"^.+\.faces$": _TRIANGLES,
         r"^.+\.transform$": _MATRIX,
         r"^.+\.transform_end$": _MATRIX,
+        r"^.+\.vertices_end$": _POINTS,
         r"^.+\.mask$": _MASK,
         r"^.+\.instance_of$": _MESH_NAME,
         r"^.+\.reflectivity$": _REFLECTIVITY,
@@ -128,6 +129,11 @@ MESH_INFO = {
         "transform_end": {
             "anyOf": [_MATRIX, {"type": "null"}],
             "description": "its placement at the end of the frame's interval; null: static",
+        },
+        "vertices_end": {
+            "anyOf": [{"type": "integer"}, {"type": "null"}],
+            "description": "how many vertices it has at the end of the frame's interval (as "
+            "many as at the start: it deforms); null: it does not deform",
         },
         "instance_of": {
             "anyOf": [{"type": "string"}, {"type": "null"}],

@@ -57,7 +57,14 @@ except ImportError:  # pragma: no cover - isal is a dependency; zlib gives the s
 
 from .errors import DataDirUnavailable, InsufficientStorage, Invalid
 from .store import Geometry, Mesh, Snapshot, owned_transform, placed, referenced_bounds
-from .wire import check_matrix, parse_label, parse_mask, parse_reflectivity
+from .wire import (
+    check_matrix,
+    check_vertices,
+    float_array,
+    parse_label,
+    parse_mask,
+    parse_reflectivity,
+)
 
 log = logging.getLogger("service")
 
@@ -132,6 +139,15 @@ def _transform_end(value: Any) -> np.ndarray | None:
     matrix = check_matrix(value, "transform_end")
     matrix.setflags(write=False)
     return matrix
+
+
+def _vertices_end(value: Any) -> np.ndarray | None:
+    """A manifest's end vertices (absent: static), checked, read-only."""
+    if value is None:
+        return None
+    vertices = check_vertices(float_array(value, "vertices_end", 3), "vertices_end")
+    vertices.setflags(write=False)
+    return vertices
 
 
 def checksum(array: np.ndarray) -> int:
@@ -322,6 +338,9 @@ class DataDir:
                 record["transform"] = mesh.transform.tolist()
             if mesh.transform_end is not None:
                 record["transform_end"] = mesh.transform_end.tolist()
+            if mesh.vertices_end is not None:
+                # In the manifest, as the numbers float32 holds (JSON keeps them exactly).
+                record["vertices_end"] = mesh.vertices_end.tolist()
             if mesh.instance_of is not None:
                 record["instance_of"] = mesh.instance_of
             else:
@@ -431,6 +450,7 @@ class DataDir:
                     parse_reflectivity(item.get("reflectivity", REFLECTIVITY), "reflectivity"),
                     parse_label(item.get("label", DEFAULT_LABEL), "label"),
                     _transform_end(item.get("transform_end")),
+                    _vertices_end(item.get("vertices_end")),
                 )
             next_index = record["next_index"]
             for name, mesh in meshes.items():

@@ -167,6 +167,8 @@ class Mesh:
     label: int = DEFAULT_LABEL  #: uint32: a semantic class, the label of a lidar's points
     #: (4, 4) float64 read-only: the placement at the end of the frame's interval; None: static
     transform_end: np.ndarray | None = None
+    #: (V, 3) float32 read-only: the vertices at the end of the frame's interval; None: static
+    vertices_end: np.ndarray | None = None
 
     @property
     def vertices(self) -> np.ndarray:
@@ -199,6 +201,8 @@ class Mesh:
             "mask": self.mask,
             "transform": (IDENTITY if self.transform is None else self.transform).tolist(),
             "transform_end": None if self.transform_end is None else self.transform_end.tolist(),
+            # How many end positions the mesh has (its vertices'), or None: it does not deform.
+            "vertices_end": None if self.vertices_end is None else len(self.vertices_end),
             "instance_of": self.instance_of,
             "reflectivity": self.reflectivity,
             "label": self.label,
@@ -217,7 +221,32 @@ def placed(mesh: Mesh) -> Mesh:
         mesh.geometry.check_placeable(mesh.transform_end, name)
         end = mesh.geometry.placed_bounds(mesh.transform_end)
         bounds = np.stack([np.minimum(bounds[0], end[0]), np.maximum(bounds[1], end[1])])
+    if mesh.vertices_end is not None:
+        end = referenced_bounds(mesh.vertices_end, mesh.faces)
+        bounds = np.stack([np.minimum(bounds[0], end[0]), np.maximum(bounds[1], end[1])])
     return replace(mesh, bounds=bounds)
+
+
+def check_deforming(mesh: Mesh) -> Mesh:
+    """``mesh``, or 422 naming ``MESH.vertices_end`` where its end vertices do not fit it: as
+    many as its vertices, on a mesh of its own with no placement (the engine deforms meshes
+    given in scene space)."""
+    if mesh.vertices_end is None:
+        return mesh
+    name = f"{mesh.name}.vertices_end"
+    if mesh.instance_of is not None:
+        raise Invalid(f"{name}: mesh {mesh.name!r} is an instance; an instance cannot deform")
+    if mesh.transform is not None or mesh.transform_end is not None:
+        raise Invalid(
+            f"{name}: mesh {mesh.name!r} is placed by a transform; a deforming mesh takes its "
+            "vertices in scene space, with no transform"
+        )
+    if len(mesh.vertices_end) != len(mesh.vertices):
+        raise Invalid(
+            f"{name} has {len(mesh.vertices_end)} rows; mesh {mesh.name!r} has "
+            f"{len(mesh.vertices)} vertices"
+        )
+    return mesh
 
 
 def new_mesh(
@@ -408,7 +437,9 @@ class Store:
         with self._lock:
             old = self.snapshot(scene)
             matrix = IDENTITY if transform is None else transform
-            mesh = self._changed(old.mesh(name), name, transform=matrix, transform_end=None)
+            mesh = self._changed(
+                old.mesh(name), name, transform=matrix, transform_end=None, vertices_end=None
+            )
             return self._commit(scene, old, {name: mesh}).meshes[name]
 
     def set_mask(self, scene: str, name: str, mask: int) -> Mesh:
@@ -436,7 +467,9 @@ class Store:
         pair): vertices with faces add or replace a mesh, vertices alone move an existing mesh's
         vertices, ``instance_of`` makes the mesh an instance, and ``transform`` and ``mask`` set
         its placement and mask (kept where not given); ``transform_end`` sets its placement at
-        the interval's end, and a ``transform`` without one makes the mesh static again."""
+        the interval's end, and a ``transform`` without one makes the mesh static again;
+        ``vertices_end`` sets its vertices at the interval's end, and ``vertices`` without them
+        make the mesh static again."""
         check_name("scene", scene)
         changes = {name: FrameChange(*change) for name, change in changes.items()}
         # A new start placement without an end makes the mesh static; an end alone keeps its start.
@@ -444,6 +477,12 @@ class Store:
             name: change.transform_end
             for name, change in changes.items()
             if change.transform_end is not None or change.transform is not None
+        }
+        # New start vertices without end ones make the mesh static; end ones alone keep its start.
+        vertex_ends = {
+            name: change.vertices_end
+            for name, change in changes.items()
+            if change.vertices_end is not None or change.vertices is not None
         }
         for name in changes:
             check_name("mesh", name)
@@ -458,6 +497,7 @@ class Store:
             for name, change in changes.items():
                 before = old.meshes.get(name) if old is not None else None
                 end = ends.get(name, ...)
+                vertices_end = vertex_ends.get(name, ...)
                 material = Material(change.reflectivity, change.label)
                 if name in added:
                     meshes[name] = self._changed(
@@ -469,6 +509,7 @@ class Store:
                         None,
                         material,
                         transform_end=end,
+                        vertices_end=vertices_end,
                     )
                 elif change.instance_of is not None:
                     meshes[name] = self._changed(
@@ -479,6 +520,7 @@ class Store:
                         instance_of=change.instance_of,
                         material=material,
                         transform_end=end,
+                        vertices_end=vertices_end,
                     )
                 elif before is None:
                     raise NotFound(
@@ -497,6 +539,7 @@ class Store:
                         change.mask,
                         material=material,
                         transform_end=end,
+                        vertices_end=vertices_end,
                     )
             return self._commit(scene, old, meshes)
 
@@ -538,10 +581,12 @@ class Store:
         instance_of: str | None = ...,  # type: ignore[assignment]
         material: Material = NO_MATERIAL,
         transform_end: np.ndarray | None = ...,  # type: ignore[assignment]
+        vertices_end: np.ndarray | None = ...,  # type: ignore[assignment]
     ) -> Mesh:
         """``before`` (or a new mesh) with what is given changed; ``instance_of=None`` makes it a
-        mesh of its own, ``transform_end=None`` static, ``...`` keeps what it was. An instance's
-        geometry is linked by ``_commit``."""
+        mesh of its own, ``transform_end=None`` or ``vertices_end=None`` static, ``...`` keeps
+        what it was (422 where end vertices do not fit the mesh: ``check_deforming``). An
+        instance's geometry is linked by ``_commit``."""
         if before is None:
             before = Mesh(name, -1, geometry or EMPTY, EMPTY.bounds, 0)
         changes: dict[str, Any] = {}
@@ -561,7 +606,9 @@ class Store:
             changes["transform_end"] = (
                 None if transform_end is None else _owned(transform_end, "<f8")
             )
-        return placed(replace(before, **changes)) if changes else before
+        if vertices_end is not ... and not (vertices_end is None and before.vertices_end is None):
+            changes["vertices_end"] = None if vertices_end is None else _owned(vertices_end, "<f4")
+        return placed(check_deforming(replace(before, **changes))) if changes else before
 
     @staticmethod
     def _moved(mesh: Mesh, vertices: np.ndarray, scene: str) -> Mesh:
@@ -580,7 +627,8 @@ class Store:
             )
         vertices = _owned(vertices, "<f4")
         geometry = Geometry(vertices, mesh.faces, referenced_bounds(vertices, mesh.faces))
-        return placed(replace(mesh, geometry=geometry))
+        # New start vertices alone make the mesh static (a frame gives its end with them).
+        return placed(replace(mesh, geometry=geometry, vertices_end=None))
 
     def _commit(
         self, scene: str, old: Snapshot | None, changes: Mapping[str, Mesh | None]

@@ -40,8 +40,8 @@ class EngineScene:
     mesh_index: (
         np.ndarray | None
     )  #: (n_meshes + 1,) int32 ending in -1, or None if positions are indices
-    #: per engine mesh position, the (index, vertices, faces, mask, transform, transform_end) it
-    #: was built from
+    #: per engine mesh position, the (index, vertices, faces, mask, transform, transform_end,
+    #: vertices_end) it was built from
     meshes: tuple[tuple, ...] = ()
 
     def map_mesh(self, positions: np.ndarray) -> np.ndarray:
@@ -54,10 +54,11 @@ class EngineScene:
 def build_engine_scene(
     meshes: Iterable[tuple], scene_type: Any = dacrt.Scene, order: str = "morton"
 ) -> EngineScene:
-    """The engine scene of (index, vertices, faces[, mask[, transform[, transform_end]]])
-    tuples (mask: uint32, default all ones; transform: (4, 4) or None, the identity;
-    transform_end: (4, 4) or None, static); meshes without triangles are left out. Meshes may
-    share arrays (instances): the engine places each by its own transform.
+    """The engine scene of (index, vertices, faces[, mask[, transform[, transform_end[,
+    vertices_end]]]]) tuples (mask: uint32, default all ones; transform: (4, 4) or None, the
+    identity; transform_end: (4, 4) or None, static; vertices_end: (V, 3) or None, static);
+    meshes without triangles are left out. Meshes may share arrays (instances): the engine
+    places each by its own transform.
     ``scene_type`` builds the scene from (meshes, masks=, transforms=): ``dacrt.Scene``, or a
     ``dacrt.distributed.DistributedScene`` bound to a client (``service.cluster``). ``order``
     is a ``dacrt.Scene``'s storage order: "morton" for a stored mesh, packed once for every
@@ -67,8 +68,12 @@ def build_engine_scene(
     masks = np.array([mesh[3] if len(mesh) > 3 else 0xFFFFFFFF for mesh in kept], np.uint32)
     transforms = [mesh[4] if len(mesh) > 4 else None for mesh in kept]
     ends = [mesh[5] if len(mesh) > 5 else None for mesh in kept]
-    # Only a moving scene names transforms_end (a cluster's scene type takes none).
+    vertex_ends = [_vertices_end(mesh) for mesh in kept]
+    # Only a moving scene names transforms_end or vertices_end (a cluster's scene type takes
+    # neither).
     moving = {} if all(end is None for end in ends) else {"transforms_end": ends}
+    if any(end is not None for end in vertex_ends):
+        moving["vertices_end"] = vertex_ends
     scene = scene_type(
         [(mesh[1], mesh[2]) for mesh in kept],
         masks=None if (masks == 0xFFFFFFFF).all() else masks,
@@ -85,7 +90,7 @@ def _snapshot_engine(snapshot: Snapshot, scene_type: Any = dacrt.Scene) -> Engin
     which packs only what changed) where the meshes are the same but for their placements,
     vertices and masks; else built whole."""
     meshes = [
-        (m.index, m.vertices, m.faces, m.mask, m.transform, m.transform_end)
+        (m.index, m.vertices, m.faces, m.mask, m.transform, m.transform_end, m.vertices_end)
         for m in snapshot.meshes.values()
     ]
     earlier = snapshot.earlier("dacrt") if scene_type is dacrt.Scene else None
@@ -103,7 +108,7 @@ def changed_engine_scene(engine: EngineScene, meshes: list[tuple]) -> EngineScen
     kept = [mesh for mesh in meshes if len(mesh[2])]
     if len(kept) != len(engine.meshes):
         return None
-    transforms, vertices, masks, ends = {}, {}, {}, {}
+    transforms, vertices, masks, ends, vertex_ends = {}, {}, {}, {}, {}
     for i, (old, new) in enumerate(zip(engine.meshes, kept)):
         if old[0] != new[0] or old[2] is not new[2] or len(old[1]) != len(new[1]):
             return None
@@ -115,9 +120,13 @@ def changed_engine_scene(engine: EngineScene, meshes: list[tuple]) -> EngineScen
             transforms[i] = new[4]
         if not _same_transform(_end(old), _end(new)):
             ends[i] = _end(new)
-    if not (transforms or vertices or masks or ends):
+        if _vertices_end(old) is not _vertices_end(new):
+            vertex_ends[i] = _vertices_end(new)
+    if not (transforms or vertices or masks or ends or vertex_ends):
         return replace(engine, meshes=tuple(kept))
     moving = {"transforms_end": ends} if ends else {}
+    if vertex_ends:
+        moving["vertices_end"] = vertex_ends
     scene = engine.scene.with_changes(
         transforms=transforms, vertices=vertices, masks=masks, **moving
     )
@@ -127,6 +136,11 @@ def changed_engine_scene(engine: EngineScene, meshes: list[tuple]) -> EngineScen
 def _end(mesh: tuple) -> np.ndarray | None:
     """A mesh tuple's end placement (None: static)."""
     return mesh[5] if len(mesh) > 5 else None
+
+
+def _vertices_end(mesh: tuple) -> np.ndarray | None:
+    """A mesh tuple's vertices at the end of the interval (None: static)."""
+    return mesh[6] if len(mesh) > 6 else None
 
 
 def _same_transform(a: np.ndarray | None, b: np.ndarray | None) -> bool:
@@ -167,7 +181,8 @@ def trace(
     engine = snapshot.cached("dacrt", _snapshot_engine)
     # The cluster's workers trace no motion: rays with times, or a moving scene, stay here.
     timed = rays.time is not None or any(
-        mesh.transform_end is not None for mesh in snapshot.meshes.values()
+        mesh.transform_end is not None or mesh.vertices_end is not None
+        for mesh in snapshot.meshes.values()
     )
     if cluster is not None and not timed:
         try:
@@ -238,8 +253,9 @@ def device_for(
     engine: EngineScene, rays: Rays, options: Options, where: str
 ) -> tuple[str, str | None]:
     """Where a query is traced: ("cuda", None) where DACRT_DEVICE=cuda and the CUDA backend
-    answers it; else "cpu" and what that backend lacks ("placed meshes", "time", "stats", or
-    "cluster": a dask cluster's workers trace on their CPUs), None where DACRT_DEVICE=cpu."""
+    answers it; else "cpu" and what that backend lacks ("placed meshes", "deforming meshes",
+    "time", "stats", or "cluster": a dask cluster's workers trace on their CPUs), None where
+    DACRT_DEVICE=cpu."""
     if options.device != "cuda":
         return "cpu", None
     if where != "process":

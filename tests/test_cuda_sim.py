@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import dacrt
@@ -61,5 +62,9 @@ def test_cuda_refuses_unsupported_options():
         scene.hits([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda", stats=True)
     with pytest.raises(InputError, match="max_hits"):
         dcuda.hits(scene, [[0.2, 0.2, 1]], [[0, 0, -1]], max_hits=0)
+    deforming = dacrt.Scene([(verts, [[0, 1, 2]])], vertices_end=[np.add(verts, 0.5)])
+    assert dcuda.lacks(deforming) == "deforming meshes"
+    with pytest.raises(InputError, match="vertices_end"):
+        deforming.closest([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda")
     with pytest.raises(InputError, match="unknown device"):
         scene.occluded([[0.2, 0.2, 1]], [[0, 0, -1]], device="tpu")

@@ -29,9 +29,11 @@ MAX_LIST_BYTES = 1 << 31
 
 def lacks(scene, time=None, stats=False):
     """What of a query this backend does not have: "placed meshes" (the scene's transforms),
-    "time" or "stats"; None where it answers it."""
+    "deforming meshes" (vertices_end), "time" or "stats"; None where it answers it."""
     if scene._instances:
         return "placed meshes"
+    if scene._deforming is not None:
+        return "deforming meshes"
     if time is not None:
         return "time"
     if stats:
@@ -46,6 +48,8 @@ def check_supported(scene, time):
         raise InputError(
             "device='cuda' does not support placed meshes yet (transforms, transforms_end)"
         )
+    if lacking == "deforming meshes":
+        raise InputError("device='cuda' does not support deforming meshes yet (vertices_end)")
     if lacking == "time":
         raise InputError("device='cuda' does not support time= yet")
 

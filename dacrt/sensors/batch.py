@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -99,12 +99,28 @@ def _joined(scene_rays: list[Rays]):
     return origins, directions, tmin, tmax, time, bounds
 
 
-def _motion(scene, origins, directions, time, ray, t, mesh):
-    """How fast the hit points move (``Traced.motion``), or None without times."""
+class HitsAt(NamedTuple):
+    """Hits' t, mesh, prim, u and v (``Hits`` or ``HitList``), those of some rays."""
+
+    t: np.ndarray
+    mesh: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+
+    @classmethod
+    def of(cls, hits, rows=slice(None)):
+        return cls(*(getattr(hits, name)[rows] for name in cls._fields))
+
+
+def _motion(scene, origins, directions, time, ray, hits):
+    """How fast the hit points move (``Traced.motion``), or None without times; ``hits`` holds
+    the rays' t, mesh, prim, u and v."""
     if time is None:
         return None
+    t = hits.t
     points = origins[ray].astype(np.float64) + t[:, None] * directions[ray].astype(np.float64)
-    return scene.motion(mesh, points, time[ray])
+    return scene.motion(hits.mesh, points, time[ray], prim=hits.prim, u=hits.u, v=hits.v)
 
 
 def _trace_closest(scene, batch, chosen, answers, query) -> None:
@@ -114,9 +130,7 @@ def _trace_closest(scene, batch, chosen, answers, query) -> None:
     if time is not None:  # one row per ray, zero where it missed
         rays = np.flatnonzero(np.isfinite(hits.t))
         motion = np.zeros((len(origins), 3))
-        motion[rays] = _motion(
-            scene, origins, directions, time, rays, hits.t[rays], hits.mesh[rays]
-        )
+        motion[rays] = _motion(scene, origins, directions, time, rays, HitsAt.of(hits, rays))
     for k, lo, hi in zip(chosen, bounds[:-1], bounds[1:]):
         part = slice(lo, hi)
         answers[k] = Traced(
@@ -130,7 +144,7 @@ def _trace_hits(scene, batch, chosen, answers, query) -> None:
     largest = max(batch[k].max_hits for k in chosen)
     every = scene.hits(origins, directions, tmin, tmax, max_hits=largest, time=time, **query)
     ray = np.repeat(np.arange(len(origins)), np.diff(every.offsets))
-    motion = _motion(scene, origins, directions, time, ray, every.t, every.mesh)
+    motion = _motion(scene, origins, directions, time, ray, HitsAt.of(every))
     for k, lo, hi in zip(chosen, bounds[:-1], bounds[1:]):
         # a sensor keeps each ray's nearest max_hits of the (nearest first) list
         counts = np.minimum(np.diff(every.offsets[lo : hi + 1]), batch[k].max_hits)

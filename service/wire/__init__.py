@@ -89,7 +89,10 @@ Frames (``decode_frame``; formats npz, json)
     ``MESH.label`` (an integer in [0, 2**32)), as JSON numbers or npz arrays of one element;
     ``MESH.transform_end``: its placement at the end of the frame's interval (as
     ``MESH.transform``; a frame that gives a mesh ``MESH.transform`` and no
-    ``MESH.transform_end`` makes it static again); and, in JSON only, ``MESH.instance_of``: the
+    ``MESH.transform_end`` makes it static again); ``MESH.vertices_end``: its vertices at the
+    end of the interval (as ``MESH.vertices``, as many; on a mesh with no transform; a frame
+    that gives a mesh ``MESH.vertices`` and no ``MESH.vertices_end`` makes it static again);
+    and, in JSON only, ``MESH.instance_of``: the
     name of the mesh whose arrays it shares, never with ``MESH.vertices`` or ``MESH.faces``.
 
 Scan patterns (``decode_pattern``; formats npz, json)

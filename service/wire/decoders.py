@@ -193,6 +193,7 @@ class FrameChange(NamedTuple):
     reflectivity: float | None = None  #: in [0, 1]
     label: int | None = None  #: uint32
     transform_end: np.ndarray | None = None  #: (4, 4) float64: the placement at the interval's end
+    vertices_end: np.ndarray | None = None  #: (V, 3) float32: the vertices at the interval's end
 
 
 #: The parts of a mesh a frame can set, as the suffixes of its keys.
@@ -213,7 +214,8 @@ def decode_frame(body: Buffer, fmt: str, max_bytes: int | None = None) -> dict[s
         if not mesh or kind not in FRAME_PARTS:
             raise BadBody(
                 f"frame key {key!r} is not MESH.vertices or MESH.faces, nor MESH.transform, "
-                "MESH.transform_end, MESH.mask, MESH.instance_of, MESH.reflectivity or MESH.label"
+                "MESH.transform_end, MESH.vertices_end, MESH.mask, MESH.instance_of, "
+                "MESH.reflectivity or MESH.label"
             )
         parts.setdefault(mesh, {})[kind] = value
     if not parts:
@@ -241,6 +243,14 @@ def _frame_change(mesh: str, arrays: dict[str, Any]) -> FrameChange:
         transform = check_matrix(arrays["transform"], f"{mesh}.transform")
     if "transform_end" in arrays:
         transform_end = check_matrix(arrays["transform_end"], f"{mesh}.transform_end")
+    vertices_end = None
+    if "vertices_end" in arrays:
+        name = f"{mesh}.vertices_end"
+        vertices_end = check_vertices(float_array(arrays["vertices_end"], name, 3), name)
+        if vertices is not None and len(vertices_end) != len(vertices):
+            raise Invalid(
+                f"{name} has {len(vertices_end)} rows but {mesh}.vertices has {len(vertices)}"
+            )
     if "mask" in arrays:
         mask = parse_mask(arrays["mask"], f"{mesh}.mask")
     if "instance_of" in arrays:
@@ -255,7 +265,9 @@ def _frame_change(mesh: str, arrays: dict[str, Any]) -> FrameChange:
         reflectivity = parse_reflectivity(arrays["reflectivity"], f"{mesh}.reflectivity")
     if "label" in arrays:
         label = parse_label(arrays["label"], f"{mesh}.label")
-    return FrameChange(vertices, faces, transform, mask, source, reflectivity, label, transform_end)
+    return FrameChange(
+        vertices, faces, transform, mask, source, reflectivity, label, transform_end, vertices_end
+    )
 
 
 def _one_value(value: Any, name: str, kinds: str) -> Any:

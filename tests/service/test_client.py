@@ -109,6 +109,7 @@ def test_put_mesh_is_201_then_200_with_mesh_info(app_client, scene_name):
         "reflectivity": 0.5,
         "label": 0,
         "transform_end": None,
+        "vertices_end": None,
     }
     assert again.json()["version"] == 2 and again.json()["index"] == 0
 

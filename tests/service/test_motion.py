@@ -224,3 +224,71 @@ def test_a_rigs_lidar_takes_period_and_end_pose_as_lidar_does(app_client, scene_
     np.testing.assert_allclose(
         alone["radial_speed"], -10.0 * np.cos(2 * np.pi * alone["ray"] / 64), atol=1e-4
     )
+
+
+def floor_at(z: float) -> list[list[float]]:
+    """The floor's vertices (``upload_floor``) at height z."""
+    return quad(-9, 9, -9, 9, z)[0].tolist()
+
+
+def test_rays_at_their_times_see_a_deforming_mesh(app_client, scene_name):
+    upload_floor(app_client, scene_name)
+    o, d, times = rays()
+    frame = {"floor.vertices_end": floor_at(RISE)}
+    response = app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame)
+    assert response.status_code == 200, response.text
+    mesh = {m["mesh"]: m for m in response.json()["meshes"]}["floor"]
+    assert mesh["vertices_end"] == 4 and mesh["bounds"] == [[-9, -9, 0], [9, 9, RISE]]
+    # Each vertex at float32(v0 + tau (v1 - v0)) (numpy): the floor at RISE tau.
+    height = (np.float64(times) * RISE).astype(np.float32).astype(np.float64)
+    t = closest_json(app_client, scene_name, o, d, times)["t"]
+    np.testing.assert_allclose(t, 10 - height, rtol=1e-6)  # t in float32
+    np.testing.assert_allclose(closest_json(app_client, scene_name, o, d)["t"], 10.0)
+    # new start vertices and no end: static again
+    frame = {"floor.vertices": floor_at(1.0)}
+    response = app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame)
+    assert {m["mesh"]: m for m in response.json()["meshes"]}["floor"]["vertices_end"] is None
+    np.testing.assert_allclose(closest_json(app_client, scene_name, o, d, times)["t"], 9.0)
+    # start and end in one frame, .npz
+    body = npz_bytes(**{"floor.vertices": np.float32(floor_at(0)), "floor.vertices_end":
+                        np.float32(floor_at(-RISE))})  # fmt: skip
+    response = app_client.post(f"/v1/scenes/{scene_name}/frame", content=body, headers=NPZ)
+    assert response.status_code == 200, response.text
+    np.testing.assert_allclose(
+        closest_json(app_client, scene_name, o, d, times)["t"], 10 + height, rtol=1e-6
+    )
+
+
+def test_bad_vertices_end_are_422_naming_the_key(app_client, scene_name):
+    upload_floor(app_client, scene_name)
+    bad = np.float32(floor_at(1.0))
+    bad[2, 1] = np.nan
+    frames = [
+        {"floor.vertices_end": floor_at(1.0)[:3]},
+        {"floor.vertices_end": [[1, 2], [3, 4]]},
+        {"floor.vertices_end": floor_at(1.0), "floor.transform": lift(1)},
+        npz_bytes(**{"floor.vertices_end": bad}),
+    ]
+    for frame in frames:
+        if isinstance(frame, dict):
+            response = app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame)
+        else:
+            url = f"/v1/scenes/{scene_name}/frame"
+            response = app_client.post(url, content=frame, headers=NPZ)
+        assert response.status_code == 422, response.text
+        assert "floor.vertices_end" in response.text, response.text
+
+
+def test_a_restart_restores_end_vertices(tmp_path):
+    settings = Settings(token=None, load_demo=False, data_dir=tmp_path)
+    o, d, times = rays()
+    with in_process.serve(settings) as http:
+        upload_floor(http, "s")
+        frame = {"floor.vertices_end": floor_at(RISE)}
+        assert http.post("/v1/scenes/s/frame", json=frame).status_code == 200
+        before = http.get("/v1/scenes/s/meshes/floor").json()
+        answer = closest_json(http, "s", o, d, times)["t"]
+    with in_process.serve(settings) as http:
+        assert http.get("/v1/scenes/s/meshes/floor").json() == before
+        assert before["vertices_end"] == 4
+        np.testing.assert_array_equal(closest_json(http, "s", o, d, times)["t"], answer)

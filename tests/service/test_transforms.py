@@ -261,7 +261,7 @@ def test_a_json_frame_sets_transforms_masks_and_makes_instances(app_client, scen
         (
             {"a.normals": np.eye(4)},
             400,
-            "MESH.transform_end, MESH.mask, MESH.instance_of, MESH.reflectivity or MESH.label",
+            "MESH.vertices_end, MESH.mask, MESH.instance_of, MESH.reflectivity or MESH.label",
         ),
     ],
 )
