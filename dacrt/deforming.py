@@ -178,7 +178,7 @@ def leaf_for(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays,
     raise NotImplementedError("leaf_for runs compiled only")
 
 
-@overload(leaf_for, inline="always", jit_options={"nogil": True, "error_model": "numpy"})
+@overload(leaf_for, jit_options={"nogil": True, "error_model": "numpy"})
 def _leaf_for(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch):
     deforming = isinstance(tris, types.BaseNamedTuple) and tris.instance_class is DeformingTriangles
     leaf = deforming_leaf if deforming else intersect_leaf
