@@ -31,6 +31,13 @@ SAH_C_I = 1.0
 # partitioning each triangle. Always so at T <= LEAF_C_R or R <= LEAF_C_T.
 LEAF_C_R = 4
 LEAF_C_T = 16
+# Halves of the storage order (``ranges``): a leaf range holds at most RANGE_LEAF_ROWS rows. A
+# halved node of R rays and T triangles is brute-forced when R*T <= RANGE_LEAF_C_R*R +
+# RANGE_LEAF_C_NODE: going on filters each ray against two boxes and pays two nodes' overhead,
+# counted in tests, but reads no triangle.
+RANGE_LEAF_ROWS = 8
+RANGE_LEAF_C_R = 4
+RANGE_LEAF_C_NODE = 32
 # Deepest node; below it a node is brute-forced (keeps the explicit stack small and bounded).
 MAX_DEPTH = 64
 
@@ -142,6 +149,9 @@ DENSITY_GRID = 16
 # packing cost.
 COHERENCE_BITS = 9
 INCOHERENT_JUMPS = 0.5
+# "auto" sorts a mesh of this many rows whatever its order: the halves of its storage order
+# (``ranges``) then box compact pieces, which a large mesh's file order need not give.
+AUTO_MORTON_ROWS = 1 << 20
 
 # ---- Point queries (points)
 # Triangles beside a point's Morton code that it measures before any partition: its first radius.

@@ -18,6 +18,7 @@ import numpy as np
 
 from . import config
 from .chunks import DENSITY_GRID, centre_counts
+from .config import jit
 from .contracts import FLOAT, INDEX
 from .points import MORTON_BITS, triangle_codes
 from .results import unit_normals
@@ -129,23 +130,39 @@ def pack_mesh(vertices, faces, order="auto"):
 def rows_in_order(bounds, box, order):
     """The rows of ``bounds`` (F, 6) float32 in Morton order of their box centres over ``box``
     (``morton_order``), or None to keep them as they are: ``order`` "file", or "auto" for
-    faces that come coherent (``COHERENCE_BITS``)."""
+    faces that come coherent (``COHERENCE_BITS``) in a mesh of fewer than AUTO_MORTON_ROWS."""
     if order == "file" or len(bounds) < 2:
         return None
     codes = triangle_codes(bounds, np.arange(len(bounds), dtype=INDEX), box)
-    if order == "auto":
+    if order == "auto" and len(bounds) < config.AUTO_MORTON_ROWS:
         cells = codes >> (3 * MORTON_BITS - config.COHERENCE_BITS)
         if np.count_nonzero(cells[1:] != cells[:-1]) <= config.INCOHERENT_JUMPS * len(codes):
             return None
     return morton_order(codes)
 
 
+@jit
 def morton_order(codes):
-    """The indices that sort ``codes`` (F,) int64, 30-bit Morton codes, stably."""
-    # NumPy sorts 16-bit keys stably by radix, in O(F): the low half, then the high half.
-    low = np.argsort((codes & MORTON_HALF_MASK).astype(np.uint16), kind="stable")
-    high = (np.take(codes, low) >> MORTON_HALF_BITS).astype(np.uint16)
-    return np.take(low, np.argsort(high, kind="stable"))
+    """The indices (int32) that sort ``codes`` (F,) int64, 30-bit Morton codes, stably: two
+    counting passes over 15-bit digits, the low digit, then the high one."""
+    n = codes.shape[0]
+    by_low = np.empty(n, INDEX)
+    order = np.empty(n, INDEX)
+    starts = np.empty((1 << MORTON_HALF_BITS) + 1, np.int64)
+    for shift in (0, MORTON_HALF_BITS):
+        source = by_low if shift else order
+        target = order if shift else by_low
+        starts[:] = 0
+        for i in range(n):
+            starts[((codes[i] >> shift) & MORTON_HALF_MASK) + 1] += 1
+        for d in range(1 << MORTON_HALF_BITS):
+            starts[d + 1] += starts[d]
+        for j in range(n):
+            i = source[j] if shift else j
+            d = (codes[i] >> shift) & MORTON_HALF_MASK
+            target[starts[d]] = i
+            starts[d] += 1
+    return order
 
 
 def union_box(boxes):

@@ -36,6 +36,7 @@ from .geometry import cull_distance, pick
 from .leaf import leaf_scratch
 from .partition import partition_by_mask, partition_scratch, triangle_bounds
 from .query import ANY_HIT, FIXED_ORIGIN, with_strategy
+from .ranges import RangeTree
 from .rays import BEST_T, DIRECTION, DIRECTION_QUAD, ORIGIN_QUAD, field, quad_view, swap_rays
 from .traversal import trace_object_split
 
@@ -336,6 +337,7 @@ def trace_ray_space(flags, tris, scene_box, rays, ray_ids, arrays):
     any_hit = (flags & ANY_HIT) != 0
     fixed_origin = (flags & FIXED_ORIGIN) != 0
     n_tris_all = tris.ids.shape[0]
+    no_tree = RangeTree(np.empty((0, 6), np.float32), 0, 0, 0)
     scene_size = 0.0
     for a in range(3):
         scene_size = max(
@@ -433,6 +435,7 @@ def trace_ray_space(flags, tris, scene_box, rays, ray_ids, arrays):
                     trace_object_split(
                         with_strategy(flags, SAMPLING),
                         tris,
+                        no_tree,
                         node_box,
                         rays,
                         ray_ids,

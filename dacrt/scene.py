@@ -72,6 +72,7 @@ from .query import (
     STRATEGY_SHIFT,
     QueryArrays,
 )
+from .ranges import NO_TREE, node_rows, range_tree
 from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
 from .rayspace import trace_ray_space
 from .results import finish_closest, finish_hits, unit_normals
@@ -1206,24 +1207,19 @@ class Scene:
         )
         if not work:
             return
-        inner_threads = query.threads if len(work) == 1 else 1
 
-        def trace(instance, ids, mesh_rays, mirrored, cofactors):
-            """Trace rays ``ids`` of the batch, given in mesh space, into ``instance``."""
-            mesh_o, mesh_d, mesh_tmin, mesh_tmax = mesh_rays
+        def trace(instance, mesh_rays, mirrored, threads):
+            """Trace rays given in mesh space into ``instance``'s mesh: ``Traced``."""
             list_size = min(max_hits, len(instance.packed)) + 1 if kind & ALL_HITS else 0
             try:
-                found = self._trace_level(
+                return self._trace_level(
                     instance.packed,
                     instance.flags(flags, mirrored),
-                    mesh_o,
-                    mesh_d,
-                    mesh_tmin,
-                    mesh_tmax,
+                    *mesh_rays,
                     self._no_masks,
                     None,
                     self._no_masks,
-                    inner_threads,
+                    threads,
                     list_size,
                 )
             except InputError:
@@ -1231,9 +1227,10 @@ class Scene:
                     f"a ray of the batch leaves the float32 range in the space of mesh "
                     f"{instance.mesh} (transforms[{instance.mesh}])"
                 ) from None
-            return ids, InstanceTraced(*found, mesh_o, mesh_d, cofactors)
 
-        def run(k):
+        def to_mesh_space(k):
+            """Instance k's rays in its mesh's space: [(k, ids, mesh rays, mirrored,
+            cofactors)], two parts where culling traces its mirrored instants apart."""
             instance = seen[k]
             ids = ray_ids[k]
             n = len(ids)
@@ -1247,7 +1244,7 @@ class Scene:
                 rays_to_mesh_space(
                     origins, directions, tmin, limit, ids, instance.to_mesh, *mesh_rays
                 )
-                return k, [trace(instance, ids, mesh_rays, None, instance.cofactors)]
+                return [(k, ids, mesh_rays, None, instance.cofactors)]
             cofactors = np.empty((n, 3, 3))
             signs = np.empty(n, np.int8)
             rays_to_mesh_space_at(
@@ -1259,7 +1256,7 @@ class Scene:
             # swaps faces where it is mirrored, so those rays are traced apart.
             culls = query.flags & (CULL_BACK | CULL_FRONT)
             groups = [signs != 0] if not culls else [signs > 0, signs < 0]
-            traced = []
+            parts = []
             for group, keep in enumerate(groups):
                 if not keep.any():
                     continue
@@ -1269,13 +1266,56 @@ class Scene:
                     a if every else np.ascontiguousarray(a[keep]) for a in arrays
                 )
                 mirrored = None if not culls else group == 1
-                traced.append(trace(instance, part_ids, part_rays, mirrored, part_cofactors))
-            return k, traced
+                parts.append((k, part_ids, part_rays, mirrored, part_cofactors))
+            return parts
 
-        traced = map_on_threads(lambda j: run(work[j]), len(work), min(query.threads, len(work)))
-        for k, parts in sorted(traced, key=lambda item: item[0]):
-            for ids, found in parts:
-                yield seen[k], ids, found
+        parts = [part for k in work for part in to_mesh_space(k)]
+        # The parts of one mesh under the same flags are one batch: one trace for every
+        # instance of a mesh, however many (a ray's answer does not depend on its batch).
+        batches = {}
+        for part in parts:
+            instance = seen[part[0]]
+            key = (id(instance.packed), instance.flags(flags, part[3]))
+            batches.setdefault(key, []).append(part)
+        batches = sorted(batches.values(), key=lambda b: -sum(len(p[1]) for p in b))
+        inner_threads = query.threads if len(batches) == 1 else 1
+
+        def run(batch):
+            """[(k, ids, ``InstanceTraced``)] of one batch's parts."""
+            instance = seen[batch[0][0]]
+            if len(batch) == 1:
+                rays = batch[0][2]
+            else:
+                rays = [np.concatenate([p[2][f] for p in batch]) for f in range(4)]
+            try:
+                found = trace(instance, rays, batch[0][3], inner_threads)
+            except InputError:
+                if len(batch) == 1:
+                    raise
+                for k, _, mesh_rays, mirrored, _ in batch:  # name the instance it was
+                    trace(seen[k], mesh_rays, mirrored, inner_threads)
+                raise
+            out = []
+            lo = 0
+            for n_part, (k, ids, mesh_rays, _, cofactors) in enumerate(batch):
+                part = slice(lo, lo + len(ids))
+                lo += len(ids)
+                out.append((k, ids, InstanceTraced(
+                    found.best_t[part],
+                    sliced_arrays(found.arrays, part),
+                    found.stats if n_part == 0 else [],
+                    *mesh_rays[:2],
+                    cofactors,
+                )))  # fmt: skip
+            return out
+
+        traced = map_on_threads(
+            lambda j: run(batches[j]), len(batches), min(query.threads, len(batches))
+        )
+        for k, ids, found in sorted(
+            (item for batch in traced for item in batch), key=lambda item: item[0]
+        ):
+            yield seen[k], ids, found
 
     def _rays_reaching(
         self, instances, boxes, origins, directions, tmin, limit, ray_masks, threads
@@ -1364,10 +1404,15 @@ class Scene:
         if n_rays == 0 or n_live == 0:
             return Traced(best_t, answer, [])
         ray_space = (flags >> STRATEGY_SHIFT) & 3 == RAYSPACE
+        # The halves of the storage order serve a trace of every row.
+        tree = NO_TREE
+        if not ray_space and visible_rows is None:
+            tree = range_tree(level.bounds, lambda f, n: map_on_threads(f, n, threads))
         if not ray_space and not flags & COLLECT and splits_triangles(n_rays, n_live, threads):
             per_half = self._trace_halves(
-                level, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t, times
-            )
+                level, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t, times,
+                tree,
+            )  # fmt: skip
             return Traced(best_t, answer, per_half)
         # The values are not checked yet (each chunk checks its own): a bad ray may make
         # the choice of chunks poor, never wrong.
@@ -1399,8 +1444,9 @@ class Scene:
                 trace_ray_space(chunk_flags, tris, level.box, rays, ray_ids, arrays)
             else:
                 trace_object_split(
-                    chunk_flags, tris, level.box, rays, ray_ids, 0, len(ray_ids), 0, n_live, arrays
-                )
+                    chunk_flags, tris, tree, level.box, rays, ray_ids, 0, len(ray_ids), 0, n_live,
+                    arrays,
+                )  # fmt: skip
             unpack_best_t(rays, ray_ids, best_t)
             return chunk_stats
 
@@ -1411,19 +1457,27 @@ class Scene:
         return Traced(best_t, answer, per_chunk)
 
     def _trace_halves(
-        self, level, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t, times
-    ):
+        self, level, flags, origins, directions, tmin, tmax, visible_rows, answer, best_t, times,
+        tree,
+    ):  # fmt: skip
         """Trace a closest or occlusion batch on two threads, each with every ray against one
-        half of the level's triangles (split at the middle of its box); then each ray keeps the
-        better of its two answers, the smaller (t, tie key), as one trace would. Writes best_t and
-        ``answer``'s best_tri, hit_u and hit_v; returns each half's stats."""
+        half of the level's triangles (the halves of ``tree``, its nodes 2 and 3, or else split
+        at the middle of the level's box); then each ray keeps the better of its two answers,
+        the smaller (t, tie key), as one trace would. Writes best_t and ``answer``'s best_tri,
+        hit_u and hit_v; returns each half's stats."""
         n_rays = len(origins)
         tri_ids = (
             np.arange(len(level), dtype=INDEX) if visible_rows is None else visible_rows.copy()
         )
         tris = level_triangles(level, tri_ids, times)
         boxes = np.empty((3, 6), FLOAT)  # the halves' boxes, and scratch for split_middle
-        _, tri_mid = split_middle(tris, 0, len(tri_ids), level.box, boxes)
+        trees = (NO_TREE, NO_TREE)
+        if tree.depth > 0:
+            tri_mid = node_rows(3, tree.n_rows)[0]
+            boxes[:2] = tree.boxes[2:4]
+            trees = (tree._replace(root=2), tree._replace(root=3))
+        else:
+            _, tri_mid = split_middle(tris, 0, len(tri_ids), level.box, boxes)
         rays = new_records(n_rays)
         ray_ids = np.arange(n_rays, dtype=INDEX)
         if not pack_rays(origins, directions, tmin, tmax, ray_ids, rays):
@@ -1446,8 +1500,9 @@ class Scene:
             )
             lo, hi = (0, tri_mid) if half == 0 else (tri_mid, len(tri_ids))
             trace_object_split(
-                flags, tris, boxes[half], half_rays, half_ids, 0, n_rays, lo, hi, arrays
-            )
+                flags, tris, trees[half], boxes[half], half_rays, half_ids, 0, n_rays, lo, hi,
+                arrays,
+            )  # fmt: skip
             t = np.empty(n_rays, FLOAT)
             unpack_best_t(half_rays, half_ids, t)
             return t, arrays
@@ -1481,6 +1536,14 @@ def level_triangles(level, tri_ids, times):
 def _same_matrix(a, b):
     """Whether two placements (None or (4, 4)) are the same."""
     return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+
+
+def sliced_arrays(arrays, part):
+    """``QueryArrays`` of the rays ``part`` (a slice) of a trace: its per-ray answers only."""
+    per_ray = ("best_tri", "hit_u", "hit_v", "n_hits", "list_t", "list_tri")
+    return arrays._replace(
+        **{name: getattr(arrays, name)[part] for name in per_ray if len(getattr(arrays, name))}
+    )
 
 
 def tie_keys(level, arrays):

@@ -18,6 +18,8 @@ from .config import (
     MIN_RAYS_TO_SAMPLE,
     N_BINS,
     N_SAMPLE_RAYS,
+    RANGE_LEAF_C_NODE,
+    RANGE_LEAF_C_R,
     RAYS_PER_TRIANGLE_FOR_COST,
     SAH_C_I,
     SAH_C_T,
@@ -55,6 +57,7 @@ from .partition import (
     triangle_bounds,
 )
 from .query import ANY_HIT, FIXED_ORIGIN, strategy_of
+from .ranges import node_rows
 from .rays import BEST_T, DIRECTION, ORIGIN, TMIN, field
 
 # Split candidates (N_BINS - 1) padded to whole 16-float vectors, for sample_rays.
@@ -63,10 +66,15 @@ PADDED_CANDIDATES = (N_BINS - 1 + 15) // 16 * 16
 
 @jit
 def trace_object_split(
-    flags, tris, root_box, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays
+    flags, tris, tree, root_box, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays
 ):
     """Trace ray records ``ray_lo:ray_hi`` against triangles ``tris.ids[tri_lo:tri_hi]``
     (``Triangles``), whose box is ``root_box`` (both ranges are permuted in place).
+
+    ``tree`` (``ranges.RangeTree``) gives the boxes of the halves of the storage order, its
+    root node's rows being ``tri_lo:tri_hi`` (or ``ranges.NO_TREE``): a node of those halves
+    with few rays a triangle splits into its two halves, which moves no id and reads no
+    triangle; others split by the strategy, and their descendants leave the halves.
 
     ``flags`` is the query's flags word (``dacrt.query``), its strategy ``middle``, ``sah`` or
     ``sampling``; best_t stays in the records, the rest of each ray's answer goes to ``arrays``
@@ -81,6 +89,9 @@ def trace_object_split(
     stack_depth = np.empty(n_stack, np.int64)
     stack_filter = np.empty(n_stack, np.bool_)
     stack_box = np.empty((n_stack, 6), np.float32)
+    stack_node = np.empty(n_stack, np.int64)  # the node of ``tree``, or 0
+    first_leaf_node = 1 << tree.depth
+    middle_only = strategy_of(flags) == MIDDLE
     split_scratch = new_split_scratch()
     boxes = split_scratch[-1]  # the sides' boxes of each split
     leaf = leaf_scratch()
@@ -93,6 +104,7 @@ def trace_object_split(
     stack_depth[0] = 0
     stack_filter[0] = True
     stack_box[0, :] = root_box
+    stack_node[0] = tree.root
     sp = 1
     while sp > 0:
         sp -= 1
@@ -101,6 +113,7 @@ def trace_object_split(
         ray_lo = stack_ray[sp, 0]
         ray_hi = stack_ray[sp, 1]
         depth = stack_depth[sp]
+        node = stack_node[sp]
         stats[STAT_NODES] += 1
         if depth > stats[STAT_MAX_DEPTH]:
             stats[STAT_MAX_DEPTH] = depth
@@ -116,7 +129,28 @@ def trace_object_split(
         n_tris = tri_hi - tri_lo
         if n_rays == 0 or n_tris == 0:
             continue
-        if n_rays * n_tris <= LEAF_C_R * n_rays + LEAF_C_T * n_tris or depth >= MAX_DEPTH:
+        halve = 0 < node < first_leaf_node and (
+            middle_only or n_rays <= RAYS_PER_TRIANGLE_FOR_COST * n_tris
+        )
+        if halve and n_rays * n_tris > RANGE_LEAF_C_R * n_rays + RANGE_LEAF_C_NODE:
+            if depth < MAX_DEPTH:
+                left = 2 * node
+                tri_mid = node_rows(left + 1, tree.n_rows)[0]
+                left_first = left_is_nearer(rays, ray_lo, tree.boxes, left)
+                # Push the later child first, so the nearer one is popped next.
+                for side in range(2):
+                    child = left + 1 if (side == 0) == left_first else left
+                    stack_tri[sp, 0] = tri_lo if child == left else tri_mid
+                    stack_tri[sp, 1] = tri_mid if child == left else tri_hi
+                    stack_box[sp, :] = tree.boxes[child]
+                    stack_filter[sp] = True
+                    stack_ray[sp, 0] = ray_lo
+                    stack_ray[sp, 1] = ray_hi
+                    stack_depth[sp] = depth + 1
+                    stack_node[sp] = child
+                    sp += 1
+                continue
+        if halve or n_rays * n_tris <= LEAF_C_R * n_rays + LEAF_C_T * n_tris or depth >= MAX_DEPTH:
             stats[STAT_LEAVES] += 1
             stats[STAT_TRIANGLE_TESTS] += leaf_for(
                 flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, leaf
@@ -153,7 +187,21 @@ def trace_object_split(
             stack_ray[sp, 0] = ray_lo
             stack_ray[sp, 1] = ray_hi
             stack_depth[sp] = depth + 1
+            stack_node[sp] = 0
             sp += 1
+
+
+@inline
+def left_is_nearer(rays, ray_lo, boxes, left):
+    """Whether the rays meet halves node ``left`` before its sibling: the sibling's centre lies
+    farther along the first active ray's direction."""
+    along = 0.0
+    for a in range(3):
+        d = np.float64(field(rays, DIRECTION + a, ray_lo))
+        ahead = np.float64(boxes[left + 1, a]) + np.float64(boxes[left + 1, a + 3])
+        behind = np.float64(boxes[left, a]) + np.float64(boxes[left, a + 3])
+        along += d * (ahead - behind)
+    return along >= 0
 
 
 @inline
