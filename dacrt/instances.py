@@ -3,17 +3,17 @@
 A placed mesh keeps its packed arrays in mesh space (``packed``), shared by all its instances and
 versions. A query traces the scene's untransformed meshes first (the base level); then the rays
 are sorted into the instances whose box in scene space they reach within [tmin, their best t]
-(``rays_reaching_boxes``); each instance's rays go into mesh space (origin by the inverse affine
-map, direction by the inverse linear part, not normalised, so t, u and v are the parameters along
-the caller's ray), are traced against the mesh with the same kernels, and are merged into the
-answers by the tie rule (smaller t, then lower (mesh, prim)). The kernels here are the few small
-steps around those traces.
+(``mark_rays_reaching``, ``fill_rays_reaching``); each instance's rays go into mesh space (origin
+by the inverse affine map, direction by the inverse linear part, not normalised, so t, u and v are
+the parameters along the caller's ray), are traced against the mesh with the same kernels, and are
+merged into the answers by the tie rule (smaller t, then lower (mesh, prim)). The kernels here are
+the few small steps around those traces.
 """
 
 import numpy as np
 
 from .config import inline, jit
-from .contracts import FLOAT, INDEX
+from .contracts import FLOAT, INDEX, ONE32
 from .geometry import cull_distance, intersect_box, triangle_normal
 from .leaf import NO_HIT
 from .query import CULL_BACK, CULL_FRONT
@@ -85,14 +85,8 @@ def placed_box(box, matrix):
     return rounded
 
 
-def inverse_directions(directions):
-    """(n, 3) float32 1 / direction, +-inf for a zero component (``intersect_box``)."""
-    with np.errstate(divide="ignore"):
-        return np.float32(1.0) / np.ascontiguousarray(directions, FLOAT)
-
-
 # Instances per group of the box filter: a ray tests a group's box, then its members' boxes.
-GROUP_SIZE = 8
+GROUP_SIZE = 4
 
 
 def group_boxes(boxes):
@@ -115,52 +109,89 @@ def group_boxes(boxes):
     return order, group_lo.astype(np.int64), groups
 
 
-@inline
-def reaches(origins, inv_dirs, i, t_lo, t_hi, boxes, b):
-    """Whether ray i's segment [t_lo, t_hi] reaches box b of ``boxes`` (``intersect_box``)."""
-    return intersect_box(
-        origins[i, 0],
-        origins[i, 1],
-        origins[i, 2],
-        inv_dirs[i, 0],
-        inv_dirs[i, 1],
-        inv_dirs[i, 2],
-        t_lo,
-        t_hi,
-        boxes[b, 0],
-        boxes[b, 1],
-        boxes[b, 2],
-        boxes[b, 3],
-        boxes[b, 4],
-        boxes[b, 5],
-    )
+# Rays a block of the box filter: a block's fields are copied to contiguous scratch so that the
+# tests vectorise, and a group's boxes are skipped when no ray of the block reaches the group.
+REACH_BLOCK = 256
 
 
 @jit
-def rays_reaching_boxes(
-    origins, inv_dirs, tmin, limit, ray_masks, box_masks, boxes, groups, group_lo, lo, hi, ids, at
-):
-    """Rays lo:hi whose segment [tmin, limit] reaches each of ``boxes`` (I, 6) (grouped by
-    ``group_boxes``: ``groups``, ``group_lo``) and, when ``ray_masks`` is not empty, whose mask
-    sees ``box_masks[b]``. With ``ids`` empty, counts them per box into ``at`` (I,) int64;
-    else writes box b's ray ids to ids[at[b]], ids[at[b] + 1], ... (in increasing order),
-    advancing at[b]. A limit of -inf (a finished occlusion ray) reaches nothing."""
+def mark_rays_reaching(
+    origins, directions, tmin, limit, ray_masks, box_masks, boxes, groups, group_lo, lo, hi,
+    bits, counts,
+):  # fmt: skip
+    """For rays lo:hi, set bit b % 64 of bits[b // 64, i] (uint64 (W, n), written here for
+    lo:hi) when ray i's segment [tmin, limit] reaches box b of ``boxes`` (I, 6) (grouped by
+    ``group_boxes``: ``groups``, ``group_lo``) and, when ``ray_masks`` is not empty, its mask
+    sees ``box_masks[b]``; add each box's rays to counts[b] (I,) int64. A limit of -inf (a
+    finished occlusion ray) reaches nothing."""
     masked = ray_masks.shape[0] > 0
-    fill = ids.shape[0] > 0
-    for i in range(lo, hi):
-        t_lo = tmin[i]
-        t_hi = cull_distance(limit[i])
+    ox = np.empty(REACH_BLOCK, FLOAT)
+    oy = np.empty(REACH_BLOCK, FLOAT)
+    oz = np.empty(REACH_BLOCK, FLOAT)
+    ix = np.empty(REACH_BLOCK, FLOAT)
+    iy = np.empty(REACH_BLOCK, FLOAT)
+    iz = np.empty(REACH_BLOCK, FLOAT)
+    t_lo = np.empty(REACH_BLOCK, FLOAT)
+    t_hi = np.empty(REACH_BLOCK, FLOAT)
+    masks = np.zeros(REACH_BLOCK, np.uint32)
+    for start in range(lo, hi, REACH_BLOCK):
+        n = min(REACH_BLOCK, hi - start)
+        for j in range(n):
+            i = start + j
+            ox[j] = origins[i, 0]
+            oy[j] = origins[i, 1]
+            oz[j] = origins[i, 2]
+            ix[j] = ONE32 / directions[i, 0]
+            iy[j] = ONE32 / directions[i, 1]
+            iz[j] = ONE32 / directions[i, 2]
+            t_lo[j] = tmin[i]
+            t_hi[j] = cull_distance(limit[i])
+            if masked:
+                masks[j] = ray_masks[i]
+        block = bits[:, start : start + n]
+        block[:] = 0
         for g in range(groups.shape[0]):
-            if not reaches(origins, inv_dirs, i, t_lo, t_hi, groups, g):
+            x0, y0, z0, x1, y1, z1 = groups[g]
+            reached = 0
+            for j in range(n):
+                reached += intersect_box(
+                    ox[j], oy[j], oz[j], ix[j], iy[j], iz[j], t_lo[j], t_hi[j],
+                    x0, y0, z0, x1, y1, z1,
+                )  # fmt: skip
+            if reached == 0:
                 continue
             for b in range(group_lo[g], group_lo[g + 1]):
-                if not reaches(origins, inv_dirs, i, t_lo, t_hi, boxes, b):
-                    continue
-                if masked and (ray_masks[i] & box_masks[b]) == 0:
-                    continue
-                if fill:
+                x0, y0, z0, x1, y1, z1 = boxes[b]
+                row = block[b >> 6]
+                shift = np.uint64(b & 63)
+                box_mask = box_masks[b]
+                n_reached = 0
+                for j in range(n):
+                    hit = intersect_box(
+                        ox[j], oy[j], oz[j], ix[j], iy[j], iz[j], t_lo[j], t_hi[j],
+                        x0, y0, z0, x1, y1, z1,
+                    )  # fmt: skip
+                    if masked:
+                        hit = hit and (masks[j] & box_mask) != 0
+                    row[j] |= np.uint64(hit) << shift
+                    n_reached += hit
+                counts[b] += n_reached
+
+
+@jit
+def fill_rays_reaching(bits, lo, hi, ids, at):
+    """Write the ids of rays lo:hi marked in ``bits`` (``mark_rays_reaching``) for each box b
+    to ids[at[b]], ids[at[b] + 1], ... (in increasing order), advancing at[b]."""
+    for i in range(lo, hi):
+        for w in range(bits.shape[0]):
+            word = bits[w, i]
+            b = 64 * w
+            while word != 0:
+                if word & np.uint64(1):
                     ids[at[b]] = i
-                at[b] += 1
+                    at[b] += 1
+                word >>= np.uint64(1)
+                b += 1
 
 
 @inline

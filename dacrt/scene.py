@@ -47,12 +47,12 @@ from .contracts import (
 from .deforming import DeformingTriangles, corners_at_times
 from .instances import (
     Instance,
+    fill_rays_reaching,
     group_boxes,
-    inverse_directions,
+    mark_rays_reaching,
     merge_closest,
     merge_hit_lists,
     placed_normals,
-    rays_reaching_boxes,
     rays_to_mesh_space,
     rays_to_mesh_space_at,
 )
@@ -1322,9 +1322,9 @@ class Scene:
     ):
         """For each of ``instances`` (with its box in ``boxes``), the ids (int32, increasing)
         of the rays whose segment [tmin, limit] reaches that box and whose mask (``ray_masks``,
-        or none) sees it: a pass over the rays per thread to count, one to fill
-        (``rays_reaching_boxes``)."""
-        inv_dirs = inverse_directions(directions)
+        or none) sees it: a pass over the rays per thread marks each ray's boxes in a bit set
+        and counts them (``mark_rays_reaching``), one more writes the ids
+        (``fill_rays_reaching``)."""
         boxes = np.array(boxes, FLOAT)
         order, group_lo, groups = group_boxes(boxes)
         boxes = np.ascontiguousarray(boxes[order])
@@ -1332,17 +1332,17 @@ class Scene:
         n_rays = len(origins)
         n_parts = max(1, min(threads, n_rays // MIN_RAYS_PER_THREAD))
         bounds = [k * n_rays // n_parts for k in range(n_parts + 1)]
-        no_ids = np.empty(0, INDEX)
+        bits = np.empty((-(-len(boxes) // 64), n_rays), np.uint64)
 
-        def count(k):
-            at = np.zeros(len(boxes), np.int64)
-            rays_reaching_boxes(
-                origins, inv_dirs, tmin, limit, ray_masks, box_masks, boxes, groups, group_lo,
-                bounds[k], bounds[k + 1], no_ids, at,
+        def mark(k):
+            counts = np.zeros(len(boxes), np.int64)
+            mark_rays_reaching(
+                origins, directions, tmin, limit, ray_masks, box_masks, boxes, groups, group_lo,
+                bounds[k], bounds[k + 1], bits, counts,
             )  # fmt: skip
-            return at
+            return counts
 
-        counts = np.array(map_on_threads(count, n_parts, n_parts))  # (parts, boxes)
+        counts = np.array(map_on_threads(mark, n_parts, n_parts))  # (parts, boxes)
         per_box = counts.sum(axis=0)
         box_start = np.zeros(len(boxes) + 1, np.int64)
         np.cumsum(per_box, out=box_start[1:])
@@ -1350,10 +1350,7 @@ class Scene:
         ids = np.empty(max(1, int(box_start[-1])), INDEX)
 
         def fill(k):
-            rays_reaching_boxes(
-                origins, inv_dirs, tmin, limit, ray_masks, box_masks, boxes, groups, group_lo,
-                bounds[k], bounds[k + 1], ids, starts[k].copy(),
-            )  # fmt: skip
+            fill_rays_reaching(bits, bounds[k], bounds[k + 1], ids, starts[k].copy())
 
         if box_start[-1]:
             map_on_threads(fill, n_parts, n_parts)

@@ -278,3 +278,61 @@ def test_check_transform_returns_the_matrix_as_float64():
     np.testing.assert_array_equal(
         dacrt.check_transform(MATRICES["reflection"]), MATRICES["reflection"]
     )
+
+
+def slab_reaches(origins, directions, tmin, tmax, box, grow):
+    """(n,) bool: whether each ray's segment [tmin, tmax] reaches ``box`` (6,) grown by ``grow``
+    on every side (negative shrinks it), in float64 NumPy."""
+    lo = np.asarray(box[:3], np.float64) - grow
+    hi = np.asarray(box[3:], np.float64) + grow
+    o = origins.astype(np.float64)
+    d = directions.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = (lo - o) / d
+        b = (hi - o) / d
+    near = np.where(d == 0, np.where((o >= lo) & (o <= hi), -np.inf, np.inf), np.minimum(a, b))
+    far = np.where(d == 0, np.where((o >= lo) & (o <= hi), np.inf, -np.inf), np.maximum(a, b))
+    enter = np.maximum(near.max(axis=1), tmin)
+    leave = np.minimum(far.min(axis=1), tmax)
+    return enter <= leave
+
+
+@pytest.mark.parametrize("threads", [1, 3])
+def test_rays_reaching_instances_match_a_slab_test(threads):
+    """The rays sorted into each instance's box (``Scene._rays_reaching``: more than 64 boxes,
+    so two words of bits, in groups; masks; finished occlusion rays; rays along the axes and
+    through box corners) are every ray a NumPy slab test says reaches the box shrunk by a
+    margin and none it says misses the box grown by it, in increasing order, on any threads."""
+    rng = np.random.default_rng(7)
+    n_boxes, n_rays = 70, 40_000
+    lo = rng.uniform(-10, 10, (n_boxes, 3))
+    boxes = np.hstack([lo, lo + rng.uniform(0.2, 3, (n_boxes, 3))]).astype(np.float32)
+    origins = rng.uniform(-12, 12, (n_rays, 3)).astype(np.float32)
+    directions = rng.normal(size=(n_rays, 3)).astype(np.float32)
+    directions[::7, 1:] = 0  # along x
+    corners = boxes[rng.integers(0, n_boxes, n_rays // 5), :3]
+    directions[::5] = corners - origins[::5]  # through a corner at t = 1
+    tmin = rng.uniform(0, 0.5, n_rays).astype(np.float32)
+    limit = rng.choice([np.inf, 1.0, 5.0, -np.inf], n_rays).astype(np.float32)
+    ray_masks = rng.integers(1, 16, n_rays).astype(np.uint32)
+    box_masks = (1 << rng.integers(0, 4, n_boxes)).astype(np.uint32)
+
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    faces = np.array([[0, 1, 2]], np.int32)
+    scene = dacrt.Scene([(vertices, faces)] * n_boxes, masks=box_masks)
+    instances = [type("Placed", (), {"mesh": i}) for i in range(n_boxes)]
+    found = scene._rays_reaching(
+        instances, list(boxes), origins, directions, tmin, limit, ray_masks, threads
+    )
+    margin = 1e-4
+    for b in range(n_boxes):
+        ids = found[b]
+        assert np.all(np.diff(ids) > 0)
+        seen = (ray_masks & box_masks[b]) != 0
+        surely = seen & slab_reaches(origins, directions, tmin, limit, boxes[b], -margin)
+        maybe = seen & slab_reaches(origins, directions, tmin, limit, boxes[b], margin)
+        chosen = np.zeros(n_rays, bool)
+        chosen[ids] = True
+        assert np.all(chosen[surely]), f"box {b}: a ray that reaches it is missing"
+        assert not np.any(chosen & ~maybe), f"box {b}: a ray that misses it is listed"
+        assert surely.sum() > 0
