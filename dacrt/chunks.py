@@ -21,6 +21,7 @@ from .config import (
     COHERENT_RAYS_PER_TRIANGLE,
     DENSITY_GRID,
     MIN_RAYS_PER_THREAD,
+    MIN_RAYS_TO_SPLIT_TRIANGLES,
     ORDERED_NEIGHBOUR_DISTANCE,
     ORIGIN_SPREAD_SAMPLE_RAYS,
     SPLIT_TRIANGLES_RAYS_PER_TRIANGLE,
@@ -129,7 +130,7 @@ def splits_triangles(n_rays, n_triangles, threads):
     triangles (``Scene._trace_halves``) rather than as chunks of rays."""
     return (
         threads > 1
-        and n_rays >= 2 * MIN_RAYS_PER_THREAD
+        and n_rays >= MIN_RAYS_TO_SPLIT_TRIANGLES
         and n_rays < SPLIT_TRIANGLES_RAYS_PER_TRIANGLE * n_triangles
     )
 

@@ -117,6 +117,9 @@ MIN_RAYS_PER_THREAD = 16384
 # the triangles between two threads instead of the rays: each thread then does half the work
 # on the triangles, which such a batch spends most of its time on.
 SPLIT_TRIANGLES_RAYS_PER_TRIANGLE = 0.3
+# ... from this many rays: the two threads' extra passes (a copy of the records each, the
+# merge) cost less than a thread's half of the trace above it.
+MIN_RAYS_TO_SPLIT_TRIANGLES = 4096
 # Origins within this fraction of the scene's size count as one point ...
 COHERENT_ORIGIN_SPREAD = 0.1
 # ... judged on a sample of at most this many rays.

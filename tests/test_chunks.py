@@ -104,10 +104,12 @@ def test_chunk_counts(threads, n_rays, n_triangles):
 
 def test_triangles_are_split_only_for_few_rays_a_triangle_on_several_threads():
     rule = chunks.SPLIT_TRIANGLES_RAYS_PER_TRIANGLE
+    least = chunks.MIN_RAYS_TO_SPLIT_TRIANGLES
     many_triangles = int(4 * MIN / rule) + 1
+    assert chunks.splits_triangles(least, many_triangles, 2)
     assert chunks.splits_triangles(2 * MIN, many_triangles, 2)
     assert not chunks.splits_triangles(2 * MIN, many_triangles, 1)  # one thread
-    assert not chunks.splits_triangles(2 * MIN - 1, many_triangles, 2)  # too few rays
+    assert not chunks.splits_triangles(least - 1, many_triangles, 2)  # too few rays
     assert not chunks.splits_triangles(2 * MIN, int(2 * MIN / rule), 2)  # enough rays a triangle
 
 
