@@ -11,6 +11,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..chunks import N_CORES, map_on_threads
 from .physics import Materials
 
 
@@ -54,10 +55,12 @@ class Shot:
 
 def capture(scene, shots: list[Shot], materials: Materials | None, **query) -> list:
     """Every shot's answer, its rays traced in one batch (``trace``); ``materials`` (None for
-    the defaults) are those of ``scene``'s meshes."""
+    the defaults) are those of ``scene``'s meshes. The shots' answers are made side by side on
+    the query's threads (NumPy's gathers and arithmetic let go of the GIL)."""
     per_mesh = (materials or Materials()).per_mesh(scene.n_meshes)
     traced = trace(scene, [shot.rays for shot in shots], **query)
-    return [shot.finish(hits, per_mesh) for shot, hits in zip(shots, traced)]
+    workers = min(len(shots), query.get("threads") or N_CORES)
+    return map_on_threads(lambda k: shots[k].finish(traced[k], per_mesh), len(shots), workers)
 
 
 def trace(scene, batch: list[Rays], **query) -> list[Traced]:
