@@ -219,6 +219,10 @@ def group_returns(
     """The returns of hits (module docstring): hit i of sub-ray ``subray[i]`` of ``beam[i]`` at
     ``t[i]``; with one sub-ray every hit is a return (hits given beam by beam, nearest first)."""
     n = len(t)
+    if samples == 1 and bool(np.all(beam[1:] > beam[:-1])):
+        # At most one hit a beam (a closest query): each hit is its beam's one return.
+        intensity = np.asarray(contribution, np.float64)
+        return Returns(np.arange(n), beam.astype(np.int64), np.zeros(n, np.int64), intensity)
     if samples == 1:
         order = np.arange(n)
         start = np.ones(n, bool)
