@@ -57,3 +57,11 @@ def test_a_bad_pose_names_its_sensor():
     bad = dict(POSE_OF, front=np.zeros((4, 4)))
     with pytest.raises(dacrt.InputError, match="sensors.front: pose"):
         Rig(SENSORS).capture(dacrt.Scene(ROOM), bad)
+
+
+@pytest.mark.parametrize("threads", [0, -1, 1.5, "2", True])
+def test_bad_threads_are_named(threads):
+    """The rig's sensors are made on the query's threads: a bad count is the caller's error,
+    named, before any sensor is made."""
+    with pytest.raises(dacrt.InputError, match="threads must be a positive integer or None"):
+        Rig(SENSORS).capture(dacrt.Scene(ROOM), POSE_OF, threads=threads)

@@ -12,6 +12,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..chunks import N_CORES, map_on_threads
+from ..validation import check_threads
 from .physics import Materials
 
 
@@ -59,8 +60,15 @@ def capture(scene, shots: list[Shot], materials: Materials | None, **query) -> l
     the query's threads (NumPy's gathers and arithmetic let go of the GIL)."""
     per_mesh = (materials or Materials()).per_mesh(scene.n_meshes)
     traced = trace(scene, [shot.rays for shot in shots], **query)
-    workers = min(len(shots), query.get("threads") or N_CORES)
-    return map_on_threads(lambda k: shots[k].finish(traced[k], per_mesh), len(shots), workers)
+    return map_on_threads(
+        lambda k: shots[k].finish(traced[k], per_mesh), len(shots), workers(len(shots), query)
+    )
+
+
+def workers(n_sensors, query) -> int:
+    """Threads for work done sensor by sensor: the query's ``threads`` (checked: InputError
+    naming it), at most one a sensor."""
+    return min(n_sensors, check_threads(query.get("threads"), N_CORES))
 
 
 def trace(scene, batch: list[Rays], **query) -> list[Traced]:

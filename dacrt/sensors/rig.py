@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from ..chunks import N_CORES, map_on_threads
+from ..chunks import map_on_threads
 from ..validation import InputError
-from .batch import capture
+from .batch import capture, workers
 from .cameras import Camera, CameraImage
 from .lidar import Lidar, LidarPoints
 from .physics import Materials
@@ -61,7 +61,6 @@ class Rig:
                 raise InputError(f"sensors.{name}: {error}") from None
 
         # Each sensor's rays are made side by side (the first bad sensor in order is named).
-        workers = min(len(names), query.get("threads") or N_CORES)
-        shots = map_on_threads(shot, len(names), workers)
+        shots = map_on_threads(shot, len(names), workers(len(names), query))
         answers = capture(scene, shots, materials, **query)
         return dict(zip(self.sensors, answers))
