@@ -7,7 +7,10 @@ The anchor is compiled on first use (``g++``, Debian's ``libembree-dev`` and ``l
 checked against dacrt's (hit or not, and t), and a frame of each quality is its build + trace (the
 minimum over its repetitions); Embree's best frame is the best of low, medium and refit, the
 choice a C++ user would make. dacrt's frame is ``dacrt.Scene`` + the query, the median and the
-minimum of ``--repeat`` frames on ``--threads`` threads, run between the anchor's runs.
+minimum of ``--repeat`` frames on ``--threads`` threads, run between the anchor's runs; its
+refit is the previous frame's scene ``with_changes(vertices=...)`` (a new copy of the
+vertices every frame) + the query: the same faces keep their storage order, as a refit keeps
+its hierarchy.
 ``--baseline DIR`` also times the ``dacrt`` package in DIR (an earlier copy of the engine),
 alternating with this one, and adds its frames and this engine's speed-up over it.
 
@@ -29,6 +32,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import namedtuple
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -110,9 +114,14 @@ def best_quality(frames: dict) -> str:
     return min(frames, key=lambda q: frames[q][0] + frames[q][1])
 
 
-def dacrt_frame(dacrt, vertices, faces, rays: R.RaySet, threads: int):
+def dacrt_frame(dacrt, vertices, faces, rays: R.RaySet, threads: int, previous=None):
+    """(ms, t) of a frame: a new Scene, or with ``previous`` (a Scene of the same faces) its
+    ``with_changes`` to ``vertices``, then the query."""
     start = time.perf_counter()
-    scene = dacrt.Scene([(vertices, faces)])
+    if previous is None:
+        scene = dacrt.Scene([(vertices, faces)])
+    else:
+        scene = previous.with_changes(vertices={0: vertices})
     if rays.query == R.CLOSEST:
         answer = scene.closest(rays.origins, rays.directions, tmax=rays.tmax, threads=threads)
         t = answer.t
@@ -171,9 +180,10 @@ def main(argv=None) -> int:
     extra = " baseline ms | baseline / dacrt |" if baseline else ""
     print(
         "| scene | kind | rays | dacrt ms (median, min) | Embree low | medium | refit "
-        f"(build + trace ms) | Embree best / dacrt | agree |{extra}"
+        "(build + trace ms) | Embree best / dacrt | dacrt refit ms (median, min) | Embree best "
+        f"/ dacrt refit | agree |{extra}"
     )
-    print("|---|---|---|---|---|---|---|---|---|" + ("---|---|" if baseline else ""))
+    print("|---|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if baseline else ""))
     rows_of = {n: [] for n in args.rays}  # compare()'s answer for each row, by ray count
     for path in args.scenes:
         vertices, faces = load_mesh(path)
@@ -190,55 +200,87 @@ def main(argv=None) -> int:
                         dacrt, binary, folder, vertices, faces, rays, diagonal, args, baseline
                     )
                     rows_of[n_rays].append(row)
-                    ratio, agree, ours_ms, frames, base_ms = row
-                    cells = " | ".join(f"{b:.1f} + {t:.1f}" for b, t in frames.values())
+                    cells = " | ".join(f"{b:.1f} + {t:.1f}" for b, t in row.frames.values())
                     extra = ""
-                    if base_ms:
-                        speedup = np.median(base_ms) / np.median(ours_ms)
-                        extra = f" {np.median(base_ms):.1f} | {speedup:.2f} |"
+                    if row.base_ms:
+                        speedup = np.median(row.base_ms) / np.median(row.ours_ms)
+                        extra = f" {np.median(row.base_ms):.1f} | {speedup:.2f} |"
                     print(
                         f"| {Path(path).stem} | {rays.kind} | {rays.n_rays} "
-                        f"| {np.median(ours_ms):.1f}, {min(ours_ms):.1f} | {cells} "
-                        f"| {ratio:.2f} | {agree:.5f} |{extra}",
+                        f"| {np.median(row.ours_ms):.1f}, {min(row.ours_ms):.1f} | {cells} "
+                        f"| {row.ratio:.2f} | {np.median(row.refit_ms):.1f}, "
+                        f"{min(row.refit_ms):.1f} | {row.refit_ratio:.2f} | {row.agree:.5f} "
+                        f"|{extra}",
                         flush=True,
                     )
         finally:
             shutil.rmtree(folder, ignore_errors=True)
     print()
-    print("| rays | rows | Embree best / dacrt, geometric mean | lowest | highest | agree |")
-    print("|---|---|---|---|---|---|")
+    print(
+        "| rays | rows | Embree best / dacrt, geometric mean (lowest–highest) | Embree best / "
+        "dacrt refit | agree |"
+    )
+    print("|---|---|---|---|---|")
     for n_rays, rows in rows_of.items():
-        values = np.array([row[0] for row in rows])
+        spans = []
+        for values in ([row.ratio for row in rows], [row.refit_ratio for row in rows]):
+            values = np.array(values)
+            mean = np.exp(np.mean(np.log(values)))
+            spans.append(f"{mean:.2f} ({values.min():.2f}–{values.max():.2f})")
         print(
-            f"| {n_rays} | {len(rows)} | {np.exp(np.mean(np.log(values))):.2f} "
-            f"| {values.min():.2f} | {values.max():.2f} | {min(row[1] for row in rows):.5f} |"
+            f"| {n_rays} | {len(rows)} | {spans[0]} | {spans[1]} "
+            f"| {min(row.agree for row in rows):.5f} |"
         )
     return 0
 
 
+Row = namedtuple("Row", "ratio refit_ratio agree ours_ms refit_ms frames base_ms")
+Row.__doc__ = """One ray set: Embree's best frame over dacrt's median new-Scene frame and its median
+refit frame, the worst agreement of dacrt's answers with Embree's, dacrt's frames (ms), Embree's
+{quality: (build ms, trace ms)} and the baseline's new-Scene frames (ms) or None."""
+
+
 def compare(dacrt, binary, folder, vertices, faces, rays: R.RaySet, diagonal, args, baseline):
-    """(Embree best / dacrt median, worst agreement, dacrt frame ms, {quality: (build, trace)},
-    baseline frame ms or None) of one ray set; dacrt's frames (and the baseline's, alternating,
-    whose answers must equal dacrt's) run between the anchor's runs."""
+    """The ``Row`` of one ray set; dacrt's frames (new Scene and refit, and the baseline's new
+    Scene, alternating, whose answers must equal dacrt's) run between the anchor's runs."""
     write_inputs(folder, vertices, faces, rays)
-    ours_ms, base_ms, frames, agree = [], [], {}, []
+    ours_ms, refit_ms, base_ms, frames, agree = [], [], [], {}, []
     engines = [(dacrt, ours_ms)] + ([(baseline, base_ms)] if baseline else [])
     answers = [dacrt_frame(engine, vertices, faces, rays, args.threads)[1] for engine, _ in engines]
     if baseline and not np.array_equal(answers[0], answers[1]):
         raise SystemExit(f"the baseline's answers differ from dacrt's ({rays.kind})")
+    previous = dacrt.Scene([(vertices, faces)])
+
+    def refit():
+        fresh = np.array(vertices)  # a new array every frame, as a simulation hands over
+        ms, t = dacrt_frame(dacrt, fresh, faces, rays, args.threads, previous)
+        if not np.array_equal(t, answers[0]):
+            raise SystemExit(f"dacrt's refit answers differ from its new Scene's ({rays.kind})")
+        refit_ms.append(ms)
+
     reps = max(2, args.repeat)  # refit's first repetition is a fresh build: only later ones refit
     for quality in QUALITIES:
         for engine, times in engines:
             ms, ours = dacrt_frame(engine, vertices, faces, rays, args.threads)
             times.append(ms)
+        refit()
         build_ms, trace_ms, theirs = run_anchor(binary, folder, quality, args.threads, reps)
         frames[quality] = (build_ms, trace_ms)
         agree.append(agreement(ours, theirs, diagonal))
     for _ in range(max(0, args.repeat - len(QUALITIES))):
         for engine, times in engines:
             times.append(dacrt_frame(engine, vertices, faces, rays, args.threads)[0])
+        refit()
     best = sum(frames[best_quality(frames)])
-    return best / np.median(ours_ms), min(agree), ours_ms, frames, base_ms or None
+    return Row(
+        best / np.median(ours_ms),
+        best / np.median(refit_ms),
+        min(agree),
+        ours_ms,
+        refit_ms,
+        frames,
+        base_ms or None,
+    )
 
 
 if __name__ == "__main__":

@@ -127,9 +127,9 @@ InstanceTraced.__doc__ = """``Traced`` of an instance, with the rays it traced i
 #: The start placement of a mesh given an end placement and none at the start.
 IDENTITY = np.eye(4)
 
-BaseRows = namedtuple("BaseRows", ["lo", "hi", "box", "corner_box"])
+BaseRows = namedtuple("BaseRows", ["lo", "hi", "box", "corner_box", "face_order"])
 BaseRows.__doc__ = """Where an untransformed mesh lies in the scene's base level: rows lo:hi,
-their box, and the box of its corners (``Packed``)."""
+their box, the box of its corners and the order of its faces' rows (``Packed``)."""
 
 
 class Scene:
@@ -302,11 +302,11 @@ class Scene:
         not in ``changed`` (rows copied, in mesh order, so rows still rise with ids)."""
         first_rows = [self.mesh_offsets[i] for i in base_meshes]
         if old is None:
-            packed, live, boxes, corner_boxes = pack_meshes(
+            packed, live, boxes, corner_boxes, orders = pack_meshes(
                 [self._meshes[i] for i in base_meshes], first_rows, self._order
             )
             parts = {
-                i: BaseRows(live[k], live[k + 1], boxes[k], corner_boxes[k])
+                i: BaseRows(live[k], live[k + 1], boxes[k], corner_boxes[k], orders[k])
                 for k, i in enumerate(base_meshes)
             }
             return packed, parts
@@ -314,7 +314,7 @@ class Scene:
         for i, first_row in zip(base_meshes, first_rows):
             part = old._parts.get(i)  # none for a mesh that deformed in ``old``
             if i in changed:
-                piece = pack_mesh(*self._meshes[i], self._order)
+                piece = pack_mesh(*self._meshes[i], self._order, _face_order(part))
                 pieces.append(
                     (
                         piece.verts,
@@ -322,6 +322,7 @@ class Scene:
                         piece.ids + INDEX(first_row),
                         piece.box,
                         piece.corner_box,
+                        piece.face_order,
                     )
                 )
             elif isinstance(part, Packed):  # placed before, as given now
@@ -332,27 +333,33 @@ class Scene:
                         part.ids + INDEX(first_row),
                         part.box,
                         part.corner_box,
+                        part.face_order,
                     )
                 )
             else:
                 rows = slice(part.lo, part.hi)
                 base = old._base
                 pieces.append(
-                    (base.verts[rows], base.bounds[rows], base.ids[rows], part.box, part.corner_box)
+                    (
+                        base.verts[rows],
+                        base.bounds[rows],
+                        base.ids[rows],
+                        part.box,
+                        part.corner_box,
+                        part.face_order,
+                    )
                 )
         lengths = [len(piece[0]) for piece in pieces]
         live = np.zeros(len(pieces) + 1, np.int64)
         np.cumsum(lengths, out=live[1:])
         parts = {
-            i: BaseRows(live[k], live[k + 1], piece[3], piece[4])
+            i: BaseRows(live[k], live[k + 1], piece[3], piece[4], piece[5])
             for k, (i, piece) in enumerate(zip(base_meshes, pieces))
         }
         packed = Packed(
-            np.concatenate([p[0] for p in pieces] or [np.empty((0, 9), FLOAT)]),
-            np.concatenate([p[1] for p in pieces] or [np.empty((0, 6), FLOAT)]),
-            np.concatenate([p[2] for p in pieces] or [np.empty(0, INDEX)]).astype(
-                INDEX, copy=False
-            ),
+            _joined([p[0] for p in pieces], np.empty((0, 9), FLOAT)),
+            _joined([p[1] for p in pieces], np.empty((0, 6), FLOAT)),
+            _joined([p[2] for p in pieces], np.empty(0, INDEX)).astype(INDEX, copy=False),
             live_box(union_box([p[3] for p in pieces])),
             union_box([p[4] for p in pieces]),
         )
@@ -435,9 +442,12 @@ class Scene:
             elif i not in changed:  # as given before, placed now: its rows of the base level
                 packs[i] = self._packed_from_base(i)
             else:
-                key = id(vertices[i]) if i in vertices else ("mesh", i)
+                part = self._parts.get(i)
+                # Instances of one packing given the same new vertices share one packing again.
+                shared = i in vertices and part is not None
+                key = (id(vertices[i]), id(part)) if shared else ("mesh", i)
                 if key not in packings:
-                    packings[key] = pack_mesh(*checked[i], self._order)
+                    packings[key] = pack_mesh(*checked[i], self._order, _face_order(part))
                 packs[i] = packings[key]
         scene = object.__new__(Scene)
         scene._order = self._order
@@ -484,6 +494,7 @@ class Scene:
             self._base.ids[rows] - INDEX(self.mesh_offsets[i]),
             part.box if part.box[0] <= part.box[3] else np.zeros(6, FLOAT),
             part.corner_box,
+            part.face_order,
         )
 
     @functools.cached_property
@@ -1528,6 +1539,18 @@ def level_triangles(level, tri_ids, times):
     if times is None:
         return Triangles(level.verts, level.bounds, tri_ids)
     return DeformingTriangles(level.verts, level.bounds, tri_ids, level.verts_end, times)
+
+
+def _joined(arrays, empty):
+    """The ``arrays`` one after another: the one itself when alone (packed arrays are never
+    written, so a level may share them), ``empty`` for none."""
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays or [empty])
+
+
+def _face_order(part):
+    """The ``face_order`` of a mesh's part (``Packed`` or ``BaseRows``), None for none (a mesh
+    in the deforming level)."""
+    return None if part is None else part.face_order
 
 
 def _same_matrix(a, b):

@@ -127,6 +127,53 @@ def test_with_changes_shares_what_did_not_change():
     assert rebased._base is not old._base and rebased._parts[3] is old._parts[3]
 
 
+def _collapsed(vertices, faces, rows):
+    """``vertices`` with each of ``faces[rows]``'s second corner moved onto its first: those
+    triangles (and their neighbours' shared corners) degenerate or move."""
+    out = vertices.copy()
+    out[faces[rows, 1]] = out[faces[rows, 0]]
+    return out
+
+
+@pytest.mark.parametrize("placed", [False, True], ids=["as given", "placed"])
+def test_new_vertices_keep_the_storage_order_and_answer_as_a_new_scene(placed):
+    # A soup of shuffled rows, stored in Morton order; new vertices of the same faces are
+    # gathered in that order (a refit), not sorted again, with the answers of a new Scene,
+    # also where triangles become degenerate or stop being so.
+    v, f = pg.triangle_soup(400, np.random.default_rng(28))
+    other = sample_scenes.sphere(29)[0]
+    transforms = [affine(pg.rotation([1.0, 0, 0], 0.3), (0.2, 0, 0)) if placed else None, None]
+    flat = _collapsed(v, f, np.arange(0, 400, 7))
+    scene = dacrt.Scene([(flat, f), other], transforms=transforms, order="morton")
+    before = scene._parts[0].face_order
+    assert sorted(before) == list(range(len(f))) and not np.array_equal(before, np.arange(len(f)))
+    o, d = _rays([(v, f), other], transforms, n=600, seed=30)
+    ray_masks = np.ones(len(o), np.uint32)
+    for step, vertices in enumerate([v, _collapsed(v, f, np.arange(3, 400, 5)), v * 1.01]):
+        vertices = vertices.astype(np.float32)
+        new = scene.with_changes(vertices={0: vertices})
+        assert new._parts[0].face_order is before, step
+        fresh = dacrt.Scene([(vertices, f), other], transforms=transforms, order="morton")
+        assert_same_answers(
+            _all_queries(new, o, d, ray_masks), _all_queries(fresh, o, d, ray_masks), step
+        )
+        scene = new
+
+
+def test_one_vertex_array_for_two_meshes_with_other_faces():
+    v, f = sample_scenes.sphere(31)[0]
+    flipped = np.ascontiguousarray(f[::-1, ::-1])
+    shifted = (f + 1) % len(v)
+    transforms = [affine(offset=(0.0, 0.0, 0.0)), affine(offset=(0.0, 0.5, 0.0))]
+    scene = dacrt.Scene([(v, flipped), (v, shifted)], transforms=transforms)
+    moved = v * np.float32(1.2)
+    new = scene.with_changes(vertices={0: moved, 1: moved})
+    fresh = dacrt.Scene([(moved, flipped), (moved, shifted)], transforms=transforms)
+    o, d = _rays([(moved, f)] * 2, transforms, n=600, seed=32)
+    masks = np.ones(len(o), np.uint32)
+    assert_same_answers(_all_queries(new, o, d, masks), _all_queries(fresh, o, d, masks), "one")
+
+
 def test_a_mesh_with_seven_instances_is_packed_once():
     v, f = sample_scenes.sphere(27)[0]
     matrices = [affine(offset=(3.0 * k, 0.0, 0.0)) for k in range(7)]
