@@ -78,7 +78,8 @@ class Packed:
     def nbytes(self) -> int:
         """Bytes of the arrays, with the derived ones that exist."""
         derived = [self.__dict__.get(name) for name in ("centre_counts", "unit_normals")]
-        held = [self.verts, self.bounds, self.ids] + [a for a in derived if a is not None]
+        held = [self.verts, self.bounds, self.ids, self.face_order] + derived
+        held = [a for a in held if a is not None]
         return int(sum(array.nbytes for array in held))
 
 

@@ -532,8 +532,17 @@ class Scene:
         if self._deforming is not None:
             held[id(self._deforming)] = self._deforming
         derived = self.__dict__.get("_row_masks")
+        # The base level's meshes keep their orders beside it; each array counts once.
+        counted = {id(packed.face_order) for packed in held.values()}
+        orders = {
+            id(part.face_order): part.face_order
+            for part in self._parts.values()
+            if isinstance(part, BaseRows) and id(part.face_order) not in counted
+        }
+        orders = [order for order in orders.values() if order is not None]
         return int(
             sum(packed.nbytes for packed in held.values())
+            + sum(order.nbytes for order in orders)
             + self.mesh_offsets.nbytes
             + (derived.nbytes if derived is not None else 0)
         )

@@ -160,6 +160,16 @@ def test_new_vertices_keep_the_storage_order_and_answer_as_a_new_scene(placed):
         scene = new
 
 
+def test_nbytes_count_each_packed_array_once():
+    # Corners 36, box 24, id 4 and the storage order's face row 4 bytes a triangle, and 8 bytes
+    # an entry of mesh_offsets; instances of one packing count it once.
+    v, f = sample_scenes.sphere(33)[0]
+    assert dacrt.Scene([(v, f)]).nbytes == 68 * len(f) + 2 * 8
+    moved = affine(offset=(3.0, 0.0, 0.0))
+    three = dacrt.Scene([(v, f)] * 3, transforms=[None, moved, moved @ moved])
+    assert three.nbytes == 2 * 68 * len(f) + 4 * 8
+
+
 def test_one_vertex_array_for_two_meshes_with_other_faces():
     v, f = sample_scenes.sphere(31)[0]
     flipped = np.ascontiguousarray(f[::-1, ::-1])
