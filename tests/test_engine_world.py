@@ -313,3 +313,81 @@ def test_each_instance_is_watertight(kind):
     assert not len(missed), f"{len(missed)} rays slipped through, first {missed[0]}"
     assert np.all(scene.count(o, d).count % 2 == 1)
     assert scene.occluded(o, d).occluded.all()
+
+
+def _random_change(rng, meshes, state):
+    """One random ``with_changes`` argument set over the chain's ``state`` (transforms, ends,
+    vertices, vertices_end, masks: each mesh's current value), 1 to 3 meshes changed."""
+    n = len(meshes)
+    change = {}
+    for i in rng.choice(n, size=rng.integers(1, 4), replace=False):
+        i = int(i)
+        # A deforming mesh takes no placement, and a placed one no end vertices.
+        deforming = state["vertices_end"][i] is not None
+        placed = state["transforms"][i] is not None or state["ends"][i] is not None
+        kinds = ["vertices", "mask"] + ([] if deforming else ["transform", "end"])
+        kind = rng.choice(kinds + ([] if placed else ["vertices_end"] * 2))
+        if kind == "transform":
+            names = sorted(MATRICES)
+            name = names[rng.integers(len(names))]
+            matrix = None if rng.random() < 0.3 else MATRICES[name]  # None: back as given
+            change.setdefault("transforms", {})[i] = matrix
+        elif kind == "end":
+            offset = rng.normal(0, 0.3, 3)
+            start = state["transforms"][i]
+            end = None if rng.random() < 0.3 else (start if start is not None else np.eye(4)).copy()
+            if end is not None:
+                end[:3, 3] += offset
+            change.setdefault("transforms_end", {})[i] = end
+        elif kind == "vertices_end":
+            base = state["vertices"][i]
+            end = None if rng.random() < 0.3 else base + rng.normal(0, 0.05, base.shape)
+            change.setdefault("vertices_end", {})[i] = (
+                None if end is None else end.astype(np.float32)
+            )
+        elif kind == "vertices":
+            v, f = meshes[i]
+            new = v * np.float32(rng.uniform(0.8, 1.2))
+            if rng.random() < 0.4:  # some triangles degenerate, others back
+                new = _collapsed(new, f, rng.choice(len(f), size=len(f) // 6, replace=False))
+            change.setdefault("vertices", {})[i] = new.astype(np.float32)
+        else:
+            change.setdefault("masks", {})[i] = int(rng.integers(0, 32))
+    return change
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_chain_of_random_changes_answers_as_new_scenes(seed):
+    # Every version of a seeded chain of changes (moves, ends, deformations, masks, triangles
+    # becoming degenerate and back, shared packings) against a new Scene of the same meshes.
+    meshes, transforms, masks = _world()
+    rng = np.random.default_rng(40 + seed)
+    state = {
+        "transforms": list(transforms),
+        "ends": [None] * len(meshes),
+        "vertices": [v for v, _ in meshes],
+        "vertices_end": [None] * len(meshes),
+        "masks": masks.copy(),
+    }
+    o, d = _rays(meshes, transforms, n=400, seed=50 + seed)
+    ray_masks = rng.integers(1, 32, len(o)).astype(np.uint32)
+    times = rng.random(len(o)).astype(np.float32)
+    scene = dacrt.Scene(meshes, masks=masks, transforms=transforms)
+    for step in range(10):
+        change = _random_change(rng, meshes, state)
+        scene = scene.with_changes(**change)
+        for key, values in change.items():
+            target = {"transforms_end": "ends", "masks": "masks"}.get(key, key)
+            for i, value in values.items():
+                state[target][i] = value
+        fresh = dacrt.Scene(
+            [(v, f) for v, (_, f) in zip(state["vertices"], meshes)],
+            masks=state["masks"],
+            transforms=state["transforms"],
+            transforms_end=state["ends"],
+            vertices_end=state["vertices_end"],
+        )
+        what = f"seed {seed}, step {step}: {sorted((k, sorted(v)) for k, v in change.items())}"
+        for time in (None, times):
+            got = _queries(scene, o, d, mask=ray_masks, time=time)
+            assert_same_answers(got, _queries(fresh, o, d, mask=ray_masks, time=time), what)
