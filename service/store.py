@@ -650,9 +650,9 @@ class Store:
         meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))
         snapshot = Snapshot(scene, version, MappingProxyType(meshes), next_index)
         if old is not None and any(
-            name in old.meshes and old.meshes[name].geometry is mesh.geometry
+            name in old.meshes and old.meshes[name].faces is mesh.faces
             for name, mesh in meshes.items()
-        ):  # something is kept: the new version may reuse what the old one derived from it
+        ):  # a mesh or its faces are kept: the new version may reuse what the old one derived
             snapshot._earlier.extend(old._basis())
         if snapshot.n_triangles > self.max_triangles_per_scene:
             raise TooLarge(
