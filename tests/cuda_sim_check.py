@@ -10,10 +10,14 @@ import numpy as np
 assert os.environ.get("NUMBA_ENABLE_CUDASIM") == "1", "run under Numba's CUDA simulator"
 
 import dacrt  # noqa: E402
+import dacrt.cache  # noqa: E402
 from dacrt import cuda as dcuda  # noqa: E402
 from dacrt.cuda import query as cuda_query  # noqa: E402
 from dacrt.cuda import traversal  # noqa: E402
 from dacrt.cuda.traversal import MAX_PAIRS as DEFAULT  # noqa: E402
+
+# The CPU engine's kernels from the tests' cache (``conftest``), not compiled again.
+dacrt.cache.use_cache_dir()
 
 
 def soup(rng, n_tri):

@@ -11,6 +11,7 @@ import sys
 import numpy as np
 from service_helpers import REPO, quad
 
+import dacrt.cache
 from service import tracing, wire
 from service.options import make_options
 
@@ -40,6 +41,8 @@ def test_the_cpu_traces_what_the_cuda_backend_lacks_and_says_what():
 UNDER_SIMULATOR = """
 import numpy as np
 from service_helpers import quad
+
+import dacrt.cache
 from service import tracing, wire
 from service.options import make_options
 from service.settings import load_settings
@@ -47,6 +50,7 @@ from service.store import Store
 
 settings = load_settings()
 assert settings.device == "cuda", settings.device
+dacrt.cache.use_cache_dir(settings.cache_dir)  # the CPU kernels the tests' warm-up compiled
 store = Store(2**20, 2**30)
 for name, x in (("a", 0), ("b", 1)):
     store.put_mesh("s", name, wire.mesh_arrays(*quad(x, x + 1, 0, 1, 0)))
@@ -73,6 +77,7 @@ def test_cuda_device_answers_as_the_cpu_under_the_simulator():
         **{k: v for k, v in os.environ.items() if not k.startswith("DACRT_")},
         "NUMBA_ENABLE_CUDASIM": "1",
         "DACRT_DEVICE": "cuda",
+        "DACRT_CACHE_DIR": str(dacrt.cache.chosen_cache_dir()),
         "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "tests" / "service")]),
     }
     done = subprocess.run(
