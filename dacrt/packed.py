@@ -22,7 +22,7 @@ from .config import jit
 from .contracts import FLOAT, INDEX
 from .points import MORTON_BITS, triangle_codes
 from .results import unit_normals
-from .triangles import gather_triangles, gather_triangles_in_order
+from .triangles import gather_triangles
 
 #: The storage orders of a mesh's rows (``Scene(order=)``).
 ORDERS = ("auto", "morton", "file")
@@ -44,18 +44,14 @@ class Packed:
     box : (6,) float32, the rows' box (zeros when there are none)
     corner_box : (6,) float32, the box of every corner the faces refer to, degenerate triangles
         included (EMPTY_BOX when there are no faces)
-    face_order : (faces,) int32 or None, a mesh's every face row in the order its rows were laid
-        out, degenerate faces last: new vertices of the same faces keep it (``pack_meshes``);
-        None in a level of several meshes (``Scene``'s ``BaseRows`` hold theirs)
     """
 
-    def __init__(self, verts, bounds, ids, box, corner_box, face_order=None):
+    def __init__(self, verts, bounds, ids, box, corner_box):
         self.verts = verts
         self.bounds = bounds
         self.ids = ids
         self.box = box
         self.corner_box = corner_box
-        self.face_order = face_order
 
     def __len__(self) -> int:
         return len(self.verts)
@@ -78,8 +74,7 @@ class Packed:
     def nbytes(self) -> int:
         """Bytes of the arrays, with the derived ones that exist."""
         derived = [self.__dict__.get(name) for name in ("centre_counts", "unit_normals")]
-        held = [self.verts, self.bounds, self.ids, self.face_order] + derived
-        held = [a for a in held if a is not None]
+        held = [self.verts, self.bounds, self.ids] + [a for a in derived if a is not None]
         return int(sum(array.nbytes for array in held))
 
 
@@ -87,13 +82,13 @@ def pack_meshes(meshes, first_rows, order="auto", kept_orders=None):
     """One ``Packed`` of the checked ``meshes`` ((vertices float32, faces) pairs) in their
     order, each triangle's id being its face row plus that mesh's entry of ``first_rows``; each
     mesh's rows in the storage ``order`` ("auto", "morton" or "file": ``rows_in_order``), or in
-    its entry of ``kept_orders`` (a ``face_order`` of an earlier packing of the same faces, as
-    a refit keeps a hierarchy: new vertices are gathered in it, not sorted again; None to choose).
+    its entry of ``kept_orders``: every face row of an earlier packing of the same faces in its
+    rows' order (``every_face``), as a refit keeps a hierarchy: new vertices are gathered in it,
+    not sorted again (None to choose).
 
-    Returns (packed, live, boxes, corner_boxes, face_orders): mesh k's rows are
-    live[k]:live[k + 1] (live: (n + 1,) int64), boxes, corner_boxes (n, 6) float32 hold each
-    mesh's box of rows and box of corners (EMPTY_BOX for none), and face_orders each mesh's
-    ``face_order``."""
+    Returns (packed, live, boxes, corner_boxes): mesh k's rows are live[k]:live[k + 1] (live:
+    (n + 1,) int64), and boxes, corner_boxes (n, 6) float32 hold each mesh's box of rows and
+    box of corners (EMPTY_BOX for none)."""
     n_faces = sum(len(faces) for _, faces in meshes)
     verts = np.empty((n_faces, 9), FLOAT)
     bounds = np.empty((n_faces, 6), FLOAT)
@@ -101,33 +96,30 @@ def pack_meshes(meshes, first_rows, order="auto", kept_orders=None):
     boxes = np.tile(EMPTY_BOX, (len(meshes), 1))
     corner_boxes = boxes.copy()
     live = np.zeros(len(meshes) + 1, np.int64)
-    face_orders = []
     n_live = 0
     for k, ((vertices, faces), first_row) in enumerate(zip(meshes, first_rows)):
         kept = None if kept_orders is None else kept_orders[k]
-        if kept is not None:
-            n_live = gather_triangles_in_order(
-                vertices, faces, kept, first_row, n_live, verts, bounds, ids, corner_boxes[k],
-                boxes[k],
-            )  # fmt: skip
-            live[k + 1] = n_live
-            face_orders.append(kept)
-            continue
+        in_order = faces if kept is None else np.take(faces, kept, axis=0)
         n_live = gather_triangles(
-            vertices, faces, first_row, n_live, verts, bounds, ids, corner_boxes[k], boxes[k]
+            vertices, in_order, first_row, n_live, verts, bounds, ids, corner_boxes[k], boxes[k]
         )
         live[k + 1] = n_live
         rows = slice(live[k], live[k + 1])
+        if kept is not None:
+            # A degenerate triangle gets no row: the rows' ids name positions in the kept order.
+            ids[rows] = np.take(kept, ids[rows] - INDEX(first_row)) + INDEX(first_row)
+            continue
         order_of = rows_in_order(bounds[rows], boxes[k], order)
         if order_of is not None:
-            face_rows = np.take(ids[rows], order_of) - INDEX(first_row)
+            face_rows = np.take(ids[rows], order_of)
             # Gathered again in that order: moving the gathered rows instead reads 60 bytes a
             # row at random, several times slower. The boxes grow by nothing new.
-            gather_triangles_in_order(
-                vertices, faces, face_rows, first_row, live[k], verts, bounds, ids,
-                corner_boxes[k], boxes[k],
+            in_order = np.take(faces, face_rows - INDEX(first_row), axis=0)
+            gather_triangles(
+                vertices, in_order, first_row, live[k], verts, bounds, ids, corner_boxes[k],
+                boxes[k],
             )  # fmt: skip
-        face_orders.append(every_face(ids[rows] - INDEX(first_row), len(faces)))
+            ids[rows] = face_rows
     packed = Packed(
         verts[:n_live],
         bounds[:n_live],
@@ -135,20 +127,19 @@ def pack_meshes(meshes, first_rows, order="auto", kept_orders=None):
         live_box(union_box(boxes)),
         union_box(corner_boxes),
     )
-    return packed, live, boxes, corner_boxes, face_orders
+    return packed, live, boxes, corner_boxes
 
 
 def pack_mesh(vertices, faces, order="auto", kept_order=None):
-    """The ``Packed`` of one checked mesh, its ids being its face rows, in ``kept_order`` (an
-    earlier packing's ``face_order`` of the same faces) or else in the storage ``order``."""
-    packed, _, _, _, face_orders = pack_meshes([(vertices, faces)], [0], order, [kept_order])
-    packed.face_order = face_orders[0]
+    """The ``Packed`` of one checked mesh, its ids being its face rows, in ``kept_order``
+    (``pack_meshes``' kept orders) or else in the storage ``order``."""
+    packed, _, _, _ = pack_meshes([(vertices, faces)], [0], order, [kept_order])
     return packed
 
 
 def every_face(live_rows, n_faces):
-    """``live_rows`` (int32, the faces with a row, in their rows' order), then the faces of
-    degenerate triangles: every face row once (a ``face_order``)."""
+    """``live_rows`` (int32: a packing's ids, the faces with a row, in their rows' order), then
+    the faces of degenerate triangles in order: every face row once."""
     if len(live_rows) == n_faces:
         return live_rows
     degenerate = np.ones(n_faces, np.bool_)

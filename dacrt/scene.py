@@ -57,7 +57,16 @@ from .instances import (
     rays_to_mesh_space_at,
 )
 from .leaf import NO_HIT
-from .packed import ORDERS, Packed, live_box, pack_deforming, pack_mesh, pack_meshes, union_box
+from .packed import (
+    ORDERS,
+    Packed,
+    every_face,
+    live_box,
+    pack_deforming,
+    pack_mesh,
+    pack_meshes,
+    union_box,
+)
 from .query import (
     ALL_HITS,
     ALL_MASKS,
@@ -127,9 +136,9 @@ InstanceTraced.__doc__ = """``Traced`` of an instance, with the rays it traced i
 #: The start placement of a mesh given an end placement and none at the start.
 IDENTITY = np.eye(4)
 
-BaseRows = namedtuple("BaseRows", ["lo", "hi", "box", "corner_box", "face_order"])
+BaseRows = namedtuple("BaseRows", ["lo", "hi", "box", "corner_box"])
 BaseRows.__doc__ = """Where an untransformed mesh lies in the scene's base level: rows lo:hi,
-their box, the box of its corners and the order of its faces' rows (``Packed``)."""
+their box, and the box of its corners (``Packed``)."""
 
 
 class Scene:
@@ -302,11 +311,11 @@ class Scene:
         not in ``changed`` (rows copied, in mesh order, so rows still rise with ids)."""
         first_rows = [self.mesh_offsets[i] for i in base_meshes]
         if old is None:
-            packed, live, boxes, corner_boxes, orders = pack_meshes(
+            packed, live, boxes, corner_boxes = pack_meshes(
                 [self._meshes[i] for i in base_meshes], first_rows, self._order
             )
             parts = {
-                i: BaseRows(live[k], live[k + 1], boxes[k], corner_boxes[k], orders[k])
+                i: BaseRows(live[k], live[k + 1], boxes[k], corner_boxes[k])
                 for k, i in enumerate(base_meshes)
             }
             return packed, parts
@@ -314,7 +323,7 @@ class Scene:
         for i, first_row in zip(base_meshes, first_rows):
             part = old._parts.get(i)  # none for a mesh that deformed in ``old``
             if i in changed:
-                piece = pack_mesh(*self._meshes[i], self._order, _face_order(part))
+                piece = pack_mesh(*self._meshes[i], *old._kept_order(i))
                 pieces.append(
                     (
                         piece.verts,
@@ -322,7 +331,6 @@ class Scene:
                         piece.ids + INDEX(first_row),
                         piece.box,
                         piece.corner_box,
-                        piece.face_order,
                     )
                 )
             elif isinstance(part, Packed):  # placed before, as given now
@@ -333,27 +341,19 @@ class Scene:
                         part.ids + INDEX(first_row),
                         part.box,
                         part.corner_box,
-                        part.face_order,
                     )
                 )
             else:
                 rows = slice(part.lo, part.hi)
                 base = old._base
                 pieces.append(
-                    (
-                        base.verts[rows],
-                        base.bounds[rows],
-                        base.ids[rows],
-                        part.box,
-                        part.corner_box,
-                        part.face_order,
-                    )
+                    (base.verts[rows], base.bounds[rows], base.ids[rows], part.box, part.corner_box)
                 )
         lengths = [len(piece[0]) for piece in pieces]
         live = np.zeros(len(pieces) + 1, np.int64)
         np.cumsum(lengths, out=live[1:])
         parts = {
-            i: BaseRows(live[k], live[k + 1], piece[3], piece[4], piece[5])
+            i: BaseRows(live[k], live[k + 1], piece[3], piece[4])
             for k, (i, piece) in enumerate(zip(base_meshes, pieces))
         }
         packed = Packed(
@@ -447,7 +447,7 @@ class Scene:
                 shared = i in vertices and part is not None
                 key = (id(vertices[i]), id(part)) if shared else ("mesh", i)
                 if key not in packings:
-                    packings[key] = pack_mesh(*checked[i], self._order, _face_order(part))
+                    packings[key] = pack_mesh(*checked[i], *self._kept_order(i))
                 packs[i] = packings[key]
         scene = object.__new__(Scene)
         scene._order = self._order
@@ -484,6 +484,22 @@ class Scene:
             explain_bad_vertices(new, name)
         return new
 
+    def _kept_order(self, i):
+        """(order, kept order) for ``pack_mesh`` to pack new vertices of mesh i's faces in the
+        order its rows are stored (a refit): "file" for rows in face order, else every face
+        row in its rows' order (``packed.every_face``); the scene's order for a mesh of the
+        deforming level, which has none."""
+        part = self._parts.get(i)
+        if part is None:
+            return self._order, None
+        if isinstance(part, Packed):
+            rows = part.ids
+        else:
+            rows = self._base.ids[part.lo : part.hi] - INDEX(self.mesh_offsets[i])
+        if np.all(rows[1:] > rows[:-1]):  # face order, perhaps without degenerate faces
+            return "file", None
+        return self._order, every_face(rows, len(self._meshes[i][1]))
+
     def _packed_from_base(self, i):
         """Mesh i's rows of the base level as a ``Packed`` of its own (ids its face rows)."""
         part = self._parts[i]
@@ -494,7 +510,6 @@ class Scene:
             self._base.ids[rows] - INDEX(self.mesh_offsets[i]),
             part.box if part.box[0] <= part.box[3] else np.zeros(6, FLOAT),
             part.corner_box,
-            part.face_order,
         )
 
     @functools.cached_property
@@ -532,17 +547,8 @@ class Scene:
         if self._deforming is not None:
             held[id(self._deforming)] = self._deforming
         derived = self.__dict__.get("_row_masks")
-        # The base level's meshes keep their orders beside it; each array counts once.
-        counted = {id(packed.face_order) for packed in held.values()}
-        orders = {
-            id(part.face_order): part.face_order
-            for part in self._parts.values()
-            if isinstance(part, BaseRows) and id(part.face_order) not in counted
-        }
-        orders = [order for order in orders.values() if order is not None]
         return int(
             sum(packed.nbytes for packed in held.values())
-            + sum(order.nbytes for order in orders)
             + self.mesh_offsets.nbytes
             + (derived.nbytes if derived is not None else 0)
         )
@@ -1554,12 +1560,6 @@ def _joined(arrays, empty):
     """The ``arrays`` one after another: the one itself when alone (packed arrays are never
     written, so a level may share them), ``empty`` for none."""
     return arrays[0] if len(arrays) == 1 else np.concatenate(arrays or [empty])
-
-
-def _face_order(part):
-    """The ``face_order`` of a mesh's part (``Packed`` or ``BaseRows``), None for none (a mesh
-    in the deforming level)."""
-    return None if part is None else part.face_order
 
 
 def _same_matrix(a, b):

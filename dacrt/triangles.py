@@ -53,41 +53,18 @@ def gather_triangles(
     writing each row in place: no mask, no second copy of the corners."""
     row = n_live
     for f in range(faces.shape[0]):
-        row = gather_face(vertices, faces, f, first_row, row, tri_verts, tri_bounds, tri_global,
-                          corner_box, box)  # fmt: skip
-    return row
-
-
-@jit
-def gather_triangles_in_order(
-    vertices, faces, order, first_row, n_live, tri_verts, tri_bounds, tri_global, corner_box, box
-):
-    """``gather_triangles`` of the faces ``order`` (int32 face rows) names, in that order,
-    reading each face where it is (no copy of the faces in that order)."""
-    row = n_live
-    for k in range(order.shape[0]):
-        row = gather_face(vertices, faces, order[k], first_row, row, tri_verts, tri_bounds,
-                          tri_global, corner_box, box)  # fmt: skip
-    return row
-
-
-@inline
-def gather_face(vertices, faces, f, first_row, row, tri_verts, tri_bounds, tri_global, corner_box,
-                box):  # fmt: skip
-    """Face ``f``'s corners into ``tri_verts[row]`` and, unless degenerate, its box and id;
-    returns the next free row."""
-    for c in range(3):
-        v = faces[f, c]
-        for a in range(3):
-            x = vertices[v, a]
-            tri_verts[row, 3 * c + a] = x
-            corner_box[a] = min(corner_box[a], x)
-            corner_box[a + 3] = max(corner_box[a + 3], x)
-    nx, ny, nz = triangle_normal(tri_verts, row)
-    if nx != 0.0 or ny != 0.0 or nz != 0.0:
-        grow_triangle_box(tri_verts, row, tri_bounds, box)
-        tri_global[row] = first_row + f
-        return row + 1
+        for c in range(3):
+            v = faces[f, c]
+            for a in range(3):
+                x = vertices[v, a]
+                tri_verts[row, 3 * c + a] = x
+                corner_box[a] = min(corner_box[a], x)
+                corner_box[a + 3] = max(corner_box[a + 3], x)
+        nx, ny, nz = triangle_normal(tri_verts, row)
+        if nx != 0.0 or ny != 0.0 or nz != 0.0:
+            grow_triangle_box(tri_verts, row, tri_bounds, box)
+            tri_global[row] = first_row + f
+            row += 1
     return row
 
 

@@ -34,9 +34,8 @@ SENSOR_RAY_BYTES = 192
 #: Bytes per beam and slot of a lidar's organized answer or kept non-hits beyond SENSOR_RAY_BYTES
 #: (every field filled for every beam, then the points placed: measured 125 with noise, one slot).
 FILLED_POINT_BYTES = 160
-#: Bytes of engine scene per triangle of a one-shot /trace (corners, box, row, storage order,
-#: normal, mask).
-TRIANGLE_BYTES = 84
+#: Bytes of engine scene per triangle of a one-shot /trace (corners, box, row, normal, mask).
+TRIANGLE_BYTES = 80
 #: Peak bytes per body byte while a JSON body is parsed (measured 3.7-15.5: a digit is an 8-byte
 #: list slot, a float a 24-byte object).
 JSON_PARSE_FACTOR = 16

@@ -24,7 +24,7 @@ log = logging.getLogger("service")
 PROGRESS_SECONDS = 15.0
 #: Kernels a warm-up compiles from an empty cache (``compiling.compiled_kernels()``): the "of
 #: about N" of the progress lines and their time left.
-EXPECTED_COMPILES = 51
+EXPECTED_COMPILES = 49
 #: What a first start takes, measured from an empty cache (README, First start).
 COLD_START = "about a minute on 2 idle cores, up to 15 on 2 cores busy with other work"
 

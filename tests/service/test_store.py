@@ -120,13 +120,13 @@ def test_limits_name_their_setting(store):
     ):
         store.put_mesh("s", "big", MeshArrays(*grid(30)))
     small = MeshArrays(*grid(10))  # 200 triangles, 121 vertices: 3852 bytes of arrays
-    for i in range(4):  # and 200 x 84 bytes of engine scene: 20652 bytes each
+    for i in range(5):  # and 200 x 80 bytes of engine scene: 19852 bytes each
         store.put_mesh(f"s{i}", "m", small)
     with pytest.raises(TooLarge, match="over the limit of 100000 bytes .*DACRT_MAX_SCENE_BYTES"):
-        store.put_mesh("s4", "m", small)
-    assert store.nbytes == 4 * (3852 + 200 * TRIANGLE_BYTES)
+        store.put_mesh("s5", "m", small)
+    assert store.nbytes == 5 * (3852 + 200 * TRIANGLE_BYTES)
     with pytest.raises(NotFound):
-        store.snapshot("s4")
+        store.snapshot("s5")
 
 
 def test_the_scene_limit_counts_the_engines_placed_triangles():
@@ -137,7 +137,7 @@ def test_the_scene_limit_counts_the_engines_placed_triangles():
     for i in range(4):
         store.put_instance("s", f"car{i}", "car", np.eye(4))
     assert store.nbytes == 14892 + 5 * 800 * TRIANGLE_BYTES
-    with pytest.raises(TooLarge, match="engine's 84 bytes a placed triangle.*DACRT_MAX_SCENE_"):
+    with pytest.raises(TooLarge, match="engine's 80 bytes a placed triangle.*DACRT_MAX_SCENE_"):
         store.put_instance("s", "car4", "car", np.eye(4))
     assert store.snapshot("s").array_bytes == 14892
 
