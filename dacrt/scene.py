@@ -489,16 +489,20 @@ class Scene:
         order its rows are stored (a refit): "file" for rows in face order, else every face
         row in its rows' order (``packed.every_face``); the scene's order for a mesh of the
         deforming level, which has none."""
-        part = self._parts.get(i)
-        if part is None:
+        if i not in self._parts:
             return self._order, None
-        if isinstance(part, Packed):
-            rows = part.ids
-        else:
-            rows = self._base.ids[part.lo : part.hi] - INDEX(self.mesh_offsets[i])
+        rows = self._face_rows(i)
         if np.all(rows[1:] > rows[:-1]):  # face order, perhaps without degenerate faces
             return "file", None
         return self._order, every_face(rows, len(self._meshes[i][1]))
+
+    def _face_rows(self, i):
+        """Mesh i's face rows in the order its rows are stored (its ``Packed``'s ids, or its
+        rows of the base level less the mesh's offset)."""
+        part = self._parts[i]
+        if isinstance(part, Packed):
+            return part.ids
+        return self._base.ids[part.lo : part.hi] - INDEX(self.mesh_offsets[i])
 
     def _packed_from_base(self, i):
         """Mesh i's rows of the base level as a ``Packed`` of its own (ids its face rows)."""
@@ -507,7 +511,7 @@ class Scene:
         return Packed(
             self._base.verts[rows].copy(),
             self._base.bounds[rows].copy(),
-            self._base.ids[rows] - INDEX(self.mesh_offsets[i]),
+            self._face_rows(i),
             part.box if part.box[0] <= part.box[3] else np.zeros(6, FLOAT),
             part.corner_box,
         )

@@ -148,13 +148,18 @@ def test_a_new_version_changes_the_earlier_engine_scene_and_answers_as_one_built
             (m.index, m.vertices, m.faces, m.mask, m.transform) for m in snapshot.meshes.values()
         ]
         whole = tracing.build_engine_scene(meshes)
-        batch = _frame_rays(k)
-        for query in options:
-            got = tracing.trace(snapshot, batch, query).arrays
-            want = tracing._run(whole, batch, query, snapshot.version, 0.0).arrays
-            assert got.keys() == want.keys()
-            for key in got:
-                np.testing.assert_array_equal(got[key], want[key], err_msg=f"{k} {key}")
+        _assert_answers_as_whole(snapshot, whole, _frame_rays(k), options, k)
+
+
+def _assert_answers_as_whole(snapshot, whole, batch, options, label):
+    """The version's answers to ``batch`` for each of ``options``: those of ``whole``, an engine
+    scene built whole from its meshes, bit for bit."""
+    for query in options:
+        got = tracing.trace(snapshot, batch, query).arrays
+        want = tracing._run(whole, batch, query, snapshot.version, 0.0).arrays
+        assert got.keys() == want.keys()
+        for key in got:
+            np.testing.assert_array_equal(got[key], want[key], err_msg=f"{label} {key}")
 
 
 def test_a_frame_deforming_the_only_mesh_changes_the_earlier_engine_scene():
@@ -175,9 +180,5 @@ def test_a_frame_deforming_the_only_mesh_changes_the_earlier_engine_scene():
     whole = tracing.build_engine_scene([(mesh.index, mesh.vertices, mesh.faces, mesh.mask, None)])
     np.testing.assert_array_equal(engine.scene._base.ids, before.scene._base.ids)
     assert not np.array_equal(engine.scene._base.ids, whole.scene._base.ids)
-    batch = _frame_rays(7)
-    for query in [make_options(q) for q in ("closest", "hits", "count")]:
-        got = tracing.trace(snapshot, batch, query).arrays
-        want = tracing._run(whole, batch, query, snapshot.version, 0.0).arrays
-        for key in got:
-            np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+    options = [make_options(q) for q in ("closest", "hits", "count")]
+    _assert_answers_as_whole(snapshot, whole, _frame_rays(7), options, "deformed")
