@@ -376,13 +376,17 @@ class Lidar:
         if traced.offsets is None:
             ray = np.flatnonzero(np.isfinite(traced.t))
             t, mesh, prim, normal = (
-                a[ray] for a in (traced.t, traced.mesh, traced.prim, traced.normal)
+                np.take(a, ray, axis=0) for a in (traced.t, traced.mesh, traced.prim, traced.normal)
             )
         else:
             ray = np.repeat(np.arange(len(directions)), np.diff(traced.offsets))
             t, mesh, prim, normal = traced.t, traced.mesh, traced.prim, traced.normal
-        beam, subray = np.divmod(ray, self.beam_samples)
-        cosine = cos_incidence(directions[ray], normal)
+        if self.beam_samples == 1:
+            beam, subray = ray, np.zeros_like(ray)
+        else:
+            beam, subray = np.divmod(ray, self.beam_samples)
+        # np.take gathers rows several times faster than indexing with an array
+        cosine = cos_incidence(np.take(directions, ray, axis=0), normal)
         contribution = contributions(reflectivity, mesh, cosine, t, self.attenuation)
         returns = group_returns(
             beam, subray, t, contribution, self.beam_samples, self.range_resolution
@@ -403,9 +407,10 @@ class Lidar:
             hit, beam, rank, intensity, distance = (
                 a[kept] for a in (hit, beam, rank, intensity, distance)
             )
+        beam_axes = np.take(beams.directions, beam, axis=0)
         arrays = {
             # every ray starts at the sensor; a point lies along its beam's nominal direction
-            "xyz": beams.origin + distance[:, None] * beams.directions[beam],
+            "xyz": beams.origin + distance[:, None] * beam_axes,
             "range": distance,
             "ring": beams.ring[beam],
             "azimuth": beams.azimuth_out[beam],
@@ -419,7 +424,7 @@ class Lidar:
             "label": labels[mesh[hit]],
         }
         if beams.origins is not None:  # a moving sensor: each beam from where it fired
-            arrays["xyz"] = beams.origins[beam] + distance[:, None] * beams.directions[beam]
+            arrays["xyz"] = np.take(beams.origins, beam, axis=0) + distance[:, None] * beam_axes
         if beams.time is not None:
             arrays["time"] = beams.time[beam]
         if beams.tau is not None:
