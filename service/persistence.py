@@ -151,7 +151,8 @@ def _vertices_end(value: Any) -> np.ndarray | None:
 
 
 def checksum(array: np.ndarray) -> int:
-    return crc32(memoryview(np.ascontiguousarray(array)).cast("B"))
+    # bytes viewed as uint8: a memoryview of an empty array cannot be cast
+    return crc32(np.ascontiguousarray(array).reshape(-1).view(np.uint8))
 
 
 def os_error_text(exc: OSError) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import io
 import math
+import tokenize
 
 import numpy as np
 
@@ -39,7 +40,15 @@ def read_npy(buf: bytes | memoryview, name: str = "body", structured: bool = Fal
         shape, fortran, dtype = _npy_header(bytes(view[:size]))
         if any(length < 0 for length in shape):
             raise ValueError(f"its shape {shape} has a negative length")
-    except (ValueError, SyntaxError, TypeError, OverflowError, RecursionError) as exc:
+    # numpy parses the header as a Python literal: a broken one raises tokenize's error too
+    except (
+        ValueError,
+        SyntaxError,
+        TypeError,
+        OverflowError,
+        RecursionError,
+        tokenize.TokenError,
+    ) as exc:
         raise BadBody(f"{name} is not a readable .npy: {exc}") from None
     if dtype.hasobject:
         raise Invalid(

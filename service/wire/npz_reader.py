@@ -30,7 +30,15 @@ def read_npz(buf: Buffer, max_bytes: int | None = None) -> dict[str, np.ndarray]
         _check_member_count(file)
         archive = zipfile.ZipFile(file)
         infos = archive.infolist()
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, EOFError, struct.error) as exc:
+    # zipfile refuses a record needing a newer zip version with NotImplementedError
+    except (
+        zipfile.BadZipFile,
+        zipfile.LargeZipFile,
+        ValueError,
+        EOFError,
+        struct.error,
+        NotImplementedError,
+    ) as exc:
         raise BadBody(f"body is not a readable .npz (zip): {exc}") from None
     total = sum(info.file_size for info in infos)
     if max_bytes is not None and total > max_bytes:

@@ -97,6 +97,20 @@ def test_indices_stay_and_are_not_reused_after_a_restart(tmp_path, changed):
     assert indices == {"a": 0, "c": 2, "d": 3}
 
 
+def test_meshes_without_triangles_or_vertices_are_written_and_restored(tmp_path):
+    store = open_store(tmp_path)
+    vertices, _ = grid(2)
+    store.put_mesh("s", "no_faces", MeshArrays(vertices, np.zeros((0, 3), np.int32)))
+    store.put_mesh(
+        "s", "nothing", MeshArrays(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32))
+    )
+    store.apply_frame("s", {"empty_too": (np.zeros((0, 3), np.float32), np.zeros((0, 3)))})
+    restored = open_store(tmp_path)
+    assert_same_scenes(restored, store)
+    assert restored.snapshot("s").version == 3
+    assert sorted(restored.snapshot("s").meshes) == ["empty_too", "no_faces", "nothing"]
+
+
 def test_a_vertex_update_writes_one_array_and_keeps_the_faces_file(tmp_path):
     store = open_store(tmp_path)
     store.put_mesh("s", "a", MeshArrays(*grid(8)))

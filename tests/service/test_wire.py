@@ -108,6 +108,13 @@ def test_fortran_order_npy_keeps_its_values():
     assert np.array_equal(wire.read_npy(npy_bytes(rays)), rays)
 
 
+def unclosed_header_npy() -> bytes:
+    """A version 1.0 .npy whose header's dict is never closed (numpy's tokenizer fails on it)."""
+    header = "{'descr': '<f4', 'fortran_order': False, 'shape': (1, 6), "
+    header += " " * (63 - len(header) % 64) + "\n"
+    return b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header.encode() + bytes(24)
+
+
 @pytest.mark.parametrize(
     "body, message",
     [
@@ -121,6 +128,7 @@ def test_fortran_order_npy_keeps_its_values():
             b"\x93NUMPY\x02\x00\xff\xff\xff\x7f" + npy_bytes(rays6(3))[10:],
             "header claims 2147483659 bytes",
         ),
+        (unclosed_header_npy(), "not a readable .npy"),
     ],
 )
 def test_unreadable_npy_is_400(body, message):
@@ -174,6 +182,14 @@ def test_npz_in_a_body_buffer_is_read_in_place(compressed):
 def test_garbage_npz_is_400():
     with pytest.raises(BadBody, match="npz"):
         wire.read_npz(b"PK\x03\x04 not really a zip")
+
+
+def test_npz_needing_a_newer_zip_version_is_400():
+    body = bytearray(npz_bytes(False, origins=rays6(2)[:, :3].copy()))
+    directory = body.rfind(b"PK\x01\x02")
+    body[directory + 6] = 0x9F  # "version needed to extract": 15.9
+    with pytest.raises(BadBody, match="not a readable .npz"):
+        wire.read_npz(bytes(body))
 
 
 def test_npz_over_the_size_limit_when_decompressed_is_413():
