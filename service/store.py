@@ -689,15 +689,16 @@ def _link_instances(scene: str, meshes: dict[str, Mesh], changed: Iterable[str],
         mesh = meshes[name]
         if mesh.instance_of is None:
             continue
-        source, chain = mesh.instance_of, [name]
+        source, chain, seen = mesh.instance_of, [name], {name}
         while (
-            source not in chain
+            source not in seen
             and (target := meshes.get(source)) is not None
             and target.instance_of is not None
         ):
             chain.append(source)
+            seen.add(source)
             source = target.instance_of
-        if source in chain:
+        if source in seen:
             raise Invalid(
                 f"mesh {name!r} of scene {scene!r} cannot be an instance of itself"
                 if len(chain) == 1
@@ -708,7 +709,11 @@ def _link_instances(scene: str, meshes: dict[str, Mesh], changed: Iterable[str],
                 f"scene {scene!r} has no mesh {source!r} for {name!r} to be an instance of; "
                 f"it has {sorted(n for n in meshes if n != name) or 'none'}"
             )
+        # every instance on the way links to the same source, so no chain is walked twice
         meshes[name] = replace(mesh, instance_of=source)
+        for link in chain[1:]:
+            if meshes[link].instance_of != source:
+                meshes[link] = replace(meshes[link], instance_of=source)
     orphans: dict[str, list[str]] = {}
     for name, mesh in meshes.items():
         if mesh.instance_of is None:

@@ -320,6 +320,17 @@ def test_an_instance_of_an_instance_shares_the_first_source(store):
     assert {m.instance_of for m in store.apply_frame("s", frame).meshes.values()} == {None, "car"}
 
 
+def test_a_chain_of_instances_listed_from_its_far_end_links_each_to_the_first_source():
+    store = Store(max_triangles_per_scene=10_000, max_scene_bytes=1_000_000)
+    store.put_mesh("s", "car", mesh())
+    links = 1000
+    frame = {f"d{i}": FrameChange(instance_of=f"d{i - 1}" if i else "car") for i in range(links)}
+    snapshot = store.apply_frame("s", dict(reversed(frame.items())))
+    assert {m.instance_of for name, m in snapshot.meshes.items() if name != "car"} == {"car"}
+    car = snapshot.meshes["car"]
+    assert all(snapshot.meshes[f"d{i}"].vertices is car.vertices for i in range(links))
+
+
 def test_a_frame_makes_instances_of_a_mesh_it_adds(store):
     v, f = quad(0, 1, 0, 1, 2)
     frame = {"i": FrameChange(instance_of="car", transform=turn(90)), "car": FrameChange(v, f)}
