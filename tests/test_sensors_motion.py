@@ -12,27 +12,13 @@ import math
 
 import numpy as np
 import pytest
+from sensor_scenes import box_mesh
 
 import dacrt
 from dacrt.sensors import Lidar, Pattern
 from dacrt.validation import InputError
 
 PERIOD = 0.1  # seconds a sweep
-
-
-def box_mesh(lo, hi):
-    """A closed axis-aligned box (8 vertices, 12 triangles, outward normals)."""
-    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    v = np.array([[(lo, hi)[k >> a & 1][a] for a in range(3)] for k in range(8)], np.float32)
-    f = np.array(
-        [
-            [0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6],  # z = lo, z = hi
-            [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],  # y = lo, y = hi
-            [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5],  # x = lo, x = hi
-        ],
-        np.int32,
-    )  # fmt: skip
-    return v, f
 
 
 def translation(offset):

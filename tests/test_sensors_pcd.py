@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from sensor_reference import read_pcd
-from sensor_scenes import POSES, ROOM
+from sensor_scenes import POSES, ROOM, box_mesh
 
 import dacrt
 from dacrt.sensors import Lidar, Materials, pcd_bytes
@@ -61,3 +61,23 @@ def test_an_organized_answer_is_height_by_width():
 def test_an_unknown_field_is_refused(points):
     with pytest.raises(dacrt.InputError, match="fields: 'colour' is not a field"):
         pcd_bytes(points, ["x", "colour"])
+
+
+def test_velocity_is_three_fields_as_pcl_names_them():
+    box = box_mesh((-1.0, 9.0, -1.0), (1.0, 11.0, 1.0))
+    moved = np.eye(4)
+    moved[0, 3] = 2.0
+    scene = dacrt.Scene([box], transforms_end=[moved])
+    points = Lidar(vertical_angles_deg=[0.0], horizontal_steps=360, period_s=0.1).scan(
+        scene, np.eye(4)
+    )
+    assert points.n_points > 10
+    header, table = read_pcd(pcd_bytes(points, ["velocity", "range"]))
+    assert header["FIELDS"] == ["velocity_x", "velocity_y", "velocity_z", "range"]
+    for axis, name in enumerate(["velocity_x", "velocity_y", "velocity_z"]):
+        np.testing.assert_array_equal(table[name], points["velocity"][:, axis])
+    everything, _ = read_pcd(pcd_bytes(points))
+    assert everything["FIELDS"][:3] == ["x", "y", "z"] and "velocity_z" in everything["FIELDS"]
+    alone, table = read_pcd(pcd_bytes({"velocity": points["velocity"]}))
+    assert alone["POINTS"] == [str(points.n_points)] and alone["HEIGHT"] == ["1"]
+    np.testing.assert_array_equal(table["velocity_y"], points["velocity"][:, 1])

@@ -1,7 +1,8 @@
 """Point clouds as binary PCD v0.7 files, as PCL, Open3D and CloudCompare read them.
 
-The header names the fields asked (``x y z`` are the columns of ``xyz``; every other field is
-the point array of that name), each with its size and type from the array's dtype (float32:
+The header names the fields asked: ``x y z`` are the columns of ``xyz``, ``velocity_x
+velocity_y velocity_z`` those of ``velocity`` (PCL's naming, as ``normal_x``), every other field
+is the point array of that name; each with its size and type from the array's dtype (float32:
 ``4 F``, int16: ``2 I``, uint32: ``4 U``, ...), one count each. An organized answer of shape
 (rings, steps[, returns]) is ``HEIGHT rings`` and ``WIDTH steps[ * returns]``, row-major; a list
 of points is ``HEIGHT 1``. ``DATA binary``: the points one after another, each field's bytes
@@ -18,12 +19,21 @@ from ..validation import InputError
 
 #: PCD's TYPE letter of a NumPy dtype kind.
 TYPE_LETTERS = {"f": "F", "i": "I", "u": "U", "b": "U"}
+#: The point arrays of three values a point, and the three fields each is written as.
+VECTOR_FIELDS = {"xyz": ("x", "y", "z"), "velocity": ("velocity_x", "velocity_y", "velocity_z")}
 
 
 def available_fields(points: Mapping[str, np.ndarray]) -> tuple[str, ...]:
-    """Every field a PCD file of ``points`` can hold: x y z, then the other one-value arrays."""
-    others = tuple(name for name in points if name != "xyz" and _is_scalar(points, name))
-    return ("x", "y", "z") + others if "xyz" in points else others
+    """Every field a PCD file of ``points`` can hold: x y z, then the other arrays' fields (a
+    vector array's three, a one-value array's one)."""
+    shape = _points_shape(points)
+    fields = list(VECTOR_FIELDS["xyz"]) if _is_vector(points, "xyz", shape) else []
+    for name, array in points.items():
+        if name != "xyz" and _is_vector(points, name, shape):
+            fields += VECTOR_FIELDS[name]
+        elif array.shape == shape and array.dtype.kind in TYPE_LETTERS:
+            fields.append(name)
+    return tuple(fields)
 
 
 def pcd_bytes(points: Mapping[str, np.ndarray], fields: Sequence[str] | None = None) -> bytes:
@@ -31,7 +41,8 @@ def pcd_bytes(points: Mapping[str, np.ndarray], fields: Sequence[str] | None = N
     row per point with ``xyz`` (..., 3)) with ``fields`` (default: ``available_fields``);
     InputError naming a field that ``points`` lack."""
     known = available_fields(points)
-    fields = known if fields is None else tuple(fields)
+    # a vector array's name stands for its three fields
+    fields = known if fields is None else tuple(_expanded(fields))
     for name in fields:
         if name not in known:
             raise InputError(
@@ -40,7 +51,7 @@ def pcd_bytes(points: Mapping[str, np.ndarray], fields: Sequence[str] | None = N
     if not fields:
         raise InputError("fields: name at least one field")
     columns = {name: _column(points, name) for name in fields}
-    shape = points["xyz"].shape[:-1] if "xyz" in points else next(iter(points.values())).shape
+    shape = _points_shape(points)
     height = shape[0] if len(shape) >= 2 else 1
     n = int(np.prod(shape))
     record = np.dtype([(name, columns[name].dtype.newbyteorder("<")) for name in fields])
@@ -75,14 +86,31 @@ def write_pcd(file, points: Mapping[str, np.ndarray], fields: Sequence[str] | No
             out.write(data)
 
 
-def _is_scalar(points: Mapping[str, np.ndarray], name: str) -> bool:
-    """Whether ``points[name]`` holds one value a point (its shape is the points' shape)."""
-    shape = points["xyz"].shape[:-1] if "xyz" in points else points[name].shape
-    return points[name].shape == shape and points[name].dtype.kind in TYPE_LETTERS
+def _points_shape(points: Mapping[str, np.ndarray]) -> tuple[int, ...]:
+    """The shape of the points: a one-value array's, a vector array's less its last axis."""
+    for name, array in points.items():
+        return array.shape[:-1] if name in VECTOR_FIELDS else array.shape
+    return (0,)
+
+
+def _is_vector(points: Mapping[str, np.ndarray], name: str, shape: tuple[int, ...]) -> bool:
+    """Whether ``points[name]`` is a vector array of three values a point."""
+    return (
+        name in VECTOR_FIELDS
+        and name in points
+        and points[name].shape == shape + (3,)
+        and points[name].dtype.kind in TYPE_LETTERS
+    )
+
+
+def _expanded(fields: Sequence[str]) -> list[str]:
+    """``fields`` with each vector array's name replaced by its three fields."""
+    return [field for name in fields for field in VECTOR_FIELDS.get(name, (name,))]
 
 
 def _column(points: Mapping[str, np.ndarray], name: str) -> np.ndarray:
-    if name in ("x", "y", "z") and "xyz" in points:
-        return points["xyz"][..., "xyz".index(name)].reshape(-1)
+    for vector, components in VECTOR_FIELDS.items():
+        if name in components and vector in points:
+            return points[vector][..., components.index(name)].reshape(-1)
     values = points[name].reshape(-1)
     return values.astype(np.uint8) if values.dtype.kind == "b" else values

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import in_process
 import numpy as np
+import pytest
+from sensor_reference import read_pcd
 from service_helpers import NPZ, npz_bytes, quad
 
 import dacrt
@@ -292,3 +294,38 @@ def test_a_restart_restores_end_vertices(tmp_path):
         assert http.get("/v1/scenes/s/meshes/floor").json() == before
         assert before["vertices_end"] == 4
         np.testing.assert_array_equal(closest_json(http, "s", o, d, times)["t"], answer)
+
+
+@pytest.mark.parametrize(
+    "fields, want",
+    [
+        ("velocity", ["velocity_x", "velocity_y", "velocity_z"]),
+        ("range,velocity", ["range", "velocity_x", "velocity_y", "velocity_z"]),
+        ("xyz,velocity,time", ["x", "y", "z", "time", "velocity_x", "velocity_y", "velocity_z"]),
+    ],
+)
+def test_a_pcd_holds_velocity_as_three_fields(app_client, scene_name, fields, want):
+    frame = box_frame("car", (-1.0, 9.0, -1.0), (1.0, 11.0, 1.0))
+    frame["car.transform_end"] = [[1, 0, 0, 2.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+    assert app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame).status_code == 200
+    body = {
+        "pose": np.eye(4).tolist(),
+        "vertical_angles_deg": [0.0],
+        "horizontal_steps": 360,
+        "period_s": 0.1,
+    }
+    points = lidar_npz(app_client, scene_name, body)
+    response = app_client.post(
+        f"/v1/scenes/{scene_name}/lidar",
+        params={"fields": fields},
+        json=body,
+        headers={"Accept": "application/x-pcd"},
+    )
+    assert response.status_code == 200, response.text
+    header, records = read_pcd(response.content)
+    assert header["FIELDS"] == want
+    assert int(header["POINTS"][0]) == int(header["WIDTH"][0]) == len(points["ray"]) > 10
+    assert header["HEIGHT"] == ["1"]
+    for axis, name in enumerate(["velocity_x", "velocity_y", "velocity_z"]):
+        np.testing.assert_array_equal(records[name], points["velocity"][:, axis])
+    np.testing.assert_allclose(records["velocity_x"], 20.0, atol=1e-3)
