@@ -4,6 +4,7 @@ engine's sensors (``sensor_requests``), traced by ``dacrt.sensors`` (``sensing``
 
 from __future__ import annotations
 
+import numpy as np
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 
@@ -221,13 +222,8 @@ async def sensors(
 
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(SensorsRequest, body, "sensors")
-        rig = rig_sensors(wanted, patterns)
+        rig, ends = rig_sensors(wanted, patterns)
         check_sensors({name: sensor for name, (sensor, _) in rig.items()}, settings)
-        ends = {
-            name: sensor.end_pose()
-            for name, sensor in wanted.sensors.items()
-            if sensor.kind == "lidar" and sensor.pose_end is not None
-        }
         sensors = [sensor for sensor, _ in rig.values()]
         return sensor_decoded((rig, ends), body, sensors, answer_format)
 
@@ -242,19 +238,24 @@ async def sensors(
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
-def rig_sensors(wanted: SensorsRequest, patterns: Patterns) -> dict[str, sensing.Placed]:
-    """Each sensor of a rig as the engine's, at its pose; an InputError names the sensor."""
-    placed = {}
+def rig_sensors(
+    wanted: SensorsRequest, patterns: Patterns
+) -> tuple[dict[str, sensing.Placed], dict[str, np.ndarray]]:
+    """Each sensor of a rig as the engine's, at its pose, and each moving lidar's end pose; an
+    InputError names the sensor."""
+    placed, ends = {}, {}
     for name, body in wanted.sensors.items():
         try:
             placed[name] = (
                 body.sensor(patterns.for_lidar) if body.kind == "lidar" else body.sensor()
             )
+            if body.kind == "lidar" and body.pose_end is not None:
+                ends[name] = body.end_pose()
         except ValueError as error:  # the engine's InputError: 422
             raise type(error)(f"sensors.{name}: {error}") from None
         except Invalid as error:  # a pattern that is not there
             raise Invalid(f"sensors.{name}: {error.detail}") from None
-    return placed
+    return placed, ends
 
 
 def sensor_decoded(value, body: memoryview, sensors: list, answer_format: str) -> Decoded:

@@ -11,7 +11,7 @@ import numpy as np
 from dacrt.sensors.pcd import pcd_bytes
 
 from ..errors import NotAcceptable
-from .formats import ANSWER_FORMATS, CONTENT_TYPES, JSON, NPY, NPZ, PCD, Buffer
+from .formats import ANSWER_FORMATS, CONTENT_TYPES, JSON, MEDIA_TYPES, NPY, NPZ, PCD, Buffer
 from .npy import array_bytes, npy_header
 from .npz_writer import NpzBody
 
@@ -33,11 +33,12 @@ def negotiate(
         fmt = CONTENT_TYPES.get(media)
         if fmt in formats:
             return fmt
+    choices = [MEDIA_TYPES[fmt] for fmt in formats]
     raise NotAcceptable(
         f"Accept: {accept} names no format {why_not}"
         if why_not
-        else f"Accept: {accept} names no answer format this service writes; use {NPZ}, {NPY} or "
-        f"{JSON}"
+        else f"Accept: {accept} names no format this answer is written in; use "
+        f"{', '.join(choices[:-1])} or {choices[-1]}"
     )
 
 

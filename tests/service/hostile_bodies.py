@@ -175,6 +175,8 @@ def deep_json(key: str, depth: int) -> bytes:
 
 # ---- sensor bodies with one bad value
 
+#: A pose whose rotation part is sheared, not a rotation.
+SHEARED = [[1, 0.5, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]]
 LIDAR = {"pose": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]], "model": "VLP-16"}
 PINHOLE = {
     "width": 4,
@@ -286,6 +288,16 @@ BAD_SENSOR_VALUES = [
         "sensors",
         {"sensors": {"roof": {"kind": "lidar", "pose": LIDAR["pose"], "pattern": "no-such"}}},
         "sensors.roof: pattern: no pattern 'no-such'",
+    ),
+    (
+        "sensors",
+        {
+            "sensors": {
+                "front": {"kind": "lidar", **LIDAR, "period_s": 0.1},
+                "roof": {"kind": "lidar", **LIDAR, "period_s": 0.1, "pose_end": SHEARED},
+            }
+        },
+        "sensors.roof: pose_end[:3, :3] must be a rotation",
     ),
 ]
 #: (route with its query, headers kind, body, status, a phrase of the detail that names the

@@ -515,6 +515,14 @@ def test_unacceptable_accept_is_406():
         wire.negotiate("text/csv", "npy")
 
 
+def test_a_406_lists_only_the_formats_of_its_answer():
+    with pytest.raises(NotAcceptable, match="use application/x-npz or application/json$"):
+        wire.negotiate("application/x-npy", "json", ("npz", "json"))
+    lidar = "use application/x-npz, application/x-npy, application/json or application/x-pcd$"
+    with pytest.raises(NotAcceptable, match=lidar):
+        wire.negotiate("text/csv", "json", ("npz", "npy", "json", "pcd"))
+
+
 def _answer(n: int = 6) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(n)
     t = rng.uniform(0, 10, n).astype(np.float32)
