@@ -762,3 +762,25 @@ def test_json_answer_in_pieces_is_the_whole_document(monkeypatch, n):
     assert len(pieces) == len(arrays) * (2 + -(-n // 3)) + 1  # per key: "[", its pieces, "]"
     assert b"".join(pieces) == wire.encode_json(arrays)
     assert json.loads(b"".join(pieces))["mesh"] == arrays["mesh"].tolist()
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_bodies_with_random_bytes_changed_are_read_or_refused_as_4xx(compressed):
+    """Seeded mutations of valid .npz and .npy bodies: each is read, or refused with BadBody,
+    Invalid or TooLarge (4xx), never another exception (a 500)."""
+    rng = np.random.default_rng(7)
+    valid_npz = npz_bytes(compressed, **{"car.transform": np.eye(4), "a.vertices": rays6(5)})
+    valid_npy = npy_bytes(rays6(5))
+    refused = 0
+    for body in [valid_npz] * 3000 + [valid_npy] * 1000:
+        mutated = bytearray(body)
+        for at in rng.integers(0, len(body), rng.integers(1, 5)):
+            mutated[at] = rng.integers(0, 256)
+        try:
+            if body is valid_npz:
+                wire.read_npz(bytes(mutated), 1 << 20)
+            else:
+                wire.read_npy(bytes(mutated))
+        except (BadBody, Invalid, TooLarge):
+            refused += 1
+    assert refused > 100  # the mutations did reach the readers' refusals
