@@ -602,14 +602,31 @@ def _tilt():
 
 TILT = _tilt()
 
+# Rays a call of the inside test traces at once: one direction a call would partition the
+# scene nsamples times for a handful of points.
+VOTE_BATCH_RAYS = 1 << 20
+
+
+def directions_a_batch(n_points):
+    """How many directions of the inside test one engine call traces for ``n_points`` points."""
+    return max(1, VOTE_BATCH_RAYS // max(n_points, 1))
+
+
+def vote_rays_at_once(n_points, nsamples):
+    """The most rays one engine call of the inside test traces (for a memory budget)."""
+    return n_points * min(nsamples, directions_a_batch(n_points))
+
 
 def inside_by_votes(count_along, n_points, nsamples):
     """(n_points,) bool: whether most of ``nsamples`` directions (``sample_directions``) cross
-    the surface an odd number of times; ``count_along(direction)`` gives (n_points,) counts of
-    the rays from the points along one (3,) float32 direction."""
-    votes = np.zeros(n_points, np.int32)
-    for direction in sample_directions(nsamples):
-        votes += count_along(direction) % 2
+    the surface an odd number of times; ``count_along(directions)`` gives the (k, n_points)
+    counts of the rays from the points along each of k (k, 3) float32 directions, called with
+    as many directions at once as make about ``VOTE_BATCH_RAYS`` rays."""
+    votes = np.zeros(n_points, np.int64)
+    directions = sample_directions(nsamples)
+    per_batch = directions_a_batch(n_points)
+    for start in range(0, nsamples, per_batch):
+        votes += (count_along(directions[start : start + per_batch]) % 2).sum(axis=0)
     return 2 * votes > nsamples
 
 
@@ -658,11 +675,17 @@ def contains_query(scene, points, nsamples=1, mask=None, threads=None):
     points = check_points(points)
     nsamples = check_nsamples(nsamples)
     threads = check_threads(threads, N_CORES)
-    directions = np.empty_like(points)
+    n_points = len(points)
+    if mask is not None:
+        mask = check_masks(mask, n_points, "mask", "point")
 
-    def count_along(direction):
-        directions[:] = direction
-        return scene.count(points, directions, mask=mask, threads=threads).count
+    def count_along(directions):
+        k = len(directions)
+        origins = np.tile(points, (k, 1))
+        along = np.repeat(directions, n_points, axis=0)
+        masks = None if mask is None else np.tile(mask, k)
+        counts = scene.count(origins, along, mask=masks, threads=threads).count
+        return counts.reshape(k, n_points)
 
     return inside_by_votes(count_along, len(points), nsamples)
 

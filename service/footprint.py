@@ -9,6 +9,8 @@ many times its text), and what the work and the answer hold per ray, pixel or hi
 
 from __future__ import annotations
 
+from dacrt.points import vote_rays_at_once
+
 #: Bytes per ray of a query's work beyond its body: the checked copies of origins, directions,
 #: tmin and tmax, and the engine's ray ids and bounds (measured 32-48).
 RAY_WORK_BYTES = 48
@@ -51,9 +53,12 @@ JSON_ANSWER_BYTES = 16 * 2**20
 #: Bytes per point of a point query (``/nearest``) beyond its body: the checked copy, the
 #: engine's float64 answers and the float32 answer (measured 102-104).
 POINT_WORK_BYTES = 128
-#: ... and what ``?sign=true`` adds: the rays of the crossing count and their votes (measured
-#: 14-20: the count runs once the float64 answers are freed).
-POINT_SIGN_BYTES = 32
+#: ... and what ``?sign=true`` adds: per ray of one call of the crossing count (origins, directions,
+#: counts, the engine's lists; measured 50-56 with 1,000-1M points) ...
+VOTE_RAY_BYTES = 64
+#: ... and per direction of ``?nsamples=`` (made in float64, then tiled; measured 91 a ray and
+#: direction together for one point and 1M directions).
+VOTE_DIRECTION_BYTES = 64
 #: The smallest bytes of one point in a body of each format (npz counted as stored).
 MIN_POINT_BYTES = {"npy": 12, "npz": 12, "json": 8}
 #: The smallest bytes of one ray in a body of each format (npz counted as stored), for the most
@@ -82,9 +87,14 @@ def most_points(n_body: int, fmt: str | None, max_points: int) -> int:
     return min(max_points, n_body // MIN_POINT_BYTES.get(fmt or "npy", 12))
 
 
-def point_query_bytes(n_points: int, sign: bool) -> int:
-    """Peak bytes of a point query of ``n_points`` points and its answer."""
-    return n_points * (POINT_WORK_BYTES + (POINT_SIGN_BYTES if sign else 0))
+def point_query_bytes(n_points: int, sign: bool, nsamples: int) -> int:
+    """Peak bytes of a point query of ``n_points`` points and its answer; with ``sign`` the
+    inside test's rays of ``nsamples`` directions, as many at once as the engine traces."""
+    work = n_points * POINT_WORK_BYTES
+    if not sign:
+        return work
+    rays = vote_rays_at_once(n_points, nsamples)
+    return work + rays * VOTE_RAY_BYTES + nsamples * VOTE_DIRECTION_BYTES
 
 
 def mesh_scene_bytes(n_body: int) -> int:

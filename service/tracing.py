@@ -23,7 +23,7 @@ import dacrt
 from dacrt.points import signed
 from dacrt.validation import check_max_distance, check_nsamples
 
-from .errors import Invalid
+from .errors import Invalid, TooLarge
 from .options import Options, Query
 from .store import Snapshot
 from .wire import MeshArrays, Rays
@@ -300,6 +300,17 @@ def point_options(
     check_max_distance(max_distance)
     check_nsamples(nsamples)
     return PointOptions(max_distance, sign, nsamples, mask, stats, threads)
+
+
+def check_point_rays(options: PointOptions, n_points: int, max_rays: int) -> None:
+    """413 when ``n_points`` points' inside test (``nsamples`` rays a point, with ``sign``)
+    traces more than ``max_rays`` rays: the rays' budget of one request."""
+    if options.sign and n_points * options.nsamples > max_rays:
+        raise TooLarge(
+            f"{n_points} points x nsamples {options.nsamples} is {n_points * options.nsamples} "
+            f"rays, over the limit of {max_rays} (DACRT_MAX_RAYS_PER_REQUEST); send fewer "
+            "points or a smaller nsamples"
+        )
 
 
 def nearest(snapshot: Snapshot, points: np.ndarray, options: PointOptions) -> TraceResult:

@@ -17,6 +17,7 @@ import reference
 import sample_scenes
 
 import dacrt
+import dacrt.points
 from dacrt.points import sample_directions
 
 SCENES = ("soup", "sphere", "tilted_grid", "multi", "degenerate_mix", "pinwheel")
@@ -301,6 +302,23 @@ def test_signed_distance_masks():
     seen = np.repeat(MESH_MASKS, np.diff(offsets)) & 0b0010 != 0
     inside = scene.contains(points, mask=0b0010)
     np.testing.assert_array_equal(inside, _parity_votes(vertices, faces[seen], points, 1))
+
+
+@pytest.mark.parametrize("batch_rays", [1, 250, 1000, 1 << 20])
+def test_contains_traces_directions_in_batches(batch_rays, monkeypatch):
+    """Directions go to the engine several at a time (a batch of about ``batch_rays`` rays, the
+    last one short), with a mask a point: the votes are the reference's whatever the batch."""
+    monkeypatch.setattr(dacrt.points, "VOTE_BATCH_RAYS", batch_rays)
+    meshes, vertices, faces, offsets = _scene_and_soup("multi")
+    points = _points(vertices, 120, np.random.default_rng(16), margin=0.1)
+    point_masks = np.resize(np.array([0b0010, 0b0100, 0xFFFFFFFF], np.uint32), len(points))
+    scene = dacrt.Scene(meshes, masks=MESH_MASKS)
+    inside = scene.contains(points, 9, mask=point_masks)
+    row_masks = np.repeat(MESH_MASKS, np.diff(offsets))
+    for mask in np.unique(point_masks):
+        these = point_masks == mask
+        expected = _parity_votes(vertices, faces[row_masks & mask != 0], points[these], 9)
+        np.testing.assert_array_equal(inside[these], expected)
 
 
 def test_sample_directions_are_unit_and_spread():

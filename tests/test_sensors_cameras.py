@@ -78,6 +78,13 @@ def test_the_image_is_closests_answer(room, view):
         (lambda: Camera(4, 4, 1.0, 1.0, 0.0, 0.0, near=2, far=1), "far must be > 2"),
         (lambda: Camera(4, 4, 1e-300, 1.0, 0.0, 0.0), "fx: 1e-300 is too small"),
         (lambda: Camera.from_fov(4, 4, 180.0), "fov_deg must be between 0 and 180"),
+        # integers beyond float64 (JSON has them): named, not an OverflowError
+        (lambda: Camera(10**400, 4, 1.0, 1.0, 0.0, 0.0), "width must be >= 1 and <= 2147483647"),
+        (lambda: Camera(4, 4, 10**400, 1.0, 0.0, 0.0), "fx must be a finite number"),
+        (lambda: Camera(4, 4, 1.0, 1.0, 0.0, -(10**400)), "cy must be a finite number"),
+        (lambda: Camera.from_fov(10**400, 4), "width must be >= 1 and <= 2147483647, got an"),
+        (lambda: Camera.from_fov(4, 10**400), "height must be >= 1 and <= 2147483647"),
+        (lambda: Camera.from_fov(4, 4, 10**400), "fov_deg must be a finite number"),
         (lambda: look_at_pose((0, 0, 0), (0, 0, 0), (0, 1, 0)), "eye and target"),
         (lambda: look_at_pose((0, 0, 0), (0, 1, 0), (0, 2, 0)), "parallel"),
         (lambda: Camera(4, 4, 1.0, 1.0, 0.0, 0.0).shot(np.diag([1, 1, -1, 1])), "pose[:3, :3]"),

@@ -36,6 +36,8 @@ PARALLEL_SINE = 1e-6
 ROTATION_TOLERANCE = 1e-4
 #: The largest float32: a camera's edge rays must stay within it.
 FLOAT32_MAX = float(np.finfo(np.float32).max)
+#: The most pixels a side: a pixel's ray is an int32 index.
+MAX_SIDE = 2**31 - 1
 
 
 class CameraError(InputError):
@@ -193,8 +195,8 @@ class Camera:
     far: float = math.inf
 
     def __post_init__(self) -> None:
-        integer(self.width, "width", at_least=1)
-        integer(self.height, "height", at_least=1)
+        integer(self.width, "width", at_least=1, at_most=MAX_SIDE)
+        integer(self.height, "height", at_least=1, at_most=MAX_SIDE)
         for key in ("fx", "fy"):
             number(getattr(self, key), key, above=0)
         for key in ("cx", "cy"):
@@ -217,7 +219,8 @@ class Camera:
     ) -> Camera:
         """The centred camera of a vertical field of view: ``fx = fy = (height / 2) /
         tan(fov_deg / 2)``, ``cx = (width - 1) / 2``, ``cy = (height - 1) / 2``."""
-        integer(height, "height", at_least=1)
+        integer(width, "width", at_least=1, at_most=MAX_SIDE)
+        integer(height, "height", at_least=1, at_most=MAX_SIDE)
         check_fov(number(fov_deg, "fov_deg"))
         focal = fov_focal(fov_deg, height)
         return cls(width, height, focal, focal, (width - 1) / 2, (height - 1) / 2, near, far)

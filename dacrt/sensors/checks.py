@@ -23,7 +23,10 @@ def number(
     """``value`` as a float within the bounds given; finite unless ``infinite`` (then +inf too)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise InputError(f"{key} must be a number, got {value!r}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:  # an int beyond float64, whose digits may be too many to show
+        raise InputError(f"{key} must be a finite number, got an integer beyond 1.8e308") from None
     if math.isnan(value) or (math.isinf(value) and not (infinite and value > 0)):
         raise InputError(f"{key} must be a finite number, got {value!r}")
     for bound, holds, words in (
@@ -44,7 +47,8 @@ def integer(value, key: str, *, at_least: int, at_most: int | None = None) -> in
     value = int(value)
     if value < at_least or (at_most is not None and value > at_most):
         upper = "" if at_most is None else f" and <= {at_most}"
-        raise InputError(f"{key} must be >= {at_least}{upper}, got {value}")
+        shown = value if abs(value) < 10**30 else f"an integer of {value.bit_length()} bits"
+        raise InputError(f"{key} must be >= {at_least}{upper}, got {shown}")
     return value
 
 

@@ -57,6 +57,7 @@ async def nearest(
     declared = format or wire.declared_format(request.headers.get("content-type"))
     answer_format = wire.negotiate(accept, declared or "npz")  # again once the body is read
     max_points = settings.max_rays_per_request
+    tracing.check_point_rays(options, 1, max_points)  # before the body: nsamples alone may be over
 
     def peak(n_body: int, fmt: str | None, n_points: int | None = None) -> int:
         """The request's peak bytes: its body decoded, its points measured, its answer written."""
@@ -64,7 +65,7 @@ async def nearest(
             n_points = footprint.most_points(n_body, fmt, max_points)
         return (
             footprint.decode_bytes(n_body, fmt)
-            + footprint.point_query_bytes(n_points, sign)
+            + footprint.point_query_bytes(n_points, sign, options.nsamples)
             + footprint.answer_bytes(answer_format)
         )
 
@@ -77,6 +78,7 @@ async def nearest(
             return wire.decode_points(got.body, got.fmt, **limits)
 
     points = await run_sync(decode)
+    tracing.check_point_rays(options, len(points), max_points)
     what = f"{request.method} {request.url.path} of {len(points)} points"
     await got.ticket.hold(peak(len(got.body), None, len(points)), what)
 

@@ -66,6 +66,11 @@ def read_mesh_file(body: Buffer, fmt: str) -> tuple[np.ndarray, np.ndarray]:
         vertices, faces = _read_with_trimesh(data, fmt)
     if len(faces) == 0:
         raise BadBody(f"no triangles found in the {fmt.upper()} body; is it really {fmt.upper()}?")
+    if vertices.ndim != 2 or vertices.shape[1] != 3:  # a glTF POSITION of another type
+        raise BadBody(
+            f"the {fmt.upper()} body's vertex positions have shape {vertices.shape}: "
+            "3 coordinates a vertex are needed"
+        )
     return vertices, faces
 
 
@@ -498,7 +503,12 @@ def check_glb(data: bytes) -> None:
             f"GLB declares {len(buffers)} buffers but holds "
             f"{sum(kind == _GLB_BIN for kind, _ in chunks)} BIN chunks"
         )
-    used = set(_list(doc, "extensionsUsed")) | set(_list(doc, "extensionsRequired"))
+    used = set()
+    for key in ("extensionsUsed", "extensionsRequired"):
+        for i, name in enumerate(_list(doc, key)):
+            if not isinstance(name, str):
+                raise BadBody(f"GLB JSON {key}[{i}] must be an extension's name (a string)")
+            used.add(name)
     for name in _GLTF_UNREAD:
         if name in used:
             raise BadBody(f"GLB uses {name}, which is not read; send it uncompressed")
@@ -510,10 +520,13 @@ def check_glb(data: bytes) -> None:
     )
     accessors = 0
     for i, accessor in enumerate(_list(doc, "accessors")):
+        # JSON may put a list or an object where a name or a number belongs: not a dict key
         if (
             not isinstance(accessor, dict)
-            or accessor.get("type") not in _GLTF_COMPONENTS
-            or (accessor.get("componentType") not in _GLTF_ITEM_BYTES)
+            or not isinstance(accessor.get("type"), str)
+            or accessor["type"] not in _GLTF_COMPONENTS
+            or type(accessor.get("componentType")) is not int
+            or accessor["componentType"] not in _GLTF_ITEM_BYTES
         ):
             raise BadBody(f"GLB accessors[{i}] needs a known type and componentType")
         accessors += (

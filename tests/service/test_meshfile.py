@@ -389,6 +389,41 @@ def _set(path: str, value):
             "accessors[0] needs a known type",
         ),
         (
+            triangle_glb(edit=_set("accessors.0.type", ["VEC3"])),
+            BadBody,
+            "accessors[0] needs a known type",
+        ),
+        (
+            triangle_glb(edit=_set("accessors.1.type", {"a": 1})),
+            BadBody,
+            "accessors[1] needs a known type",
+        ),
+        (
+            triangle_glb(edit=_set("accessors.0.componentType", [5126])),
+            BadBody,
+            "accessors[0] needs a known type and componentType",
+        ),
+        (
+            triangle_glb(edit=_set("accessors.0.componentType", 5126.0)),
+            BadBody,
+            "accessors[0] needs a known type and componentType",
+        ),
+        (
+            triangle_glb(edit=_set("extensionsUsed", [{"name": "x"}, ["y"]])),
+            BadBody,
+            "GLB JSON extensionsUsed[0] must be an extension's name (a string)",
+        ),
+        (
+            triangle_glb(edit=_set("accessors.0.type", "VEC2")),
+            BadBody,
+            "vertex positions have shape (3, 2): 3 coordinates a vertex are needed",
+        ),
+        (
+            triangle_glb(edit=lambda doc: doc["accessors"][0].update(type="SCALAR", count=9)),
+            BadBody,
+            "vertex positions have shape (9, 1): 3 coordinates a vertex are needed",
+        ),
+        (
             triangle_glb(edit=_set("extensionsRequired", ["KHR_draco_mesh_compression"])),
             BadBody,
             "uses KHR_draco_mesh_compression, which is not read",

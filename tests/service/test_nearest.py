@@ -137,6 +137,9 @@ def test_an_empty_batch_and_an_unknown_scene(app_api, app_client, sphere_scene):
         ("nsamples=2", None, NPY, 422, "nsamples must be a positive odd integer"),
         ("nsamples=0", None, NPY, 422, "nsamples"),
         ("sign=maybe", None, NPY, 422, "sign"),
+        # the inside test traces nsamples rays a point, within the request's rays
+        ("sign=true&nsamples=" + "9" * 31, None, NPY, 413, "1 points x nsamples 99999"),
+        ("sign=true&nsamples=6000001", None, NPY, 413, "3 points x nsamples 6000001 is 18000003"),
         ("mask=-3", None, NPY, 422, "mask"),
         ("feilds=distance", None, NPY, 422, "unknown query parameter 'feilds'"),
         ("", npy_bytes(np.zeros((2, 2), np.float32)), NPY, 422, "points must have shape (N, 3)"),
