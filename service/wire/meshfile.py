@@ -518,7 +518,7 @@ def check_glb(data: bytes) -> None:
         )
         for i, v in enumerate(_list(doc, "bufferViews"))
     )
-    accessors = 0
+    accessors, items = 0, []
     for i, accessor in enumerate(_list(doc, "accessors")):
         # JSON may put a list or an object where a name or a number belongs: not a dict key
         if (
@@ -529,17 +529,48 @@ def check_glb(data: bytes) -> None:
             or accessor["componentType"] not in _GLTF_ITEM_BYTES
         ):
             raise BadBody(f"GLB accessors[{i}] needs a known type and componentType")
-        accessors += (
+        items.append(
             _natural(accessor.get("count"), f"accessors[{i}].count")
             * _GLTF_COMPONENTS[accessor["type"]]
-            * _GLTF_ITEM_BYTES[accessor["componentType"]]
         )
-    for what, size in (("buffer views", views), ("accessors", accessors)):
+        accessors += items[-1] * _GLTF_ITEM_BYTES[accessor["componentType"]]
+    decoded = _primitive_bytes(doc, items)
+    for what, size in (
+        ("buffer views declare", views),
+        ("accessors declare", accessors),
+        ("meshes' primitives decode to", decoded),
+    ):
         if size > EXPANSION * len(data):
             raise TooLarge(
-                f"GLB {what} declare {size} bytes, over {EXPANSION} times the "
-                f"file's {len(data)} bytes"
+                f"GLB {what} {size} bytes, over {EXPANSION} times the file's {len(data)} bytes"
             )
+
+
+def _primitive_bytes(doc: dict, items: list[int]) -> int:
+    """Bytes the meshes' primitives decode to: every accessor a primitive uses, once for each
+    primitive that uses it (a shared accessor is decoded again for each mesh), as float64 or
+    int64 items; strips and fans as up to one triangle an index."""
+    total = 0
+    for m, mesh in enumerate(_list(doc, "meshes")):
+        primitives = mesh.get("primitives", []) if isinstance(mesh, dict) else []
+        if not isinstance(primitives, list):
+            raise BadBody(f"GLB meshes[{m}].primitives must be a list")
+        for primitive in primitives:
+            if not isinstance(primitive, dict):
+                continue  # trimesh refuses it: 400
+            attributes = primitive.get("attributes")
+            used = list(attributes.values()) if isinstance(attributes, dict) else []
+            index_items = _items(items, primitive.get("indices"))
+            per_index = 8 if primitive.get("mode", 4) == 4 else 24
+            total += index_items * per_index + 8 * sum(_items(items, a) for a in used)
+    return total
+
+
+def _items(items: list[int], accessor: Any) -> int:
+    """Items (components) of accessor number ``accessor``; 0 for a reference that is not one."""
+    if type(accessor) is int and 0 <= accessor < len(items):
+        return items[accessor]
+    return 0
 
 
 def _list(doc: dict, key: str) -> list:

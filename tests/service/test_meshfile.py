@@ -325,6 +325,17 @@ def _many_instances() -> bytes:
     return glb(doc, TRIANGLE.tobytes() + indices.tobytes())
 
 
+def _many_meshes() -> bytes:
+    """2000 meshes that share one 60,000-index uint8 accessor (60 KB), one of them placed:
+    trimesh decodes the accessor once a mesh."""
+    indices = np.tile(np.array([0, 1, 2], np.uint8), 20_000)
+    doc = triangle_doc(binary_length=36 + indices.nbytes)
+    doc["bufferViews"][1]["byteLength"] = indices.nbytes
+    doc["accessors"][1].update(count=indices.size, componentType=5121)
+    doc["meshes"] = doc["meshes"] * 2000
+    return glb(doc, TRIANGLE.tobytes() + indices.tobytes())
+
+
 def _set(path: str, value):
     """An edit of a glTF document: set ``value`` at a dotted path (list indices as numbers)."""
 
@@ -429,6 +440,7 @@ def _set(path: str, value):
             "uses KHR_draco_mesh_compression, which is not read",
         ),
         (_many_instances(), TooLarge, "instances its meshes into 1000000 triangles"),
+        (_many_meshes(), TooLarge, "GLB meshes' primitives decode to 960144000 bytes, over 8"),
         (
             triangle_glb(indices=(0, 1, 7)),
             InputError,
