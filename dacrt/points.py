@@ -659,13 +659,19 @@ def nearest_query(scene, points, max_distance=None, mask=None, threads=None, sta
     mesh, prim = mesh_and_prim(found.global_id, triangles.mesh_offsets)
     with np.errstate(over="ignore"):  # a distance beyond float32's range reads inf
         distance = np.sqrt(found.d2).astype(FLOAT)
+    point, u, v = found.point.astype(FLOAT), found.u.astype(FLOAT), found.v.astype(FLOAT)
+    # A closest point farther than float32 can say is none, as a ray's hit beyond it is a miss.
+    beyond = np.isinf(distance) & (mesh != MISS)
+    if beyond.any():
+        mesh[beyond] = prim[beyond] = MISS
+        point[beyond], u[beyond], v[beyond] = np.inf, 0.0, 0.0
     return Nearest(
         distance=distance,
-        point=found.point.astype(FLOAT),
+        point=point,
         mesh=mesh,
         prim=prim,
-        u=found.u.astype(FLOAT),
-        v=found.v.astype(FLOAT),
+        u=u,
+        v=v,
         stats=counters if stats else None,
     )
 

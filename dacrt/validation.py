@@ -99,6 +99,11 @@ def explain_bad_faces(faces, n_vertices, name="faces"):
         )
 
 
+# The kernels' tmax for "no limit": a t that rounds to inf in float32 (a hit beyond float32's
+# range, as from a direction of subnormal length) is then a miss, never a hit at t = inf.
+LARGEST_T = np.finfo(FLOAT).max
+
+
 def check_rays(origins, directions, tmin, tmax):
     """Check a ray batch's shapes and dtypes; returns float32 origins, directions, tmin, tmax
     (``kernel_input``: the columns of one (n, 6) array are copied). The values are checked as
@@ -109,7 +114,9 @@ def check_rays(origins, directions, tmin, tmax):
     if len(directions) != n:
         raise InputError(f"origins has {n} rows but directions has {len(directions)}")
     tmin = _ray_range(tmin, 0.0, n, "tmin")
-    tmax = _ray_range(tmax, np.inf, n, "tmax")
+    tmax = _ray_range(tmax, LARGEST_T, n, "tmax")
+    if (tmax > LARGEST_T).any():
+        tmax = np.minimum(tmax, LARGEST_T)  # a copy: the caller's array stays as it was
     return origins, directions, tmin, tmax
 
 

@@ -94,11 +94,19 @@ def require_token(
 
 async def reject_unknown_query(request: Request) -> None:
     """Dependency of every route: 422 for a query parameter the route does not take, which would
-    otherwise be ignored silently (``?feilds=t`` answering every field)."""
+    otherwise be ignored silently (``?feilds=t`` answering every field), or one given twice,
+    which would answer by its last value (``?fields=t&fields=mesh``)."""
     route = request.scope.get("route")
     known = query_parameters(route)
     unknown = [name for name in request.query_params if name not in known]
     if not unknown:
+        for name in request.query_params:  # every parameter takes one value: a repeat is a slip
+            given = request.query_params.getlist(name)
+            if len(given) > 1:
+                raise Invalid(
+                    f"query parameter {name!r} is given {len(given)} times "
+                    f"({', '.join(map(repr, given[:4]))}); give it once"
+                )
         return
     name = unknown[0]
     close = difflib.get_close_matches(name, known, n=1)

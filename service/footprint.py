@@ -41,9 +41,13 @@ TRIANGLE_BYTES = 80
 #: Peak bytes per body byte while a JSON body is parsed (measured 3.7-15.5: a digit is an 8-byte
 #: list slot, a float a 24-byte object).
 JSON_PARSE_FACTOR = 16
-#: Peak bytes per body byte while a mesh file is read (measured 7.6-16.4 for OBJ, PLY, STL, OFF
-#: and GLB through trimesh and NumPy).
+#: Peak bytes per body byte while a mesh file is read through trimesh (measured 7.6-16.4 for
+#: PLY, STL and GLB) ...
 MESH_FILE_FACTOR = 20
+#: ... and by the service's own OBJ and OFF readers, whose short face lines (`f 1 2 3`, or one
+#: long polygon fanned into a triangle an index) become int64 rows (measured 25-46.5 with
+#: tracemalloc, 26-53 as a server's RSS).
+MESH_TEXT_FACTOR = 60
 #: Peak bytes per body byte of a binary (npy, npz) array body: the body and owned copies.
 ARRAY_FACTOR = 2
 #: Bytes held by a JSON answer while it is written: it is written in pieces of this many bytes of
@@ -71,7 +75,9 @@ def decode_bytes(n_body: int, fmt: str | None) -> int:
     body itself); None: a format not known yet (counted as binary)."""
     if fmt == "json":
         return n_body * (1 + JSON_PARSE_FACTOR)
-    if fmt in ("obj", "ply", "stl", "glb", "off"):
+    if fmt in ("obj", "off"):
+        return n_body * (1 + MESH_TEXT_FACTOR)
+    if fmt in ("ply", "stl", "glb"):
         return n_body * (1 + MESH_FILE_FACTOR)
     return n_body * ARRAY_FACTOR
 

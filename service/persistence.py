@@ -475,6 +475,9 @@ class DataDir:
         """A mesh's arrays and their files, as its manifest entry names them."""
         vertices = self._read_array(folder, item["vertices"], np.float32)
         faces = self._read_array(folder, item["faces"], np.int32)
+        for array, entry in ((vertices, item["vertices"]), (faces, item["faces"])):
+            if array.ndim != 2 or array.shape[1] != 3:
+                raise CorruptScene(f"{entry['file']} holds {array.shape}, not (n, 3) rows")
         if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
             raise CorruptScene(f"{item['faces']['file']} has indices out of range")
         files = (

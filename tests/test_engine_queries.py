@@ -686,3 +686,47 @@ def test_stats_absent_unless_asked(stats_scene):
     answer = scene.occluded(origins[:10], directions[:10])
     assert isinstance(answer, dacrt.Occlusion) and answer.stats is None
     assert isinstance(answer.occluded, np.ndarray) and answer.occluded.dtype == np.bool_
+
+
+@pytest.mark.parametrize("placed", ["plain", "placed", "deforming"])
+def test_a_hit_beyond_float32s_range_is_a_miss(placed):
+    """A ray whose t at the surface rounds to inf in float32 (a direction of subnormal length,
+    or a short one from far away) misses, in every query: t is never inf on a hit."""
+    square = np.array([[-1, -1, 0], [2, -1, 0], [2, 2, 0], [-1, 2, 0]], np.float32)
+    faces = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    shift = np.eye(4)
+    shift[0, 3] = 0.125
+    if placed == "plain":
+        scene = dacrt.Scene([(square, faces)])
+    elif placed == "placed":
+        scene = dacrt.Scene([(square, faces)], transforms=[shift])
+    else:
+        scene = dacrt.Scene([(square, faces)], vertices_end=[square + [0.125, 0, 0]])
+    near, far = np.float32(-1.0), np.float32(-1e30)
+    cases = [  # (origin z, direction z): t = -z / d
+        (near, 1e-45),
+        (near, 1e-41),
+        (near, 2e-39),
+        (far, 1e-9),
+        (near, 1e-37),
+        (near, 1e-30),
+        (near, 1.0),
+        (far, 1e-8),
+    ]
+    origins = np.array([[0.25, 0.25, z] for z, _ in cases], np.float32)
+    directions = np.array([[0, 0, d] for _, d in cases], np.float32)
+    expected_t = -origins[:, 2].astype(np.float64) / directions[:, 2].astype(np.float64)
+    with np.errstate(over="ignore"):
+        hit = np.isfinite(expected_t.astype(np.float32))
+    assert hit.tolist() == [False] * 4 + [True] * 4
+    for tmax in (None, np.full(len(cases), np.inf, np.float32)):
+        closest = scene.closest(origins, directions, tmax=tmax)
+        np.testing.assert_array_equal(closest.mesh >= 0, hit)
+        assert np.isinf(closest.t[~hit]).all()
+        np.testing.assert_allclose(closest.t[hit], expected_t[hit], rtol=1e-6)
+        np.testing.assert_array_equal(scene.occluded(origins, directions, tmax=tmax).occluded, hit)
+        np.testing.assert_array_equal(scene.count(origins, directions, tmax=tmax).count, hit)
+        every = scene.hits(origins, directions, tmax=tmax)
+        np.testing.assert_array_equal(every.counts, hit)
+        assert np.isfinite(every.t).all()
+    assert np.isinf(tmax).all()  # the caller's array is not changed

@@ -89,7 +89,11 @@ def test_points_at_the_edge_of_float32():
     expected = pr.nearest(points, vertices, faces)
     with np.errstate(over="ignore"):  # the second is beyond float32's range: inf
         np.testing.assert_allclose(found.distance, expected.distance.astype(np.float32), rtol=1e-6)
-    assert (found.prim >= 0).all()
+    # A closest point farther than float32's range is none, as for max_distance.
+    np.testing.assert_array_equal(found.prim >= 0, [True, False, True])
+    np.testing.assert_array_equal(found.prim[[0, 2]], expected.prim[[0, 2]])
+    assert np.isinf(found.point[1]).all() and found.u[1] == 0 and found.v[1] == 0
+    assert np.isinf(dacrt.Scene(meshes).signed_distance(points[1:2], 3)).all()
 
 
 def test_placed_meshes_answer_in_scene_space():

@@ -32,6 +32,7 @@ import io
 import json
 import re
 import struct
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -370,18 +371,20 @@ _PLY_TYPES = {
     "double": 8,
     "float64": 8,
 }
+_PLY_FLOATS = ("float", "float32", "double", "float64")
 _PLY_FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
 
 
 def check_ply(data: bytes) -> None:
-    """400 unless the header is complete and the body holds at least what it declares."""
+    """400 unless the header is complete, its lists hold integers, and the body holds what it
+    declares (in ASCII, each row of an element with a list as many values as its counts say)."""
     end = re.search(rb"(?m)^end_header[ \t]*\r?$\n?", data)
     if end is None:
         raise BadBody("PLY header has no `end_header` line; the header must end with one")
     header = data[: end.start()].decode("ascii", "replace").splitlines()
     if not header or header[0].strip() != "ply":
         raise BadBody("a PLY file must start with the line `ply`")
-    encoding, elements = None, []  # elements: [name, count, fixed bytes, list count bytes]
+    encoding, elements = None, []
     for number, line in enumerate(header[1:], 2):
         words = line.split()
         if not words or words[0] in ("comment", "obj_info"):
@@ -389,9 +392,10 @@ def check_ply(data: bytes) -> None:
         if words[0] == "format" and len(words) == 3 and words[1] in _PLY_FORMATS:
             encoding = words[1]
         elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
-            elements.append([words[1], int(words[2]), 0, 0])
+            elements.append(_PlyElement(words[1], int(words[2])))
         elif words[0] == "property" and elements and len(words) == 3 and words[1] in _PLY_TYPES:
-            elements[-1][2] += _PLY_TYPES[words[1]]
+            elements[-1].fixed += _PLY_TYPES[words[1]]
+            elements[-1].lists.append(False)
         elif (
             words[0] == "property"
             and elements
@@ -400,7 +404,13 @@ def check_ply(data: bytes) -> None:
             and words[2] in _PLY_TYPES
             and words[3] in _PLY_TYPES
         ):
-            elements[-1][3] += _PLY_TYPES[words[2]]
+            if words[2] in _PLY_FLOATS or words[3] in _PLY_FLOATS:
+                raise BadBody(
+                    f"PLY header line {number} ({_show(line.encode())}): a list's count "
+                    "and items must be of integer types (its items are vertex indices)"
+                )
+            elements[-1].list_counts += _PLY_TYPES[words[2]]
+            elements[-1].lists.append(True)
         else:
             raise BadBody(
                 f"PLY header line {number} ({_show(line.encode())}) is not a format, "
@@ -410,23 +420,86 @@ def check_ply(data: bytes) -> None:
         raise BadBody(
             "PLY header has no `format ascii|binary_little_endian|binary_big_endian 1.0` line"
         )
+    for element in elements:
+        if element.count and not element.lists:
+            raise BadBody(
+                f"PLY element {element.name} declares {element.count} items but no properties"
+            )
     rest = len(data) - end.end()
-    declared = ", ".join(f"{count} {name}" for name, count, _, _ in elements)
+    declared = ", ".join(f"{e.count} {e.name}" for e in elements)
     if encoding == "ascii":
         lines = data.count(b"\n", end.end()) + (not data.endswith(b"\n"))
-        needed = sum(count for _, count, _, _ in elements)
+        needed = sum(e.count for e in elements)
         if lines < needed:
             raise BadBody(
                 f"PLY header declares {declared} ({needed} lines), but the body holds "
                 f"only {lines} lines after end_header"
             )
+        _check_ascii_lists(data, end.end(), data.count(b"\n", 0, end.end()), elements)
     else:
-        needed = sum(count * (fixed + lists) for _, count, fixed, lists in elements)
+        needed = sum(e.count * (e.fixed + e.list_counts) for e in elements)
         if rest < needed:
             raise BadBody(
                 f"PLY header declares {declared} (at least {needed} bytes), but the "
                 f"body holds only {rest} bytes after end_header"
             )
+
+
+@dataclass
+class _PlyElement:
+    """A PLY element as its header declares it: bytes of its scalar properties and of its lists'
+    counts, and which of its properties, in order, are lists."""
+
+    name: str
+    count: int
+    fixed: int = 0
+    list_counts: int = 0
+    lists: list[bool] = field(default_factory=list)
+
+
+def _check_ascii_lists(data: bytes, start: int, header_lines: int, elements: list) -> None:
+    """400 naming the line where an ASCII row of an element with a list holds other than its
+    counts say (``3 0 1 2``: a count, then that many integers), as trimesh reads what it finds."""
+    rows = data[start:].split(b"\n")
+    first = 0
+    for element in elements:
+        if any(element.lists):
+            text = b"\n".join(rows[first : first + element.count])
+            if element.lists == [True]:  # the usual face element: one list alone
+                counts, values = integer_rows(text, element.count)
+                if counts is not None and len(values):
+                    heads = np.cumsum(counts) - counts
+                    held = np.where(counts > 0, values[np.minimum(heads, len(values) - 1)] + 1, -1)
+                    if (held == counts).all():
+                        first += element.count
+                        continue
+            for k, row in enumerate(rows[first : first + element.count]):
+                _check_ascii_row(row, element, header_lines + first + k + 1)
+        first += element.count
+
+
+def _check_ascii_row(row: bytes, element: _PlyElement, number: int) -> None:
+    words, at = row.split(), 0
+    for is_list in element.lists:
+        if not is_list:
+            at += 1
+            continue
+        if at >= len(words) or not _PLY_INTEGER.fullmatch(words[at]) or int(words[at]) < 0:
+            break
+        items = words[at + 1 : at + 1 + int(words[at])]
+        if len(items) < int(words[at]) or not all(_PLY_INTEGER.fullmatch(i) for i in items):
+            break
+        at += 1 + len(items)
+    else:
+        if at == len(words):
+            return
+    raise BadBody(
+        f"PLY line {number} ({_show(row)}) does not hold what its {element.name} element "
+        "declares: each list is a count, then that many integers"
+    )
+
+
+_PLY_INTEGER = re.compile(rb"[+-]?\d+")
 
 
 _STL_HEADER, _STL_TRIANGLE = 84, 50
@@ -544,6 +617,79 @@ def check_glb(data: bytes) -> None:
             raise TooLarge(
                 f"GLB {what} {size} bytes, over {EXPANSION} times the file's {len(data)} bytes"
             )
+    bin_sizes = [len(payload) for kind, payload in chunks if kind == _GLB_BIN]
+    _check_glb_references(doc, bin_sizes)
+
+
+def _check_glb_references(doc: dict, bin_sizes: list[int]) -> None:
+    """400 naming the JSON key where a glTF reference is out of range: a buffer view beyond its
+    BIN chunk, an accessor beyond its view, a primitive without POSITION, an index of a view,
+    accessor, mesh or node that does not exist (trimesh would fail on each, naming itself)."""
+    views, accessors = _list(doc, "bufferViews"), _list(doc, "accessors")
+    meshes, nodes = _list(doc, "meshes"), _list(doc, "nodes")
+    view_sizes = []
+    for i, view in enumerate(views):
+        buffer = _reference(view.get("buffer"), len(bin_sizes), f"bufferViews[{i}].buffer")
+        offset = _natural(view.get("byteOffset", 0), f"bufferViews[{i}].byteOffset")
+        if offset + view["byteLength"] > bin_sizes[buffer]:
+            raise BadBody(
+                f"GLB bufferViews[{i}] ends at byte {offset + view['byteLength']} of a BIN "
+                f"chunk of {bin_sizes[buffer]} bytes"
+            )
+        stride = view.get("byteStride")
+        if stride is not None and (type(stride) is not int or not 4 <= stride <= 252):
+            raise BadBody(f"GLB bufferViews[{i}].byteStride must be an integer in [4, 252]")
+        view_sizes.append((view["byteLength"], stride))
+    for i, accessor in enumerate(accessors):
+        if "sparse" in accessor:
+            raise BadBody(f"GLB accessors[{i}] is sparse, which is not read")
+        if accessor.get("bufferView") is None:
+            continue  # all zeros, as glTF says
+        v = _reference(accessor["bufferView"], len(views), f"accessors[{i}].bufferView")
+        length, stride = view_sizes[v]
+        item = _GLTF_COMPONENTS[accessor["type"]] * _GLTF_ITEM_BYTES[accessor["componentType"]]
+        offset = _natural(accessor.get("byteOffset", 0), f"accessors[{i}].byteOffset")
+        count = accessor["count"]
+        end = offset + (count - 1) * (stride or item) + item if count else offset
+        if end > length:
+            raise BadBody(
+                f"GLB accessors[{i}] ({count} x {accessor['type']}) ends at byte {end} of "
+                f"bufferViews[{v}], which holds {length}"
+            )
+    for m, mesh in enumerate(meshes):
+        if not isinstance(mesh, dict):
+            raise BadBody(f"GLB meshes[{m}] must be an object")
+        for p, primitive in enumerate(mesh.get("primitives", [])):
+            at = f"meshes[{m}].primitives[{p}]"
+            attributes = primitive.get("attributes") if isinstance(primitive, dict) else None
+            if not isinstance(attributes, dict) or "POSITION" not in attributes:
+                raise BadBody(f"GLB {at} needs attributes with a POSITION")
+            for name, accessor in attributes.items():
+                _reference(accessor, len(accessors), f"{at}.attributes.{name}")
+            if primitive.get("indices") is not None:
+                _reference(primitive["indices"], len(accessors), f"{at}.indices")
+    for n, node in enumerate(nodes):
+        if not isinstance(node, dict):
+            raise BadBody(f"GLB nodes[{n}] must be an object")
+        if node.get("mesh") is not None:
+            _reference(node["mesh"], len(meshes), f"nodes[{n}].mesh")
+        for c, child in enumerate(_list(node, "children", f"nodes[{n}].children")):
+            _reference(child, len(nodes), f"nodes[{n}].children[{c}]")
+    scenes = _list(doc, "scenes")
+    for i, scene in enumerate(scenes):
+        if not isinstance(scene, dict):
+            raise BadBody(f"GLB scenes[{i}] must be an object")
+        for k, node in enumerate(_list(scene, "nodes", f"scenes[{i}].nodes")):
+            _reference(node, len(nodes), f"scenes[{i}].nodes[{k}]")
+    if doc.get("scene") is not None:
+        _reference(doc["scene"], len(scenes), "scene")
+
+
+def _reference(value: Any, n: int, name: str) -> int:
+    """``value`` as an index of one of ``n`` things, else 400 naming ``name``."""
+    if type(value) is not int or not 0 <= value < n:
+        raise BadBody(f"GLB {name} is {str(value)[:40]}, but there are {n} to refer to")
+    return value
 
 
 def _primitive_bytes(doc: dict, items: list[int]) -> int:
@@ -573,10 +719,10 @@ def _items(items: list[int], accessor: Any) -> int:
     return 0
 
 
-def _list(doc: dict, key: str) -> list:
+def _list(doc: dict, key: str, name: str | None = None) -> list:
     value = doc.get(key, [])
     if not isinstance(value, list):
-        raise BadBody(f"GLB JSON {key} must be a list")
+        raise BadBody(f"GLB JSON {name or key} must be a list")
     return value
 
 

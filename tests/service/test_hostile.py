@@ -280,6 +280,15 @@ CORPUS = [
         422,
         "unknown query parameter 'feilds' (did you mean 'fields'?)",
     ),
+    (
+        "a query parameter given twice",
+        "POST",
+        "closest?fields=t&fields=mesh",
+        NPY,
+        lambda: npy_bytes(RAYS),
+        422,
+        "query parameter 'fields' is given 2 times ('t', 'mesh'); give it once",
+    ),
     # malformed or hostile mesh files
     *[
         (f"mesh file: {phrase}", "PUT", "meshes/m", headers, lambda body=body: body, status, phrase)

@@ -264,6 +264,44 @@ BILLION_VERTICES = ["element vertex 1000000000", *PLY_TRIANGLE_HEADER[1:]]
             "has no `format ascii|binary_little_endian|binary_big_endian 1.0` line",
         ),
         (b"obj\nformat ascii 1.0\nend_header\n", BadBody, "must start with the line `ply`"),
+        (
+            ply(PLY_TRIANGLE_HEADER, b"0 0 0\n1 0 0\n0 1 0\n200 0 1 2\n"),
+            BadBody,
+            "PLY line 13 (`200 0 1 2`) does not hold what its face element declares",
+        ),
+        (
+            ply(PLY_TRIANGLE_HEADER, b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2 5\n"),
+            BadBody,
+            "PLY line 13 (`3 0 1 2 5`) does not hold what its face element declares",
+        ),
+        (
+            ply(PLY_TRIANGLE_HEADER, b"0 0 0\n1 0 0\n0 1 0\n3 0 1.7 2\n"),
+            BadBody,
+            "PLY line 13 (`3 0 1.7 2`) does not hold what its face element declares",
+        ),
+        (
+            ply(
+                [*PLY_TRIANGLE_HEADER, "property uchar red"],
+                b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+            ),
+            BadBody,
+            "PLY line 14 (`3 0 1 2`) does not hold what its face element declares",
+        ),
+        (
+            ply(
+                [*PLY_TRIANGLE_HEADER[:-1], "property list uchar float vertex_indices"],
+                TRIANGLE.tobytes() + b"\x03" + np.array([0, 1, 2.7], "<f4").tobytes(),
+                "binary_little_endian",
+            ),
+            BadBody,
+            "line 8 (`property list uchar float vertex_indices`): a list's count and items "
+            "must be of integer types",
+        ),
+        (
+            ply(["element vertex 99999999999999", "element face 1", *PLY_TRIANGLE_HEADER[5:]]),
+            BadBody,
+            "PLY element vertex declares 99999999999999 items but no properties",
+        ),
     ],
 )
 def test_bad_ply(body, error, message):
@@ -440,6 +478,53 @@ def _set(path: str, value):
             "uses KHR_draco_mesh_compression, which is not read",
         ),
         (_many_instances(), TooLarge, "instances its meshes into 1000000 triangles"),
+        (
+            triangle_glb(edit=_set("bufferViews.1.byteOffset", 40)),
+            BadBody,
+            "GLB bufferViews[1] ends at byte 52 of a BIN chunk of 48 bytes",
+        ),
+        (
+            triangle_glb(edit=_set("bufferViews.0.byteStride", 2)),
+            BadBody,
+            "GLB bufferViews[0].byteStride must be an integer in [4, 252]",
+        ),
+        (
+            triangle_glb(edit=_set("accessors.0.count", 10)),
+            BadBody,
+            "GLB accessors[0] (10 x VEC3) ends at byte 120 of bufferViews[0], which holds 36",
+        ),
+        (
+            triangle_glb(edit=_set("accessors.1.bufferView", 7)),
+            BadBody,
+            "GLB accessors[1].bufferView is 7, but there are 2 to refer to",
+        ),
+        (
+            triangle_glb(edit=_set("meshes.0.primitives.0.attributes", {"NORMAL": 0})),
+            BadBody,
+            "GLB meshes[0].primitives[0] needs attributes with a POSITION",
+        ),
+        (
+            triangle_glb(edit=_set("meshes.0.primitives.0.indices", 5)),
+            BadBody,
+            "GLB meshes[0].primitives[0].indices is 5, but there are 2 to refer to",
+        ),
+        (triangle_glb(edit=_set("nodes.0", [0])), BadBody, "GLB nodes[0] must be an object"),
+        (
+            triangle_glb(edit=_set("nodes.0.mesh", 3)),
+            BadBody,
+            "GLB nodes[0].mesh is 3, but there are 1 to refer to",
+        ),
+        (
+            triangle_glb(edit=_set("nodes.0.children", 4)),
+            BadBody,
+            "GLB JSON nodes[0].children must be a list",
+        ),
+        (
+            triangle_glb(edit=_set("scenes.0.nodes", [0, 9])),
+            BadBody,
+            "GLB scenes[0].nodes[1] is 9, but there are 1 to refer to",
+        ),
+        (triangle_glb(edit=_set("scene", 2)), BadBody, "GLB scene is 2, but there are 1 to"),
         (_many_meshes(), TooLarge, "GLB meshes' primitives decode to 960144000 bytes, over 8"),
         (
             triangle_glb(indices=(0, 1, 7)),

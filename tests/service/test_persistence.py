@@ -18,7 +18,7 @@ from service_helpers import grid, quad
 
 from service import persistence
 from service.errors import Conflict, DataDirUnavailable, InsufficientStorage, TooLarge
-from service.persistence import DataDir
+from service.persistence import DataDir, checksum
 from service.store import Store
 from service.wire import FrameChange, MeshArrays
 
@@ -277,16 +277,36 @@ def damage_garbage(path: Path) -> None:
     path.write_bytes(b"\x00garbage")
 
 
+def damage_misshape(path: Path) -> None:
+    """Vertices of another shape, their manifest entry and checksum to match: a folder written
+    by an earlier version that stored a GLB's SCALAR positions."""
+    vertices = np.load(path).reshape(-1, 1)
+    np.save(path, vertices)
+    [manifest] = path.parent.glob("scene.*.json")
+    document = json.loads(manifest.read_text())
+    entry = document["meshes"][0]["vertices"]
+    entry.update(shape=list(vertices.shape), crc32=checksum(vertices))
+    manifest.write_text(json.dumps(document))
+
+
 @pytest.mark.parametrize(
     "pattern, damage",
     [
+        ("*.vertices.npy", damage_misshape),
         ("*.vertices.npy", damage_truncate),
         ("*.faces.npy", damage_flip),
         ("*.vertices.npy", damage_garbage),
         ("scene.*.json", damage_truncate),
         ("scene.*.json", damage_garbage),
     ],
-    ids=["truncated vertices", "corrupted faces", "garbage vertices", "cut manifest", "bad json"],
+    ids=[
+        "misshapen vertices",
+        "truncated vertices",
+        "corrupted faces",
+        "garbage vertices",
+        "cut manifest",
+        "bad json",
+    ],
 )
 def test_a_damaged_file_is_logged_and_its_scene_skipped(tmp_path, caplog, pattern, damage):
     store = open_store(tmp_path)
