@@ -509,7 +509,8 @@ def check_stl(data: bytes) -> None:
     """400 unless the body is a binary STL of exactly the length its count gives, or ASCII."""
     if data[:1024].lstrip()[:5].lower() == b"solid" and b"endsolid" in data[-1024:].lower():
         if len(data) < _STL_HEADER or _stl_length(data) != len(data):
-            return  # ASCII (a binary STL may also start with "solid": its length tells)
+            _check_ascii_facets(data)  # ASCII (a binary STL may also start with "solid")
+            return
     if len(data) < _STL_HEADER:
         raise BadBody(
             f"STL body is {len(data)} bytes: shorter than the 84-byte header of a "
@@ -521,6 +522,24 @@ def check_stl(data: bytes) -> None:
             f"binary STL header declares {count} triangles ({_stl_length(data)} bytes), "
             f"but the body is {len(data)} bytes"
         )
+
+
+def _check_ascii_facets(data: bytes) -> None:
+    """400 naming the first facet of an ASCII STL that holds other than 3 vertices (trimesh
+    would cut the vertices into triangles wherever they fall)."""
+    text = data.lower()
+    ends = np.array([m.start() for m in re.finditer(rb"\bendfacet\b", text)], np.int64)
+    vertices = np.array([m.start() for m in re.finditer(rb"\bvertex\b", text)], np.int64)
+    held = np.bincount(np.searchsorted(ends, vertices), minlength=len(ends) + 1)
+    bad = np.flatnonzero(held[: len(ends)] != 3)
+    if bad.size:
+        line = text.count(b"\n", 0, ends[bad[0]]) + 1
+        raise BadBody(
+            f"ASCII STL facet {bad[0] + 1} (ending on line {line}) holds {held[bad[0]]} "
+            f"vertices, not 3; {bad.size} of {len(ends)} facets do"
+        )
+    if held[-1]:
+        raise BadBody(f"ASCII STL has {held[-1]} vertices after its last endfacet")
 
 
 def _stl_length(data: bytes) -> int:

@@ -318,6 +318,22 @@ def test_binary_stl_starting_with_solid_is_read_as_binary():
     assert decode(body, "stl").faces.tolist() == [[0, 1, 2]]
 
 
+def _ascii_stl(vertices_a_facet: list[int]) -> bytes:
+    """An ASCII STL whose facets hold these many vertices (3 in a well-formed one)."""
+    facets = [
+        "facet normal 0 0 1\nouter loop\n"
+        + "".join(f"vertex {k} {k % 2} 0\n" for k in range(n))
+        + "endloop\nendfacet\n"
+        for n in vertices_a_facet
+    ]
+    return ("solid x\n" + "".join(facets) + "endsolid x\n").encode()
+
+
+def test_ascii_stl():
+    mesh = decode(_ascii_stl([3, 3]), "stl")
+    assert mesh.faces.shape == (2, 3) and mesh.vertices.shape[1] == 3
+
+
 @pytest.mark.parametrize(
     "body, error, message",
     [
@@ -336,6 +352,16 @@ def test_binary_stl_starting_with_solid_is_read_as_binary():
         (stl(np.full((1, 3, 3), np.nan, np.float32)), InputError, "is not finite"),
         (stl(np.zeros((0, 3, 3), np.float32)), BadBody, "no triangles found in the STL body"),
         (b"solid x\nendsolid x\n", BadBody, "no triangles found in the STL body"),
+        (
+            _ascii_stl([3, 2, 3]),
+            BadBody,
+            "ASCII STL facet 2 (ending on line 14) holds 2 vertices, not 3; 1 of 3 facets do",
+        ),
+        (
+            _ascii_stl([4, 3]),
+            BadBody,
+            "ASCII STL facet 1 (ending on line 9) holds 4 vertices, not 3; 1 of 2 facets do",
+        ),
     ],
 )
 def test_bad_stl(body, error, message):
@@ -549,10 +575,11 @@ def _valid_files() -> dict[str, bytes]:
     box = trimesh.creation.box()
     files = {fmt: box.export(file_type=fmt) for fmt in ("obj", "ply", "stl", "glb", "off")}
     files["ply_ascii"] = box.export(file_type="ply", encoding="ascii")
+    files["stl_ascii"] = box.export(file_type="stl_ascii")
     return {fmt: data.encode() if isinstance(data, str) else data for fmt, data in files.items()}
 
 
-@pytest.mark.parametrize("fmt", ["obj", "ply", "ply_ascii", "stl", "glb", "off"])
+@pytest.mark.parametrize("fmt", ["obj", "ply", "ply_ascii", "stl", "stl_ascii", "glb", "off"])
 def test_mutated_files_give_only_4xx_errors(fmt):
     original = _valid_files()[fmt]
     rng = random.Random(fmt)
