@@ -59,7 +59,13 @@ Positive = Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False), Float
 NonNegative = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False), Float32]
 FieldOfView = Annotated[
     float,
-    Field(strict=True, gt=0, lt=180, description="vertical field of view, degrees"),
+    Field(
+        strict=True,
+        gt=0,
+        lt=180,
+        allow_inf_nan=False,
+        description="vertical field of view, degrees",
+    ),
 ]
 Name = Annotated[str, StringConstraints(pattern=f"^{NAME.pattern}$")]
 

@@ -235,6 +235,7 @@ BAD_SENSOR_VALUES = [
     ("camera", {**PINHOLE, "near": 5, "far": 2}, "far (2.0) must be greater than near (5.0)"),
     ("camera", {**LOOK_AT, "eye": [1e39, 0, 0]}, "eye[0]: 1e+39"),
     ("camera", {**LOOK_AT, "fov_deg": 5e-324}, "fov_deg: 5e-324 is too small"),
+    ("render", {**LOOK_AT, "fov_deg": NAN}, "fov_deg: Input should be a finite number"),
     ("render", {**LOOK_AT, "eye": [0, 1e39, 0]}, "eye[1]: 1e+39"),
     ("render", {**LOOK_AT, "target": [0, 0, INF]}, "target[2]: Input should be a finite number"),
     ("render", {**LOOK_AT, "up": [0, -3.5e38, 0]}, "up[1]: -3.5e+38"),
