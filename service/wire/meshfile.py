@@ -371,6 +371,21 @@ _PLY_TYPES = {
     "double": 8,
     "float64": 8,
 }
+#: struct codes of the integer types a list's count may have
+_PLY_STRUCT = {
+    "char": "b",
+    "int8": "b",
+    "uchar": "B",
+    "uint8": "B",
+    "short": "h",
+    "int16": "h",
+    "ushort": "H",
+    "uint16": "H",
+    "int": "i",
+    "int32": "i",
+    "uint": "I",
+    "uint32": "I",
+}
 _PLY_FLOATS = ("float", "float32", "double", "float64")
 _PLY_FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
 
@@ -396,6 +411,7 @@ def check_ply(data: bytes) -> None:
         elif words[0] == "property" and elements and len(words) == 3 and words[1] in _PLY_TYPES:
             elements[-1].fixed += _PLY_TYPES[words[1]]
             elements[-1].lists.append(False)
+            elements[-1].types.append((words[1],))
         elif (
             words[0] == "property"
             and elements
@@ -411,6 +427,7 @@ def check_ply(data: bytes) -> None:
                 )
             elements[-1].list_counts += _PLY_TYPES[words[2]]
             elements[-1].lists.append(True)
+            elements[-1].types.append((words[2], words[3]))
         else:
             raise BadBody(
                 f"PLY header line {number} ({_show(line.encode())}) is not a format, "
@@ -443,6 +460,9 @@ def check_ply(data: bytes) -> None:
                 f"PLY header declares {declared} (at least {needed} bytes), but the "
                 f"body holds only {rest} bytes after end_header"
             )
+        _check_binary_lists(
+            data, end.end(), "<" if encoding.endswith("little_endian") else ">", elements
+        )
 
 
 @dataclass
@@ -455,6 +475,39 @@ class _PlyElement:
     fixed: int = 0
     list_counts: int = 0
     lists: list[bool] = field(default_factory=list)
+    types: list[tuple[str, ...]] = field(default_factory=list)  #: (type,) or (count, item)
+
+
+def _check_binary_lists(data: bytes, at: int, order: str, elements: list) -> None:
+    """400 when a binary element's first row has a list whose count is negative or holds more
+    than the body: trimesh reads every row of an element as long as its first."""
+    for element in elements:
+        row = 0
+        for kind in element.types:
+            if len(kind) == 1:
+                row += _PLY_TYPES[kind[0]]
+                continue
+            count_type, item_type = kind
+            count_at = at + row
+            if element.count == 0 or count_at + _PLY_TYPES[count_type] > len(data):
+                return  # nothing to read here; the length checks of check_ply hold
+            (count,) = struct.unpack_from(order + _PLY_STRUCT[count_type], data, count_at)
+            if count < 0:
+                raise BadBody(f"PLY element {element.name}'s first list declares {count} items")
+            row += _PLY_TYPES[count_type] + count * _PLY_TYPES[item_type]
+        if element.count * row > len(data) - at:
+            raise BadBody(
+                f"PLY element {element.name}: {element.count} rows as long as its first "
+                f"({row} bytes) need {element.count * row} bytes, but {len(data) - at} follow"
+            )
+        at += element.count * row
+        if element is elements[-1] and any(element.lists) and at != len(data):
+            raise BadBody(
+                f"binary PLY element {element.name}'s rows are not all as long as its first "
+                f"({row} bytes: {len(data) - at} bytes are left over); a binary PLY whose "
+                "lists differ in length (triangles and quads) is not read: send it as ASCII "
+                "PLY, OBJ or triangles only"
+            )
 
 
 def _check_ascii_lists(data: bytes, start: int, header_lines: int, elements: list) -> None:

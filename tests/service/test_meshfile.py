@@ -298,6 +298,45 @@ BILLION_VERTICES = ["element vertex 1000000000", *PLY_TRIANGLE_HEADER[1:]]
             "must be of integer types",
         ),
         (
+            ply(
+                [*PLY_TRIANGLE_HEADER[:-1], "property list int int vertex_indices"],
+                TRIANGLE.tobytes() + np.array([2**31 - 1, 0, 1, 2], "<i4").tobytes(),
+                "binary_little_endian",
+            ),
+            BadBody,
+            "PLY element face: 1 rows as long as its first (8589934592 bytes) need 8589934592 "
+            "bytes, but 16 follow",
+        ),
+        (
+            ply(
+                [*PLY_TRIANGLE_HEADER[:-1], "property list int int vertex_indices"],
+                TRIANGLE.tobytes() + np.array([-3, 0, 1, 2], "<i4").tobytes(),
+                "binary_little_endian",
+            ),
+            BadBody,
+            "PLY element face's first list declares -3 items",
+        ),
+        (
+            ply(
+                [
+                    "element vertex 4",
+                    *PLY_TRIANGLE_HEADER[1:4],
+                    "element face 2",
+                    "property list uchar int vertex_indices",
+                ],
+                np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], "<f4").tobytes()
+                + b"\x03"
+                + np.array([0, 1, 2], "<i4").tobytes()
+                + b"\x04"
+                + np.array([0, 1, 3, 2], "<i4").tobytes(),
+                "binary_little_endian",
+            ),
+            BadBody,
+            "binary PLY element face's rows are not all as long as its first (13 bytes: 4 bytes "
+            "are left over); a binary PLY whose lists differ in length (triangles and quads) is "
+            "not read",
+        ),
+        (
             ply(["element vertex 99999999999999", "element face 1", *PLY_TRIANGLE_HEADER[5:]]),
             BadBody,
             "PLY element vertex declares 99999999999999 items but no properties",
