@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 from collections.abc import Iterable, Mapping
 from typing import Any, NamedTuple
 
@@ -29,6 +30,13 @@ from .npy import read_npy
 from .npz_reader import read_npz
 
 
+def json_error(exc: ValueError) -> str:
+    """What ``json.loads`` found wrong, in the document's terms."""
+    if "integer string conversion" in str(exc):  # Python's guard against quadratic int parsing
+        return f"an integer in it has more than {sys.get_int_max_str_digits()} digits"
+    return str(exc)
+
+
 def read_json(buf: Buffer, expected: str) -> dict[str, Any]:
     """A JSON object; anything else is 400 naming the ``expected`` keys."""
     try:
@@ -36,7 +44,7 @@ def read_json(buf: Buffer, expected: str) -> dict[str, Any]:
     except RecursionError:
         raise BadBody("body is not valid JSON: it is nested too deeply") from None
     except ValueError as exc:  # JSONDecodeError, bad UTF-8, integers of over 4300 digits
-        raise BadBody(f"body is not valid JSON: {exc}") from None
+        raise BadBody(f"body is not valid JSON: {json_error(exc)}") from None
     if not isinstance(doc, dict):
         raise BadBody(f"JSON body must be an object with {expected}, got {type(doc).__name__}")
     return doc

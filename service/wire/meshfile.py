@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import BadBody, Invalid, TooLarge
+from .decoders import json_error
 
 Buffer = bytes | memoryview
 
@@ -631,8 +632,10 @@ def check_glb(data: bytes) -> None:
         raise BadBody("GLB's first chunk must be its JSON")
     try:
         doc = json.loads(chunks[0][1])
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-        raise BadBody(f"GLB JSON chunk is not valid JSON: {exc}") from None
+    except RecursionError:
+        raise BadBody("GLB JSON chunk is not valid JSON: it is nested too deeply") from None
+    except ValueError as exc:  # JSONDecodeError, bad UTF-8, integers of over 4300 digits
+        raise BadBody(f"GLB JSON chunk is not valid JSON: {json_error(exc)}") from None
     if not isinstance(doc, dict):
         raise BadBody("GLB JSON chunk must be an object")
     buffers = _list(doc, "buffers")

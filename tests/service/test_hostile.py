@@ -263,6 +263,15 @@ CORPUS = [
     ),
     ("binary as JSON", "POST", "closest", JSON, lambda: b"\xff\xfe\x00{", 400, "not valid JSON"),
     (
+        "a JSON integer of 5000 digits",
+        "POST",
+        "closest",
+        JSON,
+        lambda: b'{"origins": [[' + b"9" * 5000 + b', 0, 0]], "directions": [[0, 0, 1]]}',
+        400,
+        "body is not valid JSON: an integer in it has more than 4300 digits",
+    ),
+    (
         "an npy of 2 GiB promised, 48 bytes sent",
         "POST",
         "closest",

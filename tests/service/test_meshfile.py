@@ -4,6 +4,7 @@ file refused with a 4xx error naming the problem (``BadBody`` 400, ``Invalid`` o
 
 from __future__ import annotations
 
+import json
 import random
 import struct
 
@@ -439,6 +440,17 @@ def _many_meshes() -> bytes:
     return glb(doc, TRIANGLE.tobytes() + indices.tobytes())
 
 
+def _huge_integer_glb() -> bytes:
+    """TRIANGLE's GLB with an accessor count of 5000 digits (json.dumps would refuse to write
+    it, as json.loads refuses to read it)."""
+    text = json.dumps(triangle_doc()).replace('"count": 3', '"count": ' + "9" * 5000, 1).encode()
+    text += b" " * (-len(text) % 4)
+    binary = TRIANGLE.tobytes() + np.array([0, 1, 2], np.uint32).tobytes()
+    chunks = struct.pack("<II", len(text), 0x4E4F534A) + text
+    chunks += struct.pack("<II", len(binary), 0x004E4942) + binary
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(chunks)) + chunks
+
+
 def _set(path: str, value):
     """An edit of a glTF document: set ``value`` at a dotted path (list indices as numbers)."""
 
@@ -590,6 +602,11 @@ def _set(path: str, value):
             "GLB scenes[0].nodes[1] is 9, but there are 1 to refer to",
         ),
         (triangle_glb(edit=_set("scene", 2)), BadBody, "GLB scene is 2, but there are 1 to"),
+        (
+            _huge_integer_glb(),
+            BadBody,
+            "GLB JSON chunk is not valid JSON: an integer in it has more than 4300 digits",
+        ),
         (_many_meshes(), TooLarge, "GLB meshes' primitives decode to 960144000 bytes, over 8"),
         (
             triangle_glb(indices=(0, 1, 7)),
