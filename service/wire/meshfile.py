@@ -62,10 +62,13 @@ def read_mesh_file(body: Buffer, fmt: str) -> tuple[np.ndarray, np.ndarray]:
         vertices, faces = read_off(data)
     else:
         try:
-            {"ply": check_ply, "stl": check_stl, "glb": check_glb}[fmt](data)
+            by_hand = {"ply": check_ply, "stl": check_stl, "glb": check_glb}[fmt](data)
+            if by_hand is not None:  # a binary PLY whose faces differ in length
+                vertices, faces = read_binary_ply(data, by_hand)
         except BadBody as exc:
             raise BadBody(f"body cannot be read as {fmt.upper()}: {exc.detail}") from None
-        vertices, faces = _read_with_trimesh(data, fmt)
+        if by_hand is None:
+            vertices, faces = _read_with_trimesh(data, fmt)
     if len(faces) == 0:
         raise BadBody(f"no triangles found in the {fmt.upper()} body; is it really {fmt.upper()}?")
     if vertices.ndim != 2 or vertices.shape[1] != 3:  # a glTF POSITION of another type
@@ -372,28 +375,34 @@ _PLY_TYPES = {
     "double": 8,
     "float64": 8,
 }
-#: struct codes of the integer types a list's count may have
-_PLY_STRUCT = {
-    "char": "b",
-    "int8": "b",
-    "uchar": "B",
-    "uint8": "B",
-    "short": "h",
-    "int16": "h",
-    "ushort": "H",
-    "uint16": "H",
-    "int": "i",
-    "int32": "i",
-    "uint": "I",
-    "uint32": "I",
+#: NumPy codes of the PLY types
+_PLY_NUMPY = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
 }
 _PLY_FLOATS = ("float", "float32", "double", "float64")
 _PLY_FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
 
 
-def check_ply(data: bytes) -> None:
+def check_ply(data: bytes) -> PlyLayout | None:
     """400 unless the header is complete, its lists hold integers, and the body holds what it
-    declares (in ASCII, each row of an element with a list as many values as its counts say)."""
+    declares (in ASCII, each row of an element with a list as many values as its counts say).
+    Returns the layout of a binary PLY whose rows differ in length (triangles and quads), which
+    trimesh does not read, for ``read_binary_ply``; else None."""
     end = re.search(rb"(?m)^end_header[ \t]*\r?$\n?", data)
     if end is None:
         raise BadBody("PLY header has no `end_header` line; the header must end with one")
@@ -413,6 +422,7 @@ def check_ply(data: bytes) -> None:
             elements[-1].fixed += _PLY_TYPES[words[1]]
             elements[-1].lists.append(False)
             elements[-1].types.append((words[1],))
+            elements[-1].names.append(words[2])
         elif (
             words[0] == "property"
             and elements
@@ -429,6 +439,7 @@ def check_ply(data: bytes) -> None:
             elements[-1].list_counts += _PLY_TYPES[words[2]]
             elements[-1].lists.append(True)
             elements[-1].types.append((words[2], words[3]))
+            elements[-1].names.append(words[4])
         else:
             raise BadBody(
                 f"PLY header line {number} ({_show(line.encode())}) is not a format, "
@@ -461,9 +472,10 @@ def check_ply(data: bytes) -> None:
                 f"PLY header declares {declared} (at least {needed} bytes), but the "
                 f"body holds only {rest} bytes after end_header"
             )
-        _check_binary_lists(
-            data, end.end(), "<" if encoding.endswith("little_endian") else ">", elements
-        )
+        order = "<" if encoding.endswith("little_endian") else ">"
+        if not _check_binary_lists(data, end.end(), order, elements):
+            return PlyLayout(end.end(), order, elements)
+    return None
 
 
 @dataclass
@@ -477,11 +489,13 @@ class _PlyElement:
     list_counts: int = 0
     lists: list[bool] = field(default_factory=list)
     types: list[tuple[str, ...]] = field(default_factory=list)  #: (type,) or (count, item)
+    names: list[str] = field(default_factory=list)
 
 
-def _check_binary_lists(data: bytes, at: int, order: str, elements: list) -> None:
+def _check_binary_lists(data: bytes, at: int, order: str, elements: list) -> bool:
     """400 when a binary element's first row has a list whose count is negative or holds more
-    than the body: trimesh reads every row of an element as long as its first."""
+    than the body; False when the rows are not all as long as the first (trimesh reads every
+    row of an element as long as its first)."""
     for element in elements:
         row = 0
         for kind in element.types:
@@ -491,8 +505,8 @@ def _check_binary_lists(data: bytes, at: int, order: str, elements: list) -> Non
             count_type, item_type = kind
             count_at = at + row
             if element.count == 0 or count_at + _PLY_TYPES[count_type] > len(data):
-                return  # nothing to read here; the length checks of check_ply hold
-            (count,) = struct.unpack_from(order + _PLY_STRUCT[count_type], data, count_at)
+                return True  # nothing to read here; the length checks of check_ply hold
+            count = int(np.frombuffer(data, order + _PLY_NUMPY[count_type], 1, count_at)[0])
             if count < 0:
                 raise BadBody(f"PLY element {element.name}'s first list declares {count} items")
             row += _PLY_TYPES[count_type] + count * _PLY_TYPES[item_type]
@@ -503,12 +517,83 @@ def _check_binary_lists(data: bytes, at: int, order: str, elements: list) -> Non
             )
         at += element.count * row
         if element is elements[-1] and any(element.lists) and at != len(data):
-            raise BadBody(
-                f"binary PLY element {element.name}'s rows are not all as long as its first "
-                f"({row} bytes: {len(data) - at} bytes are left over); a binary PLY whose "
-                "lists differ in length (triangles and quads) is not read: send it as ASCII "
-                "PLY, OBJ or triangles only"
+            return False
+    return True
+
+
+@dataclass
+class PlyLayout:
+    """Where a binary PLY's rows start, its byte order, and its elements."""
+
+    start: int
+    order: str
+    elements: list[_PlyElement]
+
+
+def read_binary_ply(data: bytes, layout: PlyLayout) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices float32 (V, 3), faces int64 (F, 3)) of a binary PLY whose faces differ in
+    length, row by row: the vertex element's x, y, z, and the face element's vertex_indices
+    (or vertex_index) fanned into triangles."""
+    at, vertices, counts, indices = layout.start, None, None, None
+    for element in layout.elements:
+        if not any(element.lists):
+            dtype = np.dtype(
+                [(n, layout.order + _PLY_NUMPY[t[0]]) for n, t in zip(element.names, element.types)]
             )
+            if at + element.count * dtype.itemsize > len(data):
+                raise BadBody(f"PLY element {element.name} runs past the end of the body")
+            rows = np.frombuffer(data, dtype, element.count, at)
+            at += element.count * dtype.itemsize
+            if element.name == "vertex":
+                if not {"x", "y", "z"} <= set(element.names):
+                    raise BadBody("PLY element vertex needs properties x, y and z")
+                vertices = np.stack([rows["x"], rows["y"], rows["z"]], axis=1).astype(np.float32)
+            continue
+        at, lists = _list_rows(data, at, layout.order, element)
+        if element.name == "face":
+            for name in ("vertex_indices", "vertex_index"):
+                if name in lists:
+                    counts, indices = lists[name]
+    if vertices is None or counts is None:
+        raise BadBody("a PLY needs a vertex element and a face element with vertex_indices")
+    short = np.flatnonzero(counts < 3)
+    if short.size:
+        raise Invalid(
+            f"PLY face {short[0]} has {counts[short[0]]} vertices; a face needs at least 3 "
+            f"({short.size} faces have fewer)"
+        )
+    return vertices, fan(counts, indices)
+
+
+def _list_rows(data: bytes, at: int, order: str, element: _PlyElement) -> tuple[int, dict]:
+    """Read ``element``'s rows from byte ``at`` one by one: (where they end, each list
+    property's (counts int64 (rows,), items int64 (sum of counts,)))."""
+    counts = {
+        n: np.zeros(element.count, np.int64)
+        for n, k in zip(element.names, element.types)
+        if len(k) == 2
+    }
+    items = {n: [] for n in counts}
+    for row in range(element.count):
+        for name, kind in zip(element.names, element.types):
+            if len(kind) == 1:
+                at += _PLY_TYPES[kind[0]]
+                continue
+            count_code, item_code = _PLY_NUMPY[kind[0]], _PLY_NUMPY[kind[1]]
+            if at + _PLY_TYPES[kind[0]] > len(data):
+                raise BadBody(f"PLY element {element.name} runs past the end of the body")
+            n = int(np.frombuffer(data, order + count_code, 1, at)[0])
+            at += _PLY_TYPES[kind[0]]
+            if n < 0 or at + n * _PLY_TYPES[kind[1]] > len(data):
+                raise BadBody(
+                    f"PLY element {element.name}, row {row}: its list {name} of {n} items "
+                    "runs past the end of the body"
+                )
+            counts[name][row] = n
+            items[name].append(np.frombuffer(data, order + item_code, n, at))
+            at += n * _PLY_TYPES[kind[1]]
+    joined = {n: np.concatenate(items[n] or [np.zeros(0)]).astype(np.int64) for n in counts}
+    return at, {n: (counts[n], joined[n]) for n in counts}
 
 
 def _check_ascii_lists(data: bytes, start: int, header_lines: int, elements: list) -> None:

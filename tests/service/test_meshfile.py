@@ -215,6 +215,36 @@ def test_ply(encoding, data):
     assert decode(ply(PLY_TRIANGLE_HEADER, data, encoding), "ply").faces.tolist() == [[0, 1, 2]]
 
 
+def _mixed_faces_ply(order: str = "<", extra: bool = False) -> bytes:
+    """A binary PLY of a triangle and a quad (rows of two lengths, which trimesh does not
+    read), with an extra vertex property and a face flag after the list if ``extra``."""
+    vertex_props = ["property float x", "property float y", "property float z"]
+    face_props = ["property list uchar int vertex_indices"]
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], order + "f4")
+    if extra:
+        vertex_props.insert(1, "property uchar red")
+        face_props.append("property short flags")
+    header = [f"element vertex {len(vertices)}", *vertex_props, "element face 2", *face_props]
+    rows = b""
+    for vertex in vertices:
+        rows += vertex[:1].tobytes() + (b"\x07" if extra else b"") + vertex[1:].tobytes()
+    for face in ([0, 1, 2], [0, 1, 3, 2]):
+        rows += bytes([len(face)]) + np.array(face, order + "i4").tobytes()
+        rows += np.array([5], order + "i2").tobytes() if extra else b""
+    encoding = "binary_little_endian" if order == "<" else "binary_big_endian"
+    return ply(header, rows, encoding)
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+@pytest.mark.parametrize("extra", [False, True])
+def test_binary_ply_with_triangles_and_quads(order, extra):
+    """Rows of several lengths are read row by row (trimesh reads only rows as long as the
+    first), the quad fanned as an OBJ's polygon is."""
+    mesh = decode(_mixed_faces_ply(order, extra), "ply")
+    assert mesh.faces.tolist() == [[0, 1, 2], [0, 1, 3], [0, 3, 2]]
+    np.testing.assert_array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+
+
 BILLION_VERTICES = ["element vertex 1000000000", *PLY_TRIANGLE_HEADER[1:]]
 
 
@@ -318,24 +348,9 @@ BILLION_VERTICES = ["element vertex 1000000000", *PLY_TRIANGLE_HEADER[1:]]
             "PLY element face's first list declares -3 items",
         ),
         (
-            ply(
-                [
-                    "element vertex 4",
-                    *PLY_TRIANGLE_HEADER[1:4],
-                    "element face 2",
-                    "property list uchar int vertex_indices",
-                ],
-                np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], "<f4").tobytes()
-                + b"\x03"
-                + np.array([0, 1, 2], "<i4").tobytes()
-                + b"\x04"
-                + np.array([0, 1, 3, 2], "<i4").tobytes(),
-                "binary_little_endian",
-            ),
+            _mixed_faces_ply()[:-3],
             BadBody,
-            "binary PLY element face's rows are not all as long as its first (13 bytes: 4 bytes "
-            "are left over); a binary PLY whose lists differ in length (triangles and quads) is "
-            "not read",
+            "PLY element face, row 1: its list vertex_indices of 4 items runs past the end",
         ),
         (
             ply(["element vertex 99999999999999", "element face 1", *PLY_TRIANGLE_HEADER[5:]]),
