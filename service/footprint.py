@@ -45,9 +45,9 @@ JSON_PARSE_FACTOR = 16
 #: PLY, STL and GLB) ...
 MESH_FILE_FACTOR = 20
 #: ... and by the service's own OBJ and OFF readers, whose short face lines (`f 1 2 3`, or one
-#: long polygon fanned into a triangle an index) become int64 rows (measured 25-46.5 with
-#: tracemalloc, 26-53 as a server's RSS).
-MESH_TEXT_FACTOR = 60
+#: long polygon fanned into a triangle an index) become int64 rows (measured 25-34.6 with
+#: tracemalloc, 24-38 as a server's RSS).
+MESH_TEXT_FACTOR = 47
 #: Peak bytes per body byte of a binary (npy, npz) array body: the body and owned copies.
 ARRAY_FACTOR = 2
 #: Bytes held by a JSON answer while it is written: it is written in pieces of this many bytes of

@@ -258,11 +258,20 @@ def _show(line: bytes, limit: int = 60) -> str:
 
 def fan(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
     """int64 (sum(counts - 2), 3): polygons of ``counts[i]`` vertices each (concatenated in
-    ``indices``) as triangle fans from their first vertex, in order."""
+    ``indices``) as triangle fans from their first vertex, in order. Written column by column
+    into the answer, so that few temporaries of a triangle each are alive at once."""
     n_triangles = counts - 2
-    first = np.repeat(np.cumsum(counts) - counts, n_triangles)
-    k = np.arange(n_triangles.sum()) - np.repeat(np.cumsum(n_triangles) - n_triangles, n_triangles)
-    return np.stack([indices[first], indices[first + k + 1], indices[first + k + 2]], axis=1)
+    starts = np.cumsum(counts) - counts
+    total = int(n_triangles.sum())
+    faces = np.empty((total, 3), np.int64)
+    faces[:, 0] = np.repeat(indices[starts], n_triangles)
+    # triangle k of a polygon takes its corners k + 1 and k + 2
+    corner = np.repeat(starts + 1 - (np.cumsum(n_triangles) - n_triangles), n_triangles)
+    corner += np.arange(total)
+    faces[:, 1] = indices[corner]
+    corner += 1
+    faces[:, 2] = indices[corner]
+    return faces
 
 
 # --------------------------------------------------------------------------------------------
