@@ -45,8 +45,8 @@ JSON_PARSE_FACTOR = 16
 #: PLY, STL and GLB) ...
 MESH_FILE_FACTOR = 20
 #: ... and by the service's own OBJ and OFF readers, whose short face lines (`f 1 2 3`, or one
-#: long polygon fanned into a triangle an index) become int64 rows (measured 25-34.6 with
-#: tracemalloc, 24-38 as a server's RSS).
+#: long polygon fanned into a triangle an index) become int64 rows (measured 14-24.5 with
+#: tracemalloc, 9-37 as a server's RSS, which holds the body's copies too).
 MESH_TEXT_FACTOR = 47
 #: Peak bytes per body byte of a binary (npy, npz) array body: the body and owned copies.
 ARRAY_FACTOR = 2

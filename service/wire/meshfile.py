@@ -123,21 +123,19 @@ _SPACE[list(b" \t\n\r\v\f")] = True
 
 
 def read_obj(data: bytes) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices float32 (V, 3), faces int64 (F, 3)) of an OBJ, indices checked."""
-    data = data.replace(b"\\\r\n", b" ").replace(b"\\\n", b" ")  # a continued line is one line
-    lines = data.splitlines()
-    if re.search(rb"(?m)^[ \t]", data):
-        lines = [line.lstrip() for line in lines]
-    v_at = [i for i, line in enumerate(lines) if line[:2] in (b"v ", b"v\t")]
-    f_at = [i for i, line in enumerate(lines) if line[:2] in (b"f ", b"f\t")]
-    vertices = _vertex_rows(lines, v_at, "OBJ", skip=2)
-    if not f_at:
+    """(vertices float32 (V, 3), faces int64 (F, 3)) of an OBJ, indices checked. The lines are
+    found and cut with NumPy over the whole body, never as a Python object a line."""
+    data = _plain_lines(data)
+    lines = _Lines(data)
+    v_at = lines.starting_with(b"v")
+    f_at = lines.starting_with(b"f")
+    vertices = _vertex_rows(lines.text(v_at, skip=2).splitlines(), v_at + 1, "OBJ", lines)
+    if not len(f_at):
         return vertices, np.zeros((0, 3), np.int64)
-    rests = [_uncomment(lines[i][2:]) for i in f_at]
-    counts, indices = _obj_face_indices(rests)
+    counts, indices = _obj_face_indices(lines.text(f_at, skip=2), len(f_at))
     if counts is None:  # something is not an integer: find the line to name it
-        for i, rest in zip(f_at, rests):
-            for token in rest.split():
+        for i in f_at:
+            for token in lines[i][2:].split():
                 if not re.fullmatch(rb"[+-]?\d+", token.split(b"/", 1)[0]):
                     raise BadBody(
                         f"OBJ line {i + 1} ({_show(lines[i])}): {_show(token)} is "
@@ -171,44 +169,82 @@ def read_obj(data: bytes) -> tuple[np.ndarray, np.ndarray]:
             f"OBJ line {i + 1} ({_show(lines[i])}) refers to vertex {index}, {why}; "
             f"{n_bad} of {len(counts)} faces are out of range"
         )
+    del before, indices, bad
     return vertices, fan(counts, resolved)
 
 
-def _vertex_rows(lines: list[bytes], at: list[int], fmt: str, skip: int = 0) -> np.ndarray:
-    """float32 (V, 3): the first three numbers of each line ``lines[i]`` for i in ``at``, after
-    ``skip`` bytes (an OBJ line's ``v``)."""
-    rows = [_uncomment(lines[i][skip:]) for i in at]
-    if not rows:
+def _plain_lines(data: bytes, continued: bool = True) -> bytes:
+    """An OBJ's or OFF's text with its lines plain: continued lines joined, every line ended by
+    ``\\n``, comments and leading blanks removed (each a copy only when the body needs it)."""
+    if continued:  # an OBJ's line ending in a backslash goes on on the next
+        data = data.replace(b"\\\r\n", b" ").replace(b"\\\n", b" ")
+    if b"\r" in data:
+        data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+    if b"#" in data:
+        data = re.sub(rb"#[^\n]*", b"", data)
+    if re.search(rb"(?m)^[ \t]", data):
+        data = re.sub(rb"(?m)^[ \t]+", b"", data)
+    return data if data.endswith(b"\n") else data + b"\n"
+
+
+class _Lines:
+    """The lines of a text whose every line ends in ``\\n``, as the offsets where each starts
+    and ends."""
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+        self.buf = np.frombuffer(data, np.uint8)
+        self.ends = np.flatnonzero(self.buf == ord("\n"))
+        self.starts = np.append(0, self.ends[:-1] + 1)
+
+    def __getitem__(self, i: int) -> bytes:
+        return self.data[self.starts[i] : self.ends[i]]
+
+    def starting_with(self, letter: bytes) -> np.ndarray:
+        """int64 numbers of the lines that start with ``letter`` and a blank (``v 1 2 3``)."""
+        padded = np.append(self.buf, np.zeros(2, np.uint8))
+        first, second = padded[self.starts], padded[self.starts + 1]
+        return np.flatnonzero((first == letter[0]) & ((second == 32) | (second == 9)))
+
+    def text(self, at: np.ndarray, skip: int) -> bytes:
+        """Lines ``at`` without their first ``skip`` bytes, each with its newline."""
+        inside = np.zeros(len(self.buf) + 1, np.int8)  # +1 where a kept part starts, -1 after
+        inside[self.starts[at] + skip] = 1
+        inside[self.ends[at] + 1] -= 1  # after the +1: a line may start where one ends
+        return self.buf[np.cumsum(inside[:-1], dtype=np.int8) > 0].tobytes()
+
+
+def _vertex_rows(rows: list[bytes], numbers, fmt: str, lines) -> np.ndarray:
+    """float32 (V, 3): the first three numbers of each of ``rows``, the text of line
+    ``numbers[k]`` (1-based) of ``lines`` after its keyword (an OBJ line's ``v``)."""
+    if not len(rows):
         return np.zeros((0, 3), np.float32)
     if all(row and not row.isspace() for row in rows):  # loadtxt would skip a blank row
         try:
             return np.loadtxt(rows, dtype=np.float32, usecols=(0, 1, 2), ndmin=2, comments=None)
         except ValueError:
             pass
-    for i, row in zip(at, rows):  # name the first line loadtxt could not read
+    for number, row in zip(numbers, rows):  # name the first line loadtxt could not read
         words = row.split()
+        line = _show(lines[number - 1])
         try:
             [float(x) for x in words[:3]]
         except ValueError:
-            raise BadBody(
-                f"{fmt} line {i + 1} ({_show(lines[i])}): a vertex must be numbers x y z"
-            ) from None
+            raise BadBody(f"{fmt} line {number} ({line}): a vertex must be numbers x y z") from None
         if len(words) < 3:
-            raise BadBody(
-                f"{fmt} line {i + 1} ({_show(lines[i])}): a vertex needs 3 coordinates x y z"
-            )
+            raise BadBody(f"{fmt} line {number} ({line}): a vertex needs 3 coordinates x y z")
     raise BadBody(f"{fmt} vertex lines cannot be read")  # pragma: no cover - the loop names one
 
 
-def _obj_face_indices(rests: list[bytes]) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """(vertex references per face line int64 (L,), the references as written int64 (R,)), or
-    (None, None) if a reference is not an integer. Texture and normal indices are dropped."""
-    text = b"\n".join(rests)
+def _obj_face_indices(text: bytes, n_rows: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(vertex references per face line int64 (L,), the references as written int64 (R,)) of
+    the ``n_rows`` lines of ``text``, or (None, None) if a reference is not an integer.
+    Texture and normal indices are dropped."""
     if b"/" in text:
         if re.search(rb"(^|\s)/", text):  # a reference without its vertex index
             return None, None
         text = _without_slash_parts(text)
-    return integer_rows(text, len(rests))
+    return integer_rows(text, n_rows)
 
 
 def _without_slash_parts(text: bytes) -> bytes:
@@ -246,10 +282,6 @@ def integer_rows(text: bytes, n_rows: int) -> tuple[np.ndarray | None, np.ndarra
     return (counts, values) if len(values) == len(starts) else (None, None)
 
 
-def _uncomment(text: bytes) -> bytes:
-    return text.split(b"#", 1)[0] if b"#" in text else text
-
-
 def _show(line: bytes, limit: int = 60) -> str:
     """A line or token for a message: `f 0 1 2`, cut to ``limit`` characters."""
     text = line.decode("utf-8", "replace").strip()
@@ -283,11 +315,9 @@ _OFF_KEYWORD = re.compile(rb"(ST)?C?N?OFF")
 
 def read_off(data: bytes) -> tuple[np.ndarray, np.ndarray]:
     """(vertices float32 (V, 3), faces int64 (F, 3)) of an OFF, indices checked."""
-    lines = data.splitlines()
-    if b"#" in data:
-        lines = [_uncomment(line) for line in lines]
-    at = [i for i, line in enumerate(lines) if line and not line.isspace()]  # non-blank lines
-    if not at:
+    lines = _Lines(_plain_lines(data, continued=False))
+    at = np.flatnonzero(lines.ends > lines.starts)  # the non-blank lines
+    if not len(at):
         raise BadBody("the OFF body holds only comments")
     header = lines[at[0]].split()
     if not _OFF_KEYWORD.fullmatch(header[0]):
@@ -297,7 +327,7 @@ def read_off(data: bytes) -> tuple[np.ndarray, np.ndarray]:
         )
     if len(header) == 1:  # the counts are on the next line
         at = at[1:]
-        if not at:
+        if not len(at):
             raise BadBody("OFF has no counts line `vertices faces edges`")
         header = [b"OFF", *lines[at[0]].split()]
     counts_line = at[0] + 1
@@ -316,8 +346,8 @@ def read_off(data: bytes) -> tuple[np.ndarray, np.ndarray]:
             f"OFF line {counts_line} declares {n_vertices} vertices and {n_faces} "
             f"faces ({n_vertices + n_faces} lines), but {len(at) - 1} lines follow"
         )
-    vertices = _vertex_rows(lines, v_at, "OFF")
-    counts, values = integer_rows(b"\n".join(lines[i] for i in f_at), len(f_at))
+    vertices = _vertex_rows(lines.text(v_at, skip=0).splitlines(), v_at + 1, "OFF", lines)
+    counts, values = integer_rows(lines.text(f_at, skip=0), len(f_at))
     if counts is None:
         for i in f_at:
             if not all(re.fullmatch(rb"[+-]?\d+", t) for t in lines[i].split()):
@@ -346,9 +376,12 @@ def read_off(data: bytes) -> tuple[np.ndarray, np.ndarray]:
                 f"OFF line {i + 1} ({_show(lines[i])}): "
                 + problem.format(size=sizes[face], listed=listed[face])
             )
-    offset = np.arange(len(values)) - np.repeat(firsts, counts)  # within its line
-    keep = (offset >= 1) & (offset <= np.repeat(sizes, counts))
-    indices = values[keep]
+    # a line's indices are the `size` values after its first (a colour may follow them)
+    marks = np.zeros(len(values) + 1, np.int8)
+    marks[firsts + 1] = 1
+    marks[firsts + 1 + sizes] -= 1  # after the +1: the next line's first may end the last
+    indices = values[np.cumsum(marks[:-1], dtype=np.int8) > 0]
+    del marks, values
     bad = (indices < 0) | (indices >= n_vertices)
     if bad.any():
         face = int(np.searchsorted(np.cumsum(sizes), np.flatnonzero(bad)[0], side="right"))

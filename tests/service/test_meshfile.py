@@ -93,8 +93,28 @@ def test_obj_polygons_relative_indices_and_texture_normal_references():
 
 
 @pytest.mark.parametrize(
+    "body",
+    [
+        b"v 0 0 0\rv 1 0 0\rv 0 1 0\rf 1 2 3",  # old Mac line ends, no last newline
+        b"v 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nf 1 2 3\r\n",
+        b"# made by hand\n  v 0 0 0 # origin\n\tv 1 0 0\nv 0 1 \\\n0\n\nf 1 2 \\\r\n3 # tri\n",
+    ],
+    ids=["cr", "crlf", "comments blanks and continued lines"],
+)
+def test_obj_line_forms(body):
+    mesh = decode(body, "obj")
+    assert mesh.faces.tolist() == [[0, 1, 2]]
+    np.testing.assert_array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+
+
+@pytest.mark.parametrize(
     "body, error, message",
     [
+        (
+            OBJ_TRIANGLE + b"f 1 2 3\nf ",
+            Invalid,
+            "OBJ line 5 (`f`): a face needs at least 3 vertices, this one has 0",
+        ),
         (
             OBJ_TRIANGLE + b"f 0 1 2\n",
             Invalid,
