@@ -42,11 +42,12 @@ TRIANGLE_BYTES = 80
 #: list slot, a float a 24-byte object).
 JSON_PARSE_FACTOR = 16
 #: Peak bytes per body byte while a mesh file is read through trimesh (measured 7.6-16.4 for
-#: PLY, STL and GLB) ...
+#: STL and GLB) ...
 MESH_FILE_FACTOR = 20
-#: ... and by the service's own OBJ and OFF readers, whose short face lines (`f 1 2 3`, or one
-#: long polygon fanned into a triangle an index) become int64 rows (measured 14-24.5 with
-#: tracemalloc, 9-37 as a server's RSS, which holds the body's copies too).
+#: ... and by the service's own OBJ, OFF and PLY readers, whose short face rows (`f 1 2 3`,
+#: `3 0 1 2`, or one long polygon fanned into a triangle an index) become int64 rows
+#: (measured 14-24.5 with tracemalloc, 9-37 as a server's RSS, which holds the body's copies
+#: too; a binary PLY read by trimesh less).
 MESH_TEXT_FACTOR = 47
 #: Peak bytes per body byte of a binary (npy, npz) array body: the body and owned copies.
 ARRAY_FACTOR = 2
@@ -75,9 +76,9 @@ def decode_bytes(n_body: int, fmt: str | None) -> int:
     body itself); None: a format not known yet (counted as binary)."""
     if fmt == "json":
         return n_body * (1 + JSON_PARSE_FACTOR)
-    if fmt in ("obj", "off"):
+    if fmt in ("obj", "off", "ply"):
         return n_body * (1 + MESH_TEXT_FACTOR)
-    if fmt in ("ply", "stl", "glb"):
+    if fmt in ("stl", "glb"):
         return n_body * (1 + MESH_FILE_FACTOR)
     return n_body * ARRAY_FACTOR
 

@@ -62,13 +62,11 @@ def read_mesh_file(body: Buffer, fmt: str) -> tuple[np.ndarray, np.ndarray]:
         vertices, faces = read_off(data)
     else:
         try:
-            by_hand = {"ply": check_ply, "stl": check_stl, "glb": check_glb}[fmt](data)
-            if by_hand is not None:  # a binary PLY whose faces differ in length
-                vertices, faces = read_binary_ply(data, by_hand)
+            layout = {"ply": check_ply, "stl": check_stl, "glb": check_glb}[fmt](data)
+            read = None if layout is None else read_ply_by_hand(data, layout)
         except BadBody as exc:
             raise BadBody(f"body cannot be read as {fmt.upper()}: {exc.detail}") from None
-        if by_hand is None:
-            vertices, faces = _read_with_trimesh(data, fmt)
+        vertices, faces = _read_with_trimesh(data, fmt) if read is None else read
     if len(faces) == 0:
         raise BadBody(f"no triangles found in the {fmt.upper()} body; is it really {fmt.upper()}?")
     if vertices.ndim != 2 or vertices.shape[1] != 3:  # a glTF POSITION of another type
@@ -443,8 +441,8 @@ _PLY_FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
 def check_ply(data: bytes) -> PlyLayout | None:
     """400 unless the header is complete, its lists hold integers, and the body holds what it
     declares (in ASCII, each row of an element with a list as many values as its counts say).
-    Returns the layout of a binary PLY whose rows differ in length (triangles and quads), which
-    trimesh does not read, for ``read_binary_ply``; else None."""
+    Returns the layout of an ASCII PLY, or of a binary PLY whose rows differ in length (which
+    trimesh does not read), for ``read_ply_by_hand``; else None."""
     end = re.search(rb"(?m)^end_header[ \t]*\r?$\n?", data)
     if end is None:
         raise BadBody("PLY header has no `end_header` line; the header must end with one")
@@ -507,6 +505,7 @@ def check_ply(data: bytes) -> PlyLayout | None:
                 f"only {lines} lines after end_header"
             )
         _check_ascii_lists(data, end.end(), data.count(b"\n", 0, end.end()), elements)
+        return PlyLayout(end.end(), "ascii", elements)
     else:
         needed = sum(e.count * (e.fixed + e.list_counts) for e in elements)
         if rest < needed:
@@ -565,11 +564,67 @@ def _check_binary_lists(data: bytes, at: int, order: str, elements: list) -> boo
 
 @dataclass
 class PlyLayout:
-    """Where a binary PLY's rows start, its byte order, and its elements."""
+    """Where a PLY's rows start, its byte order (``<``, ``>``) or ``ascii``, and its elements."""
 
     start: int
     order: str
     elements: list[_PlyElement]
+
+
+def read_ply_by_hand(data: bytes, layout: PlyLayout) -> tuple[np.ndarray, np.ndarray] | None:
+    """(vertices, faces) of the PLYs trimesh reads slowly or not at all, or None to let it."""
+    if layout.order == "ascii":
+        return read_ascii_ply(data, layout)
+    return read_binary_ply(data, layout)
+
+
+def read_ascii_ply(data: bytes, layout: PlyLayout) -> tuple[np.ndarray, np.ndarray] | None:
+    """(vertices float32 (V, 3), faces int64 (F, 3)) of an ASCII PLY whose vertex element
+    holds x, y, z among its scalars and whose face element starts with its list of integer
+    indices, read with NumPy over the whole body (trimesh's reader of short face rows peaks at
+    53 times the body); None for any other layout."""
+    lines = _Lines(_plain_lines(data[layout.start :], continued=False))
+    header_lines = data.count(b"\n", 0, layout.start)
+    vertices = faces = None
+    row = 0
+    for element in layout.elements:
+        rows = np.arange(row, row + element.count)
+        row += element.count
+        if element.name == "vertex":
+            if any(element.lists) or not {"x", "y", "z"} <= set(element.names):
+                return None
+            columns = [element.names.index(axis) for axis in "xyz"]
+            try:
+                vertices = np.loadtxt(
+                    lines.text(rows, skip=0).splitlines(),
+                    dtype=np.float32,
+                    usecols=columns,
+                    ndmin=2,
+                    comments=None,
+                )
+            except ValueError:
+                return None  # trimesh names what it cannot read
+        elif element.name == "face":
+            if element.lists[:1] != [True] or any(element.lists[1:]):
+                return None
+            counts, values = integer_rows(lines.text(rows, skip=0), element.count)
+            if counts is None or len(counts) != element.count or (counts == 0).any():
+                return None
+            firsts = np.cumsum(counts) - counts
+            sizes = values[firsts]
+            short = np.flatnonzero(sizes < 3)
+            if short.size:
+                raise Invalid(
+                    f"PLY line {header_lines + row - element.count + short[0] + 1}: a face "
+                    f"needs at least 3 vertices, this one lists {sizes[short[0]]}"
+                )
+            marks = np.zeros(len(values) + 1, np.int8)  # a row's indices: its size values
+            marks[firsts + 1] = 1
+            marks[firsts + 1 + sizes] -= 1  # after the +1: the next row's first may end one
+            faces = fan(sizes, values[np.cumsum(marks[:-1], dtype=np.int8) > 0])
+    if vertices is None or faces is None:
+        return None
+    return vertices, faces
 
 
 def read_binary_ply(data: bytes, layout: PlyLayout) -> tuple[np.ndarray, np.ndarray]:
@@ -641,22 +696,23 @@ def _list_rows(data: bytes, at: int, order: str, element: _PlyElement) -> tuple[
 def _check_ascii_lists(data: bytes, start: int, header_lines: int, elements: list) -> None:
     """400 naming the line where an ASCII row of an element with a list holds other than its
     counts say (``3 0 1 2``: a count, then that many integers), as trimesh reads what it finds."""
-    rows = data[start:].split(b"\n")
+    body = data[start:]
+    lines = _Lines(body if body.endswith(b"\n") else body + b"\n")
     first = 0
     for element in elements:
-        if any(element.lists):
-            text = b"\n".join(rows[first : first + element.count])
-            if element.lists == [True]:  # the usual face element: one list alone
-                counts, values = integer_rows(text, element.count)
-                if counts is not None and len(values):
-                    heads = np.cumsum(counts) - counts
-                    held = np.where(counts > 0, values[np.minimum(heads, len(values) - 1)] + 1, -1)
-                    if (held == counts).all():
-                        first += element.count
-                        continue
-            for k, row in enumerate(rows[first : first + element.count]):
-                _check_ascii_row(row, element, header_lines + first + k + 1)
+        rows = np.arange(first, first + element.count)
         first += element.count
+        if not any(element.lists):
+            continue
+        if element.lists == [True]:  # the usual face element: one list alone
+            counts, values = integer_rows(lines.text(rows, skip=0), element.count)
+            if counts is not None and len(values):
+                heads = np.cumsum(counts) - counts
+                held = np.where(counts > 0, values[np.minimum(heads, len(values) - 1)] + 1, -1)
+                if (held == counts).all():
+                    continue
+        for k in rows:
+            _check_ascii_row(lines[k], element, header_lines + k + 1)
 
 
 def _check_ascii_row(row: bytes, element: _PlyElement, number: int) -> None:

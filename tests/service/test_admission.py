@@ -325,6 +325,9 @@ def test_a_json_answer_is_written_in_bounded_memory(servers):
 SMALL_MESH_FILES = {
     "obj": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
     "off": b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+    "ply": b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+    b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+    b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
 }
 
 
@@ -334,12 +337,19 @@ SMALL_MESH_FILES = {
         ("obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf " + b"1 2 3 " * 700_000 + b"\n"),
         ("obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\n" + b"f 1 2 3\n" * 500_000),
         ("off", b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2100000 " + b"0 1 2 " * 700_000 + b"\n"),
+        (
+            "ply",
+            b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            b"property float z\nelement face 500000\nproperty list uchar int vertex_indices\n"
+            b"end_header\n0 0 0\n1 0 0\n0 1 0\n" + b"5 0 1 2 1 0\n" * 500_000,
+        ),
     ],
-    ids=["obj polygon fanned", "obj face lines", "off polygon fanned"],
+    ids=["obj polygon fanned", "obj face lines", "off polygon fanned", "ply pentagon rows"],
 )
 def test_a_mesh_file_is_held_at_no_less_than_its_real_peak(servers, fmt, body):
-    """An OBJ or OFF of short face lines, or one long polygon that fans into a triangle an
-    index, costs about 50 times its text to read: the estimate a mesh upload holds is more."""
+    """An OBJ, OFF or ASCII PLY of short face rows, or one long polygon that fans into a
+    triangle an index, costs tens of times its text to read: the estimate a mesh upload holds
+    is more."""
     server = servers["unbounded"]
     headers = {"content-type": "model/obj" if fmt == "obj" else "text/plain"}
     warm = httpx.put(  # one small file first: nothing lazy is left
