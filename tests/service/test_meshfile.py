@@ -4,6 +4,7 @@ file refused with a 4xx error naming the problem (``BadBody`` 400, ``Invalid`` o
 
 from __future__ import annotations
 
+import io
 import json
 import random
 import struct
@@ -263,6 +264,54 @@ def test_binary_ply_with_triangles_and_quads(order, extra):
     mesh = decode(_mixed_faces_ply(order, extra), "ply")
     assert mesh.faces.tolist() == [[0, 1, 2], [0, 1, 3], [0, 3, 2]]
     np.testing.assert_array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+
+
+def _ascii_ply_variants() -> dict[str, bytes]:
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(2)
+    plain = sphere.export(file_type="ply", encoding="ascii")
+    sphere.visual.vertex_colors = [200, 100, 50, 255]
+    _ = sphere.vertex_normals  # computed: written with the vertices
+    dressed = sphere.export(file_type="ply", encoding="ascii")
+    header = ["element vertex 4", *PLY_TRIANGLE_HEADER[1:4], "element face 2"]
+    square = b"0 0 0\n1 0 0\n0 1 0\n1 1 0\n"
+    flagged = ply(
+        [*header, "property list uchar int vertex_indices", "property int flags"],
+        square + b"3 0 1 2 7\n4 0 1 3 2 8\n",
+    )
+    quality = ply(
+        [*header, "property list uchar int vertex_indices", "property float quality"],
+        square + b"3 0 1 2 0.5\n4 0 1 3 2 0.25\n",
+    )
+    return {"plain": plain, "colours and normals": dressed, "flags": flagged, "quality": quality}
+
+
+@pytest.mark.parametrize("variant", ["plain", "colours and normals", "flags", "quality"])
+def test_ascii_ply_reads_as_trimesh_does(variant):
+    """The service's ASCII PLY reader (NumPy over the whole body) gives trimesh's vertices
+    and faces, extra vertex properties and face properties after the list included (a float
+    one goes to trimesh itself)."""
+    import trimesh
+
+    body = _ascii_ply_variants()[variant]
+    mesh = decode(body, "ply")
+    theirs = trimesh.load(io.BytesIO(body), file_type="ply", process=False)
+    np.testing.assert_array_equal(mesh.vertices, np.asarray(theirs.vertices, np.float32))
+    if variant == "flags":  # trimesh starts a quad's second triangle at another corner here:
+        # the same triangle, its corners turned (the orientation kept)
+        np.testing.assert_array_equal(
+            _turned_to_lowest(mesh.faces), _turned_to_lowest(theirs.faces)
+        )
+    else:
+        np.testing.assert_array_equal(mesh.faces, theirs.faces)
+
+
+def _turned_to_lowest(faces) -> np.ndarray:
+    """Each triangle's corners turned to start at its lowest index, the order kept."""
+    faces = np.asarray(faces)
+    first = np.argmin(faces, axis=1)[:, None]
+    return np.take_along_axis(faces, (first + np.arange(3)) % 3, axis=1)
 
 
 BILLION_VERTICES = ["element vertex 1000000000", *PLY_TRIANGLE_HEADER[1:]]
