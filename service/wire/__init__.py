@@ -19,7 +19,7 @@ format     Content-Type                                    read with
            ``application/zip``)                            place, deflated ones decompressed once
 ``json``   ``application/json``                            ``json.loads``
 ``obj``    ``model/obj``                                   ``meshfile`` (NumPy)
-``ply``    ``application/ply`` (``model/ply``)             ``meshfile``: trimesh (binary or ASCII)
+``ply``    ``application/ply`` (``model/ply``)             ``meshfile``: NumPy (ASCII), trimesh
 ``stl``    ``model/stl`` (``application/sla``)             ``meshfile``: trimesh (binary or ASCII)
 ``glb``    ``model/gltf-binary``                           ``meshfile``: trimesh
 ``off``    ``model/off`` (``application/off``)             ``meshfile`` (NumPy)

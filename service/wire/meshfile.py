@@ -22,8 +22,11 @@ Rules
 
 OBJ and OFF are read here with NumPy, because trimesh (5.2) reads the OBJ index 0 as the first
 vertex, resolves negative OBJ indices from the end of the file instead of from the face's line,
-and reads the OFF face ``1000000 0 1 2`` as a triangle. PLY, STL and GLB are read by trimesh after
-their headers are checked here.
+and reads the OFF face ``1000000 0 1 2`` as a triangle. So is an ASCII PLY whose faces are its
+face element's leading list (trimesh's reader holds tens of times the body), and a binary PLY
+whose faces differ in length (trimesh reads only rows as long as the first). The other PLYs,
+STL and GLB are read by trimesh after their headers are checked here. The text readers find
+their lines with NumPy over the whole body (``_Lines``), never as a Python object a line.
 """
 
 from __future__ import annotations
