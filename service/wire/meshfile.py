@@ -400,24 +400,6 @@ def read_off(data: bytes) -> tuple[np.ndarray, np.ndarray]:
 # PLY, STL, GLB: headers checked before trimesh reads them
 
 
-_PLY_TYPES = {
-    "char": 1,
-    "uchar": 1,
-    "int8": 1,
-    "uint8": 1,
-    "short": 2,
-    "ushort": 2,
-    "int16": 2,
-    "uint16": 2,
-    "int": 4,
-    "uint": 4,
-    "int32": 4,
-    "uint32": 4,
-    "float": 4,
-    "float32": 4,
-    "double": 8,
-    "float64": 8,
-}
 #: NumPy codes of the PLY types
 _PLY_NUMPY = {
     "char": "i1",
@@ -437,7 +419,9 @@ _PLY_NUMPY = {
     "double": "f8",
     "float64": "f8",
 }
-_PLY_FLOATS = ("float", "float32", "double", "float64")
+#: Bytes of each PLY type
+_PLY_TYPES = {name: np.dtype(code).itemsize for name, code in _PLY_NUMPY.items()}
+_PLY_FLOATS = tuple(name for name, code in _PLY_NUMPY.items() if code[0] == "f")
 _PLY_FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
 
 
@@ -462,8 +446,6 @@ def check_ply(data: bytes) -> PlyLayout | None:
         elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
             elements.append(_PlyElement(words[1], int(words[2])))
         elif words[0] == "property" and elements and len(words) == 3 and words[1] in _PLY_TYPES:
-            elements[-1].fixed += _PLY_TYPES[words[1]]
-            elements[-1].lists.append(False)
             elements[-1].types.append((words[1],))
             elements[-1].names.append(words[2])
         elif (
@@ -479,8 +461,6 @@ def check_ply(data: bytes) -> PlyLayout | None:
                     f"PLY header line {number} ({_show(line.encode())}): a list's count "
                     "and items must be of integer types (its items are vertex indices)"
                 )
-            elements[-1].list_counts += _PLY_TYPES[words[2]]
-            elements[-1].lists.append(True)
             elements[-1].types.append((words[2], words[3]))
             elements[-1].names.append(words[4])
         else:
@@ -510,7 +490,7 @@ def check_ply(data: bytes) -> PlyLayout | None:
         _check_ascii_lists(data, end.end(), data.count(b"\n", 0, end.end()), elements)
         return PlyLayout(end.end(), "ascii", elements)
     else:
-        needed = sum(e.count * (e.fixed + e.list_counts) for e in elements)
+        needed = sum(e.count * e.least_row_bytes for e in elements)
         if rest < needed:
             raise BadBody(
                 f"PLY header declares {declared} (at least {needed} bytes), but the "
@@ -524,16 +504,22 @@ def check_ply(data: bytes) -> PlyLayout | None:
 
 @dataclass
 class _PlyElement:
-    """A PLY element as its header declares it: bytes of its scalar properties and of its lists'
-    counts, and which of its properties, in order, are lists."""
+    """A PLY element as its header declares it: its properties' names and types, in order."""
 
     name: str
     count: int
-    fixed: int = 0
-    list_counts: int = 0
-    lists: list[bool] = field(default_factory=list)
     types: list[tuple[str, ...]] = field(default_factory=list)  #: (type,) or (count, item)
     names: list[str] = field(default_factory=list)
+
+    @property
+    def lists(self) -> list[bool]:
+        """Which of the properties are lists."""
+        return [len(kind) == 2 for kind in self.types]
+
+    @property
+    def least_row_bytes(self) -> int:
+        """A binary row's bytes with every list empty: its scalars and its lists' counts."""
+        return sum(_PLY_TYPES[kind[0]] for kind in self.types)
 
 
 def _check_binary_lists(data: bytes, at: int, order: str, elements: list) -> bool:
