@@ -209,10 +209,8 @@ class _Lines:
 
     def text(self, at: np.ndarray, skip: int) -> bytes:
         """Lines ``at`` without their first ``skip`` bytes, each with its newline."""
-        inside = np.zeros(len(self.buf) + 1, np.int8)  # +1 where a kept part starts, -1 after
-        inside[self.starts[at] + skip] = 1
-        inside[self.ends[at] + 1] -= 1  # after the +1: a line may start where one ends
-        return self.buf[np.cumsum(inside[:-1], dtype=np.int8) > 0].tobytes()
+        kept = _in_spans(len(self.buf), self.starts[at] + skip, self.ends[at] + 1)
+        return self.buf[kept].tobytes()
 
 
 def _vertex_rows(rows: list[bytes], numbers, fmt: str, lines) -> np.ndarray:
@@ -254,10 +252,16 @@ def _without_slash_parts(text: bytes) -> bytes:
     slashes = np.flatnonzero(buf == ord("/"))
     spaces = np.append(np.flatnonzero(_SPACE[buf]), len(buf))
     ends, first = np.unique(spaces[np.searchsorted(spaces, slashes)], return_index=True)
-    inside = np.zeros(len(buf) + 1, np.int8)  # +1 where a token's /... part starts, -1 after it
-    inside[slashes[first]] = 1
-    inside[ends] -= 1
-    return buf[np.cumsum(inside[:-1], dtype=np.int8) == 0].tobytes()
+    return buf[~_in_spans(len(buf), slashes[first], ends)].tobytes()
+
+
+def _in_spans(n: int, starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    """bool (n,): the positions in [starts[k], stops[k]) for spans that do not overlap (a span
+    may start where another stops), marked with one int8 a position."""
+    inside = np.zeros(n + 1, np.int8)
+    inside[starts] = 1
+    inside[stops] -= 1  # after the +1s: a span may start where another stops
+    return np.cumsum(inside[:-1], dtype=np.int8) > 0
 
 
 _INTEGER_START = np.zeros(256, bool)
@@ -378,11 +382,8 @@ def read_off(data: bytes) -> tuple[np.ndarray, np.ndarray]:
                 + problem.format(size=sizes[face], listed=listed[face])
             )
     # a line's indices are the `size` values after its first (a colour may follow them)
-    marks = np.zeros(len(values) + 1, np.int8)
-    marks[firsts + 1] = 1
-    marks[firsts + 1 + sizes] -= 1  # after the +1: the next line's first may end the last
-    indices = values[np.cumsum(marks[:-1], dtype=np.int8) > 0]
-    del marks, values
+    indices = values[_in_spans(len(values), firsts + 1, firsts + 1 + sizes)]
+    del values
     bad = (indices < 0) | (indices >= n_vertices)
     if bad.any():
         face = int(np.searchsorted(np.cumsum(sizes), np.flatnonzero(bad)[0], side="right"))
@@ -607,10 +608,7 @@ def read_ascii_ply(data: bytes, layout: PlyLayout) -> tuple[np.ndarray, np.ndarr
                     f"PLY line {header_lines + row - element.count + short[0] + 1}: a face "
                     f"needs at least 3 vertices, this one lists {sizes[short[0]]}"
                 )
-            marks = np.zeros(len(values) + 1, np.int8)  # a row's indices: its size values
-            marks[firsts + 1] = 1
-            marks[firsts + 1 + sizes] -= 1  # after the +1: the next row's first may end one
-            faces = fan(sizes, values[np.cumsum(marks[:-1], dtype=np.int8) > 0])
+            faces = fan(sizes, values[_in_spans(len(values), firsts + 1, firsts + 1 + sizes)])
     if vertices is None or faces is None:
         return None
     return vertices, faces
