@@ -488,8 +488,9 @@ def check_ply(data: bytes) -> PlyLayout | None:
                 f"PLY header declares {declared} ({needed} lines), but the body holds "
                 f"only {lines} lines after end_header"
             )
-        _check_ascii_lists(data, end.end(), data.count(b"\n", 0, end.end()), elements)
-        return PlyLayout(end.end(), "ascii", elements)
+        header_lines = data.count(b"\n", 0, end.end())
+        lines, parsed = _check_ascii_lists(data, end.end(), header_lines, elements)
+        return PlyLayout(end.end(), "ascii", elements, header_lines, lines, parsed)
     else:
         needed = sum(e.count * e.least_row_bytes for e in elements)
         if rest < needed:
@@ -554,11 +555,16 @@ def _check_binary_lists(data: bytes, at: int, order: str, elements: list) -> boo
 
 @dataclass
 class PlyLayout:
-    """Where a PLY's rows start, its byte order (``<``, ``>``) or ``ascii``, and its elements."""
+    """Where a PLY's rows start, its byte order (``<``, ``>``) or ``ascii``, and its elements;
+    for an ASCII PLY also its header's lines, its body's lines, and the rows its check parsed
+    (an element's name: its (counts, values) as ``integer_rows`` gives them)."""
 
     start: int
     order: str
     elements: list[_PlyElement]
+    header_lines: int = 0
+    lines: _Lines | None = None
+    parsed: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
 def read_ply_by_hand(data: bytes, layout: PlyLayout) -> tuple[np.ndarray, np.ndarray] | None:
@@ -573,8 +579,7 @@ def read_ascii_ply(data: bytes, layout: PlyLayout) -> tuple[np.ndarray, np.ndarr
     holds x, y, z among its scalars and whose face element starts with its list of integer
     indices, read with NumPy over the whole body (trimesh's reader of short face rows peaks at
     53 times the body); None for any other layout."""
-    lines = _Lines(_plain_lines(data[layout.start :], continued=False))
-    header_lines = data.count(b"\n", 0, layout.start)
+    lines = layout.lines
     vertices = faces = None
     row = 0
     for element in layout.elements:
@@ -597,7 +602,8 @@ def read_ascii_ply(data: bytes, layout: PlyLayout) -> tuple[np.ndarray, np.ndarr
         elif element.name == "face":
             if element.lists[:1] != [True] or any(element.lists[1:]):
                 return None
-            counts, values = integer_rows(lines.text(rows, skip=0), element.count)
+            parsed = layout.parsed.get(element.name)
+            counts, values = parsed or integer_rows(lines.text(rows, skip=0), element.count)
             if counts is None or len(counts) != element.count or (counts == 0).any():
                 return None
             firsts = np.cumsum(counts) - counts
@@ -605,7 +611,7 @@ def read_ascii_ply(data: bytes, layout: PlyLayout) -> tuple[np.ndarray, np.ndarr
             short = np.flatnonzero(sizes < 3)
             if short.size:
                 raise Invalid(
-                    f"PLY line {header_lines + row - element.count + short[0] + 1}: a face "
+                    f"PLY line {layout.header_lines + row - element.count + short[0] + 1}: a face "
                     f"needs at least 3 vertices, this one lists {sizes[short[0]]}"
                 )
             faces = fan(sizes, values[_in_spans(len(values), firsts + 1, firsts + 1 + sizes)])
@@ -680,11 +686,15 @@ def _list_rows(data: bytes, at: int, order: str, element: _PlyElement) -> tuple[
     return at, {n: (counts[n], joined[n]) for n in counts}
 
 
-def _check_ascii_lists(data: bytes, start: int, header_lines: int, elements: list) -> None:
+def _check_ascii_lists(
+    data: bytes, start: int, header_lines: int, elements: list
+) -> tuple[_Lines, dict[str, tuple[np.ndarray, np.ndarray]]]:
     """400 naming the line where an ASCII row of an element with a list holds other than its
-    counts say (``3 0 1 2``: a count, then that many integers), as trimesh reads what it finds."""
+    counts say (``3 0 1 2``: a count, then that many integers), as trimesh reads what it finds.
+    Returns the body's lines and the rows of each element of one list it parsed whole."""
     body = data[start:]
     lines = _Lines(body if body.endswith(b"\n") else body + b"\n")
+    parsed = {}
     first = 0
     for element in elements:
         rows = np.arange(first, first + element.count)
@@ -697,9 +707,11 @@ def _check_ascii_lists(data: bytes, start: int, header_lines: int, elements: lis
                 heads = np.cumsum(counts) - counts
                 held = np.where(counts > 0, values[np.minimum(heads, len(values) - 1)] + 1, -1)
                 if (held == counts).all():
+                    parsed[element.name] = counts, values
                     continue
         for k in rows:
             _check_ascii_row(lines[k], element, header_lines + k + 1)
+    return lines, parsed
 
 
 def _check_ascii_row(row: bytes, element: _PlyElement, number: int) -> None:
