@@ -30,21 +30,23 @@ from .npy import read_npy
 from .npz_reader import read_npz
 
 
-def json_error(exc: ValueError) -> str:
-    """What ``json.loads`` found wrong, in the document's terms."""
-    if "integer string conversion" in str(exc):  # Python's guard against quadratic int parsing
-        return f"an integer in it has more than {sys.get_int_max_str_digits()} digits"
-    return str(exc)
+def parse_json(text: bytes, what: str) -> Any:
+    """``json.loads`` of ``text``, or 400 saying what is wrong with ``what`` (the body, a GLB's
+    JSON chunk) in its own terms."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise BadBody(f"{what} is not valid JSON: it is nested too deeply") from None
+    except ValueError as exc:  # JSONDecodeError, bad UTF-8, integers of over 4300 digits
+        problem = str(exc)
+        if "integer string conversion" in problem:  # Python's guard against slow int parsing
+            problem = f"an integer in it has more than {sys.get_int_max_str_digits()} digits"
+        raise BadBody(f"{what} is not valid JSON: {problem}") from None
 
 
 def read_json(buf: Buffer, expected: str) -> dict[str, Any]:
     """A JSON object; anything else is 400 naming the ``expected`` keys."""
-    try:
-        doc = json.loads(buf if isinstance(buf, (bytes, bytearray)) else bytes(buf))
-    except RecursionError:
-        raise BadBody("body is not valid JSON: it is nested too deeply") from None
-    except ValueError as exc:  # JSONDecodeError, bad UTF-8, integers of over 4300 digits
-        raise BadBody(f"body is not valid JSON: {json_error(exc)}") from None
+    doc = parse_json(buf if isinstance(buf, (bytes, bytearray)) else bytes(buf), "body")
     if not isinstance(doc, dict):
         raise BadBody(f"JSON body must be an object with {expected}, got {type(doc).__name__}")
     return doc

@@ -32,7 +32,6 @@ their lines with NumPy over the whole body (``_Lines``), never as a Python objec
 from __future__ import annotations
 
 import io
-import json
 import re
 import struct
 from dataclasses import dataclass, field
@@ -41,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import BadBody, Invalid, TooLarge
-from .decoders import json_error
+from .decoders import parse_json
 
 Buffer = bytes | memoryview
 
@@ -812,12 +811,7 @@ def check_glb(data: bytes) -> None:
         offset += 8 + size
     if chunks[0][0] != _GLB_JSON:
         raise BadBody("GLB's first chunk must be its JSON")
-    try:
-        doc = json.loads(chunks[0][1])
-    except RecursionError:
-        raise BadBody("GLB JSON chunk is not valid JSON: it is nested too deeply") from None
-    except ValueError as exc:  # JSONDecodeError, bad UTF-8, integers of over 4300 digits
-        raise BadBody(f"GLB JSON chunk is not valid JSON: {json_error(exc)}") from None
+    doc = parse_json(chunks[0][1], "GLB JSON chunk")
     if not isinstance(doc, dict):
         raise BadBody("GLB JSON chunk must be an object")
     buffers = _list(doc, "buffers")
