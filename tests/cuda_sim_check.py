@@ -155,6 +155,17 @@ def main():
     crossed = compare_crossings("grid", g, go, gd, 1)
     assert (crossed[: (k + 1) ** 2] == 2).any() and (crossed == 1).sum() == 0, crossed
     compare_crossings("grid tmax at hit", g, go, gd, 4, tmax=2.0)
+    # A hit beyond float32's range (t would round to inf) is a miss, as on the CPU.
+    square = np.array([[-1, -1, 0], [2, -1, 0], [2, 2, 0], [-1, 2, 0]], np.float32)
+    flat = dacrt.Scene([(square, np.array([[0, 1, 2], [0, 2, 3]], np.int32))])
+    far_z = [(-1.0, 1e-45), (-1.0, 2e-39), (-1e30, 1e-9), (-1.0, 1e-37), (-1e30, 1e-8)]
+    fo = np.array([[0.25, 0.25, z] for z, _ in far_z], np.float32)
+    fd = np.array([[0, 0, dz] for _, dz in far_z], np.float32)
+    for tmax in (None, np.full(len(fo), np.inf, np.float32)):
+        compare("beyond float32", flat, fo, fd, DEFAULT, tmax=tmax)
+        compare_crossings("beyond float32", flat, fo, fd, 2, tmax=tmax)
+        hit = dcuda.closest(flat, fo, fd, tmax=tmax).mesh >= 0
+        assert hit.tolist() == [False, False, False, True, True], hit
     # No rays, and a scene without triangles.
     none = np.zeros((0, 3), np.float32)
     assert len(dcuda.count(scene, none, none)) == 0

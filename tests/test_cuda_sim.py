@@ -21,12 +21,23 @@ from dacrt.validation import InputError
 
 CHECK = Path(__file__).with_name("cuda_sim_check.py")
 PTX_CHECK = Path(__file__).with_name("cuda_ptx_check.py")
+REPO = Path(__file__).resolve().parents[1]
+
+
+def checkout_env(**extra: str) -> dict[str, str]:
+    """The environment with this checkout's dacrt first on the path: a script's own folder
+    (tests/) comes first otherwise, and an installed copy of the package would answer."""
+    path = os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])
+    return {**os.environ, "PYTHONPATH": path, **extra}
 
 
 def test_cuda_answers_match_cpu_under_simulator():
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
     done = subprocess.run(
-        [sys.executable, str(CHECK)], env=env, capture_output=True, text=True, timeout=300
+        [sys.executable, str(CHECK)],
+        env=checkout_env(NUMBA_ENABLE_CUDASIM="1"),
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert done.stdout.rstrip().endswith("ok")
@@ -36,7 +47,11 @@ def test_cuda_kernels_compile_to_ptx_without_fused_float64_products():
     """Only where numba-cuda and its NVVM are installed (not in CI): see cuda_ptx_check.py."""
     pytest.importorskip("numba_cuda")
     done = subprocess.run(
-        [sys.executable, str(PTX_CHECK)], capture_output=True, text=True, timeout=600
+        [sys.executable, str(PTX_CHECK)],
+        env=checkout_env(),
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
 
