@@ -33,6 +33,9 @@ HIT_SLOT_BYTES = 48
 #: Bytes per ray or pixel of a sensor (rays made, traced, the answer's arrays; measured 94 for a
 #: picture, 118 for a depth camera, 149 for one lidar return).
 SENSOR_RAY_BYTES = 192
+#: Bytes per sensor beyond its rays (its model, arrays and answer's keys: measured 6.4 KB a
+#: one-ray lidar in a rig of 150,000).
+SENSOR_BYTES = 8 * 1024
 #: Bytes per beam and slot of a lidar's organized answer or kept non-hits beyond SENSOR_RAY_BYTES
 #: (every field filled for every beam, then the points placed: measured 125 with noise, one slot).
 FILLED_POINT_BYTES = 160
@@ -128,5 +131,5 @@ def query_bytes(n_rays: int, query: str, fields: tuple[str, ...], max_hits: int 
 def sensor_bytes(n_rays: int, max_returns: int = 1) -> int:
     """Peak bytes of a sensor of ``n_rays`` rays (pixels, or beams x steps) and its answer."""
     if max_returns > 1:
-        return n_rays * (SENSOR_RAY_BYTES + (max_returns + 1) * HIT_SLOT_BYTES)
-    return n_rays * SENSOR_RAY_BYTES
+        return SENSOR_BYTES + n_rays * (SENSOR_RAY_BYTES + (max_returns + 1) * HIT_SLOT_BYTES)
+    return SENSOR_BYTES + n_rays * SENSOR_RAY_BYTES

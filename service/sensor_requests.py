@@ -32,7 +32,7 @@ from dacrt.sensors import MODELS, RETURN_MODES, Camera, Lidar, Pattern, check_po
 from dacrt.sensors.lidar import MAX_BEAMS, MAX_RETURNS, NON_HITS
 
 from . import wire
-from .errors import BadBody, Invalid
+from .errors import BadBody, Invalid, TooLarge
 from .shading import SHADINGS
 from .store import NAME
 
@@ -277,11 +277,15 @@ Model = TypeVar("Model", bound=Body)
 _KEY_ERRORS = ("missing", "extra_forbidden", "union_tag_not_found")
 
 
-def parse(model: type[Model], body: wire.Buffer, what: str) -> Model:
+def parse(
+    model: type[Model], body: wire.Buffer, what: str, max_sensors: int | None = None
+) -> Model:
     """``body`` (JSON) as ``model``: 400 if it is not a JSON object or has wrong keys, 422 naming
-    each bad value."""
+    each bad value; 413 for a rig of more than ``max_sensors`` sensors, before they are read."""
     keys = ", ".join(model.model_fields)
     doc = wire.read_json(body, f"keys {keys}")
+    if max_sensors is not None:
+        check_rig_size(doc, max_sensors)
     try:
         value = model.model_validate(doc)
     except ValidationError as error:
@@ -303,13 +307,35 @@ def parse(model: type[Model], body: wire.Buffer, what: str) -> Model:
     return value
 
 
+def check_rig_size(doc, max_sensors: int) -> None:
+    """413 for a rig body whose ``sensors`` object holds more than ``max_sensors`` entries."""
+    sensors = doc.get("sensors") if isinstance(doc, dict) else None
+    if isinstance(sensors, dict) and len(sensors) > max_sensors:
+        raise TooLarge(
+            f"sensors: {len(sensors)} sensors is over the limit of {max_sensors} sensors per "
+            "rig (DACRT_MAX_RIG_SENSORS)"
+        )
+
+
+#: What a rig's sensor name may be, for a 422.
+NAME_RULE = "1-64 characters of A-Z a-z 0-9 _ - ."
+
+
+def shown(name: str, most: int = 80) -> str:
+    """``name`` quoted for a message, cut to its first ``most`` characters."""
+    return repr(name) if len(name) <= most else f"{name[:most]!r}... ({len(name)} characters)"
+
+
 def describe(errors: list[dict]) -> str:
     """One clause per pydantic error: ``pose[3][0]: Input should be a finite number``; a rig's
     ``sensors.NAME.KEY`` (without the tag of its kind)."""
     parts = []
     for error in errors:
         loc = list(error["loc"])
-        if loc[:1] == ["sensors"] and len(loc) > 3 and loc[2] in ("lidar", "camera"):
+        if loc[:1] == ["sensors"] and len(loc) == 3 and loc[2] == "[key]":
+            parts.append(f"sensor name {shown(loc[1])} must be {NAME_RULE}")
+            continue
+        if loc[:1] == ["sensors"] and len(loc) >= 3 and loc[2] in ("lidar", "camera"):
             del loc[2]  # the discriminator's tag, which the body does not name
         path = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc)
         path = path.removeprefix(".")

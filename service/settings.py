@@ -55,6 +55,7 @@ class Settings(BaseSettings):
     max_hits_bytes: Bytes = 2 * GiB
     max_patterns: PositiveInt = 64  #: most scan patterns (``PUT /v1/patterns/{name}``) held
     max_pattern_rays: PositiveInt = 1 * MiB  #: most rays of one scan pattern
+    max_rig_sensors: PositiveInt = 1024  #: most sensors in one rig (``POST .../sensors``)
     threads: int | None = Field(None, gt=0)  #: engine threads per query (None: every core)
     #: .npz (vertices, faces) for the demo scene; None: the teapot shipped with the package
     demo_scene: Path | None = None
@@ -127,6 +128,7 @@ class Settings(BaseSettings):
             "max_hits_bytes": self.max_hits_bytes,
             "max_patterns": self.max_patterns,
             "max_pattern_rays": self.max_pattern_rays,
+            "max_rig_sensors": self.max_rig_sensors,
             "max_inflight_bytes": self.inflight_budget(),
         }
 

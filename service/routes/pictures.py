@@ -221,7 +221,7 @@ async def sensors(
     answer_format = wire.negotiate(request.headers.get("accept"), "json", RIG_FORMATS)
 
     def decode(body: memoryview, fmt: str) -> Decoded:
-        wanted = parse(SensorsRequest, body, "sensors")
+        wanted = parse(SensorsRequest, body, "sensors", settings.max_rig_sensors)
         rig, ends = rig_sensors(wanted, patterns)
         check_sensors({name: sensor for name, (sensor, _) in rig.items()}, settings)
         sensors = [sensor for sensor, _ in rig.values()]

@@ -39,7 +39,8 @@ class NpzBody:
             CentralDirectoryHeader.LAYOUT.size + len(name) for name, _, _ in self._members
         )
         self._saved = None
-        if members + directory >= 2**32 - 1:  # needs zip64: let zipfile write it
+        if members + directory >= 2**32 - 1 or len(self._members) > 0xFFFF:
+            # needs zip64 (its sizes, or its count of members): let zipfile write it
             out = io.BytesIO()
             np.savez(out, **arrays)
             self._saved = out.getbuffer()

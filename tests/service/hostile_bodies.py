@@ -283,7 +283,27 @@ BAD_SENSOR_VALUES = [
         "sensors.front.fx: Input should be greater than 0",
     ),
     ("sensors", {"sensors": {"x": {"kind": "radar", **LIDAR}}}, "does not match any of the"),
-    ("sensors", {"sensors": {"a b": {"kind": "lidar", **LIDAR}}}, "sensors.a b.[key]"),
+    (
+        "sensors",
+        {"sensors": {"a b": {"kind": "lidar", **LIDAR}}},
+        "sensors: sensor name 'a b' must be 1-64 characters of A-Z a-z 0-9 _ - .",
+    ),
+    (
+        "sensors",
+        {"sensors": {"x" * 100: {"kind": "lidar", **LIDAR}}},
+        f"sensor name {'x' * 80!r}... (100 characters) must be",
+    ),
+    # a check of the whole sensor: named by the sensor, not by the kind's tag
+    (
+        "sensors",
+        {"sensors": {"roof": {"kind": "lidar", **LIDAR, "pose_end": LIDAR["pose"]}}},
+        "sensors: sensors.roof: pose_end needs period_s",
+    ),
+    (
+        "sensors",
+        {"sensors": {"front": {"kind": "camera", **PINHOLE, "near": 2, "far": 1}}},
+        "sensors: sensors.front: far (1.0) must be greater than near (2.0)",
+    ),
     ("sensors", {"sensors": {}}, "sensors: Dictionary should have at least 1 item"),
     (
         "sensors",

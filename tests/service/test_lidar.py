@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import json
 
+import in_process
 import numpy as np
 import procedural
 import pytest
 from sensor_helpers import MESHES, lidar_rays, npz, put_room, rigid_pose
 
 import dacrt
+from service.settings import Settings
 
 NPZ_ANSWER = {"Accept": "application/x-npz"}
 FIELDS = (
@@ -380,3 +382,20 @@ def test_every_sub_ray_counts_against_the_ray_limit(app_client, room):
     rig = {"sensors": {f"l{k}": {"kind": "lidar", **body, "beam_samples": 32} for k in range(2)}}
     response = app_client.post(f"/v1/scenes/{room}/sensors", json=rig)
     assert response.status_code == 413 and "together" in response.json()["detail"]
+
+
+def test_a_rig_of_more_sensors_than_the_limit_is_413():
+    """DACRT_MAX_RIG_SENSORS bounds a rig before its sensors are read; an answer of more than
+    65,535 arrays (a zip's 16-bit count) could not be sent otherwise."""
+    settings = Settings(token=None, max_rig_sensors=3)
+    one_ray = {"kind": "lidar", "pose": POSE, "vertical_angles_deg": [0], "horizontal_steps": 1}
+    with in_process.serve(settings) as http:
+        assert http.get("/v1/capabilities").json()["limits"]["max_rig_sensors"] == 3
+        wall = {"vertices": [[5, -5, -5], [5, 5, -5], [5, 0, 5]], "faces": [[0, 1, 2]]}
+        assert http.put("/v1/scenes/limits/meshes/wall", json=wall).status_code == 201
+        for count, status in ((3, 200), (4, 413)):
+            rig = {"sensors": {f"l{k}": one_ray for k in range(count)}}
+            response = http.post("/v1/scenes/limits/sensors", json=rig)
+            assert response.status_code == status, response.text
+        detail = response.json()["detail"]
+        assert "4 sensors" in detail and "DACRT_MAX_RIG_SENSORS" in detail

@@ -593,6 +593,17 @@ def test_npz_body_takes_each_crc_when_its_member_is_reached(monkeypatch):
     assert whole == b"".join(wire.npz_parts(arrays)) and body.length == len(whole)
 
 
+def test_npz_body_of_more_than_65535_members_reads_back():
+    """A zip's end record counts members in 16 bits: more take zip64, as numpy writes it."""
+    arrays = {f"s{i}.range": np.array([i], np.float32) for i in range(0x10000 + 2)}
+    body = wire.NpzBody(arrays)
+    whole = b"".join(body)
+    assert body.length == len(whole)
+    with np.load(io.BytesIO(whole)) as back:
+        assert len(back.files) == len(arrays)
+        assert back["s65537.range"][0] == 65537
+
+
 def test_encode_answer_names_the_content_type_and_length():
     parts, length, media = wire.encode_answer({"occluded": np.array([True])}, "json")
     assert (b"".join(parts), length, media) == (b'{"occluded":[true]}', None, wire.JSON)
