@@ -393,14 +393,16 @@ class Store:
         self, scene: str, name: str, arrays: MeshArrays, mask: int | None = None
     ) -> tuple[Mesh, bool]:
         """Add or replace a mesh (creating the scene); answers (mesh, created). A replaced mesh
-        keeps its transform, and its mask unless ``mask`` is given; it is no longer an
-        instance."""
+        keeps its transform (and transform_end), and its mask unless ``mask`` is given; it is no
+        longer an instance, and its end vertices, made for the old vertices, are dropped."""
         check_name("scene", scene), check_name("mesh", name)
         geometry = new_geometry(arrays)
         with self._lock:
             old = self._scenes.get(scene)
             before = old.meshes.get(name) if old is not None else None
-            mesh = self._changed(before, name, mask=mask, geometry=geometry, instance_of=None)
+            mesh = self._changed(
+                before, name, mask=mask, geometry=geometry, instance_of=None, vertices_end=None
+            )
             snapshot = self._commit(scene, old, {name: mesh})
             return snapshot.meshes[name], before is None
 
@@ -414,12 +416,15 @@ class Store:
     ) -> tuple[Mesh, bool]:
         """Add or replace mesh ``name`` as an instance of mesh ``source`` of the same scene,
         sharing its arrays; answers (mesh, created). ``transform`` (checked, (4, 4)) and
-        ``mask`` are the instance's own: a replaced mesh keeps its own where they are None."""
+        ``mask`` are the instance's own: a replaced mesh keeps its own where they are None, and
+        drops its end vertices (an instance does not deform)."""
         check_name("scene", scene), check_name("mesh", name), check_name("mesh", source)
         with self._lock:
             old = self.snapshot(scene)
             before = old.meshes.get(name)
-            mesh = self._changed(before, name, transform, mask, instance_of=source)
+            mesh = self._changed(
+                before, name, transform, mask, instance_of=source, vertices_end=None
+            )
             snapshot = self._commit(scene, old, {name: mesh})
             return snapshot.meshes[name], before is None
 

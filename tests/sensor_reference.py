@@ -162,13 +162,15 @@ def pick_returns(returns, mode, max_returns=1):
 
 def noisy_ranges(ranges, range_sigma, range_sigma_per_m, seed, n_beams=0, angle_sigma=0.0):
     """float32 max(r + (sigma + sigma_per_m r) z, 0), z = standard normals of
-    default_rng(seed) drawn after (n_beams, 2) angle deviates when angle_sigma > 0."""
+    default_rng(seed) drawn after (n_beams, 2) angle deviates when angle_sigma > 0; a range
+    beyond float32's largest is no return (NaN here)."""
     generator = np.random.default_rng(seed)
     if angle_sigma > 0:
         generator.normal(0.0, math.radians(angle_sigma), (n_beams, 2))
     r = ranges.astype(np.float64)
     z = generator.standard_normal(len(r))
-    return np.maximum(r + (range_sigma + range_sigma_per_m * r) * z, 0).astype(np.float32)
+    noisy = np.maximum(r + (range_sigma + range_sigma_per_m * r) * z, 0)
+    return np.where(noisy <= np.finfo(np.float32).max, noisy, np.nan).astype(np.float32)
 
 
 def kept_by_dropout(intensity_values, rate, min_intensity, seed):

@@ -189,6 +189,10 @@ def test_a_rig_passes_each_lidar_its_end_pose():
 
 BAD = {
     "period not positive": (lambda: Lidar(model="VLP-16", period_s=0.0), "period_s"),
+    "period under a microsecond": (
+        lambda: Lidar(model="VLP-16", period_s=5e-324),
+        r"period_s must be >= 1e-06",
+    ),
     "pattern without times": (
         lambda: Lidar(pattern=Pattern(azimuth_deg=[0.0], elevation_deg=[0.0]), period_s=0.1),
         "time_s",
@@ -198,11 +202,15 @@ BAD = {
             pattern=Pattern(azimuth_deg=[0.0, 1.0], elevation_deg=[0.0, 0.0], time_s=[0, 0.2]),
             period_s=0.1,
         ),
-        r"time_s\[1\]",
+        r"time_s\[1\] is 0\.2, beyond period_s \(0\.1\)",
     ),
     "end pose without period": (
         lambda: Lidar(model="VLP-16").shot(np.eye(4), np.eye(4)),
         "pose_end needs period_s",
+    ),
+    "a speed beyond float32": (
+        lambda: Lidar(model="VLP-16", period_s=0.1).shot(np.eye(4), translation(3e38)),
+        "pose_end: a move of 3e[+]38 in period_s [(]0.1[)] is a speed beyond float32",
     ),
     "end pose not rigid": (
         lambda: Lidar(model="VLP-16", period_s=0.1).shot(np.eye(4), np.diag([2.0, 1, 1, 1])),

@@ -159,6 +159,21 @@ def test_range_noise_follows_the_documented_rule_and_sigma():
     assert abs(z.mean()) < 0.1 and 0.9 < z.std() < 1.1
 
 
+def test_a_noisy_range_beyond_float32_is_no_return():
+    """Noise of an accepted (finite) sigma can throw a range past float32's largest: that beam
+    returns nothing, as a hit beyond float32's range is a miss, and every point stays finite."""
+    scene = wall_scene()
+    exact = Lidar(**WALL_LIDAR).scan(scene, level_pose())
+    noise = {"range_sigma_per_m": 3e37, "seed": 3}
+    noisy = Lidar(**WALL_LIDAR, noise=noise).scan(scene, level_pose())
+    expected = ref.noisy_ranges(exact["range"], 0.0, 3e37, 3)
+    returned = ~np.isnan(expected)
+    assert 0 < returned.sum() < len(expected)  # some beyond, some within
+    np.testing.assert_array_equal(noisy["range"], expected[returned])
+    np.testing.assert_array_equal(noisy["ray"], exact["ray"][returned])
+    assert np.isfinite(noisy["xyz"]).all()
+
+
 def test_the_same_seed_gives_the_same_points_and_another_seed_others():
     scene = wall_scene()
 

@@ -29,7 +29,7 @@ import numpy as np
 from ..validation import InputError
 from . import physics
 from .batch import Rays, Shot, Traced, capture
-from .cameras import check_pose
+from .cameras import FLOAT32_MAX, check_pose
 from .checks import choice, flag, integer, number
 from .models import MODELS
 from .motion import poses_at
@@ -127,6 +127,8 @@ def points(
 MAX_BEAMS = 1024
 MAX_RETURNS = 64
 MAX_BEAM_SAMPLES = 64
+#: The shortest sweep (seconds): speeds are displacements over it, in float32.
+MIN_PERIOD_S = 1e-6
 #: The arrays of a lidar's answer, in answer order; ``time`` only for a pattern with ``time_s`` or
 #: a lidar with ``period_s``, ``velocity`` and ``radial_speed`` only with ``period_s``.
 LIDAR_FIELDS = (
@@ -239,13 +241,13 @@ class Lidar:
         flag(self.organized, "organized")
         choice(self.frame, "frame", FRAMES)
         if self.period_s is not None:
-            number(self.period_s, "period_s", above=0)
+            number(self.period_s, "period_s", at_least=MIN_PERIOD_S)
             if self.pattern is not None and self.pattern.time_s is None:
                 raise InputError("period_s needs a pattern with time_s (when each ray fires)")
             if self.pattern is not None and not self.pattern.time_s.max() <= self.period_s:
                 late = int(np.argmax(self.pattern.time_s > self.period_s))
                 raise InputError(
-                    f"time_s[{late}] is {self.pattern.time_s[late]!r}, beyond period_s "
+                    f"time_s[{late}] is {float(self.pattern.time_s[late])!r}, beyond period_s "
                     f"({self.period_s!r}): a ray fires within the sweep"
                 )
         if self.organized and self.pattern is not None:
@@ -273,6 +275,18 @@ class Lidar:
         """The rays traced a scan: beams x sub-rays (x max_returns hits each in mode ``all``)."""
         per_beam = self.beam_samples * (self.max_returns if self.return_mode == "all" else 1)
         return self.n_beams * per_beam
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """The keys of this lidar's points, in LIDAR_FIELDS' order: ``time`` only with period_s
+        or a pattern's times, ``velocity`` and ``radial_speed`` only with period_s."""
+        timed = self.period_s is not None or (
+            self.pattern is not None and self.pattern.time_s is not None
+        )
+        absent = set() if timed else {"time"}
+        if self.period_s is None:
+            absent |= {"velocity", "radial_speed"}
+        return tuple(name for name in LIDAR_FIELDS if name not in absent)
 
     @property
     def slots(self) -> int:
@@ -399,8 +413,11 @@ class Lidar:
             deviate = generator.standard_normal(len(hit))
             exact = distance.astype(np.float64)
             sigma = self.noise.range_sigma + self.noise.range_sigma_per_m * exact
-            # a measured range is never negative
-            distance = np.maximum(exact + sigma * deviate, 0).astype(np.float32)
+            # a measured range is never negative, and one beyond float32 is no return
+            noisy = np.maximum(exact + sigma * deviate, 0)
+            measured = noisy <= FLOAT32_MAX
+            hit, beam, rank, intensity = (a[measured] for a in (hit, beam, rank, intensity))
+            distance = noisy[measured].astype(np.float32)
         if self.dropout is not None:
             uniform = np.random.default_rng(self.dropout.seed).random(len(hit))
             kept = (intensity >= self.dropout.min_intensity) & (uniform >= self.dropout.rate)
@@ -499,7 +516,13 @@ def _sensor_velocity(pose, pose_end, period_s) -> np.ndarray:
     """The sensor's velocity during the sweep (its translation is linear in time)."""
     if pose_end is None or period_s is None:
         return np.zeros(3)
-    return (pose_end[:3, 3] - pose[:3, 3]) / period_s
+    velocity = (pose_end[:3, 3] - pose[:3, 3]) / period_s
+    if not np.abs(velocity).max() <= FLOAT32_MAX:
+        raise InputError(
+            f"pose_end: a move of {np.abs(pose_end[:3, 3] - pose[:3, 3]).max():.3g} in "
+            f"period_s ({period_s!r}) is a speed beyond float32's range"
+        )
+    return velocity
 
 
 def _filled(beams: Beams, arrays: dict) -> dict:

@@ -180,6 +180,7 @@ async def lidar(
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(LidarRequest, body, "lidar")
         sensor, pose = wanted.sensor(patterns.for_lidar)
+        check_answered_fields(options.fields, sensor)
         check_sensors({"lidar": sensor}, settings)
         return sensor_decoded((sensor, pose, wanted.end_pose()), body, [sensor], answer_format)
 
@@ -270,6 +271,17 @@ def sensor_decoded(value, body: memoryview, sensors: list, answer_format: str) -
             peak += sensor.n_beams * sensor.slots * footprint.FILLED_POINT_BYTES
         n_rays += rays
     return Decoded(value, n_rays, peak, answer_format)
+
+
+def check_answered_fields(fields: tuple[str, ...], sensor: Lidar) -> None:
+    """422 when ``?fields=`` names only keys this lidar does not answer (its answer would be
+    empty): the times and speeds of a lidar without ``period_s``."""
+    if not set(fields) & set(sensor.fields):
+        raise Invalid(
+            f"?fields={','.join(fields)}: this lidar answers none of them (velocity and "
+            "radial_speed need period_s; time needs period_s or a pattern with time_s); it "
+            f"answers {', '.join(sensor.fields)}"
+        )
 
 
 #: What a sensor's rays are, for a 413.

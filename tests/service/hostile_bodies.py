@@ -264,6 +264,7 @@ BAD_SENSOR_VALUES = [
     ("lidar", {**LIDAR, "dropout": {"min_intensity": -1}}, "dropout.min_intensity must be >= 0"),
     ("lidar", {**LIDAR, "dropout": {"seed": -2}}, "dropout.seed must be >= 0"),
     ("lidar", {**LIDAR, "non_hits": "fill"}, "non_hits: Input should be 'drop' or 'keep'"),
+    ("lidar", {**LIDAR, "period_s": 5e-324}, "period_s must be >= 1e-06, got 5e-324"),
     ("lidar", {**LIDAR, "organized": 1}, "organized: Input should be a valid boolean"),
     ("lidar", {"pose": LIDAR["pose"], "pattern": "no-such"}, "pattern: no pattern 'no-such'"),
     ("lidar", {"pose": LIDAR["pose"], "pattern": "a b"}, "pattern: String should match"),

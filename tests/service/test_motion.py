@@ -261,6 +261,39 @@ def test_rays_at_their_times_see_a_deforming_mesh(app_client, scene_name):
     )
 
 
+def test_a_mesh_put_again_drops_its_end_vertices(app_client, scene_name):
+    """End vertices belong to the vertices they were given with: a whole mesh PUT again (of the
+    same vertex count or not) or an instance over it is static, not swept to the old ends."""
+    upload_floor(app_client, scene_name)
+    o, d, times = rays()
+    frame = {"floor.vertices_end": floor_at(RISE)}
+    assert app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame).status_code == 200
+    for vertices, faces in (quad(-9, 9, -9, 9, 2.0), tri_fan(2.0)):
+        body = {"vertices": vertices.tolist(), "faces": faces.tolist()}
+        response = app_client.put(f"/v1/scenes/{scene_name}/meshes/floor", json=body)
+        assert response.status_code == 200 and response.json()["vertices_end"] is None, (
+            response.text
+        )
+        np.testing.assert_allclose(closest_json(app_client, scene_name, o, d, times)["t"], 8.0)
+        frame = {"floor.vertices_end": (vertices + [0, 0, RISE]).tolist()}
+        assert app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame).status_code == 200
+    response = app_client.put(
+        f"/v1/scenes/{scene_name}/meshes/other",
+        json={"vertices": [[0, 0, 0]] * 3, "faces": [[0, 1, 2]]},
+    )
+    assert response.status_code == 201, response.text
+    response = app_client.put(
+        f"/v1/scenes/{scene_name}/meshes/floor", json={"instance_of": "other"}
+    )
+    assert response.status_code == 200 and response.json()["vertices_end"] is None, response.text
+
+
+def tri_fan(z: float) -> tuple[np.ndarray, np.ndarray]:
+    """A floor at height z of 5 vertices (the quad's 4 and its centre), 4 triangles."""
+    vertices = np.array([[-9, -9, z], [9, -9, z], [9, 9, z], [-9, 9, z], [0, 0, z]], np.float32)
+    return vertices, np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]], np.int32)
+
+
 def test_bad_vertices_end_are_422_naming_the_key(app_client, scene_name):
     upload_floor(app_client, scene_name)
     bad = np.float32(floor_at(1.0))
@@ -329,3 +362,23 @@ def test_a_pcd_holds_velocity_as_three_fields(app_client, scene_name, fields, wa
     for axis, name in enumerate(["velocity_x", "velocity_y", "velocity_z"]):
         np.testing.assert_array_equal(records[name], points["velocity"][:, axis])
     np.testing.assert_allclose(records["velocity_x"], 20.0, atol=1e-3)
+
+
+@pytest.mark.parametrize("accept", ["application/x-pcd", "application/json", "application/x-npz"])
+def test_fields_a_lidar_without_period_does_not_answer_are_422(app_client, scene_name, accept):
+    """Speeds and times come with period_s: asking only for them, of a lidar without it, would
+    be an empty answer (a PCD of no field), so it is refused naming why."""
+    frame = box_frame("car", (-1.0, 9.0, -1.0), (1.0, 11.0, 1.0))
+    assert app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame).status_code == 200
+    body = {"pose": np.eye(4).tolist(), "vertical_angles_deg": [0.0], "horizontal_steps": 360}
+    url = f"/v1/scenes/{scene_name}/lidar"
+    for fields in ("velocity", "time,radial_speed"):
+        response = app_client.post(
+            url, params={"fields": fields}, json=body, headers={"Accept": accept}
+        )
+        assert response.status_code == 422, response.text
+        assert "need period_s" in response.json()["detail"], response.text
+    response = app_client.post(
+        url, params={"fields": "range,velocity"}, json=body, headers={"Accept": accept}
+    )
+    assert response.status_code == 200, response.text  # the range, as a rig's sensor answers
