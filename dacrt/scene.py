@@ -89,6 +89,7 @@ from .traversal import split_middle, trace_object_split
 from .triangles import Triangles, all_finite
 from .validation import (
     InputError,
+    MeshSpaceError,
     as_float_rows,
     check_cull,
     check_masks,
@@ -1253,9 +1254,10 @@ class Scene:
                     list_size,
                 )
             except InputError:
-                raise InputError(
+                raise MeshSpaceError(
                     f"a ray of the batch leaves the float32 range in the space of mesh "
-                    f"{instance.mesh} (transforms[{instance.mesh}])"
+                    f"{instance.mesh} (transforms[{instance.mesh}])",
+                    instance.mesh,
                 ) from None
 
         def to_mesh_space(k):

@@ -19,6 +19,15 @@ class InputError(ValueError):
     the caller's terms. A ``ValueError``, so callers that catch that keep working."""
 
 
+class MeshSpaceError(InputError):
+    """A ray that leaves float32's range moved into a placed mesh's space; ``mesh`` is that
+    mesh's index in the scene (a caller with its own names for meshes can say which)."""
+
+    def __init__(self, message: str, mesh: int) -> None:
+        super().__init__(message)
+        self.mesh = mesh
+
+
 def _first_bad(bad, what, reason, total_label):
     """Raise InputError for a boolean mask ``bad`` if any entry is set."""
     bad_rows = np.flatnonzero(bad)
@@ -201,9 +210,15 @@ def check_vertices_end(i, end, vertices, matrix, matrix_end):
     return end
 
 
+#: The least scale a placement may have along any axis: rays move into a mesh's space by its
+#: inverse, which would put ordinary coordinates beyond float32's range.
+MIN_PLACEMENT_SCALE = 1e-12
+
+
 def check_transform(matrix, name="matrix"):
     """A 4x4 row-major affine placement as float64 (4, 4): finite, last row exactly
-    [0, 0, 0, 1], its 3x3 part invertible. ValueError naming ``name`` otherwise."""
+    [0, 0, 0, 1], its 3x3 part invertible and scaling no axis below MIN_PLACEMENT_SCALE.
+    ValueError naming ``name`` otherwise."""
     try:
         matrix = np.array(matrix, dtype=np.float64)
     except (TypeError, ValueError):
@@ -219,6 +234,12 @@ def check_transform(matrix, name="matrix"):
     scale = np.prod(np.linalg.norm(linear, axis=1))
     if not abs(np.linalg.det(linear)) > 1e-12 * scale:
         raise InputError(f"{name} is singular: its 3x3 part has no inverse")
+    smallest = np.linalg.svd(linear, compute_uv=False)[-1]
+    if not smallest >= MIN_PLACEMENT_SCALE:
+        raise InputError(
+            f"{name} scales an axis by {smallest:.3g}, under {MIN_PLACEMENT_SCALE:g}: rays moved "
+            "into its mesh's space would leave float32's range"
+        )
     return matrix
 
 

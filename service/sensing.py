@@ -17,7 +17,7 @@ from dacrt.sensors.batch import capture
 from . import shading
 from .options import Options
 from .store import Snapshot
-from .tracing import EngineScene, TraceResult, engine_scene
+from .tracing import EngineScene, TraceResult, engine_scene, meshes_by_name
 
 #: A sensor and its sensor-to-scene pose, as a request gives them.
 Placed = tuple[Camera | Lidar, np.ndarray]
@@ -68,7 +68,8 @@ def render(snapshot: Snapshot, camera: Camera, pose, style: str, options: Option
     start = time.perf_counter()
     engine = engine_scene(snapshot)
     shot = camera.shot(pose)
-    (image,) = capture(engine.scene, [shot], None, **_query(options))
+    with meshes_by_name(snapshot, engine):
+        (image,) = capture(engine.scene, [shot], None, **_query(options))
     t, headers = image["depth"], {}
     if style == "depth":
         pixels, span = shading.depth_pixels(t)
@@ -95,12 +96,13 @@ def sense(
     materials."""
     start = time.perf_counter()
     engine = engine_scene(snapshot)
-    if isinstance(sensor, Lidar):
-        found = sensor.scan(
-            engine.scene, pose, materials(snapshot, engine), pose_end, **_query(options)
-        )
-    else:
-        found = sensor.capture(engine.scene, pose, **_query(options))
+    with meshes_by_name(snapshot, engine):
+        if isinstance(sensor, Lidar):
+            found = sensor.scan(
+                engine.scene, pose, materials(snapshot, engine), pose_end, **_query(options)
+            )
+        else:
+            found = sensor.capture(engine.scene, pose, **_query(options))
     seconds = time.perf_counter() - start
     arrays = _answer(found, engine, options)
     stats = _stats(found.stats, options)
@@ -120,9 +122,10 @@ def sense_rig(
     engine = engine_scene(snapshot)
     rig = Rig({name: sensor for name, (sensor, _) in sensors.items()})
     poses = {name: pose for name, (_, pose) in sensors.items()}
-    found = rig.capture(
-        engine.scene, poses, materials(snapshot, engine), poses_end, **_query(options)
-    )
+    with meshes_by_name(snapshot, engine):
+        found = rig.capture(
+            engine.scene, poses, materials(snapshot, engine), poses_end, **_query(options)
+        )
     seconds = time.perf_counter() - start
     arrays = {
         f"{name}.{key}": array

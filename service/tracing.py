@@ -12,7 +12,8 @@ backend answers them, and on the CPU otherwise (``device_for``: placed meshes, t
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import TYPE_CHECKING, Any
@@ -21,7 +22,7 @@ import numpy as np
 
 import dacrt
 from dacrt.points import signed
-from dacrt.validation import check_max_distance, check_nsamples
+from dacrt.validation import MeshSpaceError, check_max_distance, check_nsamples
 
 from .errors import Invalid, TooLarge
 from .options import Options, Query
@@ -149,6 +150,21 @@ def _same_transform(a: np.ndarray | None, b: np.ndarray | None) -> bool:
     return a is b or np.array_equal(a, b)
 
 
+@contextmanager
+def meshes_by_name(snapshot: Snapshot, engine: EngineScene) -> Iterator[None]:
+    """The engine's errors that name a mesh by its place in the engine scene name it as the
+    scene does (422)."""
+    try:
+        yield
+    except MeshSpaceError as error:
+        index = int(engine.map_mesh(np.array([error.mesh]))[0])
+        name = next((m.name for m in snapshot.meshes.values() if m.index == index), index)
+        raise dacrt.InputError(
+            f"a ray of the batch leaves the float32 range in the space of mesh {name!r}: its "
+            "transform's inverse moves the ray's origin or direction beyond it"
+        ) from None
+
+
 def engine_scene(snapshot: Snapshot) -> EngineScene:
     """The engine scene of one scene version, built once per version (the sensors' too)."""
     return snapshot.cached("dacrt", _snapshot_engine)
@@ -193,7 +209,8 @@ def trace(
             raise
         except Exception as exc:  # the cluster's: lost, unreachable, too slow
             cluster.failed(exc)
-    return _run(engine, rays, options, snapshot.version, start)
+    with meshes_by_name(snapshot, engine):
+        return _run(engine, rays, options, snapshot.version, start)
 
 
 def trace_once(mesh: MeshArrays, rays: Rays, options: Options) -> TraceResult:
@@ -324,7 +341,8 @@ def nearest(snapshot: Snapshot, points: np.ndarray, options: PointOptions) -> Tr
     arrays = {name: getattr(found, name) for name in NEAREST_FIELDS}
     arrays["mesh"] = engine.map_mesh(arrays["mesh"])
     if options.sign:
-        inside = engine.scene.contains(points, options.nsamples, **shared)
+        with meshes_by_name(snapshot, engine):
+            inside = engine.scene.contains(points, options.nsamples, **shared)
         arrays["inside"] = inside
         arrays["signed_distance"] = signed(found.distance, inside)
     stats = None if found.stats is None else {**found.stats, "where": "process"}

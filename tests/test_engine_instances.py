@@ -21,6 +21,7 @@ import reference
 import sample_scenes
 
 import dacrt
+from dacrt.validation import MeshSpaceError
 
 BIG = 256  # max_hits that truncates nothing here
 
@@ -240,6 +241,8 @@ BAD_MATRICES = {
     "zero": (affine(np.zeros((3, 3))), "singular"),
     "flattening": (affine(np.diag([1.0, 1.0, 0.0])), "singular"),
     "rank two": (affine([[1, 2, 3], [2, 4, 6], [0, 0, 1.0]]), "singular"),
+    "an axis scaled to 1e-38": (affine(np.diag([1e-38, 1.0, 1.0])), "scales an axis by 1e-38"),
+    "all scaled to 1e-13": (affine(np.eye(3) * 1e-13), "under 1e-12"),
 }
 
 
@@ -266,6 +269,20 @@ def test_transforms_of_the_wrong_length_or_out_of_range():
     # A placement beyond the float32 range.
     with pytest.raises(ValueError, match=r"transforms\[2\]"):
         dacrt.Scene(meshes, transforms=[None, None, affine(np.eye(3) * 1e39)])
+
+
+def test_a_ray_beyond_float32_in_a_mesh_space_is_an_error_naming_the_mesh():
+    """A ray whose origin, moved into a placed mesh's space, leaves float32's range cannot be
+    traced there: the error names that mesh by its index (``mesh``, for callers' own names)."""
+    meshes = _meshes()
+    halved = affine(np.eye(3) * 0.5)
+    scene = dacrt.Scene(meshes, transforms=[None, halved, None])
+    origins = np.array([[0.1, 0.1, 3e38], [0.1, 0.1, 5.0]], np.float32)
+    directions = np.array([[0, 0, -1], [0, 0, -1]], np.float32)
+    with pytest.raises(MeshSpaceError, match="in the space of mesh 1") as raised:
+        scene.closest(origins, directions)
+    assert raised.value.mesh == 1 and isinstance(raised.value, dacrt.InputError)
+    assert len(scene.closest(origins[1:], directions[1:]).t) == 1  # the near ray is traced
 
 
 def test_check_transform_returns_the_matrix_as_float64():

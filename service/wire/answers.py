@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
 
@@ -137,26 +138,47 @@ def encode_json(arrays: Mapping[str, np.ndarray]) -> bytes:
     ).encode()
 
 
-#: Items (array rows) a piece of a JSON answer holds at the most: its text and lists stay
-#: within tens of MiB however large the answer (``footprint.JSON_ANSWER_BYTES``).
+#: Values a piece of a JSON answer holds at the most (whole rows of an array, or of one of its
+#: rows): its text and lists stay within tens of MiB however large the answer
+#: (``footprint.JSON_ANSWER_BYTES``), an image's rows as a lidar's points.
 JSON_PIECE_ITEMS = 16384
 
 
 def json_pieces(arrays: Mapping[str, np.ndarray]) -> Iterator[bytes]:
-    """``encode_json(arrays)`` as consecutive pieces of at most JSON_PIECE_ITEMS rows each."""
+    """``encode_json(arrays)`` as consecutive pieces of at most JSON_PIECE_ITEMS values each."""
     separator = "{"
     for key, array in arrays.items():
-        yield f"{separator}{json.dumps(key)}:[".encode()
-        for start in range(0, len(array), JSON_PIECE_ITEMS):
-            piece = json.dumps(
-                json_ready(array[start : start + JSON_PIECE_ITEMS]),
-                separators=(",", ":"),
-                allow_nan=False,
-            )
-            yield (piece[1:-1] if start == 0 else "," + piece[1:-1]).encode()
-        yield b"]"
+        yield f"{separator}{json.dumps(key)}:".encode()
+        yield from _array_pieces(array)
         separator = ","
     yield b"}" if arrays else b"{}"
+
+
+def _array_pieces(array: np.ndarray) -> Iterator[bytes]:
+    """The JSON text of ``array`` (nested lists): runs of whole rows of at most JSON_PIECE_ITEMS
+    values, or, where one row holds more, each row's own pieces in turn."""
+    if array.ndim == 0:
+        yield _dumps(json_ready(array)).encode()
+        return
+    row_values = math.prod(array.shape[1:])
+    if row_values > JSON_PIECE_ITEMS:
+        yield b"["
+        for i, row in enumerate(array):
+            if i:
+                yield b","
+            yield from _array_pieces(row)
+        yield b"]"
+        return
+    rows = JSON_PIECE_ITEMS // max(row_values, 1)
+    yield b"["
+    for start in range(0, len(array), rows):
+        piece = _dumps(json_ready(array[start : start + rows]))
+        yield (piece[1:-1] if start == 0 else "," + piece[1:-1]).encode()
+    yield b"]"
+
+
+def _dumps(value: Any) -> str:
+    return json.dumps(value, separators=(",", ":"), allow_nan=False)
 
 
 def json_ready(array: np.ndarray) -> Any:

@@ -154,6 +154,7 @@ BAD_MATRICES = [
     ([["1", 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "matrix must be numbers"),
     ("eye", "matrix must be a 4x4 matrix (4 rows of 4 numbers), not str"),
     (np.diag([1e39, 1e39, 1e39, 1]).tolist(), "places vertex"),
+    (np.diag([1e-38, 1, 1, 1]).tolist(), "matrix scales an axis by 1e-38, under 1e-12"),
 ]
 
 
@@ -177,6 +178,23 @@ def test_a_non_finite_matrix_is_422(app_client, scene_name, text):
     )
     assert response.status_code == 422 and "non-finite" in response.json()["detail"]
     assert info(app_client, scene_name, "a")["version"] == 1
+
+
+def test_a_ray_beyond_float32_in_a_mesh_space_is_422_naming_the_mesh(app_client, scene_name):
+    """A far ray that a placed mesh's inverse moves beyond float32: 422 naming the mesh as the
+    scene does (its engine position differs once a mesh before it is deleted)."""
+    for name in ("gone", "floor", "car"):
+        upload(app_client, scene_name, name, *quad(-1, 1, -1, 1, 0))
+    assert app_client.delete(f"/v1/scenes/{scene_name}/meshes/gone").status_code == 204
+    set_transform(app_client, scene_name, "car", np.diag([0.5, 0.5, 0.5, 1]).tolist())
+    far = {"origins": [[0.1, 0.1, 3e38]], "directions": [[0, 0, -1]]}
+    for route, body in (
+        ("closest", far),
+        ("render", {"width": 1, "height": 1, "eye": [0.1, 0.1, 3e38], "target": [0.1, 0.1, 0]}),
+    ):
+        response = app_client.post(f"/v1/scenes/{scene_name}/{route}", json=body)
+        assert response.status_code == 422, response.text
+        assert "in the space of mesh 'car'" in response.json()["detail"], response.text
 
 
 def test_put_transform_needs_a_mesh_a_matrix_and_json(app_client, scene_name):

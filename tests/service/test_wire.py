@@ -757,8 +757,9 @@ def test_json_faces_refuse_booleans_floats_strings_and_huge_integers(faces, mess
 
 @pytest.mark.parametrize("n", [0, 1, 5, 6, 7, 20])
 def test_json_answer_in_pieces_is_the_whole_document(monkeypatch, n):
-    """A JSON answer is written JSON_PIECE_ITEMS rows at a time (bounded memory), and the pieces
-    make the same document as encoding it whole: empty, one piece, several, a piece boundary."""
+    """A JSON answer is written JSON_PIECE_ITEMS values at a time (bounded memory), and the
+    pieces make the same document as encoding it whole: empty, one piece, several, a piece
+    boundary."""
     monkeypatch.setattr(wire.answers, "JSON_PIECE_ITEMS", 3)
     rng = np.random.default_rng(n)
     t = rng.uniform(0, 10, n).astype(np.float32)
@@ -770,9 +771,29 @@ def test_json_answer_in_pieces_is_the_whole_document(monkeypatch, n):
         "occluded": rng.random(n) < 0.5,
     }
     pieces = list(wire.encode_answer(arrays, "json")[0])
-    assert len(pieces) == len(arrays) * (2 + -(-n // 3)) + 1  # per key: "[", its pieces, "]"
+    # per key: its name, "[", its pieces (of 3 values: 3 rows, or 1 of a normal), "]"; then "}"
+    assert len(pieces) == 3 * (3 + -(-n // 3)) + (3 + n) + 1
     assert b"".join(pieces) == wire.encode_json(arrays)
     assert json.loads(b"".join(pieces))["mesh"] == arrays["mesh"].tolist()
+
+
+@pytest.mark.parametrize("shape", [(4, 5), (3, 2, 3), (2, 2, 5), (1, 7), (0, 4, 3), (2, 0)])
+def test_json_pieces_of_images_hold_a_bounded_count_of_values(monkeypatch, shape):
+    """An image's (height, width[, 3]) arrays are cut into pieces of at most JSON_PIECE_ITEMS
+    values too, inside a row where one row holds more (a 2048 x 2048 camera was one piece)."""
+    monkeypatch.setattr(wire.answers, "JSON_PIECE_ITEMS", 3)
+    rng = np.random.default_rng(len(shape))
+    depth = rng.uniform(0, 10, shape).astype(np.float32)
+    depth.reshape(-1)[::5] = np.inf
+    arrays = {"depth": depth, "mesh": rng.integers(-1, 5, shape).astype(np.int32)}
+    pieces = list(wire.answers.json_pieces(arrays))
+    assert b"".join(pieces) == wire.encode_json(arrays)
+    for piece in pieces:
+        text = piece.decode().removeprefix(",")
+        if text in ("", "[", "]", "{", "}") or text.endswith(":"):
+            continue
+        values = np.array(json.loads(f"[{text}]"), dtype=object).reshape(-1)
+        assert len(values) <= 3, text
 
 
 @pytest.mark.parametrize("compressed", [False, True])
