@@ -289,11 +289,19 @@ def _one_value(value: Any, name: str, kinds: str) -> Any:
     return value
 
 
+def _shown(value: Any, most: int = 60) -> str:
+    """``value`` for a message: a huge integer by its size, other text cut to ``most``."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**30:
+        return f"an integer of {value.bit_length()} bits"
+    text = repr(value)
+    return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
+
+
 def parse_reflectivity(value: Any, name: str) -> float:
     """A mesh's reflectivity: a number in [0, 1] (JSON number or one-element npz array)."""
     value = _one_value(value, name, "fiu")
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 1:
-        raise Invalid(f"{name} must be a number in [0, 1], got {value!r}")
+        raise Invalid(f"{name} must be a number in [0, 1], got {_shown(value)}")
     return float(value)
 
 
@@ -301,7 +309,7 @@ def parse_label(value: Any, name: str) -> int:
     """A mesh's label: an integer in [0, 2**32) (JSON integer or one-element npz array)."""
     value = _one_value(value, name, "iu")
     if type(value) is not int or not 0 <= value <= MAX_MASK:
-        raise Invalid(f"{name} must be an integer from 0 to {MAX_MASK}, got {value!r}")
+        raise Invalid(f"{name} must be an integer from 0 to {MAX_MASK}, got {_shown(value)}")
     return value
 
 

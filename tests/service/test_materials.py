@@ -70,6 +70,9 @@ def test_a_frame_sets_materials_and_a_new_upload_keeps_them(app_client, room):
         ({"label": 2**32}, 422, "label must be an integer"),
         ({"label": 1.0}, 422, "label must be an integer"),
         ({"label": True}, 422, "label must be an integer"),
+        # a huge number or a long text is not echoed whole
+        ({"reflectivity": 10**400}, 422, "got an integer of 1329 bits"),
+        ({"label": "x" * 10000}, 422, "... (10002 characters)"),
         ({}, 400, "names no material key"),
         ({"colour": 1}, 400, "unknown keys 'colour'"),
     ],
