@@ -232,8 +232,12 @@ def check_transform(matrix, name="matrix"):
     linear = matrix[:3, :3]
     # Singular up to rounding: the determinant against the scale of the rows.
     scale = np.prod(np.linalg.norm(linear, axis=1))
-    if not abs(np.linalg.det(linear)) > 1e-12 * scale:
+    det = abs(np.linalg.det(linear))
+    if not det > 1e-12 * scale:
         raise InputError(f"{name} is singular: its 3x3 part has no inverse")
+    # The least singular value is at least det / (the sum of squares): an SVD only below that.
+    if det >= MIN_PLACEMENT_SCALE * (linear * linear).sum():
+        return matrix
     smallest = np.linalg.svd(linear, compute_uv=False)[-1]
     if not smallest >= MIN_PLACEMENT_SCALE:
         raise InputError(
