@@ -30,11 +30,31 @@ from .npy import read_npy
 from .npz_reader import read_npz
 
 
-def parse_json(text: bytes, what: str) -> Any:
+class _RepeatedKey(ValueError):
+    """A JSON object that names a key twice (``json`` keeps the last silently)."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """An object's pairs as a dict; _RepeatedKey naming the first key given twice."""
+    mapping = dict(pairs)
+    if len(mapping) < len(pairs):
+        seen: set[str] = set()
+        repeated = next(key for key, _ in pairs if key in seen or seen.add(key))
+        raise _RepeatedKey(repeated)
+    return mapping
+
+
+def parse_json(text: bytes, what: str, unique_keys: bool = True) -> Any:
     """``json.loads`` of ``text``, or 400 saying what is wrong with ``what`` (the body, a GLB's
-    JSON chunk) in its own terms."""
+    JSON chunk) in its own terms. With ``unique_keys`` a key given twice in one object is
+    refused, not resolved to its last value (a file from elsewhere is read as its readers
+    read it: the last)."""
     try:
-        return json.loads(text)
+        return json.loads(text, object_pairs_hook=_unique_keys if unique_keys else None)
+    except _RepeatedKey as exc:
+        key = str(exc.args[0])
+        shown = repr(key) if len(key) <= 80 else f"{key[:80]!r}... ({len(key)} characters)"
+        raise BadBody(f"{what} gives the key {shown} twice in one object") from None
     except RecursionError:
         raise BadBody(f"{what} is not valid JSON: it is nested too deeply") from None
     except ValueError as exc:  # JSONDecodeError, bad UTF-8, integers of over 4300 digits

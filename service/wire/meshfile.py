@@ -811,7 +811,7 @@ def check_glb(data: bytes) -> None:
         offset += 8 + size
     if chunks[0][0] != _GLB_JSON:
         raise BadBody("GLB's first chunk must be its JSON")
-    doc = parse_json(chunks[0][1], "GLB JSON chunk")
+    doc = parse_json(chunks[0][1], "GLB JSON chunk", unique_keys=False)
     if not isinstance(doc, dict):
         raise BadBody("GLB JSON chunk must be an object")
     buffers = _list(doc, "buffers")

@@ -399,3 +399,15 @@ def test_a_rig_of_more_sensors_than_the_limit_is_413():
             assert response.status_code == status, response.text
         detail = response.json()["detail"]
         assert "4 sensors" in detail and "DACRT_MAX_RIG_SENSORS" in detail
+
+
+def test_a_rig_naming_a_sensor_twice_is_400(app_client, room):
+    """JSON keeps the last of a repeated key: a rig of two sensors named alike would answer one
+    of them silently, so the body is refused naming the key."""
+    one = json.dumps({"kind": "lidar", "pose": POSE, "model": "VLP-16"})
+    body = f'{{"sensors": {{"roof": {one}, "roof": {one}}}}}'
+    response = app_client.post(
+        f"/v1/scenes/{room}/sensors", content=body, headers={"Content-Type": "application/json"}
+    )
+    assert response.status_code == 400, response.text
+    assert "gives the key 'roof' twice" in response.json()["detail"]

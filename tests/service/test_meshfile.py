@@ -504,6 +504,19 @@ def test_glb_nodes_are_merged_with_their_transforms():
     assert mesh.vertices[:, 0].max() == 2
 
 
+def test_a_glb_json_repeating_a_key_reads_as_its_readers_read_it():
+    """A request body may not give a key twice (400), but a GLB is a file from elsewhere: its
+    JSON is read as trimesh and other readers read it, the last value winning."""
+    text = json.dumps(triangle_doc()).replace('"scene": 0', '"scene": 5, "scene": 0').encode()
+    text += b" " * (-len(text) % 4)
+    binary = TRIANGLE.tobytes() + np.array([0, 1, 2], np.uint32).tobytes()
+    chunks = struct.pack("<II", len(text), 0x4E4F534A) + text
+    chunks += struct.pack("<II", len(binary), 0x004E4942) + binary
+    body = struct.pack("<4sII", b"glTF", 2, 12 + len(chunks)) + chunks
+    mesh = decode(body, "glb")
+    assert mesh.faces.tolist() == [[0, 1, 2]]
+
+
 def _many_instances() -> bytes:
     """One 1000-triangle mesh (12 KB of indices) instanced by 1000 nodes."""
     indices = np.tile(np.array([0, 1, 2], np.uint32), 1000)

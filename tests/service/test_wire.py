@@ -711,6 +711,11 @@ def test_too_many_members_is_400_before_zipfile_lists_them():
         (hostile_bodies.deep_json("origins", 100_000), BadBody, "nested too deeply"),
         (hostile_bodies.deep_json("origins", 900), Invalid, "found a list nested too deeply"),
         (
+            b'{"origins": [[0, 0, 0]], "directions": [[0, 0, 1]], "origins": [[1, 1, 1]]}',
+            BadBody,
+            "body gives the key 'origins' twice in one object",
+        ),
+        (
             b'{"origins": [[1' + b"0" * 400 + b', 0, 0]], "directions": [[0, 0, 1]]}',
             Invalid,
             "int too large",
