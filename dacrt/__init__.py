@@ -21,11 +21,12 @@ from . import sensors
 from .contracts import MISS, STRATEGIES, Counts, HitList, Hits, Nearest, Occlusion
 from .query import CULL_MODES
 from .scene import Scene
-from .validation import InputError, check_transform
+from .validation import InputError, MeshSpaceError, check_transform
 from .warmup import warmup
 
 __all__ = [
     "InputError",
+    "MeshSpaceError",
     "Scene",
     "Hits",
     "Occlusion",

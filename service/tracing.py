@@ -22,7 +22,7 @@ import numpy as np
 
 import dacrt
 from dacrt.points import signed
-from dacrt.validation import MeshSpaceError, check_max_distance, check_nsamples
+from dacrt.validation import check_max_distance, check_nsamples
 
 from .errors import Invalid, TooLarge
 from .options import Options, Query
@@ -156,7 +156,7 @@ def meshes_by_name(snapshot: Snapshot, engine: EngineScene) -> Iterator[None]:
     scene does (422)."""
     try:
         yield
-    except MeshSpaceError as error:
+    except dacrt.MeshSpaceError as error:
         index = int(engine.map_mesh(np.array([error.mesh]))[0])
         name = next((m.name for m in snapshot.meshes.values() if m.index == index), index)
         raise dacrt.InputError(

@@ -21,7 +21,6 @@ import reference
 import sample_scenes
 
 import dacrt
-from dacrt.validation import MeshSpaceError
 
 BIG = 256  # max_hits that truncates nothing here
 
@@ -279,7 +278,7 @@ def test_a_ray_beyond_float32_in_a_mesh_space_is_an_error_naming_the_mesh():
     scene = dacrt.Scene(meshes, transforms=[None, halved, None])
     origins = np.array([[0.1, 0.1, 3e38], [0.1, 0.1, 5.0]], np.float32)
     directions = np.array([[0, 0, -1], [0, 0, -1]], np.float32)
-    with pytest.raises(MeshSpaceError, match="in the space of mesh 1") as raised:
+    with pytest.raises(dacrt.MeshSpaceError, match="in the space of mesh 1") as raised:
         scene.closest(origins, directions)
     assert raised.value.mesh == 1 and isinstance(raised.value, dacrt.InputError)
     assert len(scene.closest(origins[1:], directions[1:]).t) == 1  # the near ray is traced
