@@ -26,6 +26,7 @@ from .logs import configure_logging
 from .metrics import Metrics, MetricsMiddleware
 from .patterns import Patterns
 from .persistence import DataDir
+from .protocol import HeadAsGet
 from .routes import meshes, ops, pictures, points, queries
 from .routes import patterns as pattern_routes
 from .settings import Settings, load_settings_or_exit
@@ -108,6 +109,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(AdmissionMiddleware, admission=admission)  # a ticket for each request
     app.add_middleware(errors.CatchAll)  # inside the metrics, so that they count its 500s
     app.add_middleware(MetricsMiddleware, metrics=metrics)
+    app.add_middleware(HeadAsGet)
     return app
 
 

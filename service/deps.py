@@ -15,7 +15,15 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from . import footprint, wire
 from .admission import Ticket
-from .errors import Invalid, NotReady, TooLarge, Unauthorized
+from .errors import (
+    BadBody,
+    Invalid,
+    NotImplementedCoding,
+    NotReady,
+    TooLarge,
+    Unauthorized,
+    UnsupportedMediaType,
+)
 from .metrics import Metrics
 from .patterns import Patterns
 from .settings import Settings
@@ -138,6 +146,7 @@ async def read_body(request: Request, limit: int, estimate: Estimate) -> memoryv
     exceed ``limit``, DACRT_MAX_BODY_BYTES. Before a byte is read, the request's ticket holds
     ``estimate(length, format)`` bytes of the in-flight budget (``service.admission``); a body
     of unknown length holds more as it arrives."""
+    check_codings(request)
     declared = request.headers.get("content-length")
     expected = int(declared) if declared is not None and declared.isdigit() else None
     if expected is not None and expected > limit:
@@ -157,7 +166,25 @@ async def read_body(request: Request, limit: int, estimate: Estimate) -> memoryv
             held = body.size + len(chunk) + UNKNOWN_LENGTH_STEP
             await ticket.hold(estimate(held, fmt), what.format(held))
         body.add(chunk)
+    if expected is not None and body.size != expected:
+        raise BadBody(f"body ended after {body.size} of its {expected} bytes (Content-Length)")
     return body.finish()
+
+
+def check_codings(request: Request) -> None:
+    """415 for a ``Content-Encoding`` (the body is read as sent), 501 for a ``Transfer-Encoding``
+    other than chunked."""
+    encoding = request.headers.get("content-encoding", "identity").strip().lower()
+    if encoding not in ("", "identity"):
+        raise UnsupportedMediaType(
+            f"Content-Encoding {encoding} is not read: send the body uncompressed (an .npz may "
+            "compress its arrays inside)"
+        )
+    codings = request.headers.get("transfer-encoding", "").lower().replace(" ", "").split(",")
+    if any(coding not in ("", "chunked") for coding in codings):
+        raise NotImplementedCoding(
+            f"Transfer-Encoding {request.headers['transfer-encoding']} is not decoded: only chunked"
+        )
 
 
 async def read_change(

@@ -55,6 +55,14 @@ class TooLarge(ServiceError):
     """Body, ray count or scene size over a configured limit; the message names the limit."""
 
 
+class HeadersTooLarge(ServiceError):
+    """A request's line and headers over the protocol's bound (``protocol.MAX_HEADER_BYTES``)."""
+
+
+class NotImplementedCoding(ServiceError):
+    """A ``Transfer-Encoding`` the server does not decode (only ``chunked``)."""
+
+
 class UnsupportedMediaType(ServiceError):
     """``Content-Type`` (or ``?format=``) is not one the endpoint reads."""
 
@@ -101,6 +109,8 @@ STATUS: dict[type[ServiceError], int] = {
     Conflict: 409,
     TooLarge: 413,
     UnsupportedMediaType: 415,
+    HeadersTooLarge: 431,
+    NotImplementedCoding: 501,
     Invalid: 422,
     NotReady: 503,
     TooManyConnections: 503,

@@ -6,7 +6,17 @@ request ``header_timeout`` seconds from its first byte (or from the connection's
 complete its headers, ``body_timeout`` seconds from then to complete its body, and
 ``body_idle_timeout`` seconds between two reads of its body (the clock stops while the server
 itself does not read: the app has not asked for more, or the client waits for ``100 Continue``);
-past a deadline it answers 408 where it still can and closes the connection.
+past a deadline it answers 408 where it still can and closes the connection. Bytes between two
+requests (even an empty line) start the next one's header clock. An answer the client reads
+none of for ``answer_idle_timeout`` seconds ends its connection, so that it gives back its share
+of the in-flight budget.
+
+A request's line and headers may take MAX_HEADER_BYTES (431 over); a connection queues at most
+MAX_PIPELINED requests behind the one being answered, and ends after answering them when sent
+more. A request that is not HTTP/1.1 is answered 400 ``{"detail": ...}``, or, behind requests
+still being answered, ends the connection after their answers, which keep their order. An
+``Upgrade`` the server does not speak (``h2c``) on a request with a body is 400 (its body would
+be lost to the upgrade).
 
 A connection opened while ``max_connections`` others are open, or while its client address holds
 ``max_connections_per_client``, is over a bound: its bodiless ``GET``/``HEAD`` of ``/health`` and
@@ -27,14 +37,26 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any, ClassVar
 
+import httptools
 from uvicorn.protocols.http.flow_control import FlowControl
 from uvicorn.protocols.http.httptools_impl import STATUS_LINE, HttpToolsProtocol
 from uvicorn.server import ServerState
 
-from .errors import ServiceError, TimedOut, TooManyConnections, status_of
+from .errors import (
+    BadBody,
+    HeadersTooLarge,
+    ServiceError,
+    TimedOut,
+    TooManyConnections,
+    status_of,
+)
 from .settings import Settings, load_settings_or_exit
 
 RETRY_AFTER_SECONDS = 1  # connections free up as soon as requests finish
+#: Bytes of a request's line and headers (a read's worth more may be held before it is known).
+MAX_HEADER_BYTES = 64 * 1024
+#: Requests a connection may queue behind the one being answered (pipelining).
+MAX_PIPELINED = 16
 #: What a connection over a bound may still ask: cheap, bodiless, what monitors poll.
 PROBE_METHODS, PROBE_PATHS = ("GET", "HEAD"), ("/health", "/metrics")
 
@@ -109,6 +131,26 @@ def reserve_app(app, error: ServiceError, extra: dict[str, str]):
     return serve
 
 
+class HeadAsGet:
+    """ASGI middleware: a ``HEAD`` is answered as its ``GET`` is, without the body (RFC 9110
+    9.3.2); FastAPI's routes take only the methods they name."""
+
+    def __init__(self, app) -> None:
+        self.app = app
+
+    async def __call__(self, scope, receive, send) -> None:
+        if scope["type"] != "http" or scope["method"] != "HEAD":
+            await self.app(scope, receive, send)
+            return
+
+        async def headers_only(message) -> None:
+            if message["type"] == "http.response.body":
+                message = {**message, "body": b""}
+            await send(message)
+
+        await self.app({**scope, "method": "GET"}, receive, headers_only)
+
+
 class WatchedFlow(FlowControl):
     """uvicorn's read/write flow control, calling ``on_resume`` when reading resumes."""
 
@@ -141,6 +183,13 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         self.body_active_at = 0.0  # loop time of the body's last byte, or of reading resumed
         self.request_begun = False  # a byte of the awaited request has arrived
         self.client_host: str | None = None  # counted in _PER_CLIENT while open
+        self.answer_idle_timeout = settings.answer_idle_timeout
+        self.answer_deadline: asyncio.TimerHandle | None = None
+        self.awaiting_headers = True  # between requests, or within a request's line and headers
+        self.boundary_seen = False  # a request's headers or body ended within the data being read
+        self.header_bytes = 0  # bytes read while the awaited headers were incomplete
+        self.ending = False  # the connection ends after its answers; later bytes are ignored
+        self.answering = None  # the cycle whose answer is being made (pipelining: not self.cycle)
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
@@ -170,6 +219,13 @@ class GuardedHttpProtocol(HttpToolsProtocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self.cancel_deadlines()
         self.uncount_client()
+        # uvicorn marks only the last request read as gone; the one being answered, and those
+        # queued, would write to a closed transport
+        queued = [cycle for cycle, _ in self.pipeline]
+        for cycle in [self.answering, *queued]:
+            if cycle is not None and not cycle.response_complete:
+                cycle.disconnected = True
+                cycle.message_event.set()
         super().connection_lost(exc)
 
     def handle_websocket_upgrade(self) -> None:
@@ -187,6 +243,32 @@ class GuardedHttpProtocol(HttpToolsProtocol):
                 del per_client[self.client_host]
         self.client_host = None
 
+    def data_received(self, data: bytes) -> None:
+        if self.ending:
+            return
+        if self.awaiting_headers and self.header_deadline is None:
+            # bytes between requests, even an empty line, start the next one's header clock
+            self.header_deadline = self.loop.call_later(self.header_timeout, self.headers_too_slow)
+        self._unset_keepalive_if_required()
+        self.boundary_seen = False
+        try:
+            self.parser.feed_data(data)
+        except httptools.HttpParserError as error:
+            self.refuse_malformed(error)
+            return
+        except httptools.HttpParserUpgrade:
+            if self._should_upgrade():
+                self.handle_websocket_upgrade()
+            else:
+                self.refuse_upgrade()
+            return
+        if not self.awaiting_headers or self.boundary_seen:
+            self.header_bytes = 0  # what follows a boundary in this read is at most a read
+        elif not self.ending:
+            self.header_bytes += len(data)
+            if self.header_bytes > MAX_HEADER_BYTES:
+                self.refuse_headers_too_large()
+
     def on_message_begin(self) -> None:
         super().on_message_begin()
         self.request_begun = True
@@ -197,10 +279,23 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         if self.header_deadline is not None:
             self.header_deadline.cancel()
             self.header_deadline = None
+        self.awaiting_headers, self.boundary_seen = False, True
+        if self.ending:
+            return
+        answering = self.cycle is not None and not self.cycle.response_complete
+        if answering and len(self.pipeline) >= MAX_PIPELINED:
+            self.end_after_answers()  # this request and any later one go unanswered
+            return
         super().on_headers_complete()
+
+    def on_body(self, body: bytes) -> None:
+        if not self.ending:
+            self.body_active_at = self.loop.time()
+            super().on_body(body)
 
     def _start_asgi_task(self, cycle, app) -> None:
         # a pipelined request's body is read only from here on, so its deadlines start here
+        self.answering = cycle
         super()._start_asgi_task(cycle, app)
         if cycle.more_body:
             self.body_deadline = self.loop.call_later(self.body_timeout, self.body_too_slow, cycle)
@@ -208,10 +303,6 @@ class GuardedHttpProtocol(HttpToolsProtocol):
             self.body_idle_check = self.loop.call_later(
                 self.body_idle_timeout, self.body_stalled, cycle
             )
-
-    def on_body(self, body: bytes) -> None:
-        self.body_active_at = self.loop.time()
-        super().on_body(body)
 
     def body_read_resumed(self) -> None:
         self.body_active_at = self.loop.time()  # the client could not send while we did not read
@@ -221,13 +312,92 @@ class GuardedHttpProtocol(HttpToolsProtocol):
             if deadline is not None:
                 deadline.cancel()
         self.body_deadline = self.body_idle_check = None
-        super().on_message_complete()
+        self.awaiting_headers, self.boundary_seen = True, True
+        if not self.ending:
+            super().on_message_complete()
+
+    def pause_writing(self) -> None:
+        super().pause_writing()
+        if self.answer_deadline is None:
+            self.answer_deadline = self.loop.call_later(
+                self.answer_idle_timeout, self.answer_stalled
+            )
+
+    def resume_writing(self) -> None:
+        if self.answer_deadline is not None:
+            self.answer_deadline.cancel()
+            self.answer_deadline = None
+        super().resume_writing()
+
+    def answer_stalled(self) -> None:
+        """End a connection whose client has read nothing of its answer for
+        ``answer_idle_timeout`` seconds: its request ends as a client gone, its budget freed."""
+        self.answer_deadline = None
+        self.transport.abort()
+
+    def end_after_answers(self) -> None:
+        """End the connection once the requests it is answering are answered, in order; read
+        nothing more of it."""
+        self.ending = True
+        last = self.pipeline[0][0] if self.pipeline else self.cycle
+        last.keep_alive = False
+        self.flow.pause_reading()
+
+    def refuse_malformed(self, error: Exception) -> None:
+        """400 for bytes that are not an HTTP/1.1 request; behind answers in progress, the
+        connection ends after them instead (an answer out of order would answer another)."""
+        if self.cycle is not None and not self.cycle.response_complete:
+            self.end_after_answers()
+            return
+        reason = str(error).strip().rstrip(".") or type(error).__name__
+        self.answer_and_close(BadBody(f"the request is not valid HTTP/1.1: {reason}"))
+
+    def refuse_upgrade(self) -> None:
+        """An ``Upgrade`` the server does not speak: the parser keeps what follows the headers
+        for the new protocol, so a request with a body would be answered without it."""
+        has_body = any(
+            (name == b"content-length" and value.strip() not in (b"", b"0"))
+            or name == b"transfer-encoding"
+            for name, value in self.headers or []
+        )
+        if not has_body:
+            return  # answered as if the header were not there
+        cycle = self.cycle
+        if cycle is not None and not cycle.response_started:
+            cycle.disconnected = True  # the app's receive() sees a disconnect, its send() is mute
+            cycle.message_event.set()
+        upgrade = dict(self.headers).get(b"upgrade", b"").decode("latin-1")
+        self.answer_and_close(
+            BadBody(
+                f"Upgrade: {upgrade} is not served here (HTTP/1.1 only); send the request "
+                "without Upgrade"
+            )
+        )
+
+    def refuse_headers_too_large(self) -> None:
+        """431 for a request line and headers over MAX_HEADER_BYTES, then close."""
+        if self.cycle is not None and not self.cycle.response_complete:
+            self.end_after_answers()
+            return
+        self.answer_and_close(
+            HeadersTooLarge(
+                f"request line and headers over {MAX_HEADER_BYTES} bytes; send fewer or shorter "
+                "headers"
+            )
+        )
 
     def cancel_deadlines(self) -> None:
-        for deadline in (self.header_deadline, self.body_deadline, self.body_idle_check):
+        deadlines = (
+            self.header_deadline,
+            self.body_deadline,
+            self.body_idle_check,
+            self.answer_deadline,
+        )
+        for deadline in deadlines:
             if deadline is not None:
                 deadline.cancel()
         self.header_deadline = self.body_deadline = self.body_idle_check = None
+        self.answer_deadline = None
 
     def headers_too_slow(self) -> None:
         self.header_deadline = None

@@ -65,6 +65,8 @@ class Settings(BaseSettings):
     body_timeout: Seconds = 600  #: seconds a request has to send its whole body
     #: seconds a request's body may go without a byte while the server reads it
     body_idle_timeout: Seconds = 30
+    #: seconds an answer may wait on a client that reads none of it; then the connection ends
+    answer_idle_timeout: Seconds = 30
     #: open connections; more are answered 503, except GET /health and /metrics
     max_connections: PositiveInt = 100
     #: open connections from one client address; more are answered 503, except GET /health and
