@@ -100,14 +100,22 @@ def refusal_app(error: ServiceError, extra: dict[str, str]):
     return refuse
 
 
-def is_probe(scope) -> bool:
-    """A bodiless GET or HEAD of /health or /metrics."""
-    has_body = any(
+def declares_body(headers: list[tuple[bytes, bytes]]) -> bool:
+    """Whether a request's headers (lower-case names) announce a body."""
+    return any(
         (name == b"content-length" and value.strip() not in (b"", b"0"))
         or name == b"transfer-encoding"
-        for name, value in scope["headers"]
+        for name, value in headers
     )
-    return scope["method"] in PROBE_METHODS and scope["path"] in PROBE_PATHS and not has_body
+
+
+def is_probe(scope) -> bool:
+    """A bodiless GET or HEAD of /health or /metrics."""
+    return (
+        scope["method"] in PROBE_METHODS
+        and scope["path"] in PROBE_PATHS
+        and not declares_body(scope["headers"])
+    )
 
 
 def reserve_app(app, error: ServiceError, extra: dict[str, str]):
@@ -355,12 +363,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
     def refuse_upgrade(self) -> None:
         """An ``Upgrade`` the server does not speak: the parser keeps what follows the headers
         for the new protocol, so a request with a body would be answered without it."""
-        has_body = any(
-            (name == b"content-length" and value.strip() not in (b"", b"0"))
-            or name == b"transfer-encoding"
-            for name, value in self.headers or []
-        )
-        if not has_body:
+        if not declares_body(self.headers or []):
             return  # answered as if the header were not there
         cycle = self.cycle
         if cycle is not None and not cycle.response_started:
