@@ -15,8 +15,8 @@ A request's line and headers may take MAX_HEADER_BYTES (431 over); a connection 
 MAX_PIPELINED requests behind the one being answered, and ends after answering them when sent
 more. A request that is not HTTP/1.1 is answered 400 ``{"detail": ...}``, or, behind requests
 still being answered, ends the connection after their answers, which keep their order. An
-``Upgrade`` the server does not speak (``h2c``) on a request with a body is 400 (its body would
-be lost to the upgrade).
+``Upgrade`` the server does not speak (``h2c``) is not taken: the request is answered over
+HTTP/1.1, its body included (400 for a chunked one).
 
 A connection opened while ``max_connections`` others are open, or while its client address holds
 ``max_connections_per_client``, is over a bound: its bodiless ``GET``/``HEAD`` of ``/health`` and
@@ -198,6 +198,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         self.header_bytes = 0  # bytes read while the awaited headers were incomplete
         self.ending = False  # the connection ends after its answers; later bytes are ignored
         self.answering = None  # the cycle whose answer is being made (pipelining: not self.cycle)
+        self.upgrade_body_left = 0  # bytes of a body after an Upgrade not taken, still to come
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
@@ -254,6 +255,10 @@ class GuardedHttpProtocol(HttpToolsProtocol):
     def data_received(self, data: bytes) -> None:
         if self.ending:
             return
+        if self.upgrade_body_left:
+            data = self.take_upgrade_body(data)
+            if not data:
+                return
         if self.awaiting_headers and self.header_deadline is None:
             # bytes between requests, even an empty line, start the next one's header clock
             self.header_deadline = self.loop.call_later(self.header_timeout, self.headers_too_slow)
@@ -264,11 +269,11 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         except httptools.HttpParserError as error:
             self.refuse_malformed(error)
             return
-        except httptools.HttpParserUpgrade:
+        except httptools.HttpParserUpgrade as upgrade:
             if self._should_upgrade():
                 self.handle_websocket_upgrade()
-            else:
-                self.refuse_upgrade()
+            elif self.ignore_upgrade():
+                self.data_received(data[upgrade.args[0] :])
             return
         if not self.awaiting_headers or self.boundary_seen:
             self.header_bytes = 0  # what follows a boundary in this read is at most a read
@@ -306,11 +311,14 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         self.answering = cycle
         super()._start_asgi_task(cycle, app)
         if cycle.more_body:
-            self.body_deadline = self.loop.call_later(self.body_timeout, self.body_too_slow, cycle)
-            self.body_active_at = self.loop.time()
-            self.body_idle_check = self.loop.call_later(
-                self.body_idle_timeout, self.body_stalled, cycle
-            )
+            self.start_body_deadlines(cycle)
+
+    def start_body_deadlines(self, cycle) -> None:
+        self.body_deadline = self.loop.call_later(self.body_timeout, self.body_too_slow, cycle)
+        self.body_active_at = self.loop.time()
+        self.body_idle_check = self.loop.call_later(
+            self.body_idle_timeout, self.body_stalled, cycle
+        )
 
     def body_read_resumed(self) -> None:
         self.body_active_at = self.loop.time()  # the client could not send while we did not read
@@ -360,22 +368,46 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         reason = str(error).strip().rstrip(".") or type(error).__name__
         self.answer_and_close(BadBody(f"the request is not valid HTTP/1.1: {reason}"))
 
-    def refuse_upgrade(self) -> None:
-        """An ``Upgrade`` the server does not speak: the parser keeps what follows the headers
-        for the new protocol, so a request with a body would be answered without it."""
-        if not declares_body(self.headers or []):
-            return  # answered as if the header were not there
+    def ignore_upgrade(self) -> bool:
+        """Answer a request whose ``Upgrade`` the server does not speak (``h2c``, as ``curl
+        --http2`` asks) over HTTP/1.1, as RFC 9110 7.8 allows: the parser hands what follows its
+        headers to the upgrade, so its ``Content-Length`` body is taken here (a new parser reads
+        what comes after it). A chunked body is refused (400 naming the header)."""
+        headers = dict(self.headers or [])
         cycle = self.cycle
-        if cycle is not None and not cycle.response_started:
-            cycle.disconnected = True  # the app's receive() sees a disconnect, its send() is mute
-            cycle.message_event.set()
-        upgrade = dict(self.headers).get(b"upgrade", b"").decode("latin-1")
-        self.answer_and_close(
-            BadBody(
-                f"Upgrade: {upgrade} is not served here (HTTP/1.1 only); send the request "
-                "without Upgrade"
+        length = headers.get(b"content-length", b"0").strip() or b"0"
+        if b"transfer-encoding" in headers or not length.isdigit():
+            if cycle is not None and not cycle.response_started:
+                cycle.disconnected = True  # the app's receive() sees a disconnect
+                cycle.message_event.set()
+            upgrade = headers.get(b"upgrade", b"").decode("latin-1")
+            self.answer_and_close(
+                BadBody(
+                    f"Upgrade: {upgrade} with a chunked body is not served (HTTP/1.1 only); "
+                    "send the request without Upgrade"
+                )
             )
-        )
+            return False
+        self.parser = httptools.HttpRequestParser(self)
+        if hasattr(self.parser, "set_dangerous_leniencies"):  # as uvicorn sets its parser
+            self.parser.set_dangerous_leniencies(lenient_data_after_close=True)
+        self.upgrade_body_left = int(length)
+        if self.upgrade_body_left and cycle is not None:
+            cycle.more_body = True  # the parser called it complete at its headers
+            self.awaiting_headers = False
+            if cycle is self.answering:
+                self.start_body_deadlines(cycle)
+        return True
+
+    def take_upgrade_body(self, data: bytes) -> bytes:
+        """The body of a request whose Upgrade was not taken (``ignore_upgrade``), from
+        ``data``; answers what follows it."""
+        body, rest = data[: self.upgrade_body_left], data[self.upgrade_body_left :]
+        self.upgrade_body_left -= len(body)
+        self.on_body(body)
+        if not self.upgrade_body_left:
+            self.on_message_complete()
+        return rest
 
     def refuse_headers_too_large(self) -> None:
         """431 for a request line and headers over MAX_HEADER_BYTES, then close."""
