@@ -272,7 +272,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         except httptools.HttpParserUpgrade as upgrade:
             if self._should_upgrade():
                 self.handle_websocket_upgrade()
-            elif self.ignore_upgrade():
+            elif self.ignore_upgrade(upgrade):
                 self.data_received(data[upgrade.args[0] :])
             return
         if not self.awaiting_headers or self.boundary_seen:
@@ -368,7 +368,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         reason = str(error).strip().rstrip(".") or type(error).__name__
         self.answer_and_close(BadBody(f"the request is not valid HTTP/1.1: {reason}"))
 
-    def ignore_upgrade(self) -> bool:
+    def ignore_upgrade(self, upgrade: httptools.HttpParserUpgrade) -> bool:
         """Answer a request whose ``Upgrade`` the server does not speak (``h2c``, as ``curl
         --http2`` asks) over HTTP/1.1, as RFC 9110 7.8 allows: the parser hands what follows its
         headers to the upgrade, so its ``Content-Length`` body is taken here (a new parser reads
@@ -376,7 +376,9 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         headers = dict(self.headers or [])
         cycle = self.cycle
         length = headers.get(b"content-length", b"0").strip() or b"0"
-        if b"transfer-encoding" in headers or not length.isdigit():
+        # where the bytes after the headers begin in the data read, as the parser says
+        located = bool(upgrade.args) and isinstance(upgrade.args[0], int)
+        if b"transfer-encoding" in headers or not length.isdigit() or not located:
             if cycle is not None and not cycle.response_started:
                 cycle.disconnected = True  # the app's receive() sees a disconnect
                 cycle.message_event.set()
