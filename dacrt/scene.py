@@ -1310,6 +1310,8 @@ class Scene:
             key = (id(instance.packed), instance.flags(flags, part[3]))
             batches.setdefault(key, []).append(part)
         batches = sorted(batches.values(), key=lambda b: -sum(len(p[1]) for p in b))
+        if not batches:  # every ray reaching a box met its placement flat at its instant
+            return
         inner_threads = query.threads if len(batches) == 1 else 1
 
         def run(batch):

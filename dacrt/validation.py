@@ -261,11 +261,18 @@ def place_vertices(vertices, matrix, name):
     return placed
 
 
+#: The most hits a ray's list keeps (its count, one more, is an int32).
+MAX_HITS = 2**31 - 2
+#: The most sample directions of an inside test (``nsamples``).
+MAX_NSAMPLES = 2**24 - 1
+
+
 def check_max_hits(max_hits):
-    """``max_hits`` as an int: a positive integer, not a bool."""
+    """``max_hits`` as an int: a positive integer, not a bool; more than MAX_HITS keeps every
+    hit as MAX_HITS does (a ray crosses fewer triangles than a scene can hold)."""
     if isinstance(max_hits, bool) or not isinstance(max_hits, int | np.integer) or max_hits < 1:
         raise InputError(f"max_hits must be a positive integer, got {max_hits!r}")
-    return int(max_hits)
+    return min(int(max_hits), MAX_HITS)
 
 
 def check_cull(cull):
@@ -311,16 +318,20 @@ def check_max_distance(max_distance):
         raise InputError(f"max_distance must be a number or None, got {max_distance!r}")
     if not float(max_distance) >= 0:  # NaN too
         raise InputError(f"max_distance must be >= 0, got {max_distance!r}")
-    return float(max_distance)
+    # distances are float32: beyond its largest number a limit is no limit
+    return float(max_distance) if float(max_distance) <= float(LARGEST_T) else np.inf
 
 
 def check_nsamples(nsamples):
-    """``nsamples`` as an int: a positive odd integer (a majority of votes always exists)."""
+    """``nsamples`` as an int: a positive odd integer (a majority of votes always exists) up to
+    MAX_NSAMPLES."""
     if (
         isinstance(nsamples, bool)
         or not isinstance(nsamples, int | np.integer)
-        or nsamples < 1
+        or not 1 <= nsamples <= MAX_NSAMPLES
         or nsamples % 2 == 0
     ):
-        raise InputError(f"nsamples must be a positive odd integer, got {nsamples!r}")
+        raise InputError(
+            f"nsamples must be a positive odd integer up to {MAX_NSAMPLES}, got {nsamples!r}"
+        )
     return int(nsamples)

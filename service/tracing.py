@@ -311,12 +311,17 @@ def point_options(
     mask: int | None,
     stats: bool,
     threads: int | None,
+    max_rays: int,
 ) -> PointOptions:
-    """Options from query-string values; 422 naming ``max_distance`` or ``nsamples`` (the
-    engine's checks) for a bad one, before the body is read."""
+    """Options from query-string values, before the body is read: 413 when one point's inside
+    test alone traces more than ``max_rays`` rays (``check_point_rays``), else 422 naming
+    ``max_distance`` or ``nsamples`` (the engine's checks) for a bad one."""
     check_max_distance(max_distance)
+    options = PointOptions(max_distance, sign, nsamples, mask, stats, threads)
+    if isinstance(nsamples, int):
+        check_point_rays(options, 1, max_rays)
     check_nsamples(nsamples)
-    return PointOptions(max_distance, sign, nsamples, mask, stats, threads)
+    return options
 
 
 def check_point_rays(options: PointOptions, n_points: int, max_rays: int) -> None:

@@ -419,8 +419,24 @@ def test_bad_max_hits_is_a_value_error(max_hits):
     v, f = pg.single_triangle()
     o = np.array([[0.25, 0.25, 1.0]], np.float32)
     d = np.array([[0.0, 0.0, -1.0]], np.float32)
-    with pytest.raises(ValueError, match="max_hits"):
+    with pytest.raises(dacrt.InputError, match="max_hits"):
         dacrt.Scene([(v, f)]).hits(o, d, max_hits=max_hits)
+
+
+@pytest.mark.parametrize("max_hits", [2**31 - 2, 2**31 - 1, 2**31, 2**70])
+@pytest.mark.parametrize("placed", [False, True])
+def test_a_max_hits_beyond_int32_keeps_every_hit(max_hits, placed):
+    """A ray has fewer hits than the scene has triangles: any larger max_hits keeps them all
+    (2**31 and up, or 2**31 - 1 with placed meshes, raised an OverflowError)."""
+    v, f = pg.single_triangle()
+    o = np.array([[0.25, 0.25, 1.0], [0.25, 0.25, -1.0]], np.float32)
+    d = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]], np.float32)
+    scene = dacrt.Scene(
+        [(v, f), (v - [0, 0, 2], f)], transforms=[np.eye(4), None] if placed else None
+    )
+    every = scene.hits(o, d, max_hits=max_hits)
+    np.testing.assert_array_equal(every.counts, [2, 1])
+    assert not every.truncated.any()
 
 
 def test_numpy_integer_max_hits_is_accepted():

@@ -230,6 +230,26 @@ def test_a_moving_closed_mesh_is_watertight_at_every_instant(tau):
     assert scene.occluded(o, d, time=times).occluded.all()
 
 
+def test_rays_at_an_instant_where_every_placement_they_reach_is_flat_see_the_rest():
+    """A mirror end placement is flat at tau = 0.5: rays at that instant see nothing of that
+    mesh (the documented rule), and the meshes behind it answer as usual in every query (the
+    query raised a thread pool's error when no instance had a ray left to trace)."""
+    square = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float64)
+    faces = np.array([[0, 1, 2], [1, 3, 2]])
+    mirror = np.diag([-1.0, 1, 1, 1])
+    scene = dacrt.Scene(
+        [(square, faces), (square + [0, 0, -1], faces)], transforms_end=[mirror, None]
+    )
+    origins = np.array([[0.2, 0.2, 1], [0.7, 0.7, 1]])
+    down = np.array([[0, 0, -1.0], [0, 0, -1]])
+    hits = scene.closest(origins, down, time=0.5)
+    np.testing.assert_array_equal(hits.t, [2, 2])
+    np.testing.assert_array_equal(hits.mesh, [1, 1])
+    np.testing.assert_array_equal(scene.count(origins, down, time=0.5).count, [1, 1])
+    np.testing.assert_array_equal(scene.hits(origins, down, time=0.5).counts, [1, 1])
+    assert scene.occluded(origins, down, time=0.5).occluded.all()
+
+
 def test_with_changes_sets_and_clears_end_placements():
     meshes, starts, ends = _moving()
     scene = dacrt.Scene(meshes, transforms=starts)

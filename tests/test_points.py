@@ -229,6 +229,18 @@ def test_empty_scene_and_no_points():
     assert scene.contains(np.zeros((0, 3))).shape == (0,)
 
 
+def test_a_max_distance_beyond_float32_is_no_limit():
+    """Distances are float32: a limit beyond its largest number limits nothing (1e200 raised
+    an OverflowError squaring it)."""
+    scene = dacrt.Scene(sample_scenes.SCENES["sphere"](0))
+    points = np.array([[0.1, 0.2, 0.3], [5.0, 0, 0]])
+    unlimited = scene.nearest(points)
+    for limit in (1e39, 1e200, np.finfo(np.float64).max):
+        np.testing.assert_array_equal(scene.nearest(points, limit).distance, unlimited.distance)
+    signed = scene.signed_distance(points, max_distance=1e200)
+    np.testing.assert_array_equal(np.abs(signed), unlimited.distance)
+
+
 @pytest.mark.parametrize(
     ("call", "message"),
     [
@@ -243,6 +255,9 @@ def test_empty_scene_and_no_points():
         (lambda s: s.contains(np.zeros((1, 3)), nsamples=0), "nsamples"),
         (lambda s: s.contains(np.zeros((1, 3)), nsamples=True), "nsamples"),
         (lambda s: s.signed_distance(np.zeros((1, 3)), nsamples=4), "nsamples"),
+        # beyond the bound: it looped for hours (2**63 - 1) or asked 16 GiB (2**31 + 1)
+        (lambda s: s.contains(np.zeros((1, 3)), nsamples=2**63 - 1), "up to 16777215"),
+        (lambda s: s.signed_distance(np.zeros((1, 3)), nsamples=2**31 + 1), "up to 16777215"),
         (lambda s: s.signed_distance(np.zeros((1, 4))), "points"),
     ],
 )

@@ -50,14 +50,13 @@ async def nearest(
 ):
     """The closest point on any triangle to each point (ties to the lowest mesh and triangle)."""
     point_mask = None if mask is None else wire.parse_mask(mask, "?mask")
+    max_points = settings.max_rays_per_request
     options = tracing.point_options(
-        max_distance, sign, nsamples, point_mask, stats, settings.threads
+        max_distance, sign, nsamples, point_mask, stats, settings.threads, max_points
     )
     accept = request.headers.get("accept")
     declared = format or wire.declared_format(request.headers.get("content-type"))
     answer_format = wire.negotiate(accept, declared or "npz")  # again once the body is read
-    max_points = settings.max_rays_per_request
-    tracing.check_point_rays(options, 1, max_points)  # before the body: nsamples alone may be over
 
     def peak(n_body: int, fmt: str | None, n_points: int | None = None) -> int:
         """The request's peak bytes: its body decoded, its points measured, its answer written."""
