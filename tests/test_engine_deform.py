@@ -237,6 +237,23 @@ def test_motion_of_a_deforming_hit():
     np.testing.assert_allclose(velocity, expected)
     with pytest.raises(InputError, match="prim, u and v"):
         scene.motion(hits.mesh[on], points, times[on])
+    # bad hits are named, not an IndexError (or a negative prim read from the end)
+    prim, u, v = hits.prim[on], hits.u[on], hits.v[on]
+    for bad, words in (
+        (dict(prim=prim + 10**6, u=u, v=v), "prim must hold triangles of mesh 2"),
+        (dict(prim=-1 - prim, u=u, v=v), "prim must hold triangles of mesh 2"),
+        (dict(prim=prim[:-1], u=u, v=v), "prim has"),
+        (dict(prim=prim, u=u[:1], v=v), "u has 1 entries"),
+        (dict(prim=prim.astype(float), u=u, v=v), "prim must be integers"),
+    ):
+        with pytest.raises(InputError, match=words):
+            scene.motion(hits.mesh[on], points, times[on], **bad)
+    with pytest.raises(InputError, match="points must be an"):
+        scene.motion(hits.mesh[on], [["a", "b", "c"]] * len(on), times[on], prim=prim, u=u, v=v)
+    with pytest.raises(InputError, match="mesh must hold -1 or indices below"):
+        scene.motion(np.full(len(on), 9), points, times[on], prim=prim, u=u, v=v)
+    with pytest.raises(InputError, match="mesh must be integers"):
+        scene.motion(hits.mesh[on] + 0.5, points, times[on], prim=prim, u=u, v=v)
 
 
 def test_point_queries_see_time_zero():

@@ -374,3 +374,17 @@ def test_every_input_layout_gives_the_same_answers_and_compiles_nothing(faces_as
     after = _compiled_signatures()
     compiled = {k: n - before.get(k, 0) for k, n in after.items() if n != before.get(k, 0)}
     assert not compiled, f"kernels compiled for a layout the warm-up did not cover: {compiled}"
+
+
+@pytest.mark.parametrize(
+    "meshes, words",
+    [
+        (None, r"meshes must be a sequence of \(vertices, faces\) pairs, got NoneType"),
+        ([None], r"meshes\[0\] must be a \(vertices, faces\) pair, got NoneType"),
+        ([({"v": 1})], r"meshes\[0\] must be a \(vertices, faces\) pair, got dict"),
+        ([pg.single_triangle() + (np.zeros((1, 3)),)], r"meshes\[0\] .* pair, got tuple"),
+    ],
+)
+def test_a_mesh_entry_that_is_not_a_pair_is_named(meshes, words):
+    with pytest.raises(dacrt.InputError, match=words):
+        dacrt.Scene(meshes)
