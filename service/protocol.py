@@ -267,9 +267,12 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         try:
             self.parser.feed_data(data)
         except httptools.HttpParserError as error:
-            self.refuse_malformed(error)
+            reason = str(error).strip().rstrip(".") or type(error).__name__
+            self.refuse(BadBody(f"the request is not valid HTTP/1.1: {reason}"))
             return
         except httptools.HttpParserUpgrade as upgrade:
+            if self.ending:  # a request past the pipeline's bound: not answered
+                return
             if self._should_upgrade():
                 self.handle_websocket_upgrade()
             elif self.ignore_upgrade(upgrade):
@@ -280,7 +283,12 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         elif not self.ending:
             self.header_bytes += len(data)
             if self.header_bytes > MAX_HEADER_BYTES:
-                self.refuse_headers_too_large()
+                self.refuse(
+                    HeadersTooLarge(
+                        f"request line and headers over {MAX_HEADER_BYTES} bytes; send fewer or "
+                        "shorter headers"
+                    )
+                )
 
     def on_message_begin(self) -> None:
         super().on_message_begin()
@@ -359,14 +367,13 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         last.keep_alive = False
         self.flow.pause_reading()
 
-    def refuse_malformed(self, error: Exception) -> None:
-        """400 for bytes that are not an HTTP/1.1 request; behind answers in progress, the
+    def refuse(self, error: ServiceError) -> None:
+        """``error`` for what the parser read, then close; behind answers in progress the
         connection ends after them instead (an answer out of order would answer another)."""
         if self.cycle is not None and not self.cycle.response_complete:
             self.end_after_answers()
             return
-        reason = str(error).strip().rstrip(".") or type(error).__name__
-        self.answer_and_close(BadBody(f"the request is not valid HTTP/1.1: {reason}"))
+        self.answer_and_close(error)
 
     def ignore_upgrade(self, upgrade: httptools.HttpParserUpgrade) -> bool:
         """Answer a request whose ``Upgrade`` the server does not speak (``h2c``, as ``curl
@@ -379,15 +386,13 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         # where the bytes after the headers begin in the data read, as the parser says
         located = bool(upgrade.args) and isinstance(upgrade.args[0], int)
         if b"transfer-encoding" in headers or not length.isdigit() or not located:
-            if cycle is not None and not cycle.response_started:
-                cycle.disconnected = True  # the app's receive() sees a disconnect
-                cycle.message_event.set()
             upgrade = headers.get(b"upgrade", b"").decode("latin-1")
-            self.answer_and_close(
+            self.cut_off_body(
+                cycle,
                 BadBody(
                     f"Upgrade: {upgrade} with a chunked body is not served (HTTP/1.1 only); "
                     "send the request without Upgrade"
-                )
+                ),
             )
             return False
         self.parser = httptools.HttpRequestParser(self)
@@ -410,18 +415,6 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         if not self.upgrade_body_left:
             self.on_message_complete()
         return rest
-
-    def refuse_headers_too_large(self) -> None:
-        """431 for a request line and headers over MAX_HEADER_BYTES, then close."""
-        if self.cycle is not None and not self.cycle.response_complete:
-            self.end_after_answers()
-            return
-        self.answer_and_close(
-            HeadersTooLarge(
-                f"request line and headers over {MAX_HEADER_BYTES} bytes; send fewer or shorter "
-                "headers"
-            )
-        )
 
     def cancel_deadlines(self) -> None:
         deadlines = (
@@ -482,7 +475,8 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         )
 
     def cut_off_body(self, cycle, error: ServiceError) -> None:
-        """End a request whose body came too slowly: 408 unless its answer has begun; close."""
+        """End a request whose body cannot be read (it came too slowly, or went to an upgrade):
+        ``error`` unless its answer has begun; close."""
         for deadline in (self.body_deadline, self.body_idle_check):
             if deadline is not None:
                 deadline.cancel()
