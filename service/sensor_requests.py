@@ -321,11 +321,6 @@ def check_rig_size(doc, max_sensors: int) -> None:
 NAME_RULE = "1-64 characters of A-Z a-z 0-9 _ - ."
 
 
-def shown(name: str, most: int = 80) -> str:
-    """``name`` quoted for a message, cut to its first ``most`` characters."""
-    return repr(name) if len(name) <= most else f"{name[:most]!r}... ({len(name)} characters)"
-
-
 def describe(errors: list[dict]) -> str:
     """One clause per pydantic error: ``pose[3][0]: Input should be a finite number``; a rig's
     ``sensors.NAME.KEY`` (without the tag of its kind)."""
@@ -333,7 +328,7 @@ def describe(errors: list[dict]) -> str:
     for error in errors:
         loc = list(error["loc"])
         if loc[:1] == ["sensors"] and len(loc) == 3 and loc[2] == "[key]":
-            parts.append(f"sensor name {shown(loc[1])} must be {NAME_RULE}")
+            parts.append(f"sensor name {wire.quoted(loc[1])} must be {NAME_RULE}")
             continue
         if loc[:1] == ["sensors"] and len(loc) >= 3 and loc[2] in ("lidar", "camera"):
             del loc[2]  # the discriminator's tag, which the body does not name

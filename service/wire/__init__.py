@@ -156,6 +156,7 @@ from .decoders import (
     parse_label,
     parse_mask,
     parse_reflectivity,
+    quoted,
     read_json,
     read_mapping,
 )
@@ -235,6 +236,7 @@ __all__ = [
     "parse_label",
     "parse_mask",
     "parse_reflectivity",
+    "quoted",
     "read_json",
     "read_mapping",
     "read_npy",

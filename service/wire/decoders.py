@@ -30,6 +30,12 @@ from .npy import read_npy
 from .npz_reader import read_npz
 
 
+def quoted(text: str, most: int = 80) -> str:
+    """``text`` (a key, a name from a request) quoted for a message, cut to its first ``most``
+    characters."""
+    return repr(text) if len(text) <= most else f"{text[:most]!r}... ({len(text)} characters)"
+
+
 class _RepeatedKey(ValueError):
     """A JSON object that names a key twice (``json`` keeps the last silently)."""
 
@@ -52,9 +58,9 @@ def parse_json(text: bytes, what: str, unique_keys: bool = True) -> Any:
     try:
         return json.loads(text, object_pairs_hook=_unique_keys if unique_keys else None)
     except _RepeatedKey as exc:
-        key = str(exc.args[0])
-        shown = repr(key) if len(key) <= 80 else f"{key[:80]!r}... ({len(key)} characters)"
-        raise BadBody(f"{what} gives the key {shown} twice in one object") from None
+        raise BadBody(
+            f"{what} gives the key {quoted(str(exc.args[0]))} twice in one object"
+        ) from None
     except RecursionError:
         raise BadBody(f"{what} is not valid JSON: it is nested too deeply") from None
     except ValueError as exc:  # JSONDecodeError, bad UTF-8, integers of over 4300 digits
