@@ -92,6 +92,8 @@ from .validation import (
     MeshSpaceError,
     as_float_rows,
     check_cull,
+    check_hits,
+    check_int_rows,
     check_masks,
     check_max_hits,
     check_mesh,
@@ -103,6 +105,7 @@ from .validation import (
     check_vertices_end,
     explain_bad_rays,
     explain_bad_vertices,
+    mesh_pairs,
     place_vertices,
 )
 
@@ -126,50 +129,6 @@ Query = namedtuple(
 Query.__doc__ = """A checked query: its flags word (kind, culling, strategy), float32 origins,
 directions, tmin and tmax, its (n,) uint32 ray masks or None, its thread count, and its rays'
 times (n,) float32, or None where every ray is at 0 or nothing in the scene moves."""
-
-
-def as_int_rows(values, name: str) -> np.ndarray:
-    """``values`` as a flat int64 array; InputError naming ``name`` unless integers."""
-    array = np.asarray(values)
-    if array.dtype.kind not in "iu":
-        raise InputError(f"{name} must be integers, got {array.dtype}")
-    return array.astype(np.int64).reshape(-1)
-
-
-def as_hit_values(values, name: str, n: int, kind: str) -> np.ndarray:
-    """A hit's ``prim`` (int) or ``u``/``v`` (float) as a flat array of ``n``; InputError naming
-    ``name`` otherwise."""
-    if kind == "int":
-        array = as_int_rows(values, name)
-    else:
-        try:
-            array = np.asarray(values, np.float64).reshape(-1)
-        except (TypeError, ValueError):
-            raise InputError(f"{name} must be numbers") from None
-    if len(array) != n:
-        raise InputError(f"{name} has {len(array)} entries for {n} points")
-    return array
-
-
-def mesh_list(meshes) -> list:
-    """``meshes`` as a list; InputError unless it is a sequence."""
-    try:
-        return list(meshes)
-    except TypeError:
-        raise InputError(
-            f"meshes must be a sequence of (vertices, faces) pairs, got {type(meshes).__name__}"
-        ) from None
-
-
-def mesh_pair(i: int, entry) -> tuple:
-    """Entry ``i`` of ``meshes`` as (vertices, faces); InputError naming ``meshes[i]``."""
-    try:
-        vertices, faces = entry
-    except (TypeError, ValueError):
-        raise InputError(
-            f"meshes[{i}] must be a (vertices, faces) pair, got {type(entry).__name__}"
-        ) from None
-    return vertices, faces
 
 
 InstanceTraced = namedtuple(
@@ -235,7 +194,7 @@ class Scene:
         if order not in ORDERS:
             raise InputError(f"order must be one of {', '.join(ORDERS)}; got {order!r}")
         self._order = order
-        checked = [check_mesh(i, *mesh_pair(i, entry)) for i, entry in enumerate(mesh_list(meshes))]
+        checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in mesh_pairs(meshes)]
         matrices = self._checked_transforms(transforms, len(checked), "transforms")
         ends = self._checked_transforms(transforms_end, len(checked), "transforms_end")
         if vertices_end is not None and len(vertices_end) != len(checked):
@@ -1117,7 +1076,7 @@ class Scene:
         (1-u-v) (p0' - p0) + u (p1' - p1) + v (p2' - p2), its corners' ends less their starts
         (``prim``, ``u`` and ``v`` are then required: a hit's). Zero on a static mesh and for
         mesh -1 (divide by the interval's seconds for a velocity)."""
-        mesh = as_int_rows(mesh, "mesh")
+        mesh = check_int_rows(mesh, "mesh")
         if ((mesh < -1) | (mesh >= len(self._meshes))).any():
             raise InputError(f"mesh must hold -1 or indices below {len(self._meshes)}")
         try:
@@ -1136,9 +1095,7 @@ class Scene:
                 continue
             if prim is None or u is None or v is None:
                 raise InputError(f"motion on the deforming mesh {i} needs prim, u and v")
-            hit_prim = as_hit_values(prim, "prim", n, "int")
-            hit_u = as_hit_values(u, "u", n, "float")
-            hit_v = as_hit_values(v, "v", n, "float")
+            hit_prim, hit_u, hit_v = check_hits(prim, u, v, n)
             faces_of = self._meshes[i][1]
             if ((hit_prim[rows] < 0) | (hit_prim[rows] >= len(faces_of))).any():
                 raise InputError(f"prim must hold triangles of mesh {i}: 0 to {len(faces_of) - 1}")

@@ -54,6 +54,50 @@ def as_float_rows(array, name, width=3, check_finite=True):
     return converted
 
 
+def mesh_pairs(meshes):
+    """(i, (vertices, faces)) of each entry of ``meshes``; InputError naming ``meshes`` when it
+    is not a sequence, ``meshes[i]`` when an entry is not a pair."""
+    try:
+        entries = list(meshes)
+    except TypeError:
+        raise InputError(
+            f"meshes must be a sequence of (vertices, faces) pairs, got {type(meshes).__name__}"
+        ) from None
+    pairs = []
+    for i, entry in enumerate(entries):
+        try:
+            vertices, faces = entry
+        except (TypeError, ValueError):
+            raise InputError(
+                f"meshes[{i}] must be a (vertices, faces) pair, got {type(entry).__name__}"
+            ) from None
+        pairs.append((i, (vertices, faces)))
+    return pairs
+
+
+def check_int_rows(values, name):
+    """``values`` as a flat int64 array; InputError naming ``name`` unless integers."""
+    array = np.asarray(values)
+    if array.dtype.kind not in "iu":
+        raise InputError(f"{name} must be integers, got {array.dtype}")
+    return array.astype(np.int64).reshape(-1)
+
+
+def check_hits(prim, u, v, n):
+    """A hit's ``prim`` (int64) and ``u``, ``v`` (float64), flat, of ``n`` entries each;
+    InputError naming the one that is not."""
+    arrays = [check_int_rows(prim, "prim")]
+    for values, name in ((u, "u"), (v, "v")):
+        try:
+            arrays.append(np.asarray(values, np.float64).reshape(-1))
+        except (TypeError, ValueError):
+            raise InputError(f"{name} must be numbers") from None
+    for array, name in zip(arrays, ("prim", "u", "v"), strict=True):
+        if len(array) != n:
+            raise InputError(f"{name} has {len(array)} entries for {n} points")
+    return arrays
+
+
 def check_mesh(index, vertices, faces):
     """Validate one mesh; returns (vertices float32 (V, 3), faces int32 or int64 (F, 3)), as
     ``kernel_input`` gives them."""
