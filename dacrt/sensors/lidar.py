@@ -516,11 +516,12 @@ def _sensor_velocity(pose, pose_end, period_s) -> np.ndarray:
     """The sensor's velocity during the sweep (its translation is linear in time)."""
     if pose_end is None or period_s is None:
         return np.zeros(3)
-    velocity = (pose_end[:3, 3] - pose[:3, 3]) / period_s
+    move = pose_end[:3, 3] - pose[:3, 3]
+    velocity = move / period_s
     if not np.abs(velocity).max() <= FLOAT32_MAX:
         raise InputError(
-            f"pose_end: a move of {np.abs(pose_end[:3, 3] - pose[:3, 3]).max():.3g} in "
-            f"period_s ({period_s!r}) is a speed beyond float32's range"
+            f"pose_end: a move of {np.abs(move).max():.3g} in period_s ({period_s!r}) is a speed "
+            "beyond float32's range"
         )
     return velocity
 

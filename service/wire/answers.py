@@ -131,11 +131,7 @@ def npy_parts(arrays: Mapping[str, np.ndarray]) -> list[Buffer]:
 
 def encode_json(arrays: Mapping[str, np.ndarray]) -> bytes:
     """``{"key": [...], ...}`` with float32 in shortest round-trip form and null for inf/nan."""
-    return json.dumps(
-        {key: json_ready(array) for key, array in arrays.items()},
-        separators=(",", ":"),
-        allow_nan=False,
-    ).encode()
+    return _dumps({key: json_ready(array) for key, array in arrays.items()}).encode()
 
 
 #: Values a piece of a JSON answer holds at the most (whole rows of an array, or of one of its
@@ -178,6 +174,7 @@ def _array_pieces(array: np.ndarray) -> Iterator[bytes]:
 
 
 def _dumps(value: Any) -> str:
+    """Compact JSON, refusing NaN and infinities (``json_ready`` made them null)."""
     return json.dumps(value, separators=(",", ":"), allow_nan=False)
 
 
