@@ -31,9 +31,10 @@ def png(width: int, height: int) -> bytes:
     )
 
 
-def glb(doc: dict, binary: bytes = b"", json_length: int | None = None) -> bytes:
-    """A GLB of a JSON document and one BIN chunk; ``json_length`` overrides the declared one."""
-    text = json.dumps(doc).encode()
+def glb(doc: dict | bytes, binary: bytes = b"", json_length: int | None = None) -> bytes:
+    """A GLB of a JSON document (or its text as given, which json.dumps could not write) and one
+    BIN chunk; ``json_length`` overrides the declared one."""
+    text = doc if isinstance(doc, bytes) else json.dumps(doc).encode()
     text += b" " * (-len(text) % 4)
     binary += b"\0" * (-len(binary) % 4)
     declared = len(text) if json_length is None else json_length
