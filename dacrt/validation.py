@@ -119,6 +119,8 @@ def check_mesh(index, vertices, faces):
     vertices = as_float_rows(vertices, f"{label}: vertices", check_finite=False)
     if not all_finite(vertices):
         explain_bad_vertices(vertices, f"{label}: vertices")
+    if faces.dtype == np.uint64 and faces.size and faces.max() >= len(vertices):
+        explain_bad_faces(faces, len(vertices), f"{label}: faces")  # before int64 wraps them
     # Kernels take int32 and int64 faces (narrowing int64 would copy on every Scene); other
     # integer types become int64.
     faces = kernel_input(faces, None if faces.dtype in (INDEX, np.int64) else np.int64)
@@ -264,9 +266,12 @@ def check_transform(matrix, name="matrix"):
     [0, 0, 0, 1], its 3x3 part invertible and scaling no axis below MIN_PLACEMENT_SCALE.
     ValueError naming ``name`` otherwise."""
     try:
-        matrix = np.array(matrix, dtype=np.float64)
+        matrix = np.asarray(matrix)
     except (TypeError, ValueError):
         raise InputError(f"{name} must be a 4x4 array of numbers") from None
+    if matrix.dtype.kind not in "fiu":  # complex, text, objects: no real number to take
+        raise InputError(f"{name} must be a 4x4 array of real numbers, got dtype {matrix.dtype}")
+    matrix = matrix.astype(np.float64)
     if matrix.shape != (4, 4):
         raise InputError(f"{name} must have shape (4, 4), got {matrix.shape}")
     if not np.isfinite(matrix).all():

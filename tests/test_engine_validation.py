@@ -388,3 +388,12 @@ def test_every_input_layout_gives_the_same_answers_and_compiles_nothing(faces_as
 def test_a_mesh_entry_that_is_not_a_pair_is_named(meshes, words):
     with pytest.raises(dacrt.InputError, match=words):
         dacrt.Scene(meshes)
+
+
+@pytest.mark.parametrize("index", [2**63, 2**64 - 1, 2**32 + 1, 3])
+def test_an_unsigned_face_index_is_shown_as_given(index):
+    """uint64 indices from 2**63 wrap to negative int64: the message shows the caller's value."""
+    vertices, _ = pg.single_triangle()
+    faces = np.array([[0, 1, index]], np.uint64)
+    with pytest.raises(dacrt.InputError, match=rf"faces\[0\] refers to vertex {index},"):
+        dacrt.Scene([(vertices, faces)])

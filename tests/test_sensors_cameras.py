@@ -88,9 +88,26 @@ def test_the_image_is_closests_answer(room, view):
         (lambda: look_at_pose((0, 0, 0), (0, 0, 0), (0, 1, 0)), "eye and target"),
         (lambda: look_at_pose((0, 0, 0), (0, 1, 0), (0, 2, 0)), "parallel"),
         (lambda: Camera(4, 4, 1.0, 1.0, 0.0, 0.0).shot(np.diag([1, 1, -1, 1])), "pose[:3, :3]"),
+        (lambda: Camera(4, 4, 1.0, 1.0, 0.0, 0.0).shot("I"), "pose must be numbers"),
+        (lambda: Camera(4, 4, 1.0, 1.0, 0.0, 0.0).shot(np.eye(4) * 1j), "got complex128"),
+        (lambda: look_at_pose((0, 0), (1, 0, 0), (0, 1, 0)), "eye must have shape (3,)"),
+        (lambda: look_at_pose((0, 0, 0), "abc", (0, 1, 0)), "target must be numbers"),
+        (lambda: look_at_pose((0, 0, 0), (1, 0, 0), [[0, 1, 0]]), "up must have shape (3,)"),
+        (lambda: look_at_pose((np.nan, 0, 0), (1, 0, 0), (0, 1, 0)), "eye has non-finite"),
+        (lambda: look_at_pose((1e308, 0, 0), (-1e308, 0, 0), (0, 1, 0)), "too far apart"),
     ],
 )
 def test_a_bad_camera_is_refused_naming_its_key(make, words):
     with pytest.raises(dacrt.InputError) as error:
         make()
     assert words in str(error.value)
+
+
+def test_a_look_at_pose_far_from_the_origin_looks_at_its_target():
+    """eye and target 2e300 apart: the view's length overflows float64, its direction does not."""
+    pose = look_at_pose((1e300, 0, 0), (-1e300, 0, 0), (0, 0, 1))
+    np.testing.assert_array_equal(pose[:3, 2], [-1.0, 0.0, 0.0])
+    np.testing.assert_array_equal(pose[:3, 3], [1e300, 0.0, 0.0])
+    np.testing.assert_allclose(pose[:3, :3].T @ pose[:3, :3], np.eye(3), atol=1e-15)
+    tiny_up = look_at_pose((0, 0, 0), (1, 0, 0), (0, 0, 1e-300))
+    np.testing.assert_array_equal(tiny_up, look_at_pose((0, 0, 0), (1, 0, 0), (0, 0, 1)))

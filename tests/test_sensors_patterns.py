@@ -81,3 +81,35 @@ def test_a_bad_pattern_is_refused_naming_its_key(arguments, words):
 def test_an_organized_pattern_is_refused():
     with pytest.raises(dacrt.InputError, match="organized"):
         Lidar(pattern=Pattern([0.0], [0.0]), organized=True)
+
+
+def _npz(**arrays) -> io.BytesIO:
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    buffer.seek(0)
+    return buffer
+
+
+def _npy(array) -> io.BytesIO:
+    buffer = io.BytesIO()
+    np.save(buffer, array)
+    buffer.seek(0)
+    return buffer
+
+
+@pytest.mark.parametrize(
+    ("file", "words"),
+    [
+        (io.BytesIO(b"garbage"), "a pattern file is an .npz archive"),
+        (io.BytesIO(b"PK\x03\x04 not a zip"), "File is not a zip file"),
+        (io.BytesIO(b""), "a pattern file is an .npz archive"),
+        (_npy(np.arange(3.0)), "got one array"),
+        (_npz(azimuth_deg=np.array([0.0, "a"], object), elevation_deg=[0.0, 0.0]), "Object"),
+        (_npz(azimuth_deg=[0.0]), "a pattern needs elevation_deg"),
+        (_npz(azimuth_deg=[0.0], elevation_deg=[0.0], colour=[1]), "colour is not a key"),
+    ],
+)
+def test_a_bad_pattern_file_is_refused(file, words):
+    with pytest.raises(dacrt.InputError) as error:
+        Pattern.load(file)
+    assert words in str(error.value)

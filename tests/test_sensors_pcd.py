@@ -61,6 +61,10 @@ def test_an_organized_answer_is_height_by_width():
 def test_an_unknown_field_is_refused(points):
     with pytest.raises(dacrt.InputError, match="fields: 'colour' is not a field"):
         pcd_bytes(points, ["x", "colour"])
+    with pytest.raises(dacrt.InputError, match="fields: 'x' is named more than once"):
+        pcd_bytes(points, ["x", "range", "x"])
+    with pytest.raises(dacrt.InputError, match="fields: 'x' is named more than once"):
+        pcd_bytes(points, ["xyz", "x"])
 
 
 def test_velocity_is_three_fields_as_pcl_names_them():

@@ -65,3 +65,43 @@ def test_bad_threads_are_named(threads):
     named, before any sensor is made."""
     with pytest.raises(dacrt.InputError, match="threads must be a positive integer or None"):
         Rig(SENSORS).capture(dacrt.Scene(ROOM), POSE_OF, threads=threads)
+
+
+def test_sensors_and_poses_must_be_mappings_of_names():
+    with pytest.raises(dacrt.InputError, match="sensors must be a mapping of sensor names"):
+        Rig([SENSORS["roof"]])
+    rig = Rig(SENSORS)
+    with pytest.raises(dacrt.InputError, match="poses must be a mapping of sensor names"):
+        rig.capture(dacrt.Scene(ROOM), list(POSE_OF.values()))
+    with pytest.raises(dacrt.InputError, match="poses_end must be a mapping"):
+        rig.capture(dacrt.Scene(ROOM), POSE_OF, poses_end=[POSE_OF["roof"]])
+
+
+@pytest.mark.parametrize("key", ["time", "tmin", "tmax", "pose_end", "max_hits", "colour"])
+def test_a_query_option_a_sensor_sets_itself_is_named(key):
+    """The rays, their windows and times are the sensors' own: a query naming one is the
+    caller's error, named, not a TypeError from Scene.closest."""
+    scene = dacrt.Scene(ROOM)
+    words = f"{key} is not a query option of a sensor"
+    with pytest.raises(dacrt.InputError, match=words):
+        Rig(SENSORS).capture(scene, POSE_OF, **{key: 0.5})
+    if key != "pose_end":  # a lidar's scan takes a pose_end of its own
+        with pytest.raises(dacrt.InputError, match=words):
+            SENSORS["roof"].scan(scene, POSE_OF["roof"], **{key: 0.5})
+    with pytest.raises(dacrt.InputError, match=words):
+        SENSORS["front"].capture(scene, POSE_OF["front"], **{key: 0.5})
+
+
+def test_materials_as_a_dict_answer_as_materials():
+    scene = dacrt.Scene(ROOM)
+    given = {"reflectivity": [0.2, 0.7, 0.95], "label": [4, 5, 6]}
+    as_dict = Rig(SENSORS).capture(scene, POSE_OF, given)
+    as_materials = Rig(SENSORS).capture(scene, POSE_OF, MATERIALS)
+    for name in SENSORS:
+        for key in as_materials[name]:
+            np.testing.assert_array_equal(as_dict[name][key], as_materials[name][key])
+    assert set(np.unique(as_dict["roof"]["label"])) <= {4, 5, 6}
+    with pytest.raises(dacrt.InputError, match="materials.colour is not an option"):
+        SENSORS["roof"].scan(scene, POSE_OF["roof"], {"colour": 1})
+    with pytest.raises(dacrt.InputError, match="materials must be an object of its options"):
+        SENSORS["roof"].scan(scene, POSE_OF["roof"], [0.5, 0.5, 0.5])

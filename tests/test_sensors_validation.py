@@ -25,6 +25,7 @@ BEAMS = {"model": "VLP-16"}
         ({**BEAMS, "horizontal_steps": 2.5}, "horizontal_steps must be an integer"),
         ({**BEAMS, "min_range": -1}, "min_range must be >= 0"),
         ({**BEAMS, "min_range": 5, "max_range": 5}, "max_range must be > 5"),
+        ({**BEAMS, "min_range": 1e300, "max_range": None}, "min_range must be <= 3.40282e+38"),
         ({**BEAMS, "max_returns": 65}, "max_returns must be >= 1 and <= 64"),
         ({**BEAMS, "return_mode": "second"}, "return_mode must be one of first, last"),
         ({**BEAMS, "beam_divergence_deg": -0.1}, "beam_divergence_deg must be >= 0"),
@@ -83,3 +84,15 @@ def test_the_default_materials_and_a_scalar_for_every_mesh():
     reflectivity, label = Materials(0.25, 9).per_mesh(3)
     assert reflectivity.tolist() == [0.25] * 3 and label.tolist() == [9] * 3
     assert label.dtype == np.uint32
+
+
+def test_a_max_range_beyond_float32_is_no_limit():
+    """The rays' windows are float32: a max_range beyond its largest is as if none were given."""
+    vertices = np.array([[-1, -1, 5], [1, -1, 5], [0, 1, 5]], np.float32)
+    scene = dacrt.Scene([(vertices, [[0, 1, 2]])])
+    beyond = Lidar(vertical_angles_deg=[90.0], horizontal_steps=4, max_range=1e300)
+    assert beyond.max_range == np.inf
+    np.testing.assert_array_equal(
+        beyond.scan(scene, np.eye(4))["range"],
+        Lidar(vertical_angles_deg=[90.0], horizontal_steps=4).scan(scene, np.eye(4))["range"],
+    )

@@ -12,8 +12,12 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..chunks import N_CORES, map_on_threads
-from ..validation import check_threads
-from .physics import Materials
+from ..validation import InputError, check_threads
+from .physics import Materials, options
+
+#: The keywords a sensor passes on to ``Scene.closest`` and ``Scene.hits``; the rays, their
+#: windows and times are the sensor's own.
+QUERY_KEYS = ("threads", "strategy", "stats", "mask", "cull")
 
 
 @dataclass(frozen=True)
@@ -54,15 +58,26 @@ class Shot:
     finish: Callable[[Traced, Any], Any]
 
 
-def capture(scene, shots: list[Shot], materials: Materials | None, **query) -> list:
+def capture(scene, shots: list[Shot], materials: Materials | dict | None, **query) -> list:
     """Every shot's answer, its rays traced in one batch (``trace``); ``materials`` (None for
-    the defaults) are those of ``scene``'s meshes. The shots' answers are made side by side on
-    the query's threads (NumPy's gathers and arithmetic let go of the GIL)."""
-    per_mesh = (materials or Materials()).per_mesh(scene.n_meshes)
+    the defaults, or a dict of Materials' keys) are those of ``scene``'s meshes. The shots'
+    answers are made side by side on the query's threads (NumPy's gathers and arithmetic let go
+    of the GIL). InputError names a ``query`` key other than QUERY_KEYS."""
+    check_query(query)
+    per_mesh = (options(materials, Materials, "materials") or Materials()).per_mesh(scene.n_meshes)
     traced = trace(scene, [shot.rays for shot in shots], **query)
     return map_on_threads(
         lambda k: shots[k].finish(traced[k], per_mesh), len(shots), workers(len(shots), query)
     )
+
+
+def check_query(query: dict) -> None:
+    for key in query:
+        if key not in QUERY_KEYS:
+            raise InputError(
+                f"{key} is not a query option of a sensor; its options are "
+                f"{', '.join(QUERY_KEYS)} (a sensor makes its own rays, windows and times)"
+            )
 
 
 def workers(n_sensors, query) -> int:

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..validation import InputError
 from .batch import Rays, Shot, Traced, capture
-from .checks import integer, number
+from .checks import float_array, integer, number
 
 #: |sin| of the angle between up and the view direction below which they count as parallel.
 PARALLEL_SINE = 1e-6
@@ -104,18 +104,25 @@ def check_fov(fov_deg: float) -> None:
 def look_at_pose(eye, target, up) -> np.ndarray:
     """(4, 4) float64: the camera-to-scene pose at ``eye`` with z along ``target - eye``, x along
     ``z x up`` and y = z x x; CameraError if eye == target or up is zero or parallel to the view."""
-    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
-    view = target - eye
-    length = np.linalg.norm(view)
-    if length == 0 or not np.isfinite(length):
+    eye, target, up = (
+        float_array(value, key, (3,), CameraError)
+        for value, key in ((eye, "eye"), (target, "target"), (up, "up"))
+    )
+    with np.errstate(over="ignore"):
+        view = target - eye
+    if not np.isfinite(view).all():
+        raise CameraError(
+            f"eye {eye.tolist()} and target {target.tolist()} are too far apart: target - eye "
+            "is beyond float64"
+        )
+    if not view.any():
         raise CameraError(
             f"eye and target are the same point {eye.tolist()}: the camera looks nowhere"
         )
-    forward = view / length
-    up_length = np.linalg.norm(up)
-    if up_length == 0:
+    forward = _unit(view)
+    if not up.any():
         raise CameraError("up is the zero vector; give the direction that is up in the picture")
-    side = np.cross(forward, up / up_length)
+    side = np.cross(forward, _unit(up))
     sine = np.linalg.norm(side)
     if sine < PARALLEL_SINE:
         raise CameraError(
@@ -127,6 +134,17 @@ def look_at_pose(eye, target, up) -> np.ndarray:
     pose = np.eye(4)
     pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, down, forward, eye
     return pose
+
+
+def _unit(vector: np.ndarray) -> np.ndarray:
+    """``vector`` (finite, not zero) over its length, scaled first where the length overflows
+    or underflows."""
+    with np.errstate(over="ignore", under="ignore"):
+        length = np.linalg.norm(vector)
+    if not 0 < length < np.inf:
+        vector = vector / np.abs(vector).max()
+        length = np.linalg.norm(vector)
+    return vector / length
 
 
 def fov_focal(fov_deg: float, height: int) -> float:
@@ -146,11 +164,7 @@ def check_pose(matrix, name: str = "pose") -> np.ndarray:
     """A rigid 4x4 camera- or sensor-to-scene matrix as (4, 4) float64; CameraError naming what is
     wrong: shape, non-finite entries, a last row other than [0, 0, 0, 1], or a 3x3 part that is
     not a rotation (orthonormal within ROTATION_TOLERANCE, determinant +1)."""
-    pose = np.asarray(matrix, dtype=np.float64)
-    if pose.shape != (4, 4):
-        raise CameraError(f"{name} must be 4x4 (row-major), got shape {pose.shape}")
-    if not np.isfinite(pose).all():
-        raise CameraError(f"{name} has non-finite entries")
+    pose = float_array(matrix, name, (4, 4), CameraError)
     if not np.array_equal(pose[3], [0, 0, 0, 1]):
         raise CameraError(f"{name}'s last row must be [0, 0, 0, 1], got {pose[3].tolist()}")
     rotation = pose[:3, :3]

@@ -7,6 +7,8 @@ from __future__ import annotations
 import math
 import numbers
 
+import numpy as np
+
 from ..validation import InputError
 
 
@@ -50,6 +52,23 @@ def integer(value, key: str, *, at_least: int, at_most: int | None = None) -> in
         shown = value if abs(value) < 10**30 else f"an integer of {value.bit_length()} bits"
         raise InputError(f"{key} must be >= {at_least}{upper}, got {shown}")
     return value
+
+
+def float_array(value, key: str, shape: tuple, error: type = InputError) -> np.ndarray:
+    """``value`` as a finite float64 array of ``shape``; ``error`` names ``key`` when it is not
+    numbers (text, complex, booleans), has another shape or a NaN or infinite entry."""
+    try:
+        array = np.asarray(value)
+    except (ValueError, TypeError):  # ragged nesting
+        raise error(f"{key} must be numbers of shape {shape}, got {value!r:.80}") from None
+    if array.dtype.kind not in "fiu":
+        raise error(f"{key} must be numbers of shape {shape}, got {array.dtype} values")
+    if array.shape != shape:
+        raise error(f"{key} must have shape {shape}, got shape {array.shape}")
+    array = array.astype(np.float64)
+    if not np.isfinite(array).all():
+        raise error(f"{key} has non-finite entries: {array.tolist()}")
+    return array
 
 
 def choice(value, key: str, choices: tuple[str, ...]) -> str:

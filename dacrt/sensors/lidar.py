@@ -176,7 +176,8 @@ class Lidar:
     model : one of ``MODELS``' names; vertical_angles_deg : 1 to MAX_BEAMS elevations in degrees;
         pattern : a ``Pattern`` (its rays in its order; not ``organized``)
     horizontal_steps : columns of a revolution (a spinning lidar's)
-    min_range, max_range : the range window (max_range None or inf: no limit)
+    min_range, max_range : the range window (max_range None, inf or beyond float32: no limit;
+        min_range at most float32's largest)
     return_mode : one of ``RETURN_MODES``; max_returns : at most this many returns (mode ``all``)
     beam_divergence_deg, beam_samples, range_resolution, attenuation : ``physics``
     noise : a ``Noise`` or a dict of its keys; dropout : a ``Dropout`` or a dict of its keys
@@ -225,10 +226,12 @@ class Lidar:
         if self.pattern is not None and not isinstance(self.pattern, Pattern):
             raise InputError(f"pattern must be a dacrt.sensors.Pattern, got {self.pattern!r}")
         integer(self.horizontal_steps, "horizontal_steps", at_least=1)
-        number(self.min_range, "min_range", at_least=0)
+        number(self.min_range, "min_range", at_least=0, at_most=FLOAT32_MAX)
         if self.max_range is None:
             object.__setattr__(self, "max_range", math.inf)
         number(self.max_range, "max_range", above=self.min_range, infinite=True)
+        if self.max_range > FLOAT32_MAX:  # the rays' windows are float32: beyond it is no limit
+            object.__setattr__(self, "max_range", math.inf)
         integer(self.max_returns, "max_returns", at_least=1, at_most=MAX_RETURNS)
         choice(self.return_mode, "return_mode", RETURN_MODES)
         number(self.beam_divergence_deg, "beam_divergence_deg", at_least=0, below=180)
@@ -294,7 +297,7 @@ class Lidar:
         return {"all": self.max_returns, "dual": 2}.get(self.return_mode, 1)
 
     def scan(
-        self, scene, pose, materials: Materials | None = None, pose_end=None, **query
+        self, scene, pose, materials: Materials | dict | None = None, pose_end=None, **query
     ) -> LidarPoints:
         """The points of one sweep from ``pose`` (4x4 sensor-to-scene, rigid) in ``scene`` (a
         ``dacrt.Scene``) whose meshes have ``materials``; ``pose_end`` (with ``period_s``) is

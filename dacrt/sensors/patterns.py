@@ -10,6 +10,7 @@ lidar's angles makes its rays.
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,14 +64,25 @@ class Pattern:
         """The pattern of an ``.npz`` file (a path or a binary file) with keys ``azimuth_deg``,
         ``elevation_deg`` and optional ``time_s``, ``channel``; InputError for other keys."""
         keys = ("azimuth_deg", "elevation_deg", "time_s", "channel")
-        with np.load(file, allow_pickle=False) as archive:
-            unknown = [key for key in archive.files if key not in keys]
-            if unknown:
-                raise InputError(f"{unknown[0]} is not a key of a pattern; its keys are {keys}")
-            for key in keys[:2]:
-                if key not in archive.files:
-                    raise InputError(f"a pattern needs {key}")
-            return cls(**{key: archive[key] for key in archive.files})
+        try:
+            archive = np.load(file, allow_pickle=False)
+            if not isinstance(archive, np.lib.npyio.NpzFile):
+                raise InputError("a pattern file is an .npz archive of arrays, got one array")
+            with archive:
+                unknown = [key for key in archive.files if key not in keys]
+                if unknown:
+                    raise InputError(f"{unknown[0]} is not a key of a pattern; its keys are {keys}")
+                for key in keys[:2]:
+                    if key not in archive.files:
+                        raise InputError(f"a pattern needs {key}")
+                arrays = {key: archive[key] for key in archive.files}
+        except InputError:
+            raise
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as error:
+            raise InputError(
+                f"a pattern file is an .npz archive of numeric arrays: {error}"
+            ) from None
+        return cls(**arrays)
 
     def save(self, file) -> None:
         """Write the pattern as ``load`` reads it."""

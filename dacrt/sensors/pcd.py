@@ -50,6 +50,9 @@ def pcd_bytes(points: Mapping[str, np.ndarray], fields: Sequence[str] | None = N
             )
     if not fields:
         raise InputError("fields: name at least one field")
+    repeated = [name for k, name in enumerate(fields) if name in fields[:k]]
+    if repeated:
+        raise InputError(f"fields: {repeated[0]!r} is named more than once")
     columns = {name: _column(points, name) for name in fields}
     shape = _points_shape(points)
     height = shape[0] if len(shape) >= 2 else 1

@@ -7,7 +7,7 @@ from collections.abc import Mapping
 
 from ..chunks import map_on_threads
 from ..validation import InputError
-from .batch import capture, workers
+from .batch import capture, check_query, workers
 from .cameras import Camera, CameraImage
 from .lidar import Lidar, LidarPoints
 from .physics import Materials
@@ -17,6 +17,7 @@ class Rig:
     """Named sensors (``Camera`` or ``Lidar``): ``Rig({"roof": lidar, "front": camera})``."""
 
     def __init__(self, sensors: Mapping[str, Camera | Lidar]):
+        _check_mapping(sensors, "sensors")
         if not sensors:
             raise InputError("sensors: name at least one sensor")
         for name, sensor in sensors.items():
@@ -30,13 +31,16 @@ class Rig:
         self,
         scene,
         poses: Mapping[str, object],
-        materials: Materials | None = None,
+        materials: Materials | dict | None = None,
         poses_end: Mapping[str, object] | None = None,
         **query,
     ) -> dict[str, CameraImage | LidarPoints]:
         """{name: answer} of every sensor at its pose in ``poses`` (4x4 sensor-to-scene), traced
         together; ``poses_end`` names the lidars (with ``period_s``) that move during their
         sweep and their poses at its end; ``materials`` and ``query`` as for a sensor alone."""
+        _check_mapping(poses, "poses")
+        _check_mapping(poses_end or {}, "poses_end")
+        check_query(query)
         poses_end = dict(poses_end or {})
         for name in poses_end:
             if not isinstance(self.sensors.get(name), Lidar):
@@ -64,3 +68,10 @@ class Rig:
         shots = map_on_threads(shot, len(names), workers(len(names), query))
         answers = capture(scene, shots, materials, **query)
         return dict(zip(self.sensors, answers))
+
+
+def _check_mapping(value, key: str) -> None:
+    if not isinstance(value, Mapping):
+        raise InputError(
+            f"{key} must be a mapping of sensor names (a dict), got {type(value).__name__}"
+        )
