@@ -98,6 +98,7 @@ from .validation import (
     check_max_hits,
     check_mesh,
     check_rays,
+    check_row_count,
     check_strategy,
     check_threads,
     check_time,
@@ -195,6 +196,7 @@ class Scene:
             raise InputError(f"order must be one of {', '.join(ORDERS)}; got {order!r}")
         self._order = order
         checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in mesh_pairs(meshes)]
+        check_row_count(sum(len(faces) for _, faces in checked), "the scene", "triangles")
         matrices = self._checked_transforms(transforms, len(checked), "transforms")
         ends = self._checked_transforms(transforms_end, len(checked), "transforms_end")
         if vertices_end is not None and len(vertices_end) != len(checked):

@@ -35,11 +35,27 @@ def _first_bad(bad, what, reason, total_label):
         raise InputError(f"{what}[{bad_rows[0]}] {reason} ({len(bad_rows)} {total_label})")
 
 
-def as_float_rows(array, name, width=3, check_finite=True):
-    """``array`` as a float32 (n, width) array (``kernel_input``); finite values required."""
+#: The most rays (or points) of one call and triangles of one scene: both are int32 indices.
+MAX_ROWS = 2**31 - 1
+
+
+def check_row_count(n, name, what):
+    """InputError naming ``name`` when it has more than MAX_ROWS ``what``."""
+    if n > MAX_ROWS:
+        raise InputError(
+            f"{name} has {n:,} {what}; the engine indexes them in int32, so at most "
+            f"{MAX_ROWS:,}: split them"
+        )
+
+
+def as_float_rows(array, name, width=3, check_finite=True, indexed=False):
+    """``array`` as a float32 (n, width) array (``kernel_input``); finite values required;
+    at most MAX_ROWS rows when ``indexed`` (rays and points), checked before any copy."""
     array = np.asarray(array)
     if array.ndim != 2 or array.shape[1] != width:
         raise InputError(f"{name} must have shape (n, {width}), got {array.shape}")
+    if indexed:
+        check_row_count(len(array), name, "rows")
     if array.dtype.kind not in "fiu" or array.dtype.kind == "b":
         raise InputError(f"{name} must be a float array, got dtype {array.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
@@ -111,6 +127,7 @@ def check_mesh(index, vertices, faces):
             faces = faces.reshape(0, 3)
         else:
             raise InputError(f"{label}: faces must have shape (F, 3), got {faces.shape}")
+    check_row_count(len(faces), f"{label}: faces", "triangles")
     if faces.dtype.kind not in "iu":
         if faces.size == 0:
             faces = faces.astype(np.int64)
@@ -163,8 +180,8 @@ def check_rays(origins, directions, tmin, tmax):
     """Check a ray batch's shapes and dtypes; returns float32 origins, directions, tmin, tmax
     (``kernel_input``: the columns of one (n, 6) array are copied). The values are checked as
     the kernels pack them (``rays.pack_rays``); ``explain_bad_rays`` then names a bad one."""
-    origins = as_float_rows(origins, "origins", check_finite=False)
-    directions = as_float_rows(directions, "directions", check_finite=False)
+    origins = as_float_rows(origins, "origins", check_finite=False, indexed=True)
+    directions = as_float_rows(directions, "directions", check_finite=False, indexed=True)
     n = len(origins)
     if len(directions) != n:
         raise InputError(f"origins has {n} rows but directions has {len(directions)}")
@@ -355,7 +372,7 @@ def check_masks(masks, n, name, what):
 def check_points(points):
     """Query points as a writable float32 (n, 3) C-contiguous array, each row finite; a
     read-only one (a server's body) is copied, so the kernels have one signature."""
-    points = as_float_rows(points, "points")
+    points = as_float_rows(points, "points", indexed=True)
     return points if points.flags.writeable else points.copy()
 
 

@@ -397,3 +397,34 @@ def test_an_unsigned_face_index_is_shown_as_given(index):
     faces = np.array([[0, 1, index]], np.uint64)
     with pytest.raises(dacrt.InputError, match=rf"faces\[0\] refers to vertex {index},"):
         dacrt.Scene([(vertices, faces)])
+
+
+def _huge(row, n):
+    """(n, 3) rows all equal to ``row``, a view of 3 numbers (nothing of size n is allocated)."""
+    return np.broadcast_to(np.asarray(row), (n, 3))
+
+
+def test_more_rays_or_triangles_than_int32_indexes_are_refused_before_any_copy():
+    """Rays, points and triangles are int32 indices in the kernels: 2**31 of them would wrap,
+    so the call is refused naming the argument (the arrays here are views of one row)."""
+    vertices, faces = pg.single_triangle()
+    scene = dacrt.Scene([(vertices, faces)])
+    too_many = 2**31
+    origins = _huge(np.zeros(3, np.float32), too_many)
+    directions = _huge(np.array([0, 0, 1], np.float32), too_many)
+    for query in ("closest", "occluded", "count"):
+        with pytest.raises(dacrt.InputError, match=r"origins has 2,147,483,648 rows; .* int32"):
+            getattr(scene, query)(origins, directions)
+    with pytest.raises(dacrt.InputError, match=r"points has 2,147,483,648 rows"):
+        scene.nearest(origins)
+    with pytest.raises(dacrt.InputError, match=r"mesh 0: faces has 2,147,483,648 triangles"):
+        dacrt.Scene([(vertices, _huge(np.array([0, 1, 2], np.int32), too_many))])
+
+
+def test_a_scene_of_more_triangles_than_int32_indexes_is_refused(monkeypatch):
+    """The bound is on the scene's total, each mesh alone within it (the bound made small)."""
+    monkeypatch.setattr(dacrt.validation, "MAX_ROWS", 10)
+    vertices, faces = pg.triangle_soup(6, np.random.default_rng(4))
+    assert dacrt.Scene([(vertices, faces)]).n_triangles == 6
+    with pytest.raises(dacrt.InputError, match="the scene has 12 triangles; .* at most 10"):
+        dacrt.Scene([(vertices, faces), (vertices, faces)])

@@ -105,3 +105,15 @@ def test_materials_as_a_dict_answer_as_materials():
         SENSORS["roof"].scan(scene, POSE_OF["roof"], {"colour": 1})
     with pytest.raises(dacrt.InputError, match="materials must be an object of its options"):
         SENSORS["roof"].scan(scene, POSE_OF["roof"], [0.5, 0.5, 0.5])
+
+
+def test_a_rig_tracing_more_rays_than_int32_indexes_is_refused(monkeypatch):
+    """Each sensor alone within the bound, the rig's batch beyond it (the bound made small)."""
+    scene = dacrt.Scene(ROOM)
+    sensors = {"a": Camera(4, 4, 1.0, 1.0, 1.5, 1.5), "b": Camera(4, 3, 1.0, 1.0, 1.5, 1.0)}
+    monkeypatch.setattr(dacrt.validation, "MAX_ROWS", 20)
+    rig = Rig(sensors)
+    poses = dict.fromkeys(sensors, np.eye(4))
+    with pytest.raises(dacrt.InputError, match=r"the rig's batch \(.*\) has 28 rays"):
+        rig.capture(scene, poses)
+    assert sensors["a"].capture(scene, np.eye(4))["depth"].shape == (4, 4)

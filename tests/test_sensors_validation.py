@@ -23,6 +23,14 @@ BEAMS = {"model": "VLP-16"}
         ({"vertical_angles_deg": [np.nan]}, "vertical_angles_deg[0] must be in [-90, 90]"),
         ({**BEAMS, "horizontal_steps": 0}, "horizontal_steps must be >= 1"),
         ({**BEAMS, "horizontal_steps": 2.5}, "horizontal_steps must be an integer"),
+        (
+            {**BEAMS, "horizontal_steps": 2**27},
+            "a scan (beams x beam_samples) has 2,147,483,648 rays",
+        ),
+        (
+            {**BEAMS, "horizontal_steps": 2**24, "beam_samples": 8},
+            "a scan (beams x beam_samples) has 2,147,483,648 rays",
+        ),
         ({**BEAMS, "min_range": -1}, "min_range must be >= 0"),
         ({**BEAMS, "min_range": 5, "max_range": 5}, "max_range must be > 5"),
         ({**BEAMS, "min_range": 1e300, "max_range": None}, "min_range must be <= 3.40282e+38"),

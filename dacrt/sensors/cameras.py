@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..validation import InputError
+from ..validation import InputError, check_row_count
 from .batch import Rays, Shot, Traced, capture
 from .checks import float_array, integer, number
 
@@ -217,6 +217,7 @@ class Camera:
             number(getattr(self, key), key)
         number(self.near, "near", at_least=0)
         number(self.far, "far", above=self.near, infinite=True)
+        check_row_count(self.n_traced_rays, "an image (width x height)", "pixels")
         x = edge_slope(self.fx, self.cx, self.width)
         y = edge_slope(self.fy, self.cy, self.height)
         # a direction x R[:, 0] + y R[:, 1] + R[:, 2] has components of at most |x| + |y| + 1
@@ -226,6 +227,11 @@ class Camera:
                 f"{key}: {getattr(self, key)!r} is too small for {centre_key} "
                 f"{getattr(self, centre_key)!r}: the edge rays' slope is beyond the float32 range"
             )
+
+    @property
+    def n_traced_rays(self) -> int:
+        """The rays one capture traces: one a pixel."""
+        return self.width * self.height
 
     @classmethod
     def from_fov(

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..validation import InputError
+from ..validation import InputError, check_row_count
 from . import physics
 from .batch import Rays, Shot, Traced, capture
 from .cameras import FLOAT32_MAX, check_pose
@@ -62,6 +62,11 @@ class Scan:
     @property
     def n_rings(self) -> int:
         return len(self.elevations_deg)
+
+    @property
+    def n_traced_rays(self) -> int:
+        """The rays one scan traces: beams x sub-rays."""
+        return self.n_beams * self.beam_samples
 
     @property
     def n_rays(self) -> int:
@@ -258,6 +263,7 @@ class Lidar:
                 "organized needs a spinning lidar (model or vertical_angles_deg): a pattern's "
                 "rays have no rings x steps layout"
             )
+        check_row_count(self.n_traced_rays, "a scan (beams x beam_samples)", "rays")
 
     @property
     def elevations_deg(self) -> np.ndarray | None:
@@ -272,6 +278,11 @@ class Lidar:
         if self.pattern is not None:
             return self.pattern.n_rays
         return len(self.elevations_deg) * self.horizontal_steps
+
+    @property
+    def n_traced_rays(self) -> int:
+        """The rays one scan traces: beams x sub-rays."""
+        return self.n_beams * self.beam_samples
 
     @property
     def n_rays(self) -> int:

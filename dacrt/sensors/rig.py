@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from ..chunks import map_on_threads
-from ..validation import InputError
+from ..validation import InputError, check_row_count
 from .batch import capture, check_query, workers
 from .cameras import Camera, CameraImage
 from .lidar import Lidar, LidarPoints
@@ -53,6 +53,8 @@ class Rig:
                 f"missing {missing}, unknown {unknown}"
             )
         names = list(self.sensors)
+        n_rays = sum(sensor.n_traced_rays for sensor in self.sensors.values())
+        check_row_count(n_rays, "the rig's batch (its sensors' rays together)", "rays")
 
         def shot(k):
             name = names[k]
