@@ -337,7 +337,13 @@ class DistributedScene:
                 lost(i, failure)
                 send(i)
         except distributed.TimeoutError as exc:
-            raise ClusterError(f"the batch took over {self.timeout} s on the cluster") from exc
+            waited = time.perf_counter() - clock["wall"]
+            if waited >= self.timeout:
+                raise ClusterError(f"the batch took over {self.timeout} s on the cluster") from exc
+            # not the batch's clock: a worker or the scheduler stopped answering mid-batch
+            raise ClusterError(
+                f"the cluster stopped answering after {waited:.1f} s: {type(exc).__name__}: {exc}"
+            ) from exc
         except OSError as exc:
             raise ClusterError(f"the cluster is unreachable: {type(exc).__name__}: {exc}") from exc
         finally:

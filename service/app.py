@@ -45,9 +45,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     configure_logging(settings.log_level)
     journal = open_data_dir(settings)
     store = Store(settings.max_triangles_per_scene, settings.max_scene_bytes, journal)
-    patterns = Patterns(
-        settings.max_patterns, settings.max_pattern_rays, journal.root if journal else None
-    )
+    patterns = Patterns(settings.max_patterns, settings.max_pattern_rays, journal)
     metrics = Metrics(store.held_bytes, lambda: len(store.snapshots()), journal)
     admission = Admission(settings.inflight_budget(), settings.admission_wait)
     metrics.watch_admission(admission)

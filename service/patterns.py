@@ -9,27 +9,22 @@ a file that cannot be read back is logged and skipped.
 
 from __future__ import annotations
 
-import logging
 import threading
-from pathlib import Path
 
-from dacrt import InputError
 from dacrt.sensors import Pattern
 
-from .errors import DataDirUnavailable, Invalid, NotFound, TooLarge
-from .persistence import TEMPORARY, os_error_text, sync_folder, write_file
+from .errors import Invalid, NotFound, TooLarge
+from .persistence import DataDir
 from .store import check_name
-
-log = logging.getLogger("service")
 
 
 class Patterns:
-    """The patterns of the service, by name, within their limits."""
+    """The patterns of the service, by name, within their limits; durable in ``journal``."""
 
-    def __init__(self, max_patterns: int, max_rays: int, data_dir: Path | None = None) -> None:
+    def __init__(self, max_patterns: int, max_rays: int, journal: DataDir | None = None) -> None:
         self.max_patterns = max_patterns
         self.max_rays = max_rays  #: most rays of one pattern (wire.decode_pattern checks it)
-        self.folder = None if data_dir is None else Path(data_dir) / "patterns"
+        self.journal = journal
         self._patterns: dict[str, Pattern] = {}
         self._lock = threading.Lock()
 
@@ -58,46 +53,26 @@ class Patterns:
         it is new (413 when it would pass DACRT_MAX_PATTERNS)."""
         check_name("pattern", name)
         with self._lock:
-            created = name not in self._patterns
-            if created and len(self._patterns) >= self.max_patterns:
+            old = self._patterns.get(name)
+            if old is None and len(self._patterns) >= self.max_patterns:
                 raise TooLarge(
                     f"the service holds {len(self._patterns)} patterns, the limit "
                     f"(DACRT_MAX_PATTERNS); delete one first"
                 )
-            if self.folder is not None:
-                try:
-                    self.folder.mkdir(parents=True, exist_ok=True)
-                    write_file(self.folder / f"{name}.npz", pattern.save)
-                    sync_folder(self.folder)
-                except OSError as exc:
-                    raise DataDirUnavailable(
-                        f"cannot write pattern {name!r} to {self.folder}: {os_error_text(exc)}; "
-                        "nothing was changed"
-                    ) from None
+            if self.journal is not None:
+                self.journal.write_pattern(name, pattern, old)
             self._patterns[name] = pattern
-            return created
+            return old is None
 
     def delete(self, name: str) -> None:
         """Delete a pattern (404 if there is none)."""
-        self.get(name)
         with self._lock:
-            if self.folder is not None:
-                (self.folder / f"{name}.npz").unlink(missing_ok=True)
-                sync_folder(self.folder)
-            self._patterns.pop(name, None)
+            old = self.get(name)
+            if self.journal is not None:
+                self.journal.delete_pattern(name, old)
+            del self._patterns[name]
 
     def restore(self) -> None:
-        """Read the data folder's patterns back (temporary files of an interrupted write are
-        removed; a file the engine cannot read is logged and skipped)."""
-        if self.folder is None or not self.folder.is_dir():
-            return
-        for path in sorted(self.folder.iterdir()):
-            if path.name.endswith(TEMPORARY):
-                path.unlink(missing_ok=True)
-                continue
-            if path.suffix != ".npz":
-                continue
-            try:
-                self._patterns[check_name("pattern", path.stem)] = Pattern.load(path)
-            except (Invalid, InputError, OSError, ValueError) as exc:
-                log.error("data: skipped pattern %s: %s", path.name, exc)
+        """Read the data folder's patterns back (``DataDir.restore_patterns``)."""
+        if self.journal is not None:
+            self._patterns.update(self.journal.restore_patterns(self.max_patterns))

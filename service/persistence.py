@@ -6,6 +6,7 @@ Layout, one folder per scene (scene names are safe file names)::
     DATA_DIR/scenes/SCENE/scene.VERSION.json         the manifest: the commit point of a version
     DATA_DIR/scenes/SCENE/INDEX.VERSION.vertices.npy (V, 3) float32, written at VERSION
     DATA_DIR/scenes/SCENE/INDEX.VERSION.faces.npy    (F, 3) int32, written at VERSION
+    DATA_DIR/patterns/NAME.npz                       a scan pattern (``Pattern.save``)
 
 An instance has no array files: its manifest entry names its source (``instance_of``) and is
 restored sharing the source's arrays. Each entry also holds the mesh's ``mask``, its material
@@ -26,8 +27,11 @@ removed), unless it is only full: then the service starts and serves what it hol
 that fails (a full disk, a read-only or failing file system) removes what it wrote, changes
 nothing in memory and raises ``InsufficientStorage`` (507: ENOSPC, EDQUOT) or
 ``DataDirUnavailable`` (503: any other OS error) naming the folder and the OS error; the folder's
-``fault`` says why until a change succeeds again. Temporary files left by a crash are removed at
-start.
+``fault`` says why until a change succeeds again. A change that fails after its commit point (the
+folder's fsync after a rename) and cannot be undone either leaves the folder holding what cannot be
+confirmed: the change may or may not be there after a restart, the error says so, and the folder
+takes no more changes until the service restarts (``stopped``). Temporary files left by a crash
+are removed at start; entries that are not a scene's or a pattern's are logged and left alone.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ import re
 from collections.abc import Callable, Iterator
 from contextlib import suppress
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
@@ -47,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from dacrt import InputError
+from dacrt.sensors import Pattern
 from dacrt.sensors.physics import DEFAULT_LABEL
 from dacrt.sensors.physics import DEFAULT_REFLECTIVITY as REFLECTIVITY
 
@@ -56,7 +62,15 @@ except ImportError:  # pragma: no cover - isal is a dependency; zlib gives the s
     from zlib import crc32
 
 from .errors import DataDirUnavailable, InsufficientStorage, Invalid
-from .store import Geometry, Mesh, Snapshot, owned_transform, placed, referenced_bounds
+from .store import (
+    Geometry,
+    Mesh,
+    Snapshot,
+    check_name,
+    owned_transform,
+    placed,
+    referenced_bounds,
+)
 from .wire import (
     check_matrix,
     check_vertices,
@@ -150,6 +164,15 @@ def _vertices_end(value: Any) -> np.ndarray | None:
     return vertices
 
 
+def _count(value: Any, key: str, path: Path, at_most: int | None = None) -> int:
+    """A manifest's index or version: an int >= 0 (and <= ``at_most``); CorruptScene if not."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise CorruptScene(f"{path.name}: {key} is {value!r:.40}, not a count")
+    if at_most is not None and value > at_most:
+        raise CorruptScene(f"{path.name}: {key} {value} is past the manifest's version")
+    return value
+
+
 def checksum(array: np.ndarray) -> int:
     # bytes viewed as uint8: a memoryview of an empty array cannot be cast
     return crc32(np.ascontiguousarray(array).reshape(-1).view(np.uint8))
@@ -190,7 +213,9 @@ class DataDir:
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
         self.scenes = self.root / "scenes"
+        self.patterns = self.root / "patterns"
         self.scenes.mkdir(parents=True, exist_ok=True)
+        self.patterns.mkdir(exist_ok=True)
         sync_folder(self.root)
         #: scene -> mesh name -> its array files in the current version
         self._files: dict[str, dict[str, MeshFiles]] = {}
@@ -199,6 +224,8 @@ class DataDir:
         self.fault: Fault | None = None
         #: failed changes by OS error name (``ENOSPC``...), since start
         self.errors: dict[str, int] = {}
+        #: why changes are refused until a restart (a failed change could not be undone), or None
+        self.stopped: str | None = None
         try:
             self._probe()
         except OSError as exc:
@@ -220,6 +247,7 @@ class DataDir:
     def write(self, snapshot: Snapshot) -> None:
         """Make ``snapshot`` durable: its new arrays, then its manifest (the commit point).
         On failure what it wrote is removed and InsufficientStorage/DataDirUnavailable raised."""
+        self._check_open()
         old = self._current.get(snapshot.scene)
         old_files = self._files.get(snapshot.scene, {})
         created: list[Path] = []  # what to remove if the change fails
@@ -255,6 +283,7 @@ class DataDir:
     def delete(self, scene: str, version: int) -> None:
         """Mark ``scene`` deleted at ``version`` (its last), then remove its arrays. On failure
         its current manifest stands and InsufficientStorage/DataDirUnavailable is raised."""
+        self._check_open()
         record = {"format": FORMAT, "scene": scene, "version": version, "deleted": True}
         old = self._current.get(scene)
         old_files = self._files.get(scene, {})
@@ -276,28 +305,80 @@ class DataDir:
         self._current.pop(scene, None)
         self._forget(folder, old_files, {}, old, version)
 
+    def write_pattern(self, name: str, pattern: Pattern, old: Pattern | None) -> None:
+        """Make pattern ``name`` durable, replacing ``old`` (None: a new one). On failure what
+        it wrote is removed (or ``old`` written back) and InsufficientStorage/DataDirUnavailable
+        raised."""
+        self._check_open()
+        path = self.patterns / f"{name}.npz"
+        created: list[Path] = []
+        undo: Callable[[], None] | None = None
+        try:
+            write_file(path, pattern.save)
+            if old is None:
+                created.append(path)
+            else:
+                undo = partial(self._put_back, path, old)
+            sync_folder(self.patterns)
+        except OSError as exc:
+            raise self._failed(exc, created, undo) from None
+        self.fault = None
+
+    def delete_pattern(self, name: str, old: Pattern) -> None:
+        """Remove pattern ``name`` (``old``, written back if the removal cannot be made
+        durable); InsufficientStorage/DataDirUnavailable on failure."""
+        self._check_open()
+        path = self.patterns / f"{name}.npz"
+        undo: Callable[[], None] | None = None
+        try:
+            path.unlink(missing_ok=True)
+            undo = partial(self._put_back, path, old)
+            sync_folder(self.patterns)
+        except OSError as exc:
+            raise self._failed(exc, [], undo) from None
+        self.fault = None
+
+    def _put_back(self, path: Path, pattern: Pattern) -> None:
+        write_file(path, pattern.save)
+        sync_folder(self.patterns)
+
+    def _check_open(self) -> None:
+        if self.stopped is not None:
+            raise DataDirUnavailable(self.stopped)
+
     def _failed(
         self, exc: OSError, created: list[Path], undo: Callable[[], None] | None = None
     ) -> DataDirUnavailable:
         """Remove what a failed change wrote (``created``, newest first; or ``undo`` it), note
-        the fault and count it: the error the change's caller gets."""
+        the fault and count it: the error the change's caller gets. When that fails too, the
+        folder's state is unknown and it is ``stopped``."""
+        stuck: list[OSError] = []
         for path in reversed(created):
             try:
                 path.rmdir() if path.is_dir() else path.unlink(missing_ok=True)
                 sync_folder(path.parent)
             except OSError as cleanup:
                 log.error("data: cannot remove %s after a failed change: %s", path, cleanup)
+                stuck.append(cleanup)
         if undo is not None:
             try:
                 undo()
             except OSError as cleanup:
-                log.error("data: cannot restore the manifest after a failed change: %s", cleanup)
+                log.error("data: cannot undo a failed change: %s", cleanup)
+                stuck.append(cleanup)
         name = errno_name(exc)
         kind = InsufficientStorage if exc.errno in FULL else DataDirUnavailable
-        error = kind(
-            f"the data folder {self.root} (DACRT_DATA_DIR) cannot be written: "
-            f"{os_error_text(exc)}; nothing was changed"
-        )
+        where = f"the data folder {self.root} (DACRT_DATA_DIR)"
+        if stuck:
+            self.stopped = (
+                f"{where} failed during a change ({os_error_text(exc)}) and undoing it failed "
+                f"too ({os_error_text(stuck[0])}): the change may or may not be there after a "
+                "restart, and no change is taken until the service is restarted"
+            )
+            error = kind(self.stopped)
+            log.critical("data: %s", self.stopped)
+        else:
+            error = kind(f"{where} cannot be written: {os_error_text(exc)}; nothing was changed")
         self.fault = Fault(name, error.detail)
         self.errors[name] = self.errors.get(name, 0) + 1
         log.error("data: cannot write in %s: %s (%s)", self.root, exc, name)
@@ -389,12 +470,18 @@ class DataDir:
         snapshots, last_versions = [], {}
         self._remove_temporary(self.root)
         (self.root / PROBE).unlink(missing_ok=True)  # renamed, then the start failed
-        for folder in sorted(p for p in self.scenes.iterdir() if p.is_dir()):
+        for folder in sorted(self.scenes.iterdir()):
+            if not folder.is_dir():
+                what = "a broken link" if folder.is_symlink() else "not a folder"
+                log.warning("data: skipped scenes/%s: %s, not a scene", folder.name, what)
+                continue
             self._remove_temporary(folder)
             manifests = sorted(self._manifests(folder), reverse=True)
             if not manifests:
-                with suppress(OSError):  # not empty: kept as it is, and never loaded
+                try:
                     folder.rmdir()
+                except OSError:  # not empty: kept as it is, and never loaded
+                    log.warning("data: skipped scenes/%s: it holds no manifest", folder.name)
                 continue
             version, path = manifests[0]
             last_versions[folder.name] = version
@@ -408,6 +495,29 @@ class DataDir:
                 snapshots.append(snapshot)
                 self._files[folder.name], self._current[folder.name] = files, snapshot
         return Restored(snapshots, last_versions)
+
+    def restore_patterns(self, limit: int) -> dict[str, Pattern]:
+        """The patterns of the folder by name, at most ``limit`` (DACRT_MAX_PATTERNS) in name
+        order; a temporary file is removed, a file the engine cannot read or past the limit
+        logged and skipped."""
+        patterns: dict[str, Pattern] = {}
+        for path in sorted(self.patterns.iterdir()):
+            if path.name.endswith(TEMPORARY):
+                path.unlink(missing_ok=True)
+                continue
+            if path.suffix != ".npz" or not path.is_file():
+                log.warning("data: skipped patterns/%s: not a pattern's .npz file", path.name)
+                continue
+            if len(patterns) == limit:
+                log.error(
+                    "data: skipped pattern %s: past DACRT_MAX_PATTERNS (%d)", path.name, limit
+                )
+                continue
+            try:
+                patterns[check_name("pattern", path.stem)] = Pattern.load(path)
+            except (Invalid, InputError, OSError, ValueError) as exc:
+                log.error("data: skipped pattern %s: %s", path.name, exc)
+        return patterns
 
     @staticmethod
     def _manifests(folder: Path) -> Iterator[tuple[int, Path]]:
@@ -423,6 +533,8 @@ class DataDir:
             record = json.loads(path.read_bytes())
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise CorruptScene(f"{path.name} is not JSON ({exc})") from None
+        except RecursionError:
+            raise CorruptScene(f"{path.name} is not a manifest: JSON nested too deep") from None
         if not isinstance(record, dict) or record.get("format") not in READ_FORMATS:
             raise CorruptScene(
                 f"{path.name} is not a manifest of format {' or '.join(map(str, READ_FORMATS))}"
@@ -433,8 +545,18 @@ class DataDir:
             return None, {}
         try:
             meshes, files = {}, {}
+            next_index = _count(record["next_index"], "next_index", path)
+            indices = set()
             for item in record["meshes"]:
-                name = item["name"]
+                name = check_name("mesh", item["name"])
+                index = _count(item["index"], f"{name}.index", path)
+                _count(item["version"], f"{name}.version", path, at_most=version)
+                if name in meshes or index in indices or index >= next_index:
+                    raise CorruptScene(
+                        f"{path.name}: mesh {name!r} (index {index}) repeats a name or an index, "
+                        f"or its index is not below next_index {next_index}"
+                    )
+                indices.add(index)
                 if "instance_of" in item:
                     geometry, files[name] = None, ()
                 else:
@@ -453,7 +575,6 @@ class DataDir:
                     _transform_end(item.get("transform_end")),
                     _vertices_end(item.get("vertices_end")),
                 )
-            next_index = record["next_index"]
             for name, mesh in meshes.items():
                 if mesh.instance_of is not None:
                     source = meshes.get(mesh.instance_of)
@@ -464,8 +585,10 @@ class DataDir:
                         )
                     mesh = replace(mesh, geometry=source.geometry)
                 meshes[name] = placed(mesh)
-        except (KeyError, TypeError) as exc:
+        except KeyError as exc:
             raise CorruptScene(f"{path.name} lacks {exc}") from None
+        except TypeError as exc:  # a list where a name is, a number where a list is...
+            raise CorruptScene(f"{path.name} holds a value of the wrong type: {exc}") from None
         except (Invalid, InputError) as exc:  # a value the service or the engine refuses
             raise CorruptScene(f"{path.name}: {exc}") from None
         meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))

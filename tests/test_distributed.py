@@ -254,3 +254,21 @@ def test_lost_cluster_is_an_error(client):
     remote.close()
     with pytest.raises(ClusterError, match="closed"):
         remote.closest(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))
+
+
+def test_a_timeout_talking_to_the_cluster_is_not_called_the_batchs(client, monkeypatch):
+    """A TimeoutError from the cluster's comms well within the batch's clock says so, not
+    that the batch took over its timeout."""
+    remote = DistributedScene(client, [pg.icosphere(1)], timeout=600)
+
+    def submit(*args, **kwargs):
+        raise TimeoutError("Timed out trying to connect to tcp://127.0.0.1:1")
+
+    monkeypatch.setattr(client, "submit", submit)
+    with pytest.raises(ClusterError) as failed:
+        remote.closest(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))
+    assert "the cluster stopped answering after" in str(failed.value)
+    assert "Timed out trying to connect" in str(failed.value)
+    assert "took over" not in str(failed.value)
+    monkeypatch.undo()
+    remote.close()

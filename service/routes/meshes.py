@@ -219,7 +219,7 @@ async def get_mesh(scene: SceneName, mesh: MeshName, store: StoreDep) -> dict:
 
 @router.delete("/{scene}", status_code=204, responses=openapi.errors(401, 404, 422, 503, 507))
 async def delete_scene(scene: SceneName, store: StoreDep) -> Response:
-    store.delete_scene(check_name("scene", scene))
+    await run_sync(store.delete_scene, check_name("scene", scene))  # fsyncs off the event loop
     return Response(status_code=204)
 
 

@@ -16,8 +16,10 @@ import pytest
 from faults import fail_in_write
 from service_helpers import grid, quad
 
+from dacrt.sensors import Pattern
 from service import persistence
 from service.errors import Conflict, DataDirUnavailable, InsufficientStorage, TooLarge
+from service.patterns import Patterns
 from service.persistence import DataDir, checksum
 from service.store import Store
 from service.wire import FrameChange, MeshArrays
@@ -242,13 +244,150 @@ def test_a_manifest_renamed_then_not_synced_is_undone(tmp_path, monkeypatch):
     assert store.snapshot("s").info() == info
 
 
+def test_a_change_that_cannot_be_undone_stops_the_folder_until_a_restart(tmp_path, monkeypatch):
+    """The fsync after the manifest's rename fails, and so does removing the manifest: the
+    folder holds a change memory does not. The error says the change may be there after a
+    restart, and no later change is taken (it would build on a state that is not known)."""
+    store = open_store(tmp_path)
+    store.put_mesh("s", "a", MeshArrays(*grid(4)))
+    info, sync, unlink = store.snapshot("s").info(), persistence.sync_folder, Path.unlink
+
+    def failing_sync(folder: Path) -> None:
+        if (folder / "scene.2.json").exists():  # the new version's manifest is renamed
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        sync(folder)
+
+    def failing_unlink(path: Path, missing_ok: bool = False) -> None:
+        if path.name.startswith("scene."):
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        unlink(path, missing_ok=missing_ok)
+
+    monkeypatch.setattr(persistence, "sync_folder", failing_sync)
+    monkeypatch.setattr(Path, "unlink", failing_unlink)
+    with pytest.raises(DataDirUnavailable) as failed:
+        store.set_mask("s", "a", 5)
+    assert "nothing was changed" not in failed.value.detail
+    assert "the change may or may not be there after a restart" in failed.value.detail
+    monkeypatch.undo()  # the disk works again: the folder still takes nothing
+    assert store.snapshot("s").info() == info
+    with pytest.raises(DataDirUnavailable) as refused:
+        store.set_mask("s", "a", 6)
+    assert refused.value.detail == failed.value.detail == store.journal.stopped
+    assert store.journal.fault.detail == failed.value.detail and store.snapshot("s").info() == info
+    assert open_store(tmp_path).snapshot("s").mesh("a").mask == 5  # what the folder held
+
+
+PATTERN = Pattern([0.0, 90.0], [0.0, 10.0])
+OTHER_PATTERN = Pattern([5.0], [-5.0])
+
+
+def pattern_store(folder: Path, limit: int = 8) -> Patterns:
+    patterns = Patterns(limit, 1000, DataDir(folder))
+    patterns.restore()
+    return patterns
+
+
+def same_pattern(a: Pattern, b: Pattern) -> bool:
+    return np.array_equal(a.azimuth_deg, b.azimuth_deg) and np.array_equal(
+        a.elevation_deg, b.elevation_deg
+    )
+
+
+@pytest.mark.parametrize("replaced", [False, True], ids=["new", "replaced"])
+def test_a_pattern_renamed_then_not_synced_is_undone(tmp_path, monkeypatch, replaced):
+    """One failing fsync of patterns/ after the rename: a new pattern's file is removed, a
+    replaced one's written back; memory and the folder keep the pattern as it was."""
+    patterns = pattern_store(tmp_path)
+    if replaced:
+        patterns.put("p", OTHER_PATTERN)
+    original = persistence.sync_folder
+
+    def sync_folder(folder: Path) -> None:
+        if folder.name == "patterns" and sync_folder.armed:
+            sync_folder.armed = False
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        original(folder)
+
+    sync_folder.armed = True
+    monkeypatch.setattr(persistence, "sync_folder", sync_folder)
+    with pytest.raises(DataDirUnavailable) as failed:
+        patterns.put("p", PATTERN)
+    assert type(failed.value) is DataDirUnavailable and not sync_folder.armed
+    assert "[Errno 5] Input/output error; nothing was changed" in failed.value.detail
+    assert patterns.journal.errors == {"EIO": 1}
+    for held in (patterns, pattern_store(tmp_path)):
+        if replaced:
+            assert same_pattern(held.get("p"), OTHER_PATTERN)
+        else:
+            assert held.names() == []
+
+
+def test_a_pattern_on_a_full_or_read_only_folder_changes_nothing(tmp_path, monkeypatch):
+    patterns = pattern_store(tmp_path)
+    patterns.put("p", PATTERN)
+    fail_in_write(monkeypatch, errno.ENOSPC)
+    with pytest.raises(InsufficientStorage) as full:
+        patterns.put("q", PATTERN)
+    assert "[Errno 28] No space left on device; nothing was changed" in full.value.detail
+    assert patterns.journal.fault.errno == "ENOSPC" and patterns.names() == ["p"]
+    monkeypatch.undo()
+    unlink = Path.unlink
+
+    def read_only(path: Path, missing_ok: bool = False) -> None:
+        if path.parent.name == "patterns":
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS))
+        unlink(path, missing_ok=missing_ok)
+
+    monkeypatch.setattr(Path, "unlink", read_only)
+    with pytest.raises(DataDirUnavailable) as refused:
+        patterns.delete("p")
+    assert "[Errno 30] Read-only file system; nothing was changed" in refused.value.detail
+    assert patterns.names() == ["p"] and patterns.journal.errors == {"ENOSPC": 1, "EROFS": 1}
+    monkeypatch.undo()
+    patterns.delete("p")
+    assert pattern_store(tmp_path).names() == [] and patterns.journal.fault is None
+
+
+def test_a_restart_restores_at_most_the_pattern_limit(tmp_path, caplog):
+    patterns = pattern_store(tmp_path)
+    for name in ("c", "a", "b"):
+        patterns.put(name, PATTERN)
+    with caplog.at_level(logging.ERROR, logger="service"):
+        assert pattern_store(tmp_path, limit=2).names() == ["a", "b"]
+    assert "skipped pattern c.npz: past DACRT_MAX_PATTERNS (2)" in caplog.text
+
+
+def test_entries_that_are_not_scenes_or_patterns_are_logged(tmp_path, caplog):
+    store = open_store(tmp_path)
+    store.put_mesh("s", "a", MeshArrays(*grid(2)))
+    (tmp_path / "scenes" / "gone").symlink_to(tmp_path / "nowhere")
+    (tmp_path / "scenes" / "stray.json").write_text("{}")
+    (tmp_path / "scenes" / "odd").mkdir()
+    (tmp_path / "scenes" / "odd" / "notes.txt").write_text("x")
+    (tmp_path / "patterns" / "readme.txt").write_text("x")
+    with caplog.at_level(logging.WARNING, logger="service"):
+        assert [s.scene for s in open_store(tmp_path).snapshots()] == ["s"]
+        pattern_store(tmp_path)
+    assert "skipped scenes/gone: a broken link" in caplog.text
+    assert "skipped scenes/stray.json: not a folder" in caplog.text
+    assert "skipped scenes/odd: it holds no manifest" in caplog.text
+    assert "skipped patterns/readme.txt: not a pattern's .npz file" in caplog.text
+
+
+def test_a_patterns_entry_that_is_a_file_is_refused_when_opened(tmp_path):
+    (tmp_path / "patterns").write_text("x")
+    with pytest.raises(OSError) as failed:
+        DataDir(tmp_path)
+    assert failed.value.errno == errno.EEXIST
+
+
 @pytest.mark.parametrize("code", [errno.EROFS, errno.EACCES, errno.EIO])
 def test_a_folder_that_cannot_be_written_is_refused_when_opened(tmp_path, monkeypatch, code):
     fail_in_write(monkeypatch, code)
     with pytest.raises(OSError) as failed:
         DataDir(tmp_path)
     assert failed.value.errno == code
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["scenes"]  # no probe left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["patterns", "scenes"]  # no probe left
 
 
 def test_a_full_folder_is_opened_with_its_fault(tmp_path, monkeypatch):
@@ -469,6 +608,15 @@ def test_a_format_1_manifest_is_read_with_the_defaults(tmp_path):
         (lambda m: m.update(reflectivity=2), "reflectivity must be a number in [0, 1]"),
         (lambda m: m.update(label="x"), "label must be an integer"),
         (lambda m: m.pop("instance_of"), "lacks 'vertices'"),
+        (lambda m: m.update(name=5), "holds a value of the wrong type"),
+        (lambda m: m.update(name="../x y"), "mesh name '../x y' must be 1-64 characters"),
+        (lambda m: m.update(index="0"), "car0.index is '0', not a count"),
+        (lambda m: m.update(index=True), "car0.index is True, not a count"),
+        (lambda m: m.update(version=None), "car0.version is None, not a count"),
+        (lambda m: m.update(version=10**23), "past the manifest's version"),
+        (lambda m: m.update(name="car1"), "mesh 'car1' (index 3) repeats a name or an index"),
+        (lambda m: m.update(index=1), "mesh 'car0' (index 1) repeats a name or an index"),
+        (lambda m: m.update(index=99), "or its index is not below next_index"),
     ],
 )
 def test_a_manifest_with_a_bad_placement_is_logged_and_skipped(
@@ -481,3 +629,35 @@ def test_a_manifest_with_a_bad_placement_is_logged_and_skipped(
     with caplog.at_level(logging.ERROR, logger="service"):
         assert open_store(tmp_path).snapshots() == []
     assert "skipped scene 's'" in caplog.text and message in caplog.text
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda r: r.update(next_index="2"), "next_index is '2', not a count"),
+        (lambda r: r.update(meshes=5), "holds a value of the wrong type"),
+        (lambda r: r.update(meshes=[[1]]), "holds a value of the wrong type"),
+    ],
+)
+def test_a_manifest_of_the_wrong_types_is_logged_and_skipped(
+    tmp_path, placed, caplog, edit, message
+):
+    [path] = (tmp_path / "scenes" / "s").glob("scene.*.json")
+    record = json.loads(path.read_bytes())
+    edit(record)
+    path.write_text(json.dumps(record))
+    placed.put_mesh("other", "a", MeshArrays(*grid(2)))
+    with caplog.at_level(logging.ERROR, logger="service"):
+        assert [s.scene for s in open_store(tmp_path).snapshots()] == ["other"]
+    assert "skipped scene 's'" in caplog.text and message in caplog.text
+
+
+def test_a_manifest_nested_too_deep_is_logged_and_skipped(tmp_path, caplog):
+    store = open_store(tmp_path)
+    store.put_mesh("s", "a", MeshArrays(*grid(2)))
+    store.put_mesh("other", "a", MeshArrays(*grid(2)))
+    [path] = (tmp_path / "scenes" / "s").glob("scene.*.json")
+    path.write_text("[" * 100_000)
+    with caplog.at_level(logging.ERROR, logger="service"):
+        assert [s.scene for s in open_store(tmp_path).snapshots()] == ["other"]
+    assert "JSON nested too deep" in caplog.text
