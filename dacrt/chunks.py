@@ -7,6 +7,7 @@ cut so that each slab holds about the same work. Answers do not depend on the ch
 """
 
 import functools
+import itertools
 import os
 from concurrent.futures import ThreadPoolExecutor
 
@@ -109,11 +110,35 @@ def _pool(n_workers):
 
 
 def map_on_threads(fn, n_items, n_workers):
-    """[fn(0), ..., fn(n_items - 1)], on n_workers threads (a queue: each takes the next item
-    when done with one), or in this thread for one."""
-    if n_workers == 1:
+    """[fn(0), ..., fn(n_items - 1)], on this thread and up to n_workers - 1 of the shared
+    pool's, each taking the next item when done with one. This thread works too, and does not
+    wait for pool threads that have not started (busy with other queries): a query never
+    queues behind another, at worst it runs on its own thread."""
+    if n_workers <= 1 or n_items <= 1:
         return [fn(k) for k in range(n_items)]
-    return list(_pool(n_workers).map(fn, range(n_items)))
+    results = [None] * n_items
+    taken = itertools.count()  # next() of a count is atomic: each item is taken once
+    failed = []  # an item raised: the others are not started
+
+    def work():
+        while not failed and (k := next(taken)) < n_items:
+            try:
+                results[k] = fn(k)
+            except BaseException:
+                failed.append(k)
+                raise
+
+    helpers = [_pool(n_workers).submit(work) for _ in range(min(n_workers, n_items) - 1)]
+    try:
+        work()
+    finally:
+        for helper in helpers:
+            if not helper.cancel():  # started: it is running an item of this call
+                helper.exception()  # waits; its error is raised below
+    for helper in helpers:
+        if not helper.cancelled() and helper.exception() is not None:
+            raise helper.exception()
+    return results
 
 
 def from_one_point(origins, box):

@@ -5,6 +5,7 @@ triangle once."""
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -143,3 +144,39 @@ def test_map_on_threads_answers_in_order(n_workers):
     assert chunks.map_on_threads(work, 20, n_workers) == [k * k for k in range(20)]
     if n_workers == 1:
         assert seen == {threading.current_thread().name}  # in the caller's thread
+
+
+def test_a_call_does_not_queue_behind_a_busy_pool():
+    """Another query holds every thread of the shared pool: this call's items all run on the
+    caller's thread, and it returns without waiting for the pool."""
+    release = threading.Event()
+    blockers = [chunks._pool(3).submit(release.wait, 30) for _ in range(3)]
+    try:
+        threads = []
+
+        def work(k):
+            threads.append(threading.current_thread().name)
+            return -k
+
+        started = time.perf_counter()
+        assert chunks.map_on_threads(work, 6, 3) == [-k for k in range(6)]
+        assert time.perf_counter() - started < 5
+        assert set(threads) == {threading.current_thread().name}
+    finally:
+        release.set()
+    assert all(blocker.result(timeout=30) for blocker in blockers)
+
+
+def test_an_item_that_raises_stops_the_others_and_raises():
+    ran = []
+
+    def work(k):
+        ran.append(k)
+        if k == 2:
+            raise ValueError("item 2")
+        time.sleep(0.01)
+        return k
+
+    with pytest.raises(ValueError, match="item 2"):
+        chunks.map_on_threads(work, 200, 2)
+    assert len(ran) < 200
