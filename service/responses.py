@@ -1,13 +1,16 @@
 """A response whose body is buffers (zip headers and answer arrays), sent in order.
 
 Joining them would copy every answer array once more; ASGI lets us send them one by one under a
-Content-Length that covers them all. The buffers may be made as they are sent (``wire.NpzBody``).
+Content-Length that covers them all. The buffers may be made as they are sent (``wire.NpzBody``'s
+CRCs, ``wire.json_pieces``): each is made on a worker thread, so that making a large answer does
+not stop the event loop, and with it every other request.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
+from anyio.to_thread import run_sync
 from starlette.responses import Response
 
 from .wire import Buffer
@@ -37,7 +40,8 @@ class BuffersResponse(Response):
         await send(
             {"type": "http.response.start", "status": self.status_code, "headers": self.raw_headers}
         )
-        for part in self.parts:
+        parts = iter(self.parts)
+        while (part := await run_sync(next, parts, None)) is not None:
             if len(part):
                 await send({"type": "http.response.body", "body": part, "more_body": True})
         await send({"type": "http.response.body", "body": b""})
