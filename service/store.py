@@ -654,10 +654,8 @@ class Store:
         _link_instances(scene, meshes, [n for n, m in changes.items() if m is not None], version)
         meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))
         snapshot = Snapshot(scene, version, MappingProxyType(meshes), next_index)
-        if old is not None and any(
-            name in old.meshes and old.meshes[name].faces is mesh.faces
-            for name, mesh in meshes.items()
-        ):  # a mesh or its faces are kept: the new version may reuse what the old one derived
+        if old is not None and _same_faces(old.meshes, meshes):
+            # the new version's engine scene can be the old one's changed: hold it until then
             snapshot._earlier.extend(old._basis())
         if snapshot.n_triangles > self.max_triangles_per_scene:
             raise TooLarge(
@@ -679,6 +677,17 @@ class Store:
         self._last_version[scene] = version
         self._nbytes = nbytes
         return snapshot
+
+
+def _same_faces(old: Mapping[str, Mesh], new: Mapping[str, Mesh]) -> bool:
+    """Whether two versions' meshes with triangles are the same meshes (indices, in order) with
+    the same faces, so that one's engine scene can be changed into the other's
+    (``tracing.changed_engine_scene``): only then is an earlier version worth holding."""
+    before = [(m.index, m.faces) for m in old.values() if len(m.faces)]
+    after = [(m.index, m.faces) for m in new.values() if len(m.faces)]
+    return len(before) == len(after) and all(
+        a[0] == b[0] and a[1] is b[1] for a, b in zip(before, after)
+    )
 
 
 EMPTY = new_geometry(MeshArrays(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)))

@@ -88,6 +88,46 @@ def test_waiting_tickets_are_admitted_in_arrival_order():
     run(scenario())
 
 
+def test_a_small_ticket_that_fits_goes_ahead_of_a_large_one_waiting():
+    """1 MiB at most, and 1/64 of the budget: a cheap query is not held up behind heavy ones."""
+
+    async def scenario():
+        admission = Admission(256 * MiB, wait=5)
+        holder, large, small = admission.ticket(), admission.ticket(), admission.ticket()
+        await holder.hold(200 * MiB, "holder")
+        waiting = asyncio.create_task(large.hold(100 * MiB, "large"))
+        await asyncio.sleep(0)
+        await asyncio.wait_for(small.hold(3000, "one ray"), 1)  # at once, though large waits
+        assert not waiting.done() and admission.held == 200 * MiB + 3000
+        with pytest.raises(TimeoutError):  # 2 MiB is not small: it waits in line, behind large
+            await asyncio.wait_for(admission.ticket().hold(2 * MiB, "two MiB"), 0.05)
+        holder.release()
+        await asyncio.wait_for(waiting, 5)
+        assert admission.held == 100 * MiB + 3000
+
+    run(scenario())
+
+
+def test_a_request_waits_at_most_the_wait_in_all_however_many_times_it_asks():
+    """One deadline a request, set when it first waits: a later hold does not wait afresh."""
+
+    async def scenario():
+        admission = Admission(100, wait=0.1)
+        holder, ticket = admission.ticket(), admission.ticket()
+        await holder.hold(90, "holder")
+        await ticket.hold(10, "its body")  # fits: no wait, no deadline
+        assert ticket.deadline is None
+        with pytest.raises(Overloaded):
+            await ticket.hold(20, "its answer")
+        deadline = ticket.deadline
+        assert deadline is not None and deadline <= asyncio.get_running_loop().time()
+        with pytest.raises(Overloaded):  # its wait is spent: refused without a new one
+            await ticket.hold(30, "its answer, again")
+        assert ticket.deadline == deadline and ticket.nbytes == 10
+
+    run(scenario())
+
+
 def test_a_ticket_that_waits_too_long_is_refused_and_holds_nothing():
     async def scenario():
         admission = Admission(100, wait=0.05)

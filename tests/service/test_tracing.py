@@ -182,3 +182,34 @@ def test_a_frame_deforming_the_only_mesh_changes_the_earlier_engine_scene():
     assert not np.array_equal(engine.scene._base.ids, whole.scene._base.ids)
     options = [make_options(q) for q in ("closest", "hits", "count")]
     _assert_answers_as_whole(snapshot, whole, _frame_rays(7), options, "deformed")
+
+
+def test_an_earlier_version_is_held_only_when_its_engine_scene_can_be_changed():
+    """A version holds the earlier one's engine scene (until it builds its own) only when its
+    meshes with triangles are the same, with the same faces: deleting, adding or replacing a
+    mesh lets the earlier one go, so that it does not stay outside DACRT_MAX_SCENE_BYTES."""
+    rng = np.random.default_rng(8)
+    store = Store(2**22, 2**32)
+    big = rng.uniform(0, 2, (900, 3)).astype(np.float32)
+    small = rng.uniform(0, 1, (30, 3)).astype(np.float32)
+    faces = {n: np.arange(n, dtype=np.int32).reshape(-1, 3) for n in (900, 30)}
+    store.apply_frame("s", {"big": (big, faces[900]), "small": (small, faces[30])})
+
+    def engine():
+        return store.snapshot("s").cached("dacrt", tracing._snapshot_engine)
+
+    changes = [
+        (lambda: store.apply_frame("s", {"small": wire.FrameChange(vertices=small + 1)}), True),
+        (lambda: store.set_mask("s", "small", 5), True),
+        (lambda: store.delete_mesh("s", "big"), False),
+        (lambda: store.apply_frame("s", {"big": (big, faces[900])}), False),  # added
+        (lambda: store.apply_frame("s", {"small": (small, faces[30].copy())}), False),  # new faces
+        (lambda: store.apply_frame("s", {"none": (big[:0], faces[900][:0])}), True),  # empty
+    ]
+    for k, (change, held) in enumerate(changes):
+        before = engine()
+        change()
+        snapshot = store.snapshot("s")
+        assert (snapshot.earlier("dacrt") is not None) == held, k
+        if held:
+            assert snapshot.earlier("dacrt")[1] is before
