@@ -1,7 +1,7 @@
-"""Durable scenes: every committed scene version written to DACRT_DATA_DIR before it is
-acknowledged, and read back on start.
+"""The data folder: every committed scene version, and every scan pattern, written to
+DACRT_DATA_DIR before it is acknowledged, and read back on start.
 
-Layout, one folder per scene (scene names are safe file names)::
+Layout, one folder per scene (scene names are safe file names), and the patterns::
 
     DATA_DIR/scenes/SCENE/scene.VERSION.json         the manifest: the commit point of a version
     DATA_DIR/scenes/SCENE/INDEX.VERSION.vertices.npy (V, 3) float32, written at VERSION
