@@ -14,22 +14,28 @@
         both["roof"].xyz, both["front"].depth                     # one batch, one version
 
 Binary by default (.npy rays in, .npz answers out); arrays are converted to the wire dtypes
-(float32, int32) here, so any float or int arrays may be passed. Errors raise ``APIError`` with
-the HTTP status and the server's message. Requests go through httpx on urllib3's
+(float32, int32) here, so any float or int arrays may be passed, but nothing is rounded or
+wrapped on the way: faces must be whole numbers within int32, a pattern's channels within its
+range, and a JSON body's numbers finite (ValueError naming the argument). Names are sent as one
+quoted path segment each, for the server to check. Errors raise ``APIError`` with the HTTP
+status and the server's message (also for a redirect, or an answer that cannot be read). Requests go through httpx on urllib3's
 connection pool (``transport.PooledTransport``), which reads big answers at half httpx's own cost.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 import httpx
 import numpy as np
 
 from . import wire
+from .errors import ServiceError
 from .timing import parse_server_timing
 from .transport import PooledTransport
 
@@ -206,7 +212,7 @@ class Client:
     def request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
         """Send a request; raise APIError for any error status."""
         response = self.http.request(method, path, **kwargs)
-        if response.status_code >= 400:
+        if response.status_code >= 300:  # a redirect is no answer: the path was not the API's
             raise _api_error(response)
         return response
 
@@ -214,7 +220,7 @@ class Client:
         """Send a request and read its body into one buffer (``wire.BodyBuffer``, cheaper than
         ``response.content`` for big answers); raise APIError for any error status."""
         with self.http.stream(method, path, **kwargs) as response:
-            if response.status_code >= 400:
+            if response.status_code >= 300:
                 response.read()
                 raise _api_error(response)
             declared = response.headers.get("content-length", "")
@@ -252,20 +258,21 @@ class Client:
         self, path: str, arrays: Mapping[str, np.ndarray], fmt: str, **kwargs: Any
     ) -> Answer:
         response, body = self.fetch("POST", path, **self._binary_body(arrays, fmt, kwargs))
-        return Answer(
-            read_answer(response, body),
-            int(response.headers["x-scene-version"]),
-            parse_server_timing(response.headers.get("server-timing", "")),
-            json.loads(response.headers["x-trace-stats"])
-            if "x-trace-stats" in response.headers
-            else None,
-        )
+        return _answer(response, body)
 
     # ---- operations
 
     def health(self) -> dict[str, Any]:
-        """``{"status": "ok" | "starting" | "error", ...}`` (no exception for 503)."""
-        return self.http.get("/health").json()
+        """``{"status": "ok" | "starting" | "error", ...}`` (no exception for 503; an answer
+        that is not the service's JSON is ``{"status": "error", "detail": its text}``)."""
+        response = self.http.get("/health")
+        try:
+            body = response.json()
+        except ValueError:
+            body = None
+        if not isinstance(body, dict) or "status" not in body:
+            return {"status": "error", "http_status": response.status_code, "detail": response.text}
+        return body
 
     def capabilities(self) -> dict[str, Any]:
         return self.request("GET", "/v1/capabilities").json()
@@ -276,7 +283,7 @@ class Client:
         return self.request("GET", "/v1/scenes").json()["scenes"]
 
     def scene(self, scene: str) -> dict[str, Any]:
-        return self.request("GET", f"/v1/scenes/{scene}").json()
+        return self.request("GET", f"/v1/scenes/{_seg(scene)}").json()
 
     def put_mesh(
         self,
@@ -292,25 +299,30 @@ class Client:
         """Add or replace a mesh from arrays, or from a mesh file (path or bytes; ``format`` is
         obj/ply/stl/glb/off, taken from the path's suffix if not given). ``mask`` is the mesh's
         32-bit visibility mask (default all ones). Answers mesh info."""
-        path = f"/v1/scenes/{scene}/meshes/{mesh}"
+        path = f"/v1/scenes/{_seg(scene)}/meshes/{_seg(mesh, 'mesh')}"
         params = {} if mask is None else {"mask": str(_mask_value(mask, "mask"))}
         if file is None:
+            if vertices is None:
+                raise ValueError("give vertices and faces, or file= (a mesh file)")
             return self._binary(
                 "PUT",
                 path,
-                {
-                    "vertices": np.asarray(vertices, dtype="<f4"),
-                    "faces": np.asarray(faces, dtype="<i4"),
-                },
+                {"vertices": np.asarray(vertices, dtype="<f4"), "faces": _faces(faces)},
                 params=params,
             ).json()
         if isinstance(file, (str, Path)):
-            format = format or _SUFFIX_FORMATS.get(Path(file).suffix.lower())
+            suffix = Path(file).suffix.lower()
+            format = format or _SUFFIX_FORMATS.get(suffix)
+            if format is None:
+                raise ValueError(
+                    f"give format= (obj, ply, stl, glb, off): the suffix {suffix!r} names none"
+                )
             file = Path(file).read_bytes()
         if format is None:
             raise ValueError(
                 "give format= (obj, ply, stl, glb, off) for a mesh file given as bytes"
             )
+        format = _choice(str(format).lower(), "format", wire.MESH_FILE_FORMATS)
         return self.request(
             "PUT",
             path,
@@ -323,7 +335,7 @@ class Client:
         """New positions for a mesh's vertices (same count); answers mesh info."""
         return self._binary(
             "PUT",
-            f"/v1/scenes/{scene}/meshes/{mesh}/vertices",
+            f"/v1/scenes/{_seg(scene)}/meshes/{_seg(mesh, 'mesh')}/vertices",
             {"vertices": np.asarray(vertices, dtype="<f4")},
             "npy",
         ).json()
@@ -333,7 +345,9 @@ class Client:
         sent again). Answers mesh info."""
         matrix = np.asarray(matrix, dtype=np.float64)
         return self.request(
-            "PUT", f"/v1/scenes/{scene}/meshes/{mesh}/transform", json={"matrix": matrix.tolist()}
+            "PUT",
+            f"/v1/scenes/{_seg(scene)}/meshes/{_seg(mesh, 'mesh')}/transform",
+            json=_json_ready({"matrix": matrix}),
         ).json()
 
     def frame(self, scene: str, meshes: Mapping[str, Any]) -> dict[str, Any]:
@@ -344,8 +358,8 @@ class Client:
             vertices, faces = value if isinstance(value, tuple) else (value, None)
             arrays[f"{name}.vertices"] = np.asarray(vertices, dtype="<f4")
             if faces is not None:
-                arrays[f"{name}.faces"] = np.asarray(faces, dtype="<i4")
-        return self._binary("POST", f"/v1/scenes/{scene}/frame", arrays).json()
+                arrays[f"{name}.faces"] = _faces(faces, f"meshes[{name!r}] faces")
+        return self._binary("POST", f"/v1/scenes/{_seg(scene)}/frame", arrays).json()
 
     def set_material(
         self, scene: str, mesh: str, reflectivity: float | None = None, label: int | None = None
@@ -355,14 +369,16 @@ class Client:
         body = {"reflectivity": reflectivity, "label": label}
         body = {key: value for key, value in body.items() if value is not None}
         return self.request(
-            "PUT", f"/v1/scenes/{scene}/meshes/{mesh}/material", json=_json_ready(body)
+            "PUT",
+            f"/v1/scenes/{_seg(scene)}/meshes/{_seg(mesh, 'mesh')}/material",
+            json=_json_ready(body),
         ).json()
 
     def delete(self, scene: str) -> None:
-        self.request("DELETE", f"/v1/scenes/{scene}")
+        self.request("DELETE", f"/v1/scenes/{_seg(scene)}")
 
     def delete_mesh(self, scene: str, mesh: str) -> None:
-        self.request("DELETE", f"/v1/scenes/{scene}/meshes/{mesh}")
+        self.request("DELETE", f"/v1/scenes/{_seg(scene)}/meshes/{_seg(mesh, 'mesh')}")
 
     # ---- queries
 
@@ -441,6 +457,7 @@ class Client:
         ``mask`` is one 32-bit mask for every ray (sent as ``?mask=``) or (N,) masks (sent in an
         .npz body). ``max_hits`` is for hits only. ``answer`` is npz, npy or json (the format
         the server writes)."""
+        _choice(query, "query", QUERIES)
         rays = rays_array(origins, directions, tmin, tmax)
         params = _params(fields, strategy, stats, cull)
         if max_hits is not None:
@@ -452,11 +469,11 @@ class Client:
             body, fmt = _ray_arrays(rays), "npz"
             body["mask"] = _mask_array(mask, len(rays))
         return self._query(
-            f"/v1/scenes/{scene}/{query}",
+            f"/v1/scenes/{_seg(scene)}/{_seg(query, 'query')}",
             body,
             fmt,
             params=params,
-            headers={"Accept": wire.MEDIA_TYPES[answer]},
+            headers={"Accept": wire.MEDIA_TYPES[_choice(answer, "answer", ANSWERS)]},
         )
 
     def nearest(
@@ -489,11 +506,11 @@ class Client:
             params["stats"] = "true"
         points = np.ascontiguousarray(_numbers(points, "points"), dtype="<f4")
         return self._query(
-            f"/v1/scenes/{scene}/nearest",
+            f"/v1/scenes/{_seg(scene)}/nearest",
             {"points": points},
             "npy",
             params=params,
-            headers={"Accept": wire.MEDIA_TYPES[answer]},
+            headers={"Accept": wire.MEDIA_TYPES[_choice(answer, "answer", ANSWERS)]},
         )
 
     # ---- sensors
@@ -501,7 +518,9 @@ class Client:
     def render(self, scene: str, **body: Any) -> bytes:
         """The PNG of a look-at camera (``width``, ``height``, ``eye``, ``target``, ``up``,
         ``fov_deg``, ``shading``: the body of ``/render``, docs/sensors.md)."""
-        return self.request("POST", f"/v1/scenes/{scene}/render", json=_json_ready(body)).content
+        return self.request(
+            "POST", f"/v1/scenes/{_seg(scene)}/render", json=_json_ready(body)
+        ).content
 
     def camera(
         self,
@@ -518,7 +537,7 @@ class Client:
         ``cx``, ``cy`` and a 4x4 ``pose``; ``near``, ``far``); answers ``depth``, ``range``,
         ``mesh``, ``prim`` (H, W) and ``normal`` (H, W, 3)."""
         params = _sensor_params(fields, strategy, stats, cull, mask)
-        return self._sensor(f"/v1/scenes/{scene}/camera", body, params)
+        return self._sensor(f"/v1/scenes/{_seg(scene)}/camera", body, params)
 
     def lidar(
         self,
@@ -537,7 +556,7 @@ class Client:
         answers ``xyz``, ``range``, ``ring``, ... ``intensity``, ``label``; with ``pcd`` the
         bytes of a binary PCD file instead."""
         params = _sensor_params(fields, strategy, stats, cull, mask)
-        path = f"/v1/scenes/{scene}/lidar"
+        path = f"/v1/scenes/{_seg(scene)}/lidar"
         if pcd:
             headers = {"Accept": wire.PCD}
             return self.request(
@@ -559,7 +578,7 @@ class Client:
         """A rig: ``{name: {"kind": "lidar" | "camera", ...its body}}`` traced as one batch on one
         scene version; answers ``{name: Answer}``, each with that version."""
         params = _sensor_params(fields, strategy, stats, cull, mask)
-        whole = self._sensor(f"/v1/scenes/{scene}/sensors", {"sensors": sensors}, params)
+        whole = self._sensor(f"/v1/scenes/{_seg(scene)}/sensors", {"sensors": sensors}, params)
         answers: dict[str, dict[str, np.ndarray]] = {name: {} for name in sensors}
         for key, array in whole.arrays.items():
             name, _, part = key.rpartition(".")
@@ -573,14 +592,7 @@ class Client:
         response, content = self.fetch(
             "POST", path, json=_json_ready(body), params=params, headers={"Accept": wire.NPZ}
         )
-        return Answer(
-            read_answer(response, content),
-            int(response.headers["x-scene-version"]),
-            parse_server_timing(response.headers.get("server-timing", "")),
-            json.loads(response.headers["x-trace-stats"])
-            if "x-trace-stats" in response.headers
-            else None,
-        )
+        return _answer(response, content)
 
     # ---- scan patterns
 
@@ -601,18 +613,23 @@ class Client:
         if time_s is not None:
             arrays["time_s"] = np.asarray(time_s, dtype="<f8")
         if channel is not None:
-            arrays["channel"] = np.asarray(channel, dtype="<u2")
-        return self._binary("PUT", f"/v1/patterns/{name}", arrays).json()
+            channels = np.asarray(channel)
+            if channels.dtype.kind not in "iu":
+                raise ValueError(f"channel must be integers, got dtype {channels.dtype}")
+            if channels.size and not (0 <= channels.min() and channels.max() <= 32767):
+                raise ValueError("channel values must lie in [0, 32767]")
+            arrays["channel"] = channels.astype("<u2")
+        return self._binary("PUT", f"/v1/patterns/{_seg(name, 'pattern')}", arrays).json()
 
     def pattern(self, name: str) -> dict[str, np.ndarray]:
         """A pattern's arrays, as uploaded."""
-        return wire.read_npz(self.request("GET", f"/v1/patterns/{name}").content)
+        return wire.read_npz(self.request("GET", f"/v1/patterns/{_seg(name, 'pattern')}").content)
 
     def patterns(self) -> list[dict[str, Any]]:
         return self.request("GET", "/v1/patterns").json()["patterns"]
 
     def delete_pattern(self, name: str) -> None:
-        self.request("DELETE", f"/v1/patterns/{name}")
+        self.request("DELETE", f"/v1/patterns/{_seg(name, 'pattern')}")
 
     def trace(
         self,
@@ -637,7 +654,7 @@ class Client:
         origins, directions = _ray_rows(origins, directions)
         arrays = {
             "vertices": np.asarray(vertices, dtype="<f4"),
-            "faces": np.asarray(faces, dtype="<i4"),
+            "faces": _faces(faces),
             "origins": np.asarray(origins, dtype="<f4"),
             "directions": np.asarray(directions, dtype="<f4"),
         }
@@ -646,12 +663,53 @@ class Client:
                 arrays[name] = np.asarray(_ray_bound(bound, len(origins), name), dtype="<f4")
         if mask is not None:
             arrays["mask"] = _mask_array(mask, len(arrays["origins"]))
-        params = {"query": query, **_params(fields, strategy, stats, cull)}
+        params = {
+            "query": _choice(query, "query", QUERIES),
+            **_params(fields, strategy, stats, cull),
+        }
         if max_hits is not None:
             params["max_hits"] = str(max_hits)
         return self._query(
-            "/v1/trace", arrays, "npz", params=params, headers={"Accept": wire.MEDIA_TYPES[answer]}
+            "/v1/trace",
+            arrays,
+            "npz",
+            params=params,
+            headers={"Accept": wire.MEDIA_TYPES[_choice(answer, "answer", ANSWERS)]},
         )
+
+
+#: The queries of ``Client.query``, and the formats an answer may come in.
+QUERIES = ("closest", "occluded", "hits", "count")
+ANSWERS = ("npz", "npy", "json")
+
+
+def _seg(name: Any, what: str = "scene") -> str:
+    """A scene, mesh or pattern name as one path segment: quoted, so that a name holding ``/``,
+    ``#`` or ``?`` is the server's to refuse (422 naming it), never another resource's path."""
+    if not isinstance(name, str) or name in ("", ".", ".."):
+        raise ValueError(f"{what} name must be 1-64 characters of A-Z a-z 0-9 _ - ., got {name!r}")
+    return quote(name, safe="")
+
+
+def _choice(value: Any, what: str, choices) -> str:
+    if value not in choices:
+        raise ValueError(f"{what} must be one of {', '.join(choices)}, got {value!r}")
+    return value
+
+
+def _faces(faces: Any, what: str = "faces") -> np.ndarray:
+    """Faces as little-endian int32, or ValueError naming ``what``: integers (floats only when
+    whole), each within int32, so that no index is rounded or wrapped on the way."""
+    if faces is None:
+        raise ValueError(f"give {what}: (F, 3) vertex indices")
+    array = np.asarray(faces)
+    if array.dtype.kind not in "iuf" or (
+        array.dtype.kind == "f" and not np.array_equal(array, np.trunc(array))
+    ):
+        raise ValueError(f"{what} must be integers (vertex indices), got dtype {array.dtype}")
+    if array.size and not (-(2**31) <= array.min() and array.max() < 2**31):
+        raise ValueError(f"{what} holds an index beyond int32 ({array.max()!r}): no such vertex")
+    return np.asarray(array, dtype="<i4")
 
 
 def _ray_arrays(rays: np.ndarray) -> dict[str, np.ndarray]:
@@ -696,6 +754,8 @@ def _slices(parts: list, size: int = 1 << 20) -> list[memoryview]:
 def _params(fields: Any, strategy: str | None, stats: bool, cull: str) -> dict[str, str]:
     params = {}
     if fields is not None:
+        if not isinstance(fields, str) and not all(isinstance(name, str) for name in fields):
+            raise ValueError(f"fields must be names (text), got {fields!r}")
         params["fields"] = fields if isinstance(fields, str) else ",".join(fields)
     if strategy is not None:
         params["strategy"] = strategy
@@ -715,15 +775,36 @@ def _sensor_params(
     return params
 
 
-def _json_ready(value: Any) -> Any:
-    """A sensor's body for JSON: NumPy arrays and scalars as lists and numbers."""
+def _json_ready(value: Any, key: str = "body") -> Any:
+    """A body for JSON: NumPy arrays and scalars as lists and numbers; ValueError naming the key
+    of a NaN or infinite number, which JSON cannot hold."""
     if isinstance(value, Mapping):
-        return {key: _json_ready(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(item) for item in value]
+        prefix = "" if key == "body" else f"{key}."
+        return {name: _json_ready(item, f"{prefix}{name}") for name, item in value.items()}
     if isinstance(value, (np.ndarray, np.generic)):
-        return value.tolist()
+        value = value.tolist()
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(item, f"{key}[{i}]") for i, item in enumerate(value)]
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"{key} is {value}: JSON holds finite numbers only")
     return value
+
+
+def _answer(response: httpx.Response, body: wire.Buffer) -> Answer:
+    """A query's or a sensor's answer: its arrays, scene version, timing and stats; APIError
+    (with the answer's status) when the body or a header cannot be read as the service's."""
+    try:
+        return Answer(
+            read_answer(response, body),
+            int(response.headers["x-scene-version"]),
+            parse_server_timing(response.headers.get("server-timing", "")),
+            json.loads(response.headers["x-trace-stats"])
+            if "x-trace-stats" in response.headers
+            else None,
+        )
+    except (ValueError, KeyError, TypeError, ServiceError) as exc:  # wire's BadBody, Invalid
+        detail = f"the answer cannot be read: {type(exc).__name__}: {exc}"
+        raise APIError(response.status_code, detail, response) from None
 
 
 def _api_error(response: httpx.Response) -> APIError:

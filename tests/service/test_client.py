@@ -603,6 +603,94 @@ def test_rays_of_a_wrong_shape_raise_naming_the_argument_and_send_nothing(call, 
     assert sent == []
 
 
+V3 = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
+I4 = np.eye(4)
+
+
+@pytest.mark.parametrize(
+    "call, phrase",
+    [
+        (lambda c: c.put_mesh("s", "m", V3, [[0, 1, 2.9]]), "faces must be integers"),
+        (lambda c: c.put_mesh("s", "m", V3, np.array([[0, 1, 2**32 + 3]])), "beyond int32"),
+        (lambda c: c.put_mesh("s", "m", V3), "give faces"),
+        (lambda c: c.put_mesh("s", "m"), "give vertices and faces, or file="),
+        (lambda c: c.put_mesh("s", "m", file=b"v", format="fbx"), "format must be one of obj"),
+        (lambda c: c.put_mesh("s", "m", file="mesh.xyz"), "the suffix '.xyz' names none"),
+        (lambda c: c.frame("s", {"m": (V3, [[0, 1, 2.5]])}), r"meshes\['m'\] faces must be"),
+        (lambda c: c.trace(V3, [[0, 1, 9.5]], *TWO), "faces must be integers"),
+        (lambda c: c.put_pattern("p", [0.0], [0.0], channel=np.array([70000])), "channel"),
+        (lambda c: c.put_pattern("p", [0.0], [0.0], channel=[0.5]), "channel must be integers"),
+        (lambda c: c.closest("s", *TWO, answer="xml"), "answer must be one of npz, npy, json"),
+        (lambda c: c.query("s", "bogus", *TWO), "query must be one of closest"),
+        (lambda c: c.closest("s", *TWO, fields=[1]), "fields must be names"),
+        (lambda c: c.set_transform("s", "m", np.full((4, 4), np.nan)), r"matrix\[0\]\[0\] is nan"),
+        (lambda c: c.set_material("s", "m", reflectivity=np.inf), "reflectivity is inf"),
+        (
+            lambda c: c.lidar("s", pose=np.eye(4), noise={"range_sigma": np.nan}),
+            "noise.range_sigma",
+        ),
+        (lambda c: c.camera("s", eye=[np.inf, 0, 0]), r"eye\[0\] is inf"),
+        (lambda c: c.scene(""), "scene name must be"),
+        (lambda c: c.delete(".."), "scene name must be"),
+        (lambda c: c.put_mesh("s", 5, V3, [[0, 1, 2]]), "mesh name must be"),
+    ],
+)
+def test_misuse_raises_naming_the_argument_and_sends_nothing(call, phrase):
+    """Nothing is rounded, wrapped or dropped on the way: faces that are not whole numbers or
+    beyond int32, channels beyond the server's range and NaN in a JSON body are the caller's
+    errors, named, as are unknown formats and choices."""
+    client, sent = recording_client({})
+    with pytest.raises(ValueError, match=phrase):
+        call(client)
+    assert sent == []
+
+
+def test_names_are_one_path_segment_each():
+    """A name holding ``#``, ``/`` or ``?`` is sent quoted, for the server to refuse: never
+    another scene's or mesh's path (``delete("cl#x")`` deleted scene ``cl``)."""
+    client, sent = recording_client({})
+    for call in (
+        lambda: client.delete("cl#anything"),
+        lambda: client.scene("cl/meshes/x"),
+        lambda: client.put_mesh("cl", "y#z", V3, [[0, 1, 2]]),
+        lambda: client.closest("a?b=1", *TWO),
+        lambda: client.delete_pattern("p/q"),
+    ):
+        with pytest.raises(KeyError):  # the recording server knows no such path
+            call()
+    paths = [request.url.raw_path.decode() for request in sent]
+    assert paths == [
+        "/v1/scenes/cl%23anything",
+        "/v1/scenes/cl%2Fmeshes%2Fx",
+        "/v1/scenes/cl/meshes/y%23z",
+        "/v1/scenes/a%3Fb%3D1/closest",
+        "/v1/patterns/p%2Fq",
+    ]
+    assert [request.url.path for request in sent][0] == "/v1/scenes/cl#anything"
+
+
+def test_answers_that_are_not_the_services_raise_api_error():
+    def handle(request: httpx.Request) -> httpx.Response:
+        if request.url.path == "/health":
+            return httpx.Response(503, text="<html>bad gateway</html>")
+        if request.url.path == "/v1/scenes/moved":
+            return httpx.Response(307, headers={"location": "/v1/scenes"})
+        return httpx.Response(200, content=b"PK not a zip", headers={"content-type": wire.NPZ})
+
+    client = Client(http=httpx.Client(base_url="http://x", transport=httpx.MockTransport(handle)))
+    assert client.health() == {
+        "status": "error",
+        "http_status": 503,
+        "detail": "<html>bad gateway</html>",
+    }
+    with pytest.raises(APIError) as moved:
+        client.scene("moved")
+    assert moved.value.status == 307
+    with pytest.raises(APIError, match="the answer cannot be read") as unreadable:
+        client.closest("s", *TWO)
+    assert unreadable.value.status == 200
+
+
 def test_the_service_intersector_answers_as_the_in_process_one(app_client, teapot):
     import trimesh
 
