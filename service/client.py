@@ -18,8 +18,9 @@ Binary by default (.npy rays in, .npz answers out); arrays are converted to the 
 wrapped on the way: faces must be whole numbers within int32, a pattern's channels within its
 range, and a JSON body's numbers finite (ValueError naming the argument). Names are sent as one
 quoted path segment each, for the server to check. Errors raise ``APIError`` with the HTTP
-status and the server's message (also for a redirect, or an answer that cannot be read). Requests go through httpx on urllib3's
-connection pool (``transport.PooledTransport``), which reads big answers at half httpx's own cost.
+status and the server's message (also for a redirect, or an answer that cannot be read).
+Requests go through httpx on urllib3's connection pool (``transport.PooledTransport``), which
+reads big answers at half httpx's own cost.
 """
 
 from __future__ import annotations
