@@ -17,7 +17,7 @@ Binary by default (.npy rays in, .npz answers out); arrays are converted to the 
 (float32, int32) here, so any float or int arrays may be passed, but nothing is rounded or
 wrapped on the way: faces must be whole numbers within int32, a pattern's channels within its
 range, and a JSON body's numbers finite (ValueError naming the argument). Names are sent as one
-quoted path segment each, for the server to check. Errors raise ``APIError`` with the HTTP
+path segment each, checked as the server checks them. Errors raise ``APIError`` with the HTTP
 status and the server's message (also for a redirect, or an answer that cannot be read).
 Requests go through httpx on urllib3's connection pool (``transport.PooledTransport``), which
 reads big answers at half httpx's own cost.
@@ -30,13 +30,13 @@ import math
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
-from urllib.parse import quote
 
 import httpx
 import numpy as np
 
 from . import wire
 from .errors import ServiceError
+from .store import NAME
 from .timing import parse_server_timing
 from .transport import PooledTransport
 
@@ -685,11 +685,15 @@ ANSWERS = ("npz", "npy", "json")
 
 
 def _seg(name: Any, what: str = "scene") -> str:
-    """A scene, mesh or pattern name as one path segment: quoted, so that a name holding ``/``,
-    ``#`` or ``?`` is the server's to refuse (422 naming it), never another resource's path."""
-    if not isinstance(name, str) or name in ("", ".", ".."):
-        raise ValueError(f"{what} name must be 1-64 characters of A-Z a-z 0-9 _ - ., got {name!r}")
-    return quote(name, safe="")
+    """A scene, mesh or pattern name as one path segment, checked as the server checks it: a
+    name holding ``/``, ``#`` or ``?`` would be another resource's path (the server decodes
+    ``%2F`` before routing), so it is a ValueError here."""
+    if not isinstance(name, str) or not NAME.fullmatch(name) or name in (".", ".."):
+        raise ValueError(
+            f"{what} name must be 1-64 characters of A-Z a-z 0-9 _ - . (and not '.' or '..'), "
+            f"got {name!r}"
+        )
+    return name
 
 
 def _choice(value: Any, what: str, choices) -> str:

@@ -49,6 +49,12 @@ Buffer = bytes | memoryview
 EXPANSION = 8
 
 
+#: Formats whose body starts with a line of text (a binary STL's 80-byte header does not count:
+#: its first bytes may be anything).
+TEXT_HEADED = ("obj", "off", "ply")
+UTF8_BOM = b"\xef\xbb\xbf"
+
+
 def read_mesh_file(body: Buffer, fmt: str) -> tuple[np.ndarray, np.ndarray]:
     """(vertices float32 (V, 3), faces int64 (F, 3)) of all triangles of a mesh file, merged.
 
@@ -56,6 +62,8 @@ def read_mesh_file(body: Buffer, fmt: str) -> tuple[np.ndarray, np.ndarray]:
     against V (``wire.check_faces``) and that the vertices are finite.
     """
     data = bytes(body)
+    if fmt in TEXT_HEADED:  # a BOM (Windows editors write one) would hide the first line
+        data = data.removeprefix(UTF8_BOM)
     if not data.strip():
         raise BadBody(f"the {fmt.upper()} body is empty")
     if fmt == "obj":

@@ -99,8 +99,9 @@ def test_obj_polygons_relative_indices_and_texture_normal_references():
         b"v 0 0 0\rv 1 0 0\rv 0 1 0\rf 1 2 3",  # old Mac line ends, no last newline
         b"v 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nf 1 2 3\r\n",
         b"# made by hand\n  v 0 0 0 # origin\n\tv 1 0 0\nv 0 1 \\\n0\n\nf 1 2 \\\r\n3 # tri\n",
+        b"\xef\xbb\xbfv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",  # a UTF-8 BOM (a Windows editor's)
     ],
-    ids=["cr", "crlf", "comments blanks and continued lines"],
+    ids=["cr", "crlf", "comments blanks and continued lines", "byte-order mark"],
 )
 def test_obj_line_forms(body):
     mesh = decode(body, "obj")
@@ -745,3 +746,22 @@ def test_mutated_files_give_only_4xx_errors(fmt):
             decode(bytes(body), fmt.split("_")[0])
         except (ServiceError, InputError) as exc:  # InputError: the engine's 422
             assert isinstance(exc, (BadBody, Invalid, TooLarge, InputError)) and str(exc)
+
+
+@pytest.mark.parametrize(
+    "fmt, body",
+    [
+        ("off", b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
+        (
+            "ply",
+            b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            b"property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+            b"end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+        ),
+    ],
+)
+def test_a_byte_order_mark_before_a_text_header_is_skipped(fmt, body):
+    plain = decode(body, fmt)
+    marked = decode(b"\xef\xbb\xbf" + body, fmt)
+    assert marked.faces.tolist() == plain.faces.tolist() == [[0, 1, 2]]
+    np.testing.assert_array_equal(marked.vertices, plain.vertices)
