@@ -106,7 +106,7 @@ def sense(
     seconds = time.perf_counter() - start
     arrays = _answer(found, engine, options)
     stats = _stats(found.stats, options)
-    return TraceResult(arrays, snapshot.version, stats, seconds, traced_rays(sensor))
+    return TraceResult(arrays, snapshot.version, stats, seconds, sensor.n_traced_rays)
 
 
 def sense_rig(
@@ -133,15 +133,8 @@ def sense_rig(
         for key, array in _answer(found[name], engine, options).items()
     }
     stats = _stats(next(iter(found.values())).stats, options)
-    n_rays = sum(traced_rays(sensor) for sensor, _ in sensors.values())
+    n_rays = sum(sensor.n_traced_rays for sensor, _ in sensors.values())
     return TraceResult(arrays, snapshot.version, stats, seconds, n_rays)
-
-
-def traced_rays(sensor: Camera | Lidar) -> int:
-    """The rays a sensor traces: pixels, or beams x sub-rays."""
-    if isinstance(sensor, Lidar):
-        return sensor.n_beams * sensor.beam_samples
-    return sensor.width * sensor.height
 
 
 def hits_per_ray(sensor: Camera | Lidar) -> int:

@@ -65,6 +65,8 @@ def test_a_pattern_survives_its_npz_file():
     [
         (([0.0, 1.0], [0.0, 91.0]), "elevation_deg[1] must be in [-90, 90]"),
         (([0.0, np.nan], [0.0, 1.0]), "azimuth_deg[1] must be a finite number"),
+        (([1e308], [0.0]), "azimuth_deg[0] must be a finite number within float32"),
+        (([0.0, 1.0], [0.0, 0.0], [0.0, 1e39]), "time_s[1] must be a finite number within"),
         (([0.0, 1.0], [0.0]), "elevation_deg has 1 rays and azimuth_deg 2"),
         (([], []), "azimuth_deg must be a list of numbers"),
         (([0.0], [0.0], [-1.0]), "time_s[0] must be >= 0"),

@@ -217,7 +217,6 @@ class Camera:
             number(getattr(self, key), key)
         number(self.near, "near", at_least=0)
         number(self.far, "far", above=self.near, infinite=True)
-        check_row_count(self.n_traced_rays, "an image (width x height)", "pixels")
         x = edge_slope(self.fx, self.cx, self.width)
         y = edge_slope(self.fy, self.cy, self.height)
         # a direction x R[:, 0] + y R[:, 1] + R[:, 2] has components of at most |x| + |y| + 1
@@ -252,6 +251,7 @@ class Camera:
 
     def shot(self, pose) -> Shot:
         """The camera at ``pose`` (4x4 camera-to-scene, rigid), ready to trace."""
+        check_row_count(self.n_traced_rays, "an image (width x height)", "pixels")
         origins, directions = self.pinhole(pose).rays()
         rays = Rays(origins, directions, self.near, self.far)
         return Shot(rays, lambda traced, _materials: self._image(directions, traced))

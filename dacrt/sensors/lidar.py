@@ -263,7 +263,6 @@ class Lidar:
                 "organized needs a spinning lidar (model or vertical_angles_deg): a pattern's "
                 "rays have no rings x steps layout"
             )
-        check_row_count(self.n_traced_rays, "a scan (beams x beam_samples)", "rays")
 
     @property
     def elevations_deg(self) -> np.ndarray | None:
@@ -318,6 +317,7 @@ class Lidar:
 
     def shot(self, pose, pose_end=None) -> Shot:
         """The lidar at ``pose`` (to ``pose_end``), ready to trace (for a batch of sensors)."""
+        check_row_count(self.n_traced_rays, "a scan (beams x beam_samples)", "rays")
         pose = check_pose(pose)
         if pose_end is not None:
             if self.period_s is None:

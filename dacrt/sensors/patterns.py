@@ -19,13 +19,15 @@ from ..validation import InputError
 
 #: The largest channel: a point's ring is int16.
 MAX_CHANNEL = np.iinfo(np.int16).max
+#: The largest float32: a point's azimuth and time are float32.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True, eq=False)
 class Pattern:
     """The rays of a scan pattern, M of them (module docstring).
 
-    azimuth_deg : (M,) float64 degrees, any finite value
+    azimuth_deg : (M,) float64 degrees, any value within float32's range
     elevation_deg : (M,) float64 degrees in [-90, 90]
     time_s : (M,) float64 seconds from the start of the sweep when each ray fires, or None
     channel : (M,) int16: each ray's ring (0 to MAX_CHANNEL), or None (every ray ring 0)
@@ -109,7 +111,8 @@ def _angles(values, key: str, n: int | None = None) -> np.ndarray:
     if array.dtype.kind not in "fiu":
         raise InputError(f"{key} must hold numbers, got dtype {array.dtype}")
     array = array.astype(np.float64)
-    _first_bad(~np.isfinite(array), key, "must be a finite number")
+    # the points carry them as float32: beyond its range they would read inf
+    _first_bad(~(np.abs(array) <= FLOAT32_MAX), key, "must be a finite number within float32")
     return array
 
 

@@ -265,7 +265,7 @@ def sensor_decoded(value, body: memoryview, sensors: list, answer_format: str) -
     peak = len(body) + footprint.answer_bytes(answer_format)
     n_rays = 0
     for sensor in sensors:
-        rays = sensing.traced_rays(sensor)
+        rays = sensor.n_traced_rays
         peak += footprint.sensor_bytes(rays, sensing.hits_per_ray(sensor))
         if isinstance(sensor, Lidar) and (sensor.organized or sensor.non_hits == "keep"):
             peak += sensor.n_beams * sensor.slots * footprint.FILLED_POINT_BYTES
@@ -302,7 +302,7 @@ def check_sensors(sensors: dict, settings: Settings) -> None:
                 f"{name}: {sensor.width} x {sensor.height} = {pixels} pixels is over the limit "
                 f"of {settings.max_image_pixels} pixels (DACRT_MAX_IMAGE_PIXELS)"
             )
-        total += sensing.traced_rays(sensor) * sensing.hits_per_ray(sensor)
+        total += sensor.n_traced_rays * sensing.hits_per_ray(sensor)
     if total > settings.max_rays_per_request:
         (name, sensor), *others = sensors.items()
         what = "the sensors' rays together" if others else RAY_WORDS[type(sensor)]

@@ -177,6 +177,7 @@ def ray_steps(
         answer_format = negotiate(accept, fmt, options)
         if scene is None:
             mesh, rays = wire.decode_trace(body, fmt, **limits)
+            check_trace_mesh(mesh, settings.max_triangles_per_scene)
         else:
             mesh, rays = None, wire.decode_rays(body, fmt, **limits)
         check_hit_buffers(len(rays), options, settings.max_hits_bytes)
@@ -194,6 +195,15 @@ def ray_steps(
 
     formats = wire.RAY_FORMATS if scene is not None else wire.TRACE_FORMATS
     return Steps(formats, estimate, decode, trace, encode_arrays)
+
+
+def check_trace_mesh(mesh: wire.MeshArrays, max_triangles: int) -> None:
+    """413 when a one-shot trace's mesh holds more triangles than a stored scene may."""
+    if len(mesh.faces) > max_triangles:
+        raise TooLarge(
+            f"the trace's mesh has {len(mesh.faces)} triangles, over the limit of "
+            f"{max_triangles} (DACRT_MAX_TRIANGLES_PER_SCENE)"
+        )
 
 
 def negotiate(accept: str | None, request_format: str, options: Options) -> str:

@@ -236,6 +236,19 @@ def test_too_many_triangles_is_413_and_changes_nothing(limited, scene_name):
     limited.delete(scene_name)
 
 
+def test_a_one_shot_trace_of_too_many_triangles_is_413(limited):
+    """/v1/trace builds a scene of its mesh: the limit of a stored scene bounds it too."""
+    rays = down_rays(np.zeros((2, 2)))
+    with pytest.raises(APIError) as caught:
+        limited.trace(*grid(23), *rays)  # 1058 triangles
+    assert caught.value.status == 413
+    assert caught.value.detail == (
+        "the trace's mesh has 1058 triangles, over the limit of 1000 "
+        "(DACRT_MAX_TRIANGLES_PER_SCENE)"
+    )
+    assert len(limited.trace(*grid(22), *rays).t) == 2  # 968 triangles
+
+
 def test_total_scene_memory_over_the_limit_is_413(limited, scene_name):
     mesh = grid(20)  # 441 vertices and 800 faces: 14892 bytes, and 800 x 80 of engine scene
     limited.put_mesh(scene_name + "-1", "m", *mesh)

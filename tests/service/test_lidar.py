@@ -252,6 +252,11 @@ POSE = np.eye(4).tolist()
             413,
             "DACRT_MAX_RAYS_PER_REQUEST",
         ),  # fmt: skip
+        (
+            {"pose": POSE, "model": "VLP-16", "horizontal_steps": 10**9},
+            413,
+            "DACRT_MAX_RAYS_PER_REQUEST",
+        ),  # beyond the engine's int32 rays too: the request's limit is named first
     ],
 )
 def test_bad_requests_are_refused_naming_the_problem(app_client, room, body, status, words):
