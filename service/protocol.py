@@ -172,6 +172,16 @@ class WatchedFlow(FlowControl):
         super().resume_reading()
 
 
+class HeadersOverBound(Exception):
+    """Raised in a parser callback when the request line and headers pass MAX_HEADER_BYTES."""
+
+
+def headers_too_large() -> HeadersTooLarge:
+    return HeadersTooLarge(
+        f"request line and headers over {MAX_HEADER_BYTES} bytes; send fewer or shorter headers"
+    )
+
+
 class GuardedHttpProtocol(HttpToolsProtocol):
     """HttpToolsProtocol with header and body deadlines and bounds on connections."""
 
@@ -196,6 +206,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         self.awaiting_headers = True  # between requests, or within a request's line and headers
         self.boundary_seen = False  # a request's headers or body ended within the data being read
         self.header_bytes = 0  # bytes read while the awaited headers were incomplete
+        self.message_header_bytes = 0  # the request line and headers parsed of this request
         self.ending = False  # the connection ends after its answers; later bytes are ignored
         self.answering = None  # the cycle whose answer is being made (pipelining: not self.cycle)
         self.upgrade_body_left = 0  # bytes of a body after an Upgrade not taken, still to come
@@ -267,6 +278,9 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         try:
             self.parser.feed_data(data)
         except httptools.HttpParserError as error:
+            if self.message_header_bytes > MAX_HEADER_BYTES:  # raised by a callback below
+                self.refuse(headers_too_large())
+                return
             reason = str(error).strip().rstrip(".") or type(error).__name__
             self.refuse(BadBody(f"the request is not valid HTTP/1.1: {reason}"))
             return
@@ -283,18 +297,29 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         elif not self.ending:
             self.header_bytes += len(data)
             if self.header_bytes > MAX_HEADER_BYTES:
-                self.refuse(
-                    HeadersTooLarge(
-                        f"request line and headers over {MAX_HEADER_BYTES} bytes; send fewer or "
-                        "shorter headers"
-                    )
-                )
+                self.refuse(headers_too_large())
 
     def on_message_begin(self) -> None:
         super().on_message_begin()
         self.request_begun = True
+        self.message_header_bytes = 0
         if self.header_deadline is None:  # a later request on a keep-alive connection
             self.header_deadline = self.loop.call_later(self.header_timeout, self.headers_too_slow)
+
+    def on_url(self, url: bytes) -> None:
+        self.count_header_bytes(len(url) + 2)  # with the request line's spaces
+        super().on_url(url)
+
+    def on_header(self, name: bytes, value: bytes) -> None:
+        self.count_header_bytes(len(name) + len(value) + 4)  # with ": " and the line's end
+        super().on_header(name, value)
+
+    def count_header_bytes(self, n: int) -> None:
+        """Bound the request line and headers as they are parsed, also those that arrive and
+        end within one read (the reads' count alone lets one read of up to 64 KiB more in)."""
+        self.message_header_bytes += n
+        if self.message_header_bytes > MAX_HEADER_BYTES:
+            raise HeadersOverBound  # out of the parser: data_received answers 431
 
     def on_headers_complete(self) -> None:
         if self.header_deadline is not None:

@@ -133,6 +133,28 @@ def test_headers_over_the_bound_are_431_in_json(server):
     assert "request line and headers over 65536 bytes" in detail(answer)
 
 
+@pytest.mark.parametrize(
+    "request_bytes",
+    [
+        b"GET /health HTTP/1.1\r\nHost: x\r\nX-Big: " + b"a" * 70_000 + b"\r\n\r\n",
+        b"GET /health?" + b"a" * 66_000 + b" HTTP/1.1\r\nHost: x\r\n\r\n",
+        b"GET /health HTTP/1.1\r\nHost: x\r\n" + b"X-A: " + b"b" * 40_000 + b"\r\n" * 2,
+    ],
+    ids=["one header of 70 kB", "a request-target of 66 kB", "within the bound"],
+)
+def test_headers_over_the_bound_in_one_write_are_431(server, request_bytes):
+    """The bound holds for a request whose line and headers arrive and end within one read too
+    (a 70 kB header was answered 200, a 66 kB request-target 400 "User callback error")."""
+    with connect(server) as s:
+        s.sendall(request_bytes)
+        answer, _ = read_until_closed(s, 10) if len(request_bytes) > 65536 else (s.recv(4096), 0)
+    if len(request_bytes) > 65536:
+        assert STATUS.match(answer).group(1) == b"431", answer[:200]
+        assert "request line and headers over 65536 bytes" in detail(answer)
+    else:
+        assert STATUS.match(answer).group(1) == b"200", answer[:200]
+
+
 def test_a_pipeline_is_bounded_and_answered_in_order(server):
     """Requests queued behind the one answered are bounded: the connection ends after answering
     MAX_PIPELINED + 1 of 200, in order; later ones go unanswered, as after any close."""
