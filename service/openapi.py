@@ -112,6 +112,11 @@ ERROR = {
     "properties": {"detail": {"type": "string", "description": "what is wrong, for a person"}},
 }
 
+PATTERN_INFO = _object(
+    {"pattern": {"type": "string"}, "rays": {"type": "integer", "minimum": 1}},
+    {"time_s": {"type": "boolean"}, "channel": {"type": "boolean"}},
+)
+
 _BOUNDS = {"type": "array", "items": _POINTS["items"], "minItems": 2, "maxItems": 2}
 MESH_INFO = {
     "type": "object",
@@ -200,6 +205,27 @@ def errors(*statuses: int) -> dict[int | str, dict[str, Any]]:
         }
         for status in statuses
     }
+
+
+def inlined(schema: dict[str, Any]) -> dict[str, Any]:
+    """A JSON schema with each ``{"$ref": "#/$defs/NAME"}`` replaced by that definition (the
+    models' definitions hold no cycles) and ``$defs`` removed, as are discriminators, whose
+    mappings name definitions (each ``oneOf`` member's ``kind`` tells them apart)."""
+    definitions = schema.get("$defs", {})
+
+    def put(node: Any) -> Any:
+        if isinstance(node, dict):
+            ref = node.get("$ref", "")
+            if ref.startswith("#/$defs/"):
+                rest = {key: value for key, value in node.items() if key != "$ref"}
+                return {**put(definitions[ref.removeprefix("#/$defs/")]), **put(rest)}
+            dropped = ("$defs", "discriminator")
+            return {key: put(value) for key, value in node.items() if key not in dropped}
+        if isinstance(node, list):
+            return [put(item) for item in node]
+        return node
+
+    return put(schema)
 
 
 def json_answer(description: str, schema: dict[str, Any]) -> dict[str, Any]:

@@ -54,7 +54,12 @@ def info(name: str, pattern: Pattern) -> dict:
 @router.put(
     "/{name}",
     openapi_extra=PATTERN_BODY,
-    responses=openapi.errors(400, 401, 408, 413, 415, 422, 503, 507),
+    status_code=200,
+    responses={
+        200: openapi.json_answer("a replaced pattern: its info", openapi.PATTERN_INFO),
+        201: openapi.json_answer("a new pattern: its info", openapi.PATTERN_INFO),
+        **openapi.errors(400, 401, 408, 413, 415, 422, 503, 507),
+    },
 )
 async def put_pattern(
     name: PatternName,

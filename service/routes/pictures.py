@@ -57,8 +57,9 @@ RIG_FORMATS = ("npz", "json")
 
 
 def json_body(model, description: str) -> dict:
-    """``openapi_extra`` of a required JSON body with ``model``'s schema."""
-    schema = model.model_json_schema()
+    """``openapi_extra`` of a required JSON body with ``model``'s schema, its ``$defs`` put in
+    place (their ``#/$defs/...`` references would point into the OpenAPI document's root)."""
+    schema = openapi.inlined(model.model_json_schema())
     return {
         "requestBody": {
             "required": True,

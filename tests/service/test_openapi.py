@@ -88,3 +88,36 @@ def test_names_have_their_pattern_and_choices_their_enums():
         assert parameter.get("description"), parameter["name"]
     enums = {p["name"]: p["schema"] for p in closest["parameters"]}
     assert "sampling" in str(enums["strategy"]) and "npy" in str(enums["format"])
+
+
+def test_every_reference_resolves_within_the_document():
+    """A ``$ref`` names a place in this document: the sensors' bodies had ``#/$defs/...``
+    references, which point into the root, where there are none."""
+    references = []
+
+    def walk(node):
+        if isinstance(node, dict):
+            if isinstance(node.get("$ref"), str):
+                references.append(node["$ref"])
+            for value in node.values():
+                walk(value)
+        elif isinstance(node, list):
+            for item in node:
+                walk(item)
+
+    walk(DOCUMENT)
+    for reference in references:
+        assert reference.startswith("#/"), reference
+        place = DOCUMENT
+        for key in reference[2:].split("/"):
+            place = place[key]
+    lidar = DOCUMENT["paths"]["/v1/scenes/{scene}/lidar"]["post"]["requestBody"]
+    noise = lidar["content"]["application/json"]["schema"]["properties"]["noise"]
+    assert "range_sigma" in str(noise)  # the definition, in place
+
+
+def test_a_pattern_put_declares_201_for_a_new_one():
+    responses = DOCUMENT["paths"]["/v1/patterns/{name}"]["put"]["responses"]
+    assert {"200", "201"} <= set(responses)
+    schema = responses["201"]["content"]["application/json"]["schema"]
+    assert schema["required"] == ["pattern", "rays"]
