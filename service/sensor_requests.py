@@ -339,5 +339,9 @@ def describe(errors: list[dict]) -> str:
             message = "missing"
         elif error["type"] == "extra_forbidden":
             message = "unknown key"
+        elif error["type"] == "union_tag_not_found":  # a rig's sensor without its kind
+            message = "missing kind ('lidar' or 'camera')"
+        elif error["type"] == "union_tag_invalid":
+            message = f"kind {wire.quoted(str(error['ctx']['tag']))} is not 'lidar' or 'camera'"
         parts.append(f"{path}: {message}" if path else message)
     return "; ".join(parts)

@@ -152,8 +152,8 @@ def index_array(value: Any, name: str) -> np.ndarray:
             array = (
                 array.astype(np.int32).reshape(0, 3) if array.ndim == 1 else array.astype(np.int32)
             )
-        elif array.dtype.kind not in "iu":
-            raise Invalid(f"{name} must be integers, got {array.dtype} values")
+        elif array.dtype.kind not in "iu":  # integers all (checked above), one beyond int64
+            raise Invalid(f"{name} holds an integer beyond int64: no vertex has such an index")
     if array.ndim != 2 or array.shape[1] != 3:
         raise Invalid(f"{name} must have shape (F, 3), got {array.shape}")
     return array

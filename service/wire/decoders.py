@@ -94,7 +94,10 @@ def check_keys(
 ) -> None:
     """400 for missing or unknown keys, listing what is expected."""
     required, optional = tuple(required), tuple(optional)
-    expected = ", ".join(required) + (f" (optional: {', '.join(optional)})" if optional else "")
+    if required:
+        expected = ", ".join(required) + (f" (optional: {', '.join(optional)})" if optional else "")
+    else:
+        expected = f"{', '.join(optional)} (each optional)"
     missing = [k for k in required if k not in mapping]
     unknown = [k for k in mapping if k not in required and k not in optional]
     if missing:

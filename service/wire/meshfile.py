@@ -98,6 +98,8 @@ def _read_with_trimesh(data: bytes, fmt: str) -> tuple[np.ndarray, np.ndarray]:
         mesh = scene.to_mesh()
     except TooLarge:
         raise
+    except KeyError as exc:  # a property or a key the file does not have (a PLY without z)
+        raise BadBody(f"body cannot be read as {fmt.upper()}: it lacks {exc}") from None
     except Exception as exc:  # trimesh raises anything from its parsers: all mean "unreadable"
         raise BadBody(
             f"body cannot be read as {fmt.upper()}: {type(exc).__name__}: {exc}"
@@ -173,8 +175,9 @@ def read_obj(data: bytes) -> tuple[np.ndarray, np.ndarray]:
             why = f"but only {int(before[first])} vertices are defined before it"
         else:
             why = f"but there are {len(vertices)} vertices (OBJ indices start at 1)"
+        shown = index if abs(index) < 2**63 - 1 else "a number beyond int64"  # read clamped
         raise Invalid(
-            f"OBJ line {i + 1} ({_show(lines[i])}) refers to vertex {index}, {why}; "
+            f"OBJ line {i + 1} ({_show(lines[i])}) refers to vertex {shown}, {why}; "
             f"{n_bad} of {len(counts)} faces are out of range"
         )
     del before, indices, bad

@@ -49,7 +49,9 @@ def read_npy(buf: bytes | memoryview, name: str = "body", structured: bool = Fal
         RecursionError,
         tokenize.TokenError,
     ) as exc:
-        raise BadBody(f"{name} is not a readable .npy: {exc}") from None
+        # numpy's literal parser names an expression (2**62) by its Python object
+        reason = "its header holds an expression, not literals" if "<ast." in str(exc) else exc
+        raise BadBody(f"{name} is not a readable .npy: {reason}") from None
     if dtype.hasobject:
         raise Invalid(
             f"{name} holds Python objects ({dtype}); only numeric arrays are accepted "

@@ -445,11 +445,19 @@ def test_bad_rays_are_422_naming_the_first_one_and_the_count(app_client, quad_sc
     assert re.search(r"\b3\b", message) and re.search(r"\b2\b", message), message
 
 
+MANY_FIELDS = ",".join(f"f{k}" for k in range(6000))  # 34,889 characters: not echoed whole
+
+
 @pytest.mark.parametrize(
     "params, message",
     [
         ({"fields": "t,depth"}, "unknown fields 'depth'"),
         ({"fields": ","}, "no field"),
+        (
+            {"fields": MANY_FIELDS},
+            f"?fields={MANY_FIELDS[:100]}... ({len(MANY_FIELDS)} characters) names unknown fields "
+            "'f0', 'f1', 'f2', 'f3', 'f4' and 5995 more",
+        ),
         ({"strategy": "magic"}, "unknown strategy 'magic'"),
         ({"stats": "maybe"}, "query parameter 'stats'"),
         ({"cull": "sideways"}, "unknown cull 'sideways'; use one of none, back, front"),

@@ -416,3 +416,18 @@ def test_a_rig_naming_a_sensor_twice_is_400(app_client, room):
     )
     assert response.status_code == 400, response.text
     assert "gives the key 'roof' twice" in response.json()["detail"]
+
+
+@pytest.mark.parametrize(
+    "kind, words",
+    [
+        ({}, "sensors.roof: missing kind ('lidar' or 'camera')"),
+        ({"kind": "radar"}, "sensors.roof: kind 'radar' is not 'lidar' or 'camera'"),
+    ],
+)
+def test_a_rig_sensor_without_a_known_kind_is_named(app_client, room, kind, words):
+    rig = {"sensors": {"roof": {**kind, "pose": POSE, "model": "VLP-16"}}}
+    response = app_client.post(f"/v1/scenes/{room}/sensors", json=rig)
+    assert response.status_code in (400, 422), response.text
+    assert words in response.json()["detail"]
+    assert "discriminator" not in response.text and "tag" not in response.text

@@ -74,7 +74,11 @@ def test_a_frame_sets_materials_and_a_new_upload_keeps_them(app_client, room):
         ({"reflectivity": 10**400}, 422, "got an integer of 1329 bits"),
         ({"label": "x" * 10000}, 422, "... (10002 characters)"),
         ({}, 400, "names no material key"),
-        ({"colour": 1}, 400, "unknown keys 'colour'"),
+        (
+            {"colour": 1},
+            400,
+            "unknown keys 'colour'; expected keys reflectivity, label (each optional)",
+        ),
     ],
 )
 def test_bad_materials_are_refused_and_change_nothing(app_client, room, body, status, words):

@@ -132,6 +132,11 @@ def test_obj_line_forms(body):
             Invalid,
             "refers to vertex -2, but only 1 vertices are defined before it",
         ),
+        (
+            OBJ_TRIANGLE + b"f 1 2 99999999999999999999\n",
+            Invalid,
+            "refers to vertex a number beyond int64, but there are 3 vertices",
+        ),
         (OBJ_TRIANGLE + b"f 1 2\n", Invalid, "a face needs at least 3 vertices, this one has 2"),
         (OBJ_TRIANGLE + b"f 1 2 x\n", BadBody, "OBJ line 4 (`f 1 2 x`): `x` is not a vertex index"),
         (OBJ_TRIANGLE + b"f 1 2 3.5\n", BadBody, "`3.5` is not a vertex index"),
@@ -337,6 +342,13 @@ BILLION_VERTICES = ["element vertex 1000000000", *PLY_TRIANGLE_HEADER[1:]]
             ply(PLY_TRIANGLE_HEADER, b"0 0 0\n1 0 0\n"),
             BadBody,
             "(4 lines), but the body holds only 2 lines",
+        ),
+        (
+            b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            b"element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+            b"0 0\n1 0\n0 1\n3 0 1 2\n",
+            BadBody,
+            "body cannot be read as PLY: it lacks 'z'",
         ),
         (
             b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n",

@@ -108,6 +108,11 @@ def test_fortran_order_npy_keeps_its_values():
     assert np.array_equal(wire.read_npy(npy_bytes(rays)), rays)
 
 
+def npy_with_header(header: str) -> bytes:
+    header += " " * (63 - len(header) % 64) + "\n"
+    return b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header.encode() + bytes(24)
+
+
 def unclosed_header_npy() -> bytes:
     """A version 1.0 .npy whose header's dict is never closed (numpy's tokenizer fails on it)."""
     header = "{'descr': '<f4', 'fortran_order': False, 'shape': (1, 6), "
@@ -129,6 +134,10 @@ def unclosed_header_npy() -> bytes:
             "header claims 2147483659 bytes",
         ),
         (unclosed_header_npy(), "not a readable .npy"),
+        (
+            npy_with_header("{'descr': '<f4', 'fortran_order': False, 'shape': (2**62, 6), }"),
+            "not a readable .npy: its header holds an expression, not literals",
+        ),
     ],
 )
 def test_unreadable_npy_is_400(body, message):
@@ -751,7 +760,9 @@ def test_hostile_json_rays_are_4xx(body, error, message):
         ("[[true, 1, 2]]", "faces must be integers, found true"),
         ("[[0.0, 1, 2]]", "found the number 0.0"),
         ('[["0", 1, 2]]', "the string '0'"),
-        ("[[1" + "0" * 400 + ", 1, 2]]", "faces must be integers"),
+        ("[[1" + "0" * 400 + ", 1, 2]]", "faces holds an integer beyond int64"),
+        ("[[0, 1, 9223372036854775808]]", "faces holds an integer beyond int64"),
+        ("[[0, 1, -9223372036854775809]]", "faces holds an integer beyond int64"),
     ],
 )
 def test_json_faces_refuse_booleans_floats_strings_and_huge_integers(faces, message):
