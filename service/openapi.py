@@ -233,8 +233,13 @@ def json_answer(description: str, schema: dict[str, Any]) -> dict[str, Any]:
     return {"description": description, "content": {"application/json": {"schema": schema}}}
 
 
-def answers(description: str) -> dict[int | str, dict[str, Any]]:
-    """The 200 of a query: the answer arrays as .npz, .npy or JSON, by ``Accept``."""
-    content = {wire.MEDIA_TYPES[fmt]: {"schema": _BINARY} for fmt in ("npz", "npy")}
-    content[wire.JSON] = {"schema": {"type": "object", "additionalProperties": {"type": "array"}}}
+def answers(
+    description: str, formats: tuple[str, ...] = ("npz", "npy", "json")
+) -> dict[int | str, dict[str, Any]]:
+    """The 200 of a query: the answer arrays in ``formats`` (.npz, .npy, JSON; a lidar's PCD
+    too), by ``Accept``."""
+    content = {wire.MEDIA_TYPES[fmt]: {"schema": _BINARY} for fmt in formats if fmt != "json"}
+    if "json" in formats:
+        json_schema = {"type": "object", "additionalProperties": {"type": "array"}}
+        content[wire.JSON] = {"schema": json_schema}
     return {200: {"description": description, "content": content}}

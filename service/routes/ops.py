@@ -95,7 +95,8 @@ START_PAGE = (
         200: {
             "description": "the viewer: a scene rendered by the server, orbited with the mouse",
             "content": {"text/html": {}},
-        }
+        },
+        **openapi.errors(422),  # a query parameter it does not take
     },
 )
 async def start_page() -> HTMLResponse:
@@ -110,6 +111,7 @@ async def start_page() -> HTMLResponse:
         503: openapi.json_answer(
             "the kernels are compiling (starting) or failed to (error)", openapi.HEALTH
         ),
+        **openapi.errors(422),
     },
 )
 async def health(
@@ -156,7 +158,8 @@ async def health(
         200: {
             "description": "Prometheus text format",
             "content": {"text/plain": {"schema": {"type": "string"}}},
-        }
+        },
+        **openapi.errors(422),
     },
 )
 async def metrics(metrics: MetricsDep) -> Response:

@@ -79,7 +79,7 @@ async def put_pattern(
     return info(name, pattern)
 
 
-@router.get("", responses=openapi.errors(401))
+@router.get("", responses=openapi.errors(401, 422))
 async def list_patterns(patterns: PatternsDep) -> dict:
     return {"patterns": [info(name, patterns.get(name)) for name in patterns.names()]}
 

@@ -159,7 +159,8 @@ async def camera(
     responses={
         **openapi.answers(
             "per point: xyz, range, ring, azimuth, elevation, mesh, prim, return, cos_incidence, "
-            "ray, intensity, label (and time with a pattern's times); or a binary PCD file"
+            "ray, intensity, label (and time with a pattern's times); or a binary PCD file",
+            LIDAR_FORMATS,
         ),
         **SENSOR_ERRORS,
     },
@@ -203,7 +204,8 @@ async def lidar(
     responses={
         **openapi.answers(
             "each sensor's answer: .npz keys NAME.KEY (roof.xyz, front.depth), or JSON "
-            "{NAME: {KEY: ...}}"
+            "{NAME: {KEY: ...}}",
+            RIG_FORMATS,
         ),
         **SENSOR_ERRORS,
     },

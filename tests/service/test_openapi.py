@@ -121,3 +121,15 @@ def test_a_pattern_put_declares_201_for_a_new_one():
     assert {"200", "201"} <= set(responses)
     schema = responses["201"]["content"]["application/json"]["schema"]
     assert schema["required"] == ["pattern", "rays"]
+
+
+def test_a_sensors_answers_are_declared_in_the_formats_it_writes():
+    lidar = DOCUMENT["paths"]["/v1/scenes/{scene}/lidar"]["post"]["responses"]["200"]
+    assert set(lidar["content"]) == {wire.NPZ, wire.NPY, wire.JSON, wire.PCD}
+    rig = DOCUMENT["paths"]["/v1/scenes/{scene}/sensors"]["post"]["responses"]["200"]
+    assert set(rig["content"]) == {wire.NPZ, wire.JSON}
+
+
+@pytest.mark.parametrize("path", ["/", "/health", "/metrics", "/v1/patterns"])
+def test_a_route_that_refuses_unknown_query_parameters_declares_422(path):
+    assert "422" in DOCUMENT["paths"][path]["get"]["responses"]
