@@ -17,11 +17,13 @@ from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
 import dacrt.cache
+from dacrt import InputError
 
 from . import __version__, errors, openapi, warmup, wire
 from .admission import Admission, AdmissionMiddleware
 from .cluster import Cluster
 from .deps import Readiness, require_ready
+from .errors import ServiceError
 from .logs import configure_logging
 from .metrics import Metrics, MetricsMiddleware
 from .patterns import Patterns
@@ -164,7 +166,17 @@ def load_demo(store: Store, settings: Settings) -> None:
     if settings.demo_name in {s.scene for s in store.snapshots()}:
         log.info("demo scene %r: kept as restored from the data folder", settings.demo_name)
         return
-    with np.load(path, allow_pickle=False) as archive:
-        arrays = wire.mesh_arrays(archive["vertices"], archive["faces"])
-    store.put_mesh(settings.demo_name, path.stem, arrays)
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            arrays = wire.mesh_arrays(archive["vertices"], archive["faces"])
+        store.put_mesh(settings.demo_name, path.stem, arrays)
+    except (ServiceError, InputError, OSError, ValueError, KeyError) as exc:
+        # the service itself works: say why the demo is missing, and go on
+        reason = exc.detail if isinstance(exc, ServiceError) else f"{type(exc).__name__}: {exc}"
+        log.warning(
+            "no demo scene: %s could not be loaded: %s (DACRT_LOAD_DEMO=false starts without it)",
+            path,
+            reason,
+        )
+        return
     log.info("demo scene %r: %s (%d triangles)", settings.demo_name, path, len(arrays.faces))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 
@@ -58,6 +59,23 @@ def test_demo_scene_is_loaded_from_scenes():
     load_demo(store, Settings(load_demo=True))
     info = store.snapshot("demo").info()
     assert [m["mesh"] for m in info["meshes"]] == ["teapot"] and info["triangles"] == 6320
+
+
+def test_a_demo_scene_over_the_limits_is_a_warning_not_a_failed_start(caplog, tmp_path):
+    """The service works without its demo: a demo over DACRT_MAX_TRIANGLES_PER_SCENE, or a
+    damaged demo file, is named in the log and the start goes on."""
+    broken = tmp_path / "broken.npz"
+    broken.write_bytes(b"PK not a zip")
+    for store, settings, words in (
+        (Store(1000, 2**40), Settings(load_demo=True), "over the limit of 1000"),
+        (Store(2**30, 2**40), Settings(load_demo=True, demo_scene=broken), "ValueError"),
+    ):
+        with caplog.at_level(logging.WARNING, logger="service"):
+            load_demo(store, settings)
+        assert store.snapshots() == []
+        assert "no demo scene" in caplog.text and words in caplog.text
+        assert "DACRT_LOAD_DEMO=false starts without it" in caplog.text
+        caplog.clear()
 
 
 @pytest.mark.parametrize("path, status", [("/nowhere", 404), ("/v1/scenes/x", 404)])
