@@ -283,7 +283,11 @@ BAD_SENSOR_VALUES = [
         {"sensors": {"front": {"kind": "camera", **PINHOLE, "fx": 0}}},
         "sensors.front.fx: Input should be greater than 0",
     ),
-    ("sensors", {"sensors": {"x": {"kind": "radar", **LIDAR}}}, "does not match any of the"),
+    (
+        "sensors",
+        {"sensors": {"x": {"kind": "radar", **LIDAR}}},
+        "sensors.x: kind 'radar' is not 'lidar' or 'camera'",
+    ),
     (
         "sensors",
         {"sensors": {"a b": {"kind": "lidar", **LIDAR}}},
