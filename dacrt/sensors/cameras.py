@@ -28,14 +28,12 @@ import numpy as np
 
 from ..validation import InputError, check_row_count
 from .batch import Rays, Shot, Traced, capture
-from .checks import float_array, integer, number
+from .checks import FLOAT32_MAX, float_array, integer, number
 
 #: |sin| of the angle between up and the view direction below which they count as parallel.
 PARALLEL_SINE = 1e-6
 #: Largest |R^T R - I| entry of a pose whose rotation counts as orthonormal (float32 input).
 ROTATION_TOLERANCE = 1e-4
-#: The largest float32: a camera's edge rays must stay within it.
-FLOAT32_MAX = float(np.finfo(np.float32).max)
 #: The most pixels a side: a pixel's ray is an int32 index.
 MAX_SIDE = 2**31 - 1
 

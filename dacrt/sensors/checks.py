@@ -11,6 +11,9 @@ import numpy as np
 
 from ..validation import InputError
 
+#: The largest float32: sensors' rays and points are float32.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
 
 def number(
     value,

@@ -29,8 +29,8 @@ import numpy as np
 from ..validation import InputError, check_row_count
 from . import physics
 from .batch import Rays, Shot, Traced, capture
-from .cameras import FLOAT32_MAX, check_pose
-from .checks import choice, flag, integer, number
+from .cameras import check_pose
+from .checks import FLOAT32_MAX, choice, flag, integer, number
 from .models import MODELS
 from .motion import poses_at
 from .patterns import Pattern
@@ -62,11 +62,6 @@ class Scan:
     @property
     def n_rings(self) -> int:
         return len(self.elevations_deg)
-
-    @property
-    def n_traced_rays(self) -> int:
-        """The rays one scan traces: beams x sub-rays."""
-        return self.n_beams * self.beam_samples
 
     @property
     def n_rays(self) -> int:

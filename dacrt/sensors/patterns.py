@@ -16,11 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..validation import InputError
+from .checks import FLOAT32_MAX
 
 #: The largest channel: a point's ring is int16.
 MAX_CHANNEL = np.iinfo(np.int16).max
-#: The largest float32: a point's azimuth and time are float32.
-FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True, eq=False)
