@@ -196,12 +196,33 @@ def request_body(
     return {"requestBody": {"required": True, "description": description, "content": content}}
 
 
+def _header(description: str, schema: dict[str, Any] | None = None) -> dict[str, Any]:
+    return {"description": description, "schema": schema or {"type": "string"}}
+
+
+#: The headers an error status carries (RFC 9110's for 401 and 503).
+ERROR_HEADERS = {
+    401: {"WWW-Authenticate": _header("Bearer: the scheme the token is sent in")},
+    503: {"Retry-After": _header("seconds to wait before trying again", {"type": "integer"})},
+}
+#: The headers of every query's and sensor's answer.
+ANSWER_HEADERS = {
+    "X-Scene-Version": _header(
+        "the scene version the answer was traced on (0 for /v1/trace)", {"type": "integer"}
+    ),
+    "Server-Timing": _header("receive, decode, trace and encode durations in ms"),
+    "X-Trace-Stats": _header("the engine's counters as JSON, with ?stats=true"),
+}
+
+
 def errors(*statuses: int) -> dict[int | str, dict[str, Any]]:
-    """``responses`` entries for error statuses, each with the ``{"detail": str}`` schema."""
+    """``responses`` entries for error statuses, each with the ``{"detail": str}`` schema (and
+    the headers ERROR_HEADERS names)."""
     return {
         status: {
             "description": ERROR_STATUSES[status],
             "content": {"application/json": {"schema": ERROR}},
+            **({"headers": ERROR_HEADERS[status]} if status in ERROR_HEADERS else {}),
         }
         for status in statuses
     }
@@ -242,4 +263,4 @@ def answers(
     if "json" in formats:
         json_schema = {"type": "object", "additionalProperties": {"type": "array"}}
         content[wire.JSON] = {"schema": json_schema}
-    return {200: {"description": description, "content": content}}
+    return {200: {"description": description, "content": content, "headers": ANSWER_HEADERS}}

@@ -133,3 +133,12 @@ def test_a_sensors_answers_are_declared_in_the_formats_it_writes():
 @pytest.mark.parametrize("path", ["/", "/health", "/metrics", "/v1/patterns"])
 def test_a_route_that_refuses_unknown_query_parameters_declares_422(path):
     assert "422" in DOCUMENT["paths"][path]["get"]["responses"]
+
+
+def test_answers_and_errors_declare_their_headers():
+    closest = DOCUMENT["paths"]["/v1/scenes/{scene}/closest"]["post"]["responses"]
+    assert {"X-Scene-Version", "Server-Timing", "X-Trace-Stats"} <= set(closest["200"]["headers"])
+    assert "Retry-After" in closest["503"]["headers"]
+    assert "WWW-Authenticate" in closest["401"]["headers"]
+    lidar = DOCUMENT["paths"]["/v1/scenes/{scene}/lidar"]["post"]["responses"]
+    assert "X-Scene-Version" in lidar["200"]["headers"]
