@@ -146,6 +146,18 @@ MESH_INFO = {
         },
     },
 }
+SCENE_INFO = {
+    "type": "object",
+    "required": ["scene", "version", "triangles", "bounds", "meshes"],
+    "properties": {
+        "scene": {"type": "string"},
+        "version": {"type": "integer", "description": "the scene's version (X-Scene-Version)"},
+        "triangles": {"type": "integer", "description": "placed triangles, instances' too"},
+        "bounds": {**_BOUNDS, "description": "[[min x, y, z], [max x, y, z]] in scene space"},
+        "meshes": {"type": "array", "items": MESH_INFO},
+    },
+}
+SCENE_LIST = _object({"scenes": {"type": "array", "items": SCENE_INFO}})
 HEALTH = {
     "type": "object",
     "required": ["status", "service", "scenes"],

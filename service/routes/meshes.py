@@ -48,6 +48,8 @@ FRAME_BODY = openapi.request_body(
 )
 CHANGE_ERRORS = openapi.errors(400, 401, 404, 408, 409, 413, 415, 422, 503, 507)
 READ_ERRORS = openapi.errors(401, 404, 422)
+MESH_ANSWER = {200: openapi.json_answer("the mesh's info", openapi.MESH_INFO)}
+SCENE_ANSWER = {200: openapi.json_answer("the scene's info", openapi.SCENE_INFO)}
 
 
 @router.put(
@@ -105,7 +107,11 @@ def _decode_mesh_or_instance(
     return source, None if transform is None else wire.check_matrix(transform, "transform")
 
 
-@router.put("/{scene}/meshes/{mesh}/vertices", openapi_extra=VERTICES_BODY, responses=CHANGE_ERRORS)
+@router.put(
+    "/{scene}/meshes/{mesh}/vertices",
+    openapi_extra=VERTICES_BODY,
+    responses={**MESH_ANSWER, **CHANGE_ERRORS},
+)
 async def put_vertices(
     scene: SceneName,
     mesh: MeshName,
@@ -124,7 +130,9 @@ async def put_vertices(
 
 
 @router.put(
-    "/{scene}/meshes/{mesh}/transform", openapi_extra=TRANSFORM_BODY, responses=CHANGE_ERRORS
+    "/{scene}/meshes/{mesh}/transform",
+    openapi_extra=TRANSFORM_BODY,
+    responses={**MESH_ANSWER, **CHANGE_ERRORS},
 )
 async def put_transform(
     scene: SceneName, mesh: MeshName, request: Request, settings: SettingsDep, store: StoreDep
@@ -137,7 +145,11 @@ async def put_transform(
     return (await run_sync(store.set_transform, scene, mesh, matrix)).info(scene)
 
 
-@router.put("/{scene}/meshes/{mesh}/mask", openapi_extra=MASK_BODY, responses=CHANGE_ERRORS)
+@router.put(
+    "/{scene}/meshes/{mesh}/mask",
+    openapi_extra=MASK_BODY,
+    responses={**MESH_ANSWER, **CHANGE_ERRORS},
+)
 async def put_mask(
     scene: SceneName, mesh: MeshName, request: Request, settings: SettingsDep, store: StoreDep
 ) -> dict:
@@ -149,7 +161,11 @@ async def put_mask(
     return (await run_sync(store.set_mask, scene, mesh, value)).info(scene)
 
 
-@router.put("/{scene}/meshes/{mesh}/material", openapi_extra=MATERIAL_BODY, responses=CHANGE_ERRORS)
+@router.put(
+    "/{scene}/meshes/{mesh}/material",
+    openapi_extra=MATERIAL_BODY,
+    responses={**MESH_ANSWER, **CHANGE_ERRORS},
+)
 async def put_material(
     scene: SceneName, mesh: MeshName, request: Request, settings: SettingsDep, store: StoreDep
 ) -> dict:
@@ -184,7 +200,9 @@ async def _json_body(
     return doc
 
 
-@router.post("/{scene}/frame", openapi_extra=FRAME_BODY, responses=CHANGE_ERRORS)
+@router.post(
+    "/{scene}/frame", openapi_extra=FRAME_BODY, responses={**SCENE_ANSWER, **CHANGE_ERRORS}
+)
 async def post_frame(
     scene: SceneName,
     request: Request,
@@ -201,17 +219,23 @@ async def post_frame(
     return snapshot.info()
 
 
-@router.get("", responses=openapi.errors(401, 422))
+@router.get(
+    "",
+    responses={
+        200: openapi.json_answer("every scene's info", openapi.SCENE_LIST),
+        **openapi.errors(401, 422),
+    },
+)
 async def list_scenes(store: StoreDep) -> dict:
     return {"scenes": [s.info() for s in store.snapshots()]}
 
 
-@router.get("/{scene}", responses=READ_ERRORS)
+@router.get("/{scene}", responses={**SCENE_ANSWER, **READ_ERRORS})
 async def get_scene(scene: SceneName, store: StoreDep) -> dict:
     return store.snapshot(check_name("scene", scene)).info()
 
 
-@router.get("/{scene}/meshes/{mesh}", responses=READ_ERRORS)
+@router.get("/{scene}/meshes/{mesh}", responses={**MESH_ANSWER, **READ_ERRORS})
 async def get_mesh(scene: SceneName, mesh: MeshName, store: StoreDep) -> dict:
     check_name("scene", scene), check_name("mesh", mesh)
     return store.snapshot(scene).mesh(mesh).info(scene)

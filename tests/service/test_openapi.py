@@ -142,3 +142,22 @@ def test_answers_and_errors_declare_their_headers():
     assert "WWW-Authenticate" in closest["401"]["headers"]
     lidar = DOCUMENT["paths"]["/v1/scenes/{scene}/lidar"]["post"]["responses"]
     assert "X-Scene-Version" in lidar["200"]["headers"]
+
+
+@pytest.mark.parametrize(
+    "method, path, required",
+    [
+        ("get", "/v1/scenes", ["scenes"]),
+        ("get", "/v1/scenes/{scene}", ["scene", "version", "triangles", "bounds", "meshes"]),
+        ("post", "/v1/scenes/{scene}/frame", ["scene", "version", "triangles", "bounds", "meshes"]),
+        ("get", "/v1/scenes/{scene}/meshes/{mesh}", ["scene", "mesh", "index"]),
+        ("put", "/v1/scenes/{scene}/meshes/{mesh}/vertices", ["scene", "mesh", "index"]),
+        ("put", "/v1/scenes/{scene}/meshes/{mesh}/transform", ["scene", "mesh", "index"]),
+        ("put", "/v1/scenes/{scene}/meshes/{mesh}/mask", ["scene", "mesh", "index"]),
+        ("put", "/v1/scenes/{scene}/meshes/{mesh}/material", ["scene", "mesh", "index"]),
+    ],
+)
+def test_scene_and_mesh_info_answers_are_typed(method, path, required):
+    answer = DOCUMENT["paths"][path][method]["responses"]["200"]
+    schema = answer["content"]["application/json"]["schema"]
+    assert schema["required"][: len(required)] == required
