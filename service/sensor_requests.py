@@ -29,7 +29,7 @@ from pydantic import (
 )
 
 from dacrt.sensors import MODELS, RETURN_MODES, Camera, Lidar, Pattern, check_pose, look_at_pose
-from dacrt.sensors.lidar import MAX_BEAMS, MAX_RETURNS, NON_HITS
+from dacrt.sensors.lidar import FRAMES, MAX_BEAMS, MAX_RETURNS, NON_HITS
 
 from . import wire
 from .errors import BadBody, Invalid, TooLarge
@@ -207,6 +207,8 @@ class LidarRequest(Body):
     organized: bool = Field(False, strict=True)
     period_s: Positive | None = None  #: the sweep's duration: its columns fire over it (motion)
     pose_end: Matrix4 | None = None  #: the sensor's pose at the sweep's end (needs period_s)
+    #: what xyz (and velocity) are in: the scene, or the sensor's frame at the sweep's start
+    frame: Literal[FRAMES] = "scene"
 
     @model_validator(mode="after")
     def _one_pattern(self) -> LidarRequest:
@@ -228,8 +230,7 @@ class LidarRequest(Body):
     def sensor(self, patterns: Callable[[str], Pattern]) -> tuple[Lidar, np.ndarray]:
         """(the engine's lidar, its sensor-to-scene pose); ``patterns`` gives the uploaded
         pattern of a name. Without ``return_mode``, ``max_returns`` > 1 means ``all`` (every
-        surface the beam crosses), as /lidar answered before return modes."""
-        mode = self.return_mode or ("all" if self.max_returns > 1 else "first")
+        surface the beam crosses), as in process."""
         lidar = Lidar(
             model=self.model,
             vertical_angles_deg=self.vertical_angles_deg,
@@ -238,11 +239,12 @@ class LidarRequest(Body):
             min_range=self.min_range,
             max_range=self.max_range,
             max_returns=self.max_returns,
-            return_mode=mode,
+            return_mode=self.return_mode,
             noise=None if self.noise is None else self.noise.model_dump(),
             dropout=None if self.dropout is None else self.dropout.model_dump(),
             **{key: getattr(self, key) for key in PHYSICS_KEYS},
             period_s=self.period_s,
+            frame=self.frame,
         )
         return lidar, check_pose(self.pose)
 

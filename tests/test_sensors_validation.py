@@ -106,3 +106,22 @@ def test_a_scan_of_more_rays_than_int32_indexes_is_refused_before_any_is_made(op
     assert lidar.n_traced_rays == 2**31
     with pytest.raises(dacrt.InputError, match=r"a scan \(beams x beam_samples\) has 2,147,"):
         lidar.shot(np.eye(4))
+
+
+def test_max_returns_alone_asks_for_every_return_as_over_http():
+    """A /lidar body with max_returns > 1 and no return_mode means ``all``; so does the same
+    sensor in process (it was ``first``, silently ignoring max_returns)."""
+    assert Lidar("VLP-16").return_mode == "first"
+    assert Lidar("VLP-16", max_returns=3).return_mode == "all"
+    assert Lidar("VLP-16", max_returns=3, return_mode="dual").return_mode == "dual"
+    walls = [
+        (np.array([[x, -50, -50], [x, 50, -50], [x, 0, 50]], np.float32), [[0, 1, 2]])
+        for x in (10.0, 12.0)
+    ]
+    scene = dacrt.Scene(walls)
+    points = Lidar(vertical_angles_deg=[0.0], horizontal_steps=8, max_returns=3).scan(
+        scene, np.eye(4)
+    )
+    along_x = points["ray"] == 0  # the beam along +x crosses both walls
+    assert points["range"][along_x].tolist() == [10.0, 12.0]
+    assert points["return"][along_x].tolist() == [0, 1]

@@ -178,7 +178,8 @@ class Lidar:
     horizontal_steps : columns of a revolution (a spinning lidar's)
     min_range, max_range : the range window (max_range None, inf or beyond float32: no limit;
         min_range at most float32's largest)
-    return_mode : one of ``RETURN_MODES``; max_returns : at most this many returns (mode ``all``)
+    return_mode : one of ``RETURN_MODES``, or None: ``all`` when max_returns > 1, else ``first``
+        (as a ``/lidar`` body without it); max_returns : at most this many returns (mode ``all``)
     beam_divergence_deg, beam_samples, range_resolution, attenuation : ``physics``
     noise : a ``Noise`` or a dict of its keys; dropout : a ``Dropout`` or a dict of its keys
     non_hits : ``drop`` or ``keep`` (a beam that returns nothing is one point of FILL values)
@@ -200,7 +201,7 @@ class Lidar:
     min_range: float = 0.0
     max_range: float | None = math.inf
     max_returns: int = 1
-    return_mode: str = "first"
+    return_mode: str | None = None
     beam_divergence_deg: float = 0.0
     beam_samples: int = 1
     range_resolution: float = 0.1
@@ -233,6 +234,8 @@ class Lidar:
         if self.max_range > FLOAT32_MAX:  # the rays' windows are float32: beyond it is no limit
             object.__setattr__(self, "max_range", math.inf)
         integer(self.max_returns, "max_returns", at_least=1, at_most=MAX_RETURNS)
+        if self.return_mode is None:  # max_returns alone asks for every return
+            object.__setattr__(self, "return_mode", "all" if self.max_returns > 1 else "first")
         choice(self.return_mode, "return_mode", RETURN_MODES)
         number(self.beam_divergence_deg, "beam_divergence_deg", at_least=0, below=180)
         integer(self.beam_samples, "beam_samples", at_least=1, at_most=MAX_BEAM_SAMPLES)

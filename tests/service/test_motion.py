@@ -13,6 +13,7 @@ from sensor_reference import read_pcd
 from service_helpers import NPZ, npz_bytes, quad
 
 import dacrt
+from dacrt.sensors import Lidar
 from service.settings import Settings
 
 RISE = 4.0  # the floor rises this far over the interval
@@ -226,6 +227,31 @@ def test_a_rigs_lidar_takes_period_and_end_pose_as_lidar_does(app_client, scene_
     np.testing.assert_allclose(
         alone["radial_speed"], -10.0 * np.cos(2 * np.pi * alone["ray"] / 64), atol=1e-4
     )
+
+
+def test_a_lidar_answers_in_the_sensor_frame_as_in_process(app_client, scene_name):
+    """``"frame": "sensor"``: the points of the in-process ``Lidar(frame="sensor")``, bit for
+    bit, which are the scene's moved into the start pose's frame."""
+    wall = box_frame("wall", (-50.0, 10.0, -5.0), (50.0, 11.0, 5.0))
+    assert app_client.post(f"/v1/scenes/{scene_name}/frame", json=wall).status_code == 200
+    start, end = np.eye(4), np.eye(4)
+    start[:3, 3], end[:3, 3] = [0.5, 0.0, 0.2], [1.5, 0.0, 0.2]
+    body = {
+        "pose": start.tolist(),
+        "vertical_angles_deg": [0.0, 3.0],
+        "horizontal_steps": 64,
+        "period_s": 0.1,
+        "pose_end": end.tolist(),
+    }
+    in_scene = lidar_npz(app_client, scene_name, body)
+    in_sensor = lidar_npz(app_client, scene_name, {**body, "frame": "sensor"})
+    scene = dacrt.Scene([(np.asarray(wall["wall.vertices"], np.float32), wall["wall.faces"])])
+    expected = Lidar(
+        vertical_angles_deg=[0.0, 3.0], horizontal_steps=64, period_s=0.1, frame="sensor"
+    ).scan(scene, start, pose_end=end)
+    for key in ("xyz", "velocity", "range"):
+        np.testing.assert_array_equal(in_sensor[key], expected[key], err_msg=key)
+    np.testing.assert_allclose(in_sensor["xyz"], in_scene["xyz"] - start[:3, 3], atol=1e-5)
 
 
 def floor_at(z: float) -> list[list[float]]:
