@@ -21,7 +21,7 @@ from dacrt.validation import check_cull, check_strategy
 
 from . import footprint
 from .errors import Invalid
-from .wire import ANSWER_FORMATS, JSON, NPZ, quoted
+from .wire import ANSWER_FORMATS, JSON, NPZ, cut, quoted
 
 
 class Query(str, Enum):  # noqa: UP042 - StrEnum would change str() and format() of members
@@ -185,8 +185,9 @@ def pick_fields(fields: str | None, known: tuple[str, ...], what: str) -> tuple[
         named = "unknown fields " + ", ".join(map(quoted, unknown[:5])) if unknown else "no field"
         if len(unknown) > 5:
             named += f" and {len(unknown) - 5} more"
-        given = fields if len(fields) <= 100 else f"{fields[:100]}... ({len(fields)} characters)"
-        raise Invalid(f"?fields={given} names {named} for {what}; choose from {', '.join(known)}")
+        raise Invalid(
+            f"?fields={cut(fields, 100)} names {named} for {what}; choose from {', '.join(known)}"
+        )
     return tuple(name for name in known if name in names)
 
 

@@ -284,8 +284,7 @@ class Lidar:
     @property
     def n_rays(self) -> int:
         """The rays traced a scan: beams x sub-rays (x max_returns hits each in mode ``all``)."""
-        per_beam = self.beam_samples * (self.max_returns if self.return_mode == "all" else 1)
-        return self.n_beams * per_beam
+        return self.n_traced_rays * (self.max_returns if self.return_mode == "all" else 1)
 
     @property
     def fields(self) -> tuple[str, ...]:

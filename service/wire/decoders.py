@@ -30,6 +30,11 @@ from .npy import read_npy
 from .npz_reader import read_npz
 
 
+def cut(text: str, most: int) -> str:
+    """``text`` for a message: its first ``most`` characters and its length when longer."""
+    return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
+
+
 def quoted(text: str, most: int = 80) -> str:
     """``text`` (a key, a name from a request) quoted for a message, cut to its first ``most``
     characters."""
@@ -322,8 +327,7 @@ def _shown(value: Any, most: int = 60) -> str:
     """``value`` for a message: a huge integer by its size, other text cut to ``most``."""
     if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**30:
         return f"an integer of {value.bit_length()} bits"
-    text = repr(value)
-    return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
+    return cut(repr(value), most)
 
 
 def parse_reflectivity(value: Any, name: str) -> float:
