@@ -300,13 +300,28 @@ def rays_to_mesh_space_at(
 
 
 @inline
+def row_times(matrix, a, x, y, z):
+    """Row ``a`` of ``matrix`` (3, 3) times (x, y, z), leaving out its zero entries: their
+    products are zeros whose sign would turn a -0.0 of the sum to +0.0, so that an identity,
+    or any permutation, gives the bits of (x, y, z) with their signs of zero."""
+    total = -0.0  # -0.0 + s is s for every s, +0.0 and -0.0 included
+    if matrix[a, 0] != 0.0:
+        total += matrix[a, 0] * x
+    if matrix[a, 1] != 0.0:
+        total += matrix[a, 1] * y
+    if matrix[a, 2] != 0.0:
+        total += matrix[a, 2] * z
+    return total
+
+
+@inline
 def placed_normal(tri_verts, row, cofactor):
     """The unit normal of mesh-space row ``row`` as placed: ``cofactor`` (3, 3) times
     (p1-p0)x(p2-p0), normalised, in float64."""
     nx, ny, nz = triangle_normal(tri_verts, row)
-    px = cofactor[0, 0] * nx + cofactor[0, 1] * ny + cofactor[0, 2] * nz
-    py = cofactor[1, 0] * nx + cofactor[1, 1] * ny + cofactor[1, 2] * nz
-    pz = cofactor[2, 0] * nx + cofactor[2, 1] * ny + cofactor[2, 2] * nz
+    px = row_times(cofactor, 0, nx, ny, nz)
+    py = row_times(cofactor, 1, nx, ny, nz)
+    pz = row_times(cofactor, 2, nx, ny, nz)
     inv_length = 1.0 / np.sqrt(px * px + py * py + pz * pz)
     return px * inv_length, py * inv_length, pz * inv_length
 

@@ -527,7 +527,7 @@ def nearest(scene_triangles, points, max_distance, point_masks, visible_rows, th
     seeds = Seeds(codes[by_code], rows[by_code].astype(INDEX))
     extent = float(np.max(box[3:].astype(np.float64) - box[:3]))
     slack2 = (POINT_CULL_SLACK * max(extent, float(np.max(np.abs(box))))) ** 2
-    max_d2 = float(max_distance) ** 2
+    max_d2 = search_limit2(max_distance)
     order = point_order(points, box, POINT_ORDER_BITS)
     n_chunks = max(min(threads, n_points), -(-n_points // POINT_CHUNK))
     tri_masks = scene_triangles.row_masks if len(point_masks) else np.empty(0, np.uint32)
@@ -560,6 +560,14 @@ def nearest(scene_triangles, points, max_distance, point_masks, visible_rows, th
             counters[name] = int(totals[k])
     counters["max_depth"] = int(max(c[STAT_POINT_MAX_DEPTH] for c in per_chunk))
     return answer, counters
+
+
+def search_limit2(max_distance):
+    """The squared radius a search within ``max_distance`` covers: every distance that rounds
+    to a float32 of at most ``max_distance`` (``nearest_query`` drops the rest), so that a
+    distance the query reported, given back as the limit, keeps its answer."""
+    above = np.nextafter(np.float32(max_distance), np.float32(np.inf))
+    return float(above) ** 2
 
 
 def visible_box(tri_bounds, rows):
@@ -660,8 +668,9 @@ def nearest_query(scene, points, max_distance=None, mask=None, threads=None, sta
     with np.errstate(over="ignore"):  # a distance beyond float32's range reads inf
         distance = np.sqrt(found.d2).astype(FLOAT)
     point, u, v = found.point.astype(FLOAT), found.u.astype(FLOAT), found.v.astype(FLOAT)
-    # A closest point farther than float32 can say is none, as a ray's hit beyond it is a miss.
-    beyond = np.isinf(distance) & (mesh != MISS)
+    # A closest point farther than float32 can say is none, as a ray's hit beyond it is a miss;
+    # the limit is decided on the reported float32 distance, as a ray's range on its t.
+    beyond = (np.isinf(distance) | (distance.astype(np.float64) > max_distance)) & (mesh != MISS)
     if beyond.any():
         mesh[beyond] = prim[beyond] = MISS
         point[beyond], u[beyond], v[beyond] = np.inf, 0.0, 0.0

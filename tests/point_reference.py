@@ -91,7 +91,9 @@ def nearest(
     if point_masks is not None:
         seen = (np.asarray(point_masks, np.uint32)[:, None] & np.asarray(face_masks)[None]) != 0
         d[~seen] = np.inf
-    d[d > max_distance] = np.inf
+    if np.isfinite(max_distance):  # the limit holds for the distance as reported, in float32
+        with np.errstate(over="ignore"):
+            d[d.astype(np.float32).astype(np.float64) > max_distance] = np.inf
     distance = d.min(axis=1, initial=np.inf)
     found = np.isfinite(distance)
     prim = np.where(found, np.argmin(np.where(d == distance[:, None], 0, 1), axis=1), -1)

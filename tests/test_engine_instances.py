@@ -227,6 +227,35 @@ def test_no_transforms_and_identities_change_nothing():
         assert_same_answers(got, plain, f"transforms={transforms}")
 
 
+def test_an_identity_gives_the_normals_bits_signs_of_zero_included():
+    """Axis-aligned triangles have zero normal components, some of them -0.0: an identity
+    placement keeps every bit of the normals (closest and every hit), as the mesh given."""
+    flat, flat_faces = pg.grid(4, 1.0)
+    upright = flat[:, [2, 0, 1]]  # the same grid in the plane x = 0, and in y = 0
+    sideways = flat[:, [1, 2, 0]]
+    meshes = [
+        (np.float32([[3, 1, 1], [3, 1, 2], [3, 0, 2]]), np.int32([[0, 1, 2]])),
+        (flat, flat_faces),
+        (upright, flat_faces[:, ::-1].copy()),
+        (sideways, flat_faces),
+    ]
+    rng = np.random.default_rng(21)
+    vertices, faces, _ = pg.concat(meshes)
+    corners = vertices[faces[rng.integers(0, len(faces), 3000)]]
+    weights = rng.dirichlet([1.0, 1.0, 1.0], 3000)[:, :, None]
+    o = rng.uniform(-0.5, 3.5, (3000, 3)).astype(np.float32)
+    d = ((corners * weights).sum(axis=1) - o).astype(np.float32)  # at a point of a triangle
+    o[0], d[0] = [1.5, 1.5, 1.5], [1.5, -0.75, 0.25]
+    plain = dacrt.Scene(meshes)
+    placed = dacrt.Scene(meshes, transforms=[np.eye(4)] * len(meshes))
+    a, b = plain.closest(o, d), placed.closest(o, d)
+    assert (a.mesh >= 0).sum() > 2000 and np.signbit(a.normal).any()
+    assert a.normal.tobytes() == b.normal.tobytes()
+    assert a.t.tobytes() == b.t.tobytes() and a.prim.tobytes() == b.prim.tobytes()
+    a, b = plain.hits(o, d, max_hits=BIG), placed.hits(o, d, max_hits=BIG)
+    assert a.normal.tobytes() == b.normal.tobytes() and a.t.tobytes() == b.t.tobytes()
+
+
 BAD_MATRICES = {
     "shape (3, 3)": (np.eye(3), "shape"),
     "shape (4, 3)": (np.eye(4)[:, :3], "shape"),

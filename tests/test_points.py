@@ -159,6 +159,25 @@ def test_max_distance():
         assert (found.u[missed] == 0).all() and np.isinf(found.point[missed]).all()
 
 
+def test_a_reported_distance_given_back_as_max_distance_keeps_its_answer():
+    """The limit is decided on the float32 distance the query reports: given back as
+    ``max_distance``, every reported distance keeps its answer, and the next float32 below it
+    drops it, also where the float64 distance rounds down."""
+    vertices, faces = pg.grid(3, 3.0)
+    points = _points(vertices, 400, np.random.default_rng(16), margin=2.0)
+    points[:, 2] += np.float32(0.25)
+    scene = dacrt.Scene([(vertices, faces)])
+    found = scene.nearest(points)
+    expected = pr.nearest(points, vertices, faces)
+    rounded_down = found.distance.astype(np.float64) < expected.distance
+    assert rounded_down.sum() > 20  # the cases a float64 limit would lose
+    for k in range(len(points)):
+        again = scene.nearest(points[k : k + 1], max_distance=float(found.distance[k]))
+        assert again.distance[0] == found.distance[k] and again.prim[0] == found.prim[k], k
+        below = float(np.nextafter(found.distance[k], np.float32(0)))
+        assert scene.nearest(points[k : k + 1], max_distance=below).prim[0] == -1, k
+
+
 def test_max_distance_zero_keeps_points_on_the_surface():
     vertices, faces = pg.grid(4, 1.0)
     points = np.array([[0.5, 0.5, 0.0], [0.5, 0.5, 1e-3]], np.float32)
