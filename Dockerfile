@@ -1,10 +1,11 @@
 # The ray-casting service with its demo scene: docker build -t dacrt . && docker run -p 8000:8000 dacrt
 # Scenes survive a restart with a volume: docker run -p 8000:8000 -v dacrt-data:/data dacrt
+# (a host folder mounted on /data must be writable by uid 10001, the server's user)
 FROM python:3.11-slim
 
 # Numba's compiled kernels go to DACRT_CACHE_DIR. Numba keys them by the CPU it compiled for:
 # the warm-up below compiles for the build machine's CPU, and a container started on a different
-# CPU (another model or instruction set) compiles again at its first start (1-3 minutes, /health
+# CPU (another model or instruction set) compiles again at its first start (1 to 15 minutes, /health
 # says "starting" meanwhile) into the container's own copy of the folder. Build the image where it
 # runs, or mount a volume on /home/app/.cache/dacrt to keep a compile across containers.
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -29,7 +30,8 @@ RUN python -m service.warmup
 
 VOLUME /data
 EXPOSE 8000
-HEALTHCHECK --interval=15s --timeout=5s --start-period=180s --retries=3 \
+# The start period covers a compile on another CPU (up to 15 minutes on two busy cores).
+HEALTHCHECK --interval=15s --timeout=5s --start-period=900s --retries=3 \
     CMD ["python", "-c", "import sys, urllib.request; sys.exit(urllib.request.urlopen('http://127.0.0.1:8000/health', timeout=4).status != 200)"]
 CMD ["uvicorn", "service.app:create_app", "--factory", "--http", "service.protocol:GuardedHttpProtocol", \
      "--host", "0.0.0.0", "--port", "8000"]

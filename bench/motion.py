@@ -1,4 +1,4 @@
-"""Motion (issue 36): what a frame costs when its actors move during it, against the same frame
+"""Motion: what a frame costs when its actors move during it, against the same frame
 without motion and against Embree's motion blur, side by side in one run.
 
     python -m bench.motion                       # 1M static triangles, 40 cars, 8 lidars (1M rays)

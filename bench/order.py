@@ -1,4 +1,4 @@
-"""Storage order of a mesh's rows (issue 39): the faces' order, Morton order, and shuffled faces,
+"""Storage order of a mesh's rows: the faces' order, Morton order, and shuffled faces,
 side by side in one process.
 
     python -m bench.order                                   # Sibenik, Sponza; 131K and 1M rays

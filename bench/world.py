@@ -1,4 +1,4 @@
-"""World frames (issue 39): lidars in a static street world with moving actors, per frame, beside
+"""World frames: lidars in a static street world with moving actors, per frame, beside
 Embree's two-level scene (``../shared/anchors/embree_instances.cpp``).
 
     python -m bench.world                      # 3.3M static triangles, 40 cars, 1-16 lidars

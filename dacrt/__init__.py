@@ -17,7 +17,7 @@ outside the package.
 
 from importlib.metadata import PackageNotFoundError, version
 
-from . import sensors
+from . import cache, sensors
 from .contracts import MISS, STRATEGIES, Counts, HitList, Hits, Nearest, Occlusion
 from .query import CULL_MODES
 from .scene import Scene
@@ -39,6 +39,7 @@ __all__ = [
     "warmup",
     "check_transform",
     "sensors",
+    "cache",
 ]
 
 try:

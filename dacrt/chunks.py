@@ -8,8 +8,10 @@ cut so that each slab holds about the same work. Answers do not depend on the ch
 
 import functools
 import itertools
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 
@@ -31,7 +33,24 @@ from .config import (
 )
 from .contracts import INDEX
 
-N_CORES = os.cpu_count() or 1
+
+def usable_cores(cgroup: Path = Path("/sys/fs/cgroup")) -> int:
+    """The cores this process may use: those its CPU affinity allows (``taskset``, a container's
+    cpuset), fewer where a cgroup's CPU quota (``docker run --cpus``) is lower."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    quotas = [("cpu.max",), ("cpu/cpu.cfs_quota_us", "cpu/cpu.cfs_period_us")]  # cgroup v2, v1
+    for files in quotas:
+        try:
+            text = " ".join((cgroup / name).read_text() for name in files).split()
+            quota, period = int(text[0]), int(text[1])
+        except (OSError, ValueError, IndexError):  # no such cgroup, or "max": no quota
+            continue
+        if quota > 0 and period > 0:
+            cores = min(cores or 1, math.ceil(quota / period))
+    return max(1, cores or 1)
+
+
+N_CORES = usable_cores()
 
 
 @inline

@@ -11,7 +11,7 @@ mesh whose vertices are ``vertex_at(v0, v1, tau)``, bit for bit.
 
 The traversals call ``leaf_for``, which Numba resolves by the triangles' record when it compiles:
 ``Triangles`` get the static ``intersect_leaf``, unchanged, and ``DeformingTriangles`` get
-``deforming_leaf``: the static kernels compile as before and a scene without deforming meshes
+``deforming_leaf``: the static kernels do not change, and a scene without deforming meshes
 pays nothing.
 """
 

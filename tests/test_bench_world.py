@@ -1,4 +1,4 @@
-"""The street world of ``bench.world`` (issue 39's benchmark): its size, determinism, actors and
+"""The street world of ``bench.world`` (world frames): its size, determinism, actors and
 lidar rays. Skipped without the shared scenes; nothing here is timed."""
 
 from __future__ import annotations

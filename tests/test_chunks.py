@@ -4,6 +4,7 @@ triangle once."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
@@ -180,3 +181,20 @@ def test_an_item_that_raises_stops_the_others_and_raises():
     with pytest.raises(ValueError, match="item 2"):
         chunks.map_on_threads(work, 200, 2)
     assert len(ran) < 200
+
+
+def test_usable_cores_follow_affinity_and_a_cgroup_quota(tmp_path):
+    """``DACRT_THREADS``'s default in a container: the cpuset's cores, fewer under ``--cpus``."""
+    allowed = len(os.sched_getaffinity(0))
+    assert chunks.usable_cores(tmp_path) == allowed  # no cgroup files: the affinity
+    (tmp_path / "cpu.max").write_text("max 100000\n")
+    assert chunks.usable_cores(tmp_path) == allowed
+    (tmp_path / "cpu.max").write_text("50000 100000\n")
+    assert chunks.usable_cores(tmp_path) == 1  # half a core still runs one thread
+    (tmp_path / "cpu.max").unlink()
+    (tmp_path / "cpu").mkdir()
+    (tmp_path / "cpu" / "cpu.cfs_quota_us").write_text("-1\n")
+    (tmp_path / "cpu" / "cpu.cfs_period_us").write_text("100000\n")
+    assert chunks.usable_cores(tmp_path) == allowed
+    (tmp_path / "cpu" / "cpu.cfs_quota_us").write_text("100000\n")
+    assert chunks.usable_cores(tmp_path) == 1

@@ -248,7 +248,7 @@ def test_rays_at_an_instant_where_every_placement_they_reach_is_flat_see_the_res
     np.testing.assert_array_equal(scene.count(origins, down, time=0.5).count, [1, 1])
     np.testing.assert_array_equal(scene.hits(origins, down, time=0.5).counts, [1, 1])
     assert scene.occluded(origins, down, time=0.5).occluded.all()
-    # ... and no point of the flat placement moves at that instant (was a LinAlgError)
+    # ... and no point of the flat placement moves at that instant (no LinAlgError)
     on_flat = scene.motion([0, 0], [[0.0, 0.2, 0], [0.25, 0.7, 0]], [0.5, 0.25])
     np.testing.assert_array_equal(on_flat[0], [0, 0, 0])
     np.testing.assert_allclose(on_flat[1], [-1, 0, 0])  # x = 0.25 at tau 0.25 is 0.5 in mesh space

@@ -110,7 +110,7 @@ def test_a_scan_of_more_rays_than_int32_indexes_is_refused_before_any_is_made(op
 
 def test_max_returns_alone_asks_for_every_return_as_over_http():
     """A /lidar body with max_returns > 1 and no return_mode means ``all``; so does the same
-    sensor in process (it was ``first``, silently ignoring max_returns)."""
+    sensor in process (not ``first``, which would ignore max_returns)."""
     assert Lidar("VLP-16").return_mode == "first"
     assert Lidar("VLP-16", max_returns=3).return_mode == "all"
     assert Lidar("VLP-16", max_returns=3, return_mode="dual").return_mode == "dual"
