@@ -27,7 +27,7 @@ from .errors import ServiceError
 from .logs import configure_logging
 from .metrics import Metrics, MetricsMiddleware
 from .patterns import Patterns
-from .persistence import DataDir
+from .persistence import DataDir, FolderLocked, lock_folder
 from .protocol import HeadAsGet
 from .routes import meshes, ops, pictures, points, queries
 from .routes import patterns as pattern_routes
@@ -72,6 +72,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         yield
         if app.state.cluster is not None:
             app.state.cluster.close()
+        if journal is not None:
+            journal.close()  # the folder's lock: the next server on it may start
 
     app = FastAPI(
         title="dacrt ray-casting service",
@@ -114,18 +116,25 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 def open_data_dir(settings: Settings) -> DataDir | None:
-    """The data folder of DACRT_DATA_DIR (created if needed); one that cannot be created or
-    written (read-only, no permission, failing) ends the process with one line. A full one is
-    opened: reads are served and /health says degraded until a change succeeds."""
+    """The data folder of DACRT_DATA_DIR (created if needed), locked for this process until the
+    app stops; one that another process holds, that cannot be locked, created or written
+    (read-only, no permission, failing) ends the process with one line. A full one is opened:
+    reads are served and /health says degraded until a change succeeds."""
     if settings.data_dir is None:
         return None
+    root = settings.data_dir.expanduser()
+    where = f"dacrt-service: DACRT_DATA_DIR={str(settings.data_dir)!r}"
     try:
-        return DataDir(settings.data_dir.expanduser())
+        lock = lock_folder(root)  # first: a folder another server holds is neither read nor written
+    except FolderLocked as exc:
+        raise SystemExit(f"{where}: {exc}") from None
     except OSError as exc:
-        raise SystemExit(
-            f"dacrt-service: DACRT_DATA_DIR={str(settings.data_dir)!r}: the data folder cannot "
-            f"be written: {exc}"
-        ) from None
+        raise SystemExit(f"{where}: the data folder cannot be written: {exc}") from None
+    try:
+        return DataDir(root, lock)
+    except OSError as exc:
+        lock.close()
+        raise SystemExit(f"{where}: the data folder cannot be written: {exc}") from None
 
 
 def warm_up(readiness: Readiness) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import socket
 from collections.abc import Sequence
 
 from pydantic import ByteSize
@@ -63,6 +64,27 @@ def settings_help() -> str:
     )
 
 
+def check_port(host: str, port: int) -> None:
+    """End the process with one line when ``host:port`` cannot be listened on (another process
+    listens there): uvicorn binds only after the app's startup has restored the data folder."""
+    if port == 0:  # any free port
+        return
+    try:
+        # each address as asyncio's create_server binds it under uvicorn
+        for family, kind, proto, _, address in socket.getaddrinfo(
+            host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        ):
+            with socket.socket(family, kind, proto) as probe:
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                if family == socket.AF_INET6:
+                    probe.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+                probe.bind(address)
+    except OSError as exc:
+        raise SystemExit(
+            f"dacrt-service: DACRT_HOST={host!r}, DACRT_PORT={port}: cannot listen there: {exc}"
+        ) from None
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     import uvicorn
 
@@ -78,6 +100,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     if "DACRT_LOAD_DEMO" not in os.environ:
         overrides["load_demo"] = True
     settings = load_settings_or_exit(**overrides)
+    check_port(settings.host, settings.port)
     uvicorn.run(
         create_app(settings),
         host=settings.host,

@@ -7,6 +7,7 @@ Layout, one folder per scene (scene names are safe file names), and the patterns
     DATA_DIR/scenes/SCENE/INDEX.VERSION.vertices.npy (V, 3) float32, written at VERSION
     DATA_DIR/scenes/SCENE/INDEX.VERSION.faces.npy    (F, 3) int32, written at VERSION
     DATA_DIR/patterns/NAME.npz                       a scan pattern (``Pattern.save``)
+    DATA_DIR/lock                                    the serving process's pid and host
 
 An instance has no array files: its manifest entry names its source (``instance_of``) and is
 restored sharing the source's arrays. Each entry also holds the mesh's ``mask``, its material
@@ -32,22 +33,29 @@ folder's fsync after a rename) and cannot be undone either leaves the folder hol
 confirmed: the change may or may not be there after a restart, the error says so, and the folder
 takes no more changes until the service restarts (``stopped``). Temporary files left by a crash
 are removed at start; entries that are not a scene's or a pattern's are logged and left alone.
+
+One process serves a folder: ``lock_folder`` holds an exclusive ``flock`` on ``DATA_DIR/lock``
+for as long as the folder is open, and a second server on the folder is refused before it reads or
+writes a scene or a pattern. The OS releases the lock when the process ends, however it ends
+(kill -9 included), so a stale lock needs no cleanup.
 """
 
 from __future__ import annotations
 
 import errno
+import fcntl
 import json
 import logging
 import os
 import re
+import socket
 from collections.abc import Callable, Iterator
 from contextlib import suppress
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -88,6 +96,7 @@ FORMAT = 2  #: the manifest format this module writes
 READ_FORMATS = (1, 2)  #: the manifest formats it reads (1: no masks, transforms or instances)
 PROBE = ".write-probe"  #: written (through PROBE.tmp) and removed at start to check the folder
 FULL = frozenset({errno.ENOSPC, errno.EDQUOT})  #: OS errors that mean "full": 507, not 503
+LOCK = "lock"  #: locked (flock) by the process serving the folder, and naming it
 
 
 @dataclass(frozen=True)
@@ -195,6 +204,52 @@ def errno_name(exc: OSError) -> str:
     return errno.errorcode.get(exc.errno, "unknown") if exc.errno is not None else "unknown"
 
 
+class FolderLocked(Exception):
+    """The data folder cannot be locked for this process: another process holds its lock, or its
+    file system has no ``flock`` (the message says which, in one line)."""
+
+
+def lock_folder(root: Path) -> BinaryIO:
+    """Hold an exclusive ``flock`` on ``root/lock`` (both created if needed) while the answered
+    file is open, with this process's pid and host written in it. FolderLocked if another process
+    holds the lock or the file system cannot lock; OSError if the file cannot be created."""
+    root.mkdir(parents=True, exist_ok=True)
+    path = root / LOCK
+    # read-only: a file held open for writing keeps its disk from being remounted read-only
+    file = _open(path, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno != errno.EBADF:
+                raise
+            file.close()
+            file = _open(path, os.O_RDWR)  # NFS locks only a file open for writing
+            fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        file.close()
+        holder = " ".join(path.read_bytes()[:200].decode(errors="replace").split())
+        raise FolderLocked(
+            f"the data folder is in use by {holder or 'another process'}, which holds {path}: "
+            "a data folder serves one server at a time"
+        ) from None
+    except OSError as exc:
+        file.close()
+        raise FolderLocked(
+            f"the data folder cannot be locked (flock on {path}): {os_error_text(exc)}"
+        ) from None
+    # not truncated first: a full disk keeps the block the last holder's name used
+    with suppress(OSError), open(path, "r+b") as name:  # full or read-only: the probe says so
+        name.write(f"pid {os.getpid()} on {socket.gethostname()}\n".encode())
+        name.truncate()
+    return file
+
+
+def _open(path: Path, mode: int) -> BinaryIO:
+    """``path`` opened with ``mode`` (os.O_RDONLY, os.O_RDWR), created if missing."""
+    return open(os.open(path, mode | os.O_CREAT | os.O_CLOEXEC, 0o644), "rb", buffering=0)
+
+
 @dataclass(frozen=True)
 class Fault:
     """Why the data folder cannot be written, as the last failed change found it."""
@@ -208,10 +263,12 @@ class DataDir:
 
     Opening checks that ``root`` can be written (OSError if not), except that a full folder is
     opened with its ``fault`` set: reads are served, changes answer 507 until space returns.
+    ``lock`` is the folder's lock file (``lock_folder``), held until ``close``.
     """
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, lock: BinaryIO | None = None) -> None:
         self.root = Path(root)
+        self.lock = lock
         self.scenes = self.root / "scenes"
         self.patterns = self.root / "patterns"
         self.scenes.mkdir(parents=True, exist_ok=True)
@@ -233,6 +290,11 @@ class DataDir:
                 raise
             self._failed(exc, [])
             log.warning("data: %s is full at start: reads are served, changes answer 507", root)
+
+    def close(self) -> None:
+        """Release the folder's lock: another server may open it."""
+        if self.lock is not None:
+            self.lock.close()
 
     def _probe(self) -> None:
         """Create, fsync and remove a file in ``root``: OSError unless the folder takes writes
