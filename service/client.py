@@ -58,7 +58,7 @@ ANSWER_DTYPES = {
     "signed_distance": np.float32,
     "xyz": np.float32,
     "range": np.float32,
-    "ring": np.int16,
+    "ring": np.uint16,
     "azimuth": np.float32,
     "elevation": np.float32,
     "return": np.int16,
@@ -617,8 +617,8 @@ class Client:
             channels = np.asarray(channel)
             if channels.dtype.kind not in "iu":
                 raise ValueError(f"channel must be integers, got dtype {channels.dtype}")
-            if channels.size and not (0 <= channels.min() and channels.max() <= 32767):
-                raise ValueError("channel values must lie in [0, 32767]")
+            if channels.size and not (0 <= channels.min() and channels.max() <= 65535):
+                raise ValueError("channel values must lie in [0, 65535]")
             arrays["channel"] = channels.astype("<u2")
         return self._binary("PUT", f"/v1/patterns/{_seg(name, 'pattern')}", arrays).json()
 

@@ -61,6 +61,14 @@ RayMask = Annotated[
         json_schema_extra={"pattern": "^([0-9]+|0[xX][0-9A-Fa-f]+)$"},
     ),
 ]
+PointMask = Annotated[
+    str | None,
+    Query(
+        description="one visibility mask for every point, decimal or 0x hex (a point sees a "
+        "mesh where point mask & mesh mask != 0)",
+        json_schema_extra={"pattern": "^([0-9]+|0[xX][0-9A-Fa-f]+)$"},
+    ),
+]
 MaxHits = Annotated[
     int | None,
     Query(

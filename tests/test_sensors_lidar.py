@@ -31,7 +31,7 @@ def expected_points(scene, pose, elevations, steps, tmin=0.0, tmax=np.inf):
     return {
         "xyz": origins[ray] + t[:, None] * directions[ray],
         "range": t,
-        "ring": ring[ray].astype(np.int16),
+        "ring": ring[ray].astype(np.uint16),
         "azimuth": azimuth[ray].astype(np.float32),
         "elevation": elevation[ray].astype(np.float32),
         "mesh": hits.mesh[ray],

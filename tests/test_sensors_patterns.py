@@ -70,7 +70,7 @@ def test_a_pattern_survives_its_npz_file():
         (([0.0, 1.0], [0.0]), "elevation_deg has 1 rays and azimuth_deg 2"),
         (([], []), "azimuth_deg must be a list of numbers"),
         (([0.0], [0.0], [-1.0]), "time_s[0] must be >= 0"),
-        (([0.0], [0.0], None, [40000]), "channel[0] must be in [0, 32767]"),
+        (([0.0], [0.0], None, [70000]), "channel[0] must be in [0, 65535]"),
         (([0.0], [0.0], None, [0.5]), "channel must hold integers"),
     ],
 )

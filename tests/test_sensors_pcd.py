@@ -23,7 +23,7 @@ def test_the_fields_asked_come_back_by_hand(points):
     header, table = read_pcd(pcd_bytes(points, ["x", "y", "z", "intensity", "ring", "label"]))
     assert header["VERSION"] == ["0.7"]
     assert header["FIELDS"] == ["x", "y", "z", "intensity", "ring", "label"]
-    assert header["TYPE"] == ["F", "F", "F", "F", "I", "U"]
+    assert header["TYPE"] == ["F", "F", "F", "F", "U", "U"]
     assert header["SIZE"] == ["4", "4", "4", "4", "2", "4"]
     assert header["HEIGHT"] == ["1"] and header["WIDTH"] == [str(points.n_points)]
     assert header["DATA"] == ["binary"]

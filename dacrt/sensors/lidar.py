@@ -106,7 +106,7 @@ def points(
 ) -> dict[str, np.ndarray]:
     """The per-point arrays derived from the hits of ``scan``'s rays, in float32 arithmetic: for
     hit k of ray ``ray[k]`` at ``t[k]`` with unit normal ``normal[k]``: ``xyz`` (origin + t *
-    direction), ``range`` (t), ``ring`` int16, ``azimuth`` and ``elevation`` float32 radians,
+    direction), ``range`` (t), ``ring`` uint16, ``azimuth`` and ``elevation`` float32 radians,
     ``cos_incidence`` |n . d| (d is unit up to float32 rounding; at most 1)."""
     elevation, azimuth = (a.astype(np.float32) for a in scan.angles())
     ring = ray // scan.steps
@@ -116,7 +116,7 @@ def points(
     return {
         "xyz": origins[0] + t[:, None] * d,  # every ray starts at the sensor
         "range": t,
-        "ring": ring.astype(np.int16),
+        "ring": ring.astype(np.uint16),
         "azimuth": azimuth[step],
         "elevation": elevation[ring],
         "cos_incidence": np.minimum(cos_incidence, np.float32(1)),
@@ -350,7 +350,7 @@ class Lidar:
             azimuth = np.radians(self.pattern.azimuth_deg)
             elevation = np.radians(self.pattern.elevation_deg)
             n = len(azimuth)
-            ring = np.zeros(n, np.int16) if self.pattern.channel is None else self.pattern.channel
+            ring = np.zeros(n, np.uint16) if self.pattern.channel is None else self.pattern.channel
             time = None if self.pattern.time_s is None else self.pattern.time_s.astype(np.float32)
             tau = None
             if self.period_s is not None:
@@ -363,7 +363,7 @@ class Lidar:
             step = np.tile(np.arange(scan.steps), scan.n_rings)
             azimuth_out = azimuth.astype(np.float32)[step]
             elevation_out = elevation.astype(np.float32)[ring]
-            azimuth, elevation, ring = azimuth[step], elevation[ring], ring.astype(np.int16)
+            azimuth, elevation, ring = azimuth[step], elevation[ring], ring.astype(np.uint16)
             time = tau = None
             if self.period_s is not None:
                 # Column s fires at s / steps of the sweep.
@@ -502,7 +502,7 @@ class Beams:
     directions: np.ndarray  #: (n, 3) float32, nominal
     azimuth: np.ndarray  #: (n,) float64 radians
     elevation: np.ndarray  #: (n,) float64 radians
-    ring: np.ndarray  #: (n,) int16
+    ring: np.ndarray  #: (n,) uint16
     azimuth_out: np.ndarray  #: (n,) float32: the points' azimuth
     elevation_out: np.ndarray  #: (n,) float32
     time: np.ndarray | None  #: (n,) float32 seconds, a pattern's or with period_s

@@ -18,8 +18,8 @@ import numpy as np
 from ..validation import InputError
 from .checks import FLOAT32_MAX
 
-#: The largest channel: a point's ring is int16.
-MAX_CHANNEL = np.iinfo(np.int16).max
+#: The largest channel: a point's ring is uint16, as lidar drivers (Velodyne, Ouster) write it.
+MAX_CHANNEL = np.iinfo(np.uint16).max
 
 
 @dataclass(frozen=True, eq=False)
@@ -29,7 +29,7 @@ class Pattern:
     azimuth_deg : (M,) float64 degrees, any value within float32's range
     elevation_deg : (M,) float64 degrees in [-90, 90]
     time_s : (M,) float64 seconds from the start of the sweep when each ray fires, or None
-    channel : (M,) int16: each ray's ring (0 to MAX_CHANNEL), or None (every ray ring 0)
+    channel : (M,) uint16: each ray's ring (0 to MAX_CHANNEL), or None (every ray ring 0)
     Bad input raises InputError naming the key (``elevation_deg[3] must be in [-90, 90]``).
     """
 
@@ -122,4 +122,4 @@ def _channels(values, n: int) -> np.ndarray:
     if array.dtype.kind not in "iu":
         raise InputError(f"channel must hold integers, got dtype {array.dtype}")
     _first_bad((array < 0) | (array > MAX_CHANNEL), "channel", f"must be in [0, {MAX_CHANNEL}]")
-    return array.astype(np.int16)
+    return array.astype(np.uint16)

@@ -3,7 +3,7 @@
 The header names the fields asked: ``x y z`` are the columns of ``xyz``, ``velocity_x
 velocity_y velocity_z`` those of ``velocity`` (PCL's naming, as ``normal_x``), every other field
 is the point array of that name; each with its size and type from the array's dtype (float32:
-``4 F``, int16: ``2 I``, uint32: ``4 U``, ...), one count each. An organized answer of shape
+``4 F``, uint16: ``2 U``, uint32: ``4 U``, ...), one count each. An organized answer of shape
 (rings, steps[, returns]) is ``HEIGHT rings`` and ``WIDTH steps[ * returns]``, row-major; a list
 of points is ``HEIGHT 1``. ``DATA binary``: the points one after another, each field's bytes
 little-endian in header order, no padding.

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Depends, Request
 
 from .. import footprint, openapi, tracing, wire
 from ..deps import MetricsDep, SettingsDep, StoreDep, reject_unknown_query, require_token
-from ..params import MaxDistance, NSamples, PointFormat, RayMask, SceneName, Sign, Stats
+from ..params import MaxDistance, NSamples, PointFormat, PointMask, SceneName, Sign, Stats
 from ..pipeline import receive, respond
 from ..responses import BuffersResponse
 
@@ -44,7 +44,7 @@ async def nearest(
     max_distance: MaxDistance = None,
     sign: Sign = False,
     nsamples: NSamples = 1,
-    mask: RayMask = None,
+    mask: PointMask = None,
     stats: Stats = False,
     format: PointFormat = None,
 ):

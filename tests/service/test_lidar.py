@@ -76,7 +76,7 @@ def expected_points(app_api, scene, pose, elevations, steps, tmin=None, tmax=Non
     return {
         "xyz": origins[ray] + hits.t[ray, None] * directions[ray],  # float32 arithmetic
         "range": hits.t[ray],
-        "ring": ring[ray].astype(np.int16),
+        "ring": ring[ray].astype(np.uint16),
         "azimuth": azimuth[ray].astype(np.float32),
         "elevation": elevation[ray].astype(np.float32),
         "mesh": hits.mesh[ray],
@@ -143,7 +143,7 @@ def test_rings_are_the_published_elevations_lowest_first(app_client, inside_sphe
     assert (elevation == elevation[:, :1]).all()
     published = np.radians(np.sort(PUBLISHED[model]))
     assert np.allclose(elevation[:, 0], published, atol=np.radians(0.006))  # two decimals
-    assert np.array_equal(answer["ring"], np.repeat(np.arange(n_rings), steps).astype(np.int16))
+    assert np.array_equal(answer["ring"], np.repeat(np.arange(n_rings), steps).astype(np.uint16))
     # ring 0 looks lowest: its points have the least height over the sensor, per azimuth
     z = answer["xyz"][:, 2].reshape(n_rings, steps)
     assert (np.diff(z, axis=0) > 0).all()
@@ -219,7 +219,7 @@ def test_a_miss_everywhere_answers_empty_arrays(app_client, room):
     }
     answer = npz(lidar(app_client, room, body).content)
     assert list(answer) == list(FIELDS)
-    assert answer["xyz"].shape == (0, 3) and answer["ring"].dtype == np.int16
+    assert answer["xyz"].shape == (0, 3) and answer["ring"].dtype == np.uint16
     assert all(len(a) == 0 for a in answer.values())
 
 
@@ -315,7 +315,7 @@ def test_accept_pcd_answers_the_points_as_a_binary_pcd_file(app_client, room):
     assert response.status_code == 200 and response.headers["content-type"] == PCD
     header, records = read_pcd(response.content)
     assert header["VERSION"] == "0.7" and header["FIELDS"] == "x y z ring intensity label"
-    assert header["TYPE"] == "F F F I F U" and header["SIZE"] == "4 4 4 2 4 4"
+    assert header["TYPE"] == "F F F U F U" and header["SIZE"] == "4 4 4 2 4 4"
     assert int(header["POINTS"]) == int(header["WIDTH"]) == len(points["xyz"]) > 100
     assert header["HEIGHT"] == "1"
     for axis, name in enumerate("xyz"):

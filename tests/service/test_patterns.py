@@ -90,7 +90,7 @@ def test_lidar_traces_the_pattern_as_the_engine_does(app_client, app_api, scene_
     local = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], 1)
     along = (answer["xyz"] - POSE[:3, 3]) / answer["range"][:, None]
     assert len(ray) > 100 and np.allclose(along, local @ POSE[:3, :3].T, atol=1e-5)
-    assert np.array_equal(answer["ring"], ARRAYS["channel"][ray].astype(np.int16))
+    assert np.array_equal(answer["ring"], ARRAYS["channel"][ray].astype(np.uint16))
     assert np.array_equal(answer["time"], ARRAYS["time_s"][ray].astype(np.float32))
 
 
@@ -99,7 +99,7 @@ def test_lidar_traces_the_pattern_as_the_engine_does(app_client, app_api, scene_
     [
         ({**ARRAYS, "elevation_deg": np.full(M, 91.0)}, 422, "elevation_deg[0] must be in [-90"),
         ({**ARRAYS, "time_s": -ARRAYS["time_s"] - 1}, 422, "time_s[0] must be >= 0"),
-        ({**ARRAYS, "channel": np.full(M, -1, np.int32)}, 422, "channel[0] must be in [0, 32767]"),
+        ({**ARRAYS, "channel": np.full(M, -1, np.int32)}, 422, "channel[0] must be in [0, 65535]"),
         ({**ARRAYS, "azimuth_deg": np.full(M, np.nan)}, 422, "azimuth_deg[0] must be a finite"),
         ({**ARRAYS, "azimuth_deg": np.zeros((M, 2))}, 422, "azimuth_deg must be a list"),
         ({**ARRAYS, "azimuth_deg": np.zeros(3)}, 422, "elevation_deg has 500 rays and azimuth"),
