@@ -55,6 +55,8 @@ def settings_help() -> str:
         if info.annotation is ByteSize:
             unit = next(u for u in ("GiB", "MiB", "KiB", "") if default % UNITS[u] == 0)
             default = f"{default // UNITS[unit]}{unit}"
+        if field == "load_demo":  # main turns it on unless the variable is set
+            default = "true"
         shown.append(f"{variable(field)}={default}")
     return (
         "Settings come from the environment; an option above wins over its variable, and a "

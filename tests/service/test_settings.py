@@ -268,6 +268,8 @@ def test_help_names_every_setting_without_sending_to_the_readme():
     for field in Settings.model_fields:
         assert variable(field) in done.stdout  # a pip user has no README
     assert "README" not in done.stdout
+    # the demo's default as this command has it, not the app factory's
+    assert "DACRT_LOAD_DEMO=true" in " ".join(done.stdout.split())
 
 
 @pytest.mark.parametrize("package", ["uvicorn", "fastapi", "pydantic_settings"])
