@@ -429,10 +429,17 @@ def test_rejected_uploads_create_no_scene(hostile_server):
 
 
 def test_a_client_leaving_mid_body_is_counted_apart_from_server_errors(hostile_server):
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    put = httpx.put(
+        f"{hostile_server.url}/v1/scenes/left/meshes/m",
+        content=npz_bytes(vertices=vertices, faces=faces),
+        headers=NPZ,
+    )
+    assert put.is_success  # a scene of its own: the query reads its body, not a 404
     host, port = hostile_server.url.removeprefix("http://").split(":")
     with socket.create_connection((host, int(port)), timeout=5) as raw:
         raw.sendall(
-            b"POST /v1/scenes/target/closest HTTP/1.1\r\nHost: x\r\n"
+            b"POST /v1/scenes/left/closest HTTP/1.1\r\nHost: x\r\n"
             b"Content-Type: application/x-npy\r\nContent-Length: 100000\r\n\r\n" + bytes(1000)
         )
     # the server reads the headers and the 1000 bytes before the end of the stream; it counts the
