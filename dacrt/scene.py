@@ -618,7 +618,7 @@ class Scene:
             placed meshes, ``time`` or ``stats`` yet; strategy and threads do not apply)
         Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
         """
-        if check_device(device, stats) == "cuda":
+        if check_device(device, stats, strategy, threads) == "cuda":
             from . import cuda
 
             return cuda.closest(
@@ -704,7 +704,7 @@ class Scene:
         """Whether each ray hits anything with tmin <= t <= tmax (it stops at its first hit).
 
         Same arguments as ``closest``. Returns ``Occlusion``."""
-        if check_device(device, stats) == "cuda":
+        if check_device(device, stats, strategy, threads) == "cuda":
             from . import cuda
 
             return cuda.occluded(
@@ -754,7 +754,7 @@ class Scene:
         truncated[i] where it had more than max_hits, of which the nearest are kept.
         With device="cuda" each ray holds min(max_hits, triangles) 8-byte keys in device memory:
         a batch needing over 2 GiB for them is refused (InputError naming max_hits)."""
-        if check_device(device, stats) == "cuda":
+        if check_device(device, stats, strategy, threads) == "cuda":
             from . import cuda
 
             return cuda.hits(
@@ -880,7 +880,7 @@ class Scene:
         Same arguments as ``closest``. A crossing through an edge or vertex shared by several
         triangles counts once (``geometry.crossing``): from outside a closed mesh a ray counts an
         even number, from inside an odd one. Returns ``Counts``."""
-        if check_device(device, stats) == "cuda":
+        if check_device(device, stats, strategy, threads) == "cuda":
             from . import cuda
 
             return cuda.count(
@@ -1563,12 +1563,16 @@ class Scene:
         return [first.stats, second.stats]
 
 
-def check_device(device, stats):
-    """``device`` ("cpu" or "cuda"), or InputError; stats are counted on the CPU only."""
+def check_device(device, stats, strategy, threads):
+    """``device`` ("cpu" or "cuda"), or InputError; stats are counted on the CPU only, and the
+    GPU's query checks ``strategy`` and ``threads`` as the CPU's does though neither applies."""
     if device not in DEVICES:
         raise InputError(f"unknown device {device!r}; use one of {', '.join(DEVICES)}")
-    if device == "cuda" and stats:
-        raise InputError("device='cuda' does not support stats=True yet")
+    if device == "cuda":
+        if stats:
+            raise InputError("device='cuda' does not support stats=True yet")
+        check_strategy(strategy)
+        check_threads(threads, 1)
     return device
 
 

@@ -155,6 +155,29 @@ def main():
     crossed = compare_crossings("grid", g, go, gd, 1)
     assert (crossed[: (k + 1) ** 2] == 2).any() and (crossed == 1).sum() == 0, crossed
     compare_crossings("grid tmax at hit", g, go, gd, 4, tmax=2.0)
+    # A mesh of mask 0 is hidden from rays with the default mask, as from every ray.
+    hidden = dacrt.Scene(soup(rng, 120), masks=np.array([0, 1], np.uint32))
+    compare("mesh mask 0, default ray mask", hidden, o, d, DEFAULT)
+    seen = compare_crossings("mesh mask 0, default ray mask", hidden, o, d, 16, by_scene=True)
+    assert seen.sum() < compare_crossings("both meshes", scene, o, d, 16, mask=3).sum()
+
+    # tmax at a hit's own t keeps the hit where a box's entry rounds one step above that t.
+    def bits(*words):
+        return np.array([float.fromhex(w) for w in words], np.float32)
+
+    tri = bits(
+        "0x1.2d0048p+0", "0x1.c623p+0", "0x1.7704fap+1", "0x1.79cd14p+0", "0x1.c623p+0",
+        "0x1.7704fap+1", "0x1.2d0048p+0", "0x1.0977e6p+1", "0x1.7704fap+1",
+    ).reshape(3, 3)  # fmt: skip
+    ro = bits("0x1.2a1c4ep+0", "0x1.198d7ap+1", "0x1.d33334p+2").reshape(1, 3)
+    rd = bits("0x1.83eba4p-8", "-0x1.16b53ep-3", "-0x1.c8dc76p+0").reshape(1, 3)
+    copies = [tri + np.float32([10 * (k > 0) + 2 * k, 0, 0]) for k in range(9)]
+    nine = dacrt.Scene([(np.concatenate(copies), np.arange(27).reshape(-1, 3))])
+    at_hit = nine.closest(ro, rd).t
+    assert np.isfinite(at_hit).all()
+    compare("tmax at a rounded box entry", nine, ro, rd, DEFAULT, tmax=at_hit)
+    compare_crossings("tmax at a rounded box entry", nine, ro, rd, 2, tmax=at_hit)
+    assert dcuda.closest(nine, ro, rd, tmax=at_hit).mesh[0] == 0
     # A hit beyond float32's range (t would round to inf) is a miss, as on the CPU.
     square = np.array([[-1, -1, 0], [2, -1, 0], [2, 2, 0], [-1, 2, 0]], np.float32)
     flat = dacrt.Scene([(square, np.array([[0, 1, 2], [0, 2, 3]], np.int32))])

@@ -83,3 +83,10 @@ def test_cuda_refuses_unsupported_options():
         deforming.closest([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda")
     with pytest.raises(InputError, match="unknown device"):
         scene.occluded([[0.2, 0.2, 1]], [[0, 0, -1]], device="tpu")
+    # strategy and threads do not apply on the GPU, but are checked as on the CPU
+    for bad in ({"strategy": "bogus"}, {"threads": 0}, {"threads": 1.5}, {"threads": True}):
+        with pytest.raises(InputError, match=next(iter(bad))):
+            scene.closest([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda", **bad)
+    for bad in (0, -5, 2.5, True):
+        with pytest.raises(InputError, match="max_pairs"):
+            dcuda.count(scene, [[0.2, 0.2, 1]], [[0, 0, -1]], max_pairs=bad)

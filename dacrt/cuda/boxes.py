@@ -1,12 +1,22 @@
-"""The CPU engine's conservative slab test (``geometry.intersect_box``) as a device function."""
+"""The CPU engine's conservative slab test (``geometry.intersect_box``) and its grown far limit
+(``geometry.cull_distance``) as device functions."""
 
 import numpy as np
 
-from ..config import SLAB_GROWTH
+from ..config import CULL_MARGIN, SLAB_GROWTH
 from .arith import device
 
 GROWTH32 = np.float32(SLAB_GROWTH - 1.0)
 INF32 = np.float32(np.inf)
+MARGIN32 = np.float32(CULL_MARGIN)
+
+
+@device
+def cull_distance(best_t):
+    """The far limit of a box test for hits up to ``best_t``: slightly beyond it, so that a box
+    whose entry rounds above a hit's t still holds that hit (as on the CPU)."""
+    grown = best_t + abs(best_t) * MARGIN32
+    return grown if grown >= best_t else best_t
 
 
 @device

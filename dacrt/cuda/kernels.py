@@ -11,7 +11,7 @@ import numpy as np
 from numba import cuda
 
 from .arith import float_bits
-from .boxes import hits_box
+from .boxes import cull_distance, hits_box
 from .watertight import crossing, ray_frame, triangle_hit
 
 LEAF = 0
@@ -85,7 +85,7 @@ def count_child_rays(ray_ids, ray_node, kind, origins, inv_dirs, tmin, tmax, box
             if hits_box(
                 origins[r, 0], origins[r, 1], origins[r, 2],
                 inv_dirs[r, 0], inv_dirs[r, 1], inv_dirs[r, 2],
-                tmin[r], tmax[r], boxes, child,
+                tmin[r], cull_distance(tmax[r]), boxes, child,
             ):  # fmt: skip
                 bits |= 1 << side
                 cuda.atomic.add(ray_n, child, 1)

@@ -9,7 +9,7 @@ from numba import cuda
 
 from ..contracts import FLOAT, INDEX, Counts, HitList, Hits, Occlusion
 from ..leaf import NO_HIT
-from ..query import CULL_BACK, CULL_FLAGS, CULL_FRONT
+from ..query import ALL_MASKS, CULL_BACK, CULL_FLAGS, CULL_FRONT
 from ..results import finish_closest
 from ..validation import (
     InputError,
@@ -41,8 +41,10 @@ def lacks(scene, time=None, stats=False):
     return None
 
 
-def check_supported(scene, time):
-    """InputError naming an option this backend does not have yet."""
+def check_supported(scene, time, max_pairs):
+    """InputError naming an option this backend does not have yet, or a bad ``max_pairs``."""
+    if isinstance(max_pairs, bool) or not isinstance(max_pairs, int | np.integer) or max_pairs < 1:
+        raise InputError(f"max_pairs must be a positive integer, got {max_pairs!r}")
     lacking = lacks(scene, time)
     if lacking == "placed meshes":
         raise InputError(
@@ -71,11 +73,11 @@ def prepare(scene, origins, directions, tmin, tmax, cull, mask):
     # det * cull_side > 0 culls, as ``geometry.culled_side``.
     cull_side = -1.0 if flags & CULL_BACK else (1.0 if flags & CULL_FRONT else 0.0)
     n = len(origins)
-    if mask is None:
+    if mask is None and scene.masks.all():  # the default mask sees every mesh: no masks to test
         ray_masks = np.zeros(0, np.uint32)
         tri_masks = np.zeros(0, np.uint32)
-    else:
-        ray_masks = check_masks(mask, n, "mask", "ray")
+    else:  # a mesh with mask 0 is hidden from the default mask too
+        ray_masks = check_masks(ALL_MASKS if mask is None else mask, n, "mask", "ray")
         tri_masks = scene._row_masks
     with np.errstate(divide="ignore"):
         inv_dirs = (np.float32(1.0) / directions).astype(FLOAT)
@@ -106,7 +108,7 @@ def scene_arrays(scene):
 def closest(scene, origins, directions, tmin=None, tmax=None, *, cull="none", mask=None,
             time=None, max_pairs=MAX_PAIRS):  # fmt: skip
     """``Scene.closest`` on the GPU: the same ``Hits``, bit for bit (no ``stats``)."""
-    check_supported(scene, time)
+    check_supported(scene, time, max_pairs)
     origins, directions, tmin, tmax, cull_side, device = prepare(
         scene, origins, directions, tmin, tmax, cull, mask
     )
@@ -151,7 +153,7 @@ def closest(scene, origins, directions, tmin=None, tmax=None, *, cull="none", ma
 def occluded(scene, origins, directions, tmin=None, tmax=None, *, cull="none", mask=None,
              time=None, max_pairs=MAX_PAIRS):  # fmt: skip
     """``Scene.occluded`` on the GPU: the same ``Occlusion`` (no ``stats``)."""
-    check_supported(scene, time)
+    check_supported(scene, time, max_pairs)
     origins, directions, tmin, tmax, cull_side, device = prepare(
         scene, origins, directions, tmin, tmax, cull, mask
     )
@@ -176,7 +178,7 @@ def occluded(scene, origins, directions, tmin=None, tmax=None, *, cull="none", m
 def count(scene, origins, directions, tmin=None, tmax=None, *, cull="none", mask=None,
           time=None, max_pairs=MAX_PAIRS):  # fmt: skip
     """``Scene.count`` on the GPU: the same ``Counts`` (no ``stats``)."""
-    check_supported(scene, time)
+    check_supported(scene, time, max_pairs)
     counts, _, _ = crossings(scene, origins, directions, tmin, tmax, cull, mask, 0, max_pairs)
     return Counts(counts)
 
@@ -188,7 +190,7 @@ def hits(scene, origins, directions, tmin=None, tmax=None, *, max_hits=16, cull=
     Each ray keeps its min(max_hits, triangles) nearest keys on the device, 8 bytes each: a
     batch that needs more than ``MAX_LIST_BYTES`` (2 GiB) for them is refused (InputError
     naming max_hits); split it into batches of fewer rays."""
-    check_supported(scene, time)
+    check_supported(scene, time, max_pairs)
     max_hits = check_max_hits(max_hits)
     counts, keys, checked = crossings(
         scene, origins, directions, tmin, tmax, cull, mask, max_hits, max_pairs
