@@ -21,17 +21,23 @@ The methods, argument names, shapes, dtypes and ``-1`` conventions are those of
   origins and directions (as trimesh computes them): the engine picks the triangles, float64
   places the points.
 
-The engine traces in float32; the in-process backend moves the mesh's bounding-box centre to the
-origin first (rays too), which keeps float32 precision for meshes far from the origin. ``t`` is
+The engine traces in float32; the mesh is traced with its bounding-box centre moved to the origin
+(rays too: ``centre_of``), which keeps float32 precision for meshes far from the origin. ``t`` is
 never exposed, so directions are normalised (as trimesh's embree intersector does).
+
+The intersector follows the mesh as trimesh's own do: a ``trimesh.Trimesh`` is read again when
+its content hash (``hash(mesh)``, which trimesh keeps up to date as its arrays change) is not the
+one it was read at; another object with ``vertices`` and ``faces`` is read once.
 
 Any object with the four ray methods of ``EngineBackend`` can answer for the mesh (the service's
 ``service.intersector`` sends them to a server); ``ProximityQuery`` also asks ``nearest``.
 
-``ProximityQuery`` has trimesh's ``on_surface`` and ``signed_distance`` (not ``vertex``): the
-closest point by ``Scene.nearest`` (exact in float64 for the float32 point; ties to the lowest
-triangle, where trimesh takes any), and trimesh's sign convention (positive inside, by
-``RayMeshIntersector.contains_points``; a point on the surface is positive).
+``ProximityQuery`` has trimesh's ``on_surface``, ``signed_distance`` and ``vertex``: the closest
+point by ``Scene.nearest`` (exact in float64 for the point rounded to float32; ties to the lowest
+triangle, where trimesh takes any; a degenerate triangle, of no area, is never the closest), and
+trimesh's sign convention (positive inside, by ``RayMeshIntersector.contains_points``; a point
+on the surface, as far as its rounding to float32 can tell, is positive). ``vertex`` is trimesh's
+own (a KD-tree of the vertices, which needs scipy).
 """
 
 import numpy as np
@@ -44,6 +50,22 @@ CONTAINS_DIRECTION = np.array([0.4395064455, 0.617598629942, 0.652231566745])
 RETRY_SEED = 2463534242
 
 
+def centre_of(vertices, faces):
+    """(3,) float64: the centre of the box of the vertices ``faces`` uses (the origin for none),
+    which a backend moves to the origin before it rounds the mesh to float32."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces)
+    corners = vertices[faces.ravel()] if faces.size else np.zeros((1, 3))
+    return (corners.min(axis=0) + corners.max(axis=0)) / 2
+
+
+def rounding_slack(points, shift):
+    """(n,) float64: how far each of ``points`` moves when rounded to float32 after the move by
+    -``shift`` (a point, or a vertex of the mesh as traced)."""
+    moved = np.asarray(points, dtype=np.float64) - shift
+    return np.linalg.norm(moved.astype(np.float32) - moved, axis=1)
+
+
 class EngineBackend:
     """The queries an intersector asks, answered in process by a ``dacrt.Scene`` of one mesh.
 
@@ -53,11 +75,9 @@ class EngineBackend:
 
     def __init__(self, vertices, faces):
         vertices = np.asarray(vertices, dtype=np.float64)
-        faces = np.asarray(faces)
-        corners = vertices[faces.ravel()] if faces.size else np.zeros((1, 3))
         #: The mesh is traced moved by -shift (float64 -> float32 after the move).
-        self.shift = (corners.min(axis=0) + corners.max(axis=0)) / 2
-        self.scene = Scene([((vertices - self.shift).astype(np.float32), faces)])
+        self.shift = centre_of(vertices, faces)
+        self.scene = Scene([((vertices - self.shift).astype(np.float32), np.asarray(faces))])
 
     def _rays(self, origins, directions):
         return (origins - self.shift).astype(np.float32), directions.astype(np.float32)
@@ -92,16 +112,37 @@ class EngineBackend:
 class RayMeshIntersector:
     """Ray queries on one triangle mesh, with trimesh's interface.
 
-    mesh : a ``trimesh.Trimesh``, or any object with ``vertices`` (V, 3) float and ``faces``
-        (F, 3) int; it is read once, when the intersector is made.
-    backend : what answers the queries; default an ``EngineBackend`` of the mesh (in process).
+    mesh : a ``trimesh.Trimesh`` (read again whenever its content changes), or any object with
+        ``vertices`` (V, 3) float and ``faces`` (F, 3) int (read once)
+    backend : what answers the queries, for the mesh as it is now (read once); default an
+        ``EngineBackend`` made by ``make_backend`` whenever the mesh is read
     """
 
     def __init__(self, mesh, backend=None):
         self.mesh = mesh
-        self._vertices = np.asarray(mesh.vertices, dtype=np.float64)
-        self._faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
-        self._backend = backend if backend is not None else EngineBackend(mesh.vertices, mesh.faces)
+        self._fixed_backend = backend
+        self._read_at = None  # the content hash the mesh was read at
+        self._read()
+
+    def make_backend(self, vertices, faces):
+        """The backend of the mesh's ``vertices`` (V, 3) float64 and ``faces`` (F, 3) int64."""
+        return EngineBackend(vertices, faces)
+
+    def backend(self):
+        """The backend of the mesh as it is now: read again if its content hash changed."""
+        if self._read_at is not None and _content_hash(self.mesh) != self._read_at:
+            self._read()
+        return self._backend
+
+    def _read(self):
+        mesh = self.mesh
+        self._read_at = _content_hash(mesh)
+        self._vertices = np.array(mesh.vertices, dtype=np.float64)  # a copy: edits come again
+        self._faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
+        if self._fixed_backend is not None:
+            self._backend = self._fixed_backend
+        else:
+            self._backend = self.make_backend(self._vertices, self._faces)
         if len(self._faces):
             corners = self._vertices[self._faces.ravel()]
             self._bounds = np.stack([corners.min(axis=0), corners.max(axis=0)])
@@ -114,10 +155,11 @@ class RayMeshIntersector:
         ray_origins, ray_directions : (n, 3) float
         Returns triangle_index : (n,) int64, -1 where the ray hits nothing.
         """
+        backend = self.backend()
         origins, directions, valid = _rays(ray_origins, ray_directions)
         first = np.full(len(valid), -1, dtype=np.int64)
         if valid.any():
-            first[valid] = self._backend.closest(origins[valid], directions[valid])[0]
+            first[valid] = backend.closest(origins[valid], directions[valid])[0]
         return first
 
     def intersects_any(self, ray_origins, ray_directions):
@@ -126,10 +168,11 @@ class RayMeshIntersector:
         ray_origins, ray_directions : (n, 3) float
         Returns hit : (n,) bool.
         """
+        backend = self.backend()
         origins, directions, valid = _rays(ray_origins, ray_directions)
         hit = np.zeros(len(valid), dtype=bool)
         if valid.any():
-            hit[valid] = self._backend.occluded(origins[valid], directions[valid])
+            hit[valid] = backend.occluded(origins[valid], directions[valid])
         return hit
 
     def intersects_id(
@@ -147,16 +190,17 @@ class RayMeshIntersector:
         Returns index_tri : (m,) int64 (rows of mesh.faces), index_ray : (m,) int64, and with
         ``return_locations`` locations : (m, 3) float64.
         """
+        backend = self.backend()
         origins, directions, valid = _rays(ray_origins, ray_directions)
         rays = np.flatnonzero(valid)
         if not len(rays):
             prim = index_ray = np.zeros(0, dtype=np.int64)
             u = v = np.zeros(0)
         elif multiple_hits:
-            offsets, prim, u, v = self._every_hit(origins[rays], directions[rays], max_hits)
+            offsets, prim, u, v = _every_hit(backend, origins[rays], directions[rays], max_hits)
             index_ray = np.repeat(rays, np.diff(offsets))
         else:
-            prim, u, v = self._backend.closest(origins[rays], directions[rays])
+            prim, u, v = backend.closest(origins[rays], directions[rays])
             hit = prim >= 0
             prim, u, v, index_ray = prim[hit], u[hit], v[hit], rays[hit]
         index_tri = np.asarray(prim, dtype=np.int64)
@@ -184,6 +228,7 @@ class RayMeshIntersector:
         points : (n, 3) float
         Returns contains : (n,) bool.
         """
+        backend = self.backend()
         points = np.asarray(points, dtype=np.float64)
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError("points must be (n,3)")
@@ -200,7 +245,7 @@ class RayMeshIntersector:
                 break
             todo_points = points[todo]
             ray_directions = np.tile(direction, (len(todo), 1))
-            counts = self._backend.count(
+            counts = backend.count(
                 np.vstack((todo_points, todo_points)), np.vstack((ray_directions, -ray_directions))
             )
             both = np.asarray(counts).reshape(2, -1)
@@ -210,17 +255,6 @@ class RayMeshIntersector:
             # Rays that disagree with one in free space say outside (the default False).
             todo = todo[~agree & (both != 0).all(axis=0)]
         return contains
-
-    def _every_hit(self, origins, directions, max_hits):
-        """(offsets, prim, u, v) of every hit, at most ``max_hits`` per ray (None: all)."""
-        if max_hits is None:
-            max_hits = max(1, int(np.max(self._backend.count(origins, directions), initial=0)))
-        elif isinstance(max_hits, bool) or not isinstance(max_hits, (int, np.integer)):
-            raise ValueError(f"max_hits must be a positive integer or None, got {max_hits!r}")
-        elif max_hits < 1:
-            empty = np.zeros(0, dtype=np.int64)
-            return np.zeros(len(origins) + 1, dtype=np.int64), empty, empty, empty
-        return self._backend.hits(origins, directions, int(max_hits))
 
     def _locations(self, prim, index_ray, origins, directions, u, v):
         """(m, 3) float64 points where rays ``index_ray`` meet the planes of triangles ``prim``
@@ -241,13 +275,13 @@ class RayMeshIntersector:
 class ProximityQuery:
     """Closest points on one triangle mesh, with trimesh's ``mesh.nearest`` interface.
 
-    mesh : a ``trimesh.Trimesh``, or any object with ``vertices`` and ``faces``; read once.
-    backend : what answers the queries; default an ``EngineBackend`` of the mesh (in process).
+    mesh, backend : as for ``RayMeshIntersector`` (a ``trimesh.Trimesh`` is read again whenever
+        its content changes)
+    intersector : the ``RayMeshIntersector`` to ask instead (its mesh and backend)
     """
 
-    def __init__(self, mesh, backend=None):
-        self._backend = backend if backend is not None else EngineBackend(mesh.vertices, mesh.faces)
-        self._intersector = RayMeshIntersector(mesh, self._backend)
+    def __init__(self, mesh, backend=None, intersector=None):
+        self._intersector = intersector or RayMeshIntersector(mesh, backend)
 
     def on_surface(self, points):
         """The closest point of the mesh to each point.
@@ -257,7 +291,7 @@ class ProximityQuery:
         (-1, with inf, for an empty mesh).
         """
         points = _points(points)
-        prim, closest, distance = self._backend.nearest(points)
+        prim, closest, distance = self._intersector.backend().nearest(points)
         return (
             np.asarray(closest, dtype=np.float64),
             np.asarray(distance, dtype=np.float64),
@@ -273,8 +307,46 @@ class ProximityQuery:
         """
         points = _points(points)
         _, distance, _ = self.on_surface(points)
-        inside = self._intersector.contains_points(points) | (distance == 0)
+        # the distance is between the point and the mesh as rounded to float32: within their
+        # rounding, the point may be on the surface
+        intersector = self._intersector
+        shift = getattr(intersector.backend(), "shift", np.zeros(3))
+        mesh_rounding = rounding_slack(intersector._vertices, shift).max(initial=0.0)
+        slack = rounding_slack(points, shift) + mesh_rounding
+        on_surface = distance <= slack * (1 + 2**-22)
+        inside = self._intersector.contains_points(points) | on_surface
         return np.where(inside, distance, -distance)
+
+    def vertex(self, points):
+        """trimesh's own ``vertex`` (a KD-tree of the mesh's vertices; needs scipy): the
+        distance to the closest vertex of each point, and its index.
+
+        points : (m, 3) float
+        Returns distance : (m,) float64, vertex_id : (m,) int64.
+        """
+        from trimesh.proximity import ProximityQuery as TrimeshQuery
+
+        return TrimeshQuery(self._intersector.mesh).vertex(points)
+
+
+def _every_hit(backend, origins, directions, max_hits):
+    """(offsets, prim, u, v) of every hit, at most ``max_hits`` per ray (None: all)."""
+    if max_hits is None:
+        max_hits = max(1, int(np.max(backend.count(origins, directions), initial=0)))
+    elif isinstance(max_hits, bool) or not isinstance(max_hits, (int, np.integer)):
+        raise ValueError(f"max_hits must be a positive integer or None, got {max_hits!r}")
+    elif max_hits < 1:
+        empty = np.zeros(0, dtype=np.int64)
+        return np.zeros(len(origins) + 1, dtype=np.int64), empty, empty, empty
+    return backend.hits(origins, directions, int(max_hits))
+
+
+def _content_hash(mesh):
+    """A ``trimesh.Trimesh``'s content hash (trimesh keeps it current as its arrays change), or
+    None for an object whose hash does not follow its content (it is read once)."""
+    if type(mesh).__hash__ in (None, object.__hash__):
+        return None
+    return hash(mesh)
 
 
 def _points(points):

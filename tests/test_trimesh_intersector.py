@@ -10,6 +10,8 @@ of the mesh's size.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import procedural
 import pytest
@@ -239,3 +241,28 @@ def test_rays_that_cannot_hit_hit_nothing_and_bad_shapes_are_value_errors():
         intersector.contains_points(np.zeros((3, 2)))
     with pytest.raises(ValueError, match="max_hits"):
         intersector.intersects_id(origins, directions, max_hits=1.5)
+
+
+def test_a_changed_mesh_is_read_again_as_trimeshs_intersectors_read_it():
+    """trimesh's intersectors follow the mesh (its content hash): a move, or vertices edited in
+    place, answer as a new intersector of the changed mesh; an object without a content hash
+    is read once."""
+    mesh = icosphere()
+    intersector = RayMeshIntersector(mesh)
+    points = np.array([[0.0, 0, 0], [10.0, 0, 0]])
+    assert intersector.contains_points(points).tolist() == [True, False]
+    mesh.apply_translation([10.0, 0, 0])
+    assert intersector.contains_points(points).tolist() == [False, True]
+    mesh.vertices[:, 1] += 100.0  # in place: trimesh's tracked array changes the hash
+    origins, directions = generic_rays(mesh, 200, seed=12)
+    fresh = RayMeshIntersector(mesh.copy())
+    for method in ("intersects_first", "intersects_location"):
+        got, want = (getattr(i, method)(origins, directions) for i in (intersector, fresh))
+        for a, b in zip(*((x if isinstance(x, tuple) else (x,)) for x in (got, want))):
+            assert np.array_equal(a, b), method
+    plain = SimpleNamespace(vertices=mesh.vertices.copy(), faces=mesh.faces)
+    once = RayMeshIntersector(plain)
+    plain.vertices = plain.vertices + [0.0, -100.0, 0.0]
+    np.testing.assert_array_equal(
+        once.intersects_first(origins, directions), fresh.intersects_first(origins, directions)
+    )

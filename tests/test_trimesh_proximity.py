@@ -55,3 +55,38 @@ def test_points_on_the_surface_are_at_distance_zero_and_positive():
     assert (proximity.signed_distance(points) == 0).all()
     with pytest.raises(ValueError, match="points"):
         proximity.on_surface(np.zeros((2, 2)))
+
+
+def test_points_on_edges_and_faces_are_positive_as_trimesh_says():
+    """Edge midpoints and face centres lie on the surface in float64; their distance, measured
+    from the point rounded to float32, is within that rounding, so they count as on it."""
+    mesh = trimesh.creation.icosphere(3)
+    edges = mesh.vertices[mesh.edges_unique].mean(axis=1)
+    centres = mesh.triangles_center
+    proximity = ProximityQuery(mesh)
+    for points in (edges, centres):
+        signed = proximity.signed_distance(points)
+        assert (signed >= 0).all() and signed.max() < 1e-6
+    outside = edges * 1.01  # a step off the surface keeps its sign
+    assert (proximity.signed_distance(outside) < 0).all()
+
+
+def test_a_changed_mesh_is_read_again_as_trimesh_reads_it():
+    mesh = bumpy_sphere()
+    proximity = ProximityQuery(mesh)
+    point = np.array([[10.0, 0.0, 0.0]])
+    assert proximity.signed_distance(point)[0] < -8
+    mesh.apply_translation([10.0, 0.0, 0.0])  # the sphere's centre is now the point
+    assert proximity.signed_distance(point)[0] > 0.5
+    _, distance, _ = proximity.on_surface(point)
+    np.testing.assert_allclose(distance, ProximityQuery(mesh).on_surface(point)[1])
+
+
+def test_vertex_is_trimeshs_own():
+    pytest.importorskip("scipy")  # trimesh's KD-tree of the vertices
+    mesh = bumpy_sphere()
+    points = np.random.default_rng(5).uniform(-1.5, 1.5, (50, 3))
+    distance, vertex = ProximityQuery(mesh).vertex(points)
+    brute = np.linalg.norm(points[:, None] - mesh.vertices[None], axis=2)
+    np.testing.assert_array_equal(vertex, brute.argmin(axis=1))
+    np.testing.assert_allclose(distance, brute.min(axis=1))

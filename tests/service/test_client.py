@@ -719,7 +719,48 @@ def test_the_service_intersector_answers_as_the_in_process_one(app_client, teapo
     kept = OnService(mesh, client=api, scene="kept-" + scene, mesh_name="pot")
     kept.close()
     assert [m["mesh"] for m in api.scene("kept-" + scene)["meshes"]] == ["pot"]
+    with pytest.raises(ValueError, match=r"holds other meshes \(pot\)"):
+        OnService(mesh, client=api, scene="kept-" + scene)  # its answers would name pot's
+    assert [m["mesh"] for m in api.scene("kept-" + scene)["meshes"]] == ["pot"]
     api.delete("kept-" + scene)
+
+
+def test_the_service_intersector_keeps_precision_far_away_and_follows_the_mesh(app_client):
+    """A sphere at map coordinates (5e5, 5e6) answers as in process (its box centre is moved to
+    the origin on both); a moved mesh is uploaded again; a dropped intersector's scene is
+    deleted, with a ResourceWarning."""
+    import gc
+
+    import trimesh
+
+    from dacrt.trimesh_ray import RayMeshIntersector as InProcess
+    from service.intersector import RayMeshIntersector as OnService
+
+    mesh = trimesh.creation.icosphere(2, radius=5.0).apply_translation((5e5, 5e6, 100.0))
+    rng = np.random.default_rng(36)
+    points = mesh.bounding_box.sample_volume(1000, seed=37)
+    origins = mesh.centroid + rng.normal(size=(500, 3)) * 20
+    directions = mesh.centroid + rng.normal(size=(500, 3)) - origins
+    api = Client(http=app_client)
+    with OnService(mesh, client=api) as remote:
+        local = InProcess(mesh)
+        inside = remote.contains_points(points)
+        assert np.array_equal(inside, local.contains_points(points)) and 300 < inside.sum() < 700
+        first = remote.intersects_first(origins, directions)
+        assert np.array_equal(first, local.intersects_first(origins, directions))
+        mesh.apply_translation((100.0, 0.0, 0.0))
+        assert not remote.contains_points(points).any()  # uploaded again, moved
+        version = api.scene(remote.scene)["version"]
+        remote.contains_points(points)
+        assert api.scene(remote.scene)["version"] == version  # unchanged: not sent again
+    dropped = OnService(mesh, client=api)
+    scene = dropped.scene
+    with pytest.warns(ResourceWarning, match=scene):
+        del dropped
+        gc.collect()
+    with pytest.raises(APIError) as gone:
+        api.scene(scene)
+    assert gone.value.status == 404
 
 
 def test_set_transform_places_the_mesh_for_hits_and_count(app_api, scene_name, teapot):
