@@ -114,8 +114,8 @@ class RayMeshIntersector:
 
     mesh : a ``trimesh.Trimesh`` (read again whenever its content changes), or any object with
         ``vertices`` (V, 3) float and ``faces`` (F, 3) int (read once)
-    backend : what answers the queries, for the mesh as it is now (read once); default an
-        ``EngineBackend`` made by ``make_backend`` whenever the mesh is read
+    backend : what answers the queries, for the mesh as it is now (then the mesh is read once);
+        default an ``EngineBackend`` made by ``make_backend`` whenever the mesh is read
     """
 
     def __init__(self, mesh, backend=None):
@@ -136,7 +136,8 @@ class RayMeshIntersector:
 
     def _read(self):
         mesh = self.mesh
-        self._read_at = _content_hash(mesh)
+        # a given backend answers for the mesh as it was: the mesh is then read once too
+        self._read_at = _content_hash(mesh) if self._fixed_backend is None else None
         self._vertices = np.array(mesh.vertices, dtype=np.float64)  # a copy: edits come again
         self._faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
         if self._fixed_backend is not None:
@@ -277,11 +278,10 @@ class ProximityQuery:
 
     mesh, backend : as for ``RayMeshIntersector`` (a ``trimesh.Trimesh`` is read again whenever
         its content changes)
-    intersector : the ``RayMeshIntersector`` to ask instead (its mesh and backend)
     """
 
-    def __init__(self, mesh, backend=None, intersector=None):
-        self._intersector = intersector or RayMeshIntersector(mesh, backend)
+    def __init__(self, mesh, backend=None):
+        self._intersector = RayMeshIntersector(mesh, backend)
 
     def on_surface(self, points):
         """The closest point of the mesh to each point.
