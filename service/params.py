@@ -53,12 +53,14 @@ Mask = Annotated[
         "0xFFFFFFFF for a new mesh; a replaced mesh keeps its own)"
     ),
 ]
+#: A mask in the query string: decimal or 0x hex.
+MASK_PATTERN = "^([0-9]+|0[xX][0-9A-Fa-f]+)$"
 RayMask = Annotated[
     str | None,
     Query(
         description="one visibility mask for every ray of the batch, decimal or 0x hex (a ray "
         "sees a mesh where ray mask & mesh mask != 0); the body's mask instead for one per ray",
-        json_schema_extra={"pattern": "^([0-9]+|0[xX][0-9A-Fa-f]+)$"},
+        json_schema_extra={"pattern": MASK_PATTERN},
     ),
 ]
 PointMask = Annotated[
@@ -66,7 +68,7 @@ PointMask = Annotated[
     Query(
         description="one visibility mask for every point, decimal or 0x hex (a point sees a "
         "mesh where point mask & mesh mask != 0)",
-        json_schema_extra={"pattern": "^([0-9]+|0[xX][0-9A-Fa-f]+)$"},
+        json_schema_extra={"pattern": MASK_PATTERN},
     ),
 ]
 MaxHits = Annotated[
