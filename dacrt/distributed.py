@@ -20,22 +20,22 @@ from __future__ import annotations
 import math
 import threading
 import time
+from contextlib import suppress
 
 import numpy as np
 
 from .config import MAX_SHARD_RAYS, MIN_SHARD_RAYS, SHARD_RETRIES
 from .contracts import STAT_NAMES, Counts, HitList, Hits, Occlusion
-from .scene import Scene
+from .scene import Scene, check_scene_arguments
 from .validation import (
     InputError,
     check_cull,
     check_masks,
     check_max_hits,
-    check_mesh,
     check_rays,
     check_strategy,
     check_threads,
-    check_transform,
+    check_time,
     explain_bad_rays,
 )
 
@@ -86,8 +86,7 @@ def _worker_scene(key, payload):
             held = _held_keys()
             for old in [k for k in _SCENES if k not in held]:
                 del _SCENES[old]
-            meshes, masks, transforms = payload
-            scene = _SCENES[key] = Scene(meshes, masks=masks, transforms=transforms)
+            scene = _SCENES[key] = Scene(*payload)  # ``SceneArguments``
         return scene
 
 
@@ -97,10 +96,10 @@ def _build(key, payload):
 
 def _trace_shard(key, payload, query, shard, kwargs):
     """One shard's answer and the seconds its trace took (on a worker)."""
-    origins, directions, tmin, tmax, mask = shard
+    origins, directions, tmin, tmax, mask, times = shard
     scene = _worker_scene(key, payload)
     start = time.perf_counter()
-    answer = getattr(scene, query)(origins, directions, tmin, tmax, mask=mask, **kwargs)
+    answer = getattr(scene, query)(origins, directions, tmin, tmax, mask=mask, time=times, **kwargs)
     return answer, time.perf_counter() - start
 
 
@@ -117,16 +116,19 @@ class DistributedScene:
     """Triangle meshes traced on the workers of a ``distributed.Client``.
 
     client : a connected ``distributed.Client``
-    meshes, masks, transforms : as ``dacrt.Scene``
+    meshes, masks, transforms, order, transforms_end, vertices_end : as ``dacrt.Scene``, checked
+        here as ``Scene`` checks them
     retries : times a shard lost with its worker is sent again before ``ClusterError``
     min_shard_rays, max_shard_rays : the bounds of a shard's size (``shard_bounds``)
     timeout : seconds a batch may take on the cluster (None: no limit), then ``ClusterError``
 
-    ``closest``, ``occluded``, ``hits`` and ``count`` take ``Scene``'s arguments and answer its
-    types, bit for bit the same; ``threads`` is the engine threads of each shard on its worker
-    (None: 1, each of a worker's threads tracing its own shard). With ``stats``, the counters are
-    summed over the shards (max_depth: the deepest). ``close()`` (or the end of a ``with``) drops
-    the triangles from the cluster; so does dropping the last reference to the scene.
+    ``closest``, ``occluded``, ``hits`` and ``count`` take ``Scene``'s arguments (``time`` and
+    ``device`` too: each worker traces its shards on its own device) and answer its types, bit
+    for bit the same; ``threads`` is the engine threads of each shard on its worker (None: 1,
+    each of a worker's threads tracing its own shard). With ``stats``, the counters are summed
+    over the shards (max_depth: the deepest). ``close()`` (or the end of a ``with``) drops the
+    triangles from the cluster; so does dropping the last reference to the scene. The point
+    queries, ``with_changes`` and the sensors are ``Scene``'s only.
     """
 
     def __init__(
@@ -135,23 +137,23 @@ class DistributedScene:
         meshes,
         masks=None,
         transforms=None,
+        order="auto",
+        transforms_end=None,
+        vertices_end=None,
         *,
         retries=SHARD_RETRIES,
         timeout=None,
         min_shard_rays=MIN_SHARD_RAYS,
         max_shard_rays=MAX_SHARD_RAYS,
     ):
-        checked = [check_mesh(i, v, f) for i, (v, f) in enumerate(meshes)]
+        _, arguments = check_scene_arguments(
+            meshes, masks, transforms, order, transforms_end, vertices_end
+        )
+        for name, value in (("min_shard_rays", min_shard_rays), ("max_shard_rays", max_shard_rays)):
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise InputError(f"{name} must be a positive integer, got {value!r}")
+        checked = arguments.meshes
         n_meshes = len(checked)
-        if masks is not None:
-            check_masks(masks, n_meshes, "masks", "mesh")
-        if transforms is not None:
-            transforms = list(transforms)
-            if len(transforms) != n_meshes:
-                raise InputError(f"transforms has {len(transforms)} entries for {n_meshes} meshes")
-            for i, matrix in enumerate(transforms):
-                if matrix is not None:
-                    check_transform(matrix, f"transforms[{i}]")
         self.client = client
         self.retries = retries
         self.shard_rays = (min_shard_rays, max_shard_rays)
@@ -165,8 +167,13 @@ class DistributedScene:
         self.payload_bytes = sum(v.nbytes + f.nbytes for v, f in checked)
         # The triangles stay here too: the cluster may lose them with a worker (dask's memory
         # manager keeps one copy of what was broadcast), and then they are sent again.
-        self._triangles = (checked, masks, transforms)
-        self._send_triangles()
+        self._triangles = arguments
+        try:
+            self._send_triangles()
+        except (OSError, distributed.TimeoutError) as exc:  # no workers, or no scheduler
+            raise ClusterError(
+                f"the triangles could not reach the cluster: {type(exc).__name__}: {exc}"
+            ) from exc
 
     def _send_triangles(self):
         """Scatter the triangles to every worker; workers that join later fetch them from a
@@ -228,7 +235,8 @@ class DistributedScene:
         return self._query("count", origins, directions, tmin, tmax, options)
 
     def _query(self, query, origins, directions, tmin, tmax, options):
-        unknown = set(options) - {"cull", "mask", "strategy", "threads", "stats", "max_hits"}
+        known = {"cull", "mask", "strategy", "threads", "stats", "max_hits", "time", "device"}
+        unknown = set(options) - known
         if unknown or ("max_hits" in options and query != "hits"):
             name = sorted(unknown or {"max_hits"})[0]
             raise TypeError(f"{query}() got an unexpected keyword argument {name!r}")
@@ -244,10 +252,13 @@ class DistributedScene:
         n = len(origins)
         mask = options.pop("mask", None)
         if mask is not None:
-            mask = np.asarray(mask)
-            if mask.ndim:
-                mask = check_masks(mask, n, "mask", "ray")
-        nthreads = self.client.nthreads()
+            checked = check_masks(mask, n, "mask", "ray")  # counts the batch's rays
+            mask = checked if np.ndim(mask) else np.asarray(mask, np.uint32)
+        times = check_time(options.pop("time", None), n)
+        try:
+            nthreads = self.client.nthreads()
+        except Exception as exc:  # the client closed, or its scheduler gone
+            raise ClusterError(f"the cluster is unreachable: {type(exc).__name__}: {exc}") from exc
         bounds = shard_bounds(n, sum(nthreads.values()), *self.shard_rays)
         shards = [
             (
@@ -256,6 +267,7 @@ class DistributedScene:
                 tmin[a:b],
                 tmax[a:b],
                 mask if mask is None or not mask.ndim else mask[a:b],
+                None if times is None else times[a:b],
             )
             for a, b in zip(bounds[:-1], bounds[1:])
         ]
@@ -338,7 +350,7 @@ class DistributedScene:
                 send(i)
         except distributed.TimeoutError as exc:
             waited = time.perf_counter() - clock["wall"]
-            if waited >= self.timeout:
+            if self.timeout is not None and waited >= self.timeout:
                 raise ClusterError(f"the batch took over {self.timeout} s on the cluster") from exc
             # not the batch's clock: a worker or the scheduler stopped answering mid-batch
             raise ClusterError(
@@ -348,7 +360,8 @@ class DistributedScene:
             raise ClusterError(f"the cluster is unreachable: {type(exc).__name__}: {exc}") from exc
         finally:
             for future in sent:
-                future.cancel()
+                with suppress(Exception):  # a closed client cannot cancel: the error above stands
+                    future.cancel()
         clock["wall"] = time.perf_counter() - clock["wall"]
         self.last_query = clock
         return answers

@@ -192,49 +192,22 @@ class Scene:
         vertices_end: Sequence[ArrayLike | None] | None = None,
     ) -> None:
         watch()  # the first compile in process says so (``compiling``)
-        if order not in ORDERS:
-            raise InputError(f"order must be one of {', '.join(ORDERS)}; got {order!r}")
-        self._order = order
-        checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in mesh_pairs(meshes)]
-        check_row_count(sum(len(faces) for _, faces in checked), "the scene", "triangles")
-        matrices = self._checked_transforms(transforms, len(checked), "transforms")
-        ends = self._checked_transforms(transforms_end, len(checked), "transforms_end")
-        if vertices_end is not None and len(vertices_end) != len(checked):
-            raise InputError(
-                f"vertices_end has {len(vertices_end)} entries for {len(checked)} meshes"
-            )
-        deformed = {
-            i: check_vertices_end(i, end, checked[i][0], matrices[i], ends[i])
-            for i, end in enumerate(vertices_end or [])
-            if end is not None
-        }
-        mesh_masks = check_masks(
-            ALL_MASKS if masks is None else masks, len(checked), "masks", "mesh"
+        given, args = check_scene_arguments(
+            meshes, masks, transforms, order, transforms_end, vertices_end
         )
+        self._order = args.order
+        matrices, ends = args.transforms, args.transforms_end
         # Instances of the same (vertices, faces) arrays share one packing.
         packings = {}
         packs = {}
-        for i, (vertices, faces) in enumerate(meshes):
+        for i, (vertices, faces) in enumerate(given):
             if matrices[i] is not None or ends[i] is not None:
                 key = (id(vertices), id(faces))
                 if key not in packings:
-                    packings[key] = pack_mesh(*checked[i], self._order)
+                    packings[key] = pack_mesh(*args.meshes[i], self._order)
                 packs[i] = packings[key]
-        self._assemble(checked, mesh_masks.copy(), matrices, ends, deformed, packs, None, set())
-
-    @staticmethod
-    def _checked_transforms(transforms, n_meshes, name):
-        """``transforms`` (None, or one None or matrix per mesh) as a list of None or checked
-        (4, 4) float64 matrices; InputError naming ``name`` or its entry."""
-        if transforms is None:
-            return [None] * n_meshes
-        transforms = list(transforms)
-        if len(transforms) != n_meshes:
-            raise InputError(f"{name} has {len(transforms)} entries for {n_meshes} meshes")
-        return [
-            None if matrix is None else check_transform(matrix, f"{name}[{i}]")
-            for i, matrix in enumerate(transforms)
-        ]
+        deformed = {i: end for i, end in enumerate(args.vertices_end) if end is not None}
+        self._assemble(args.meshes, args.masks.copy(), matrices, ends, deformed, packs, None, set())
 
     def _assemble(self, checked, masks, matrices, ends, deformed, packs, old, changed):
         """Set up the scene from its checked meshes, masks (n,) uint32, matrices and ends (None
@@ -1561,6 +1534,48 @@ class Scene:
         for name in ("best_tri", "hit_u", "hit_v"):
             np.copyto(getattr(answer, name), getattr(second, name), where=take)
         return [first.stats, second.stats]
+
+
+SceneArguments = namedtuple(
+    "SceneArguments", ["meshes", "masks", "transforms", "order", "transforms_end", "vertices_end"]
+)
+SceneArguments.__doc__ = """``Scene``'s arguments checked, as ``Scene`` takes them: meshes as
+(float32 vertices, int32 or int64 faces) pairs, masks (n,) uint32, transforms and transforms_end
+one None or (4, 4) float64 a mesh, vertices_end one None or (V, 3) float32 a mesh."""
+
+
+def check_scene_arguments(meshes, masks, transforms, order, transforms_end, vertices_end):
+    """The (vertices, faces) pairs as given and ``SceneArguments``: ``Scene``'s checks, which a
+    ``DistributedScene`` makes too before it sends anything. InputError naming the argument."""
+    if order not in ORDERS:
+        raise InputError(f"order must be one of {', '.join(ORDERS)}; got {order!r}")
+    given = [pair for _, pair in mesh_pairs(meshes)]
+    checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in enumerate(given)]
+    check_row_count(sum(len(faces) for _, faces in checked), "the scene", "triangles")
+    matrices = checked_transforms(transforms, len(checked), "transforms")
+    ends = checked_transforms(transforms_end, len(checked), "transforms_end")
+    if vertices_end is not None and len(vertices_end) != len(checked):
+        raise InputError(f"vertices_end has {len(vertices_end)} entries for {len(checked)} meshes")
+    deformed = [
+        None if end is None else check_vertices_end(i, end, checked[i][0], matrices[i], ends[i])
+        for i, end in enumerate(vertices_end or [None] * len(checked))
+    ]
+    mesh_masks = check_masks(ALL_MASKS if masks is None else masks, len(checked), "masks", "mesh")
+    return given, SceneArguments(checked, mesh_masks, matrices, order, ends, deformed)
+
+
+def checked_transforms(transforms, n_meshes, name):
+    """``transforms`` (None, or one None or matrix per mesh) as a list of None or checked
+    (4, 4) float64 matrices; InputError naming ``name`` or its entry."""
+    if transforms is None:
+        return [None] * n_meshes
+    transforms = list(transforms)
+    if len(transforms) != n_meshes:
+        raise InputError(f"{name} has {len(transforms)} entries for {n_meshes} meshes")
+    return [
+        None if matrix is None else check_transform(matrix, f"{name}[{i}]")
+        for i, matrix in enumerate(transforms)
+    ]
 
 
 def check_device(device, stats, strategy, threads):

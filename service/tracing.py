@@ -204,7 +204,8 @@ def trace(
         try:
             remote = cluster.engine_for(snapshot, len(rays), _snapshot_engine)
             if remote is not None:
-                return _run(remote, rays, options, snapshot.version, start, "cluster")
+                with meshes_by_name(snapshot, engine):  # the workers' scene has engine's meshes
+                    return _run(remote, rays, options, snapshot.version, start, "cluster")
         except (Invalid, dacrt.InputError):  # the query's fault: the same 422 in process
             raise
         except Exception as exc:  # the cluster's: lost, unreachable, too slow

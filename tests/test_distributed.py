@@ -256,10 +256,11 @@ def test_lost_cluster_is_an_error(client):
         remote.closest(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))
 
 
-def test_a_timeout_talking_to_the_cluster_is_not_called_the_batchs(client, monkeypatch):
+@pytest.mark.parametrize("timeout", [600, None])
+def test_a_timeout_talking_to_the_cluster_is_not_called_the_batchs(client, monkeypatch, timeout):
     """A TimeoutError from the cluster's comms well within the batch's clock says so, not
-    that the batch took over its timeout."""
-    remote = DistributedScene(client, [pg.icosphere(1)], timeout=600)
+    that the batch took over its timeout (which may be None: no limit)."""
+    remote = DistributedScene(client, [pg.icosphere(1)], timeout=timeout)
 
     def submit(*args, **kwargs):
         raise TimeoutError("Timed out trying to connect to tcp://127.0.0.1:1")
@@ -272,3 +273,67 @@ def test_a_timeout_talking_to_the_cluster_is_not_called_the_batchs(client, monke
     assert "took over" not in str(failed.value)
     monkeypatch.undo()
     remote.close()
+
+
+def test_a_closed_client_is_a_cluster_error():
+    """A client that has closed (its scheduler gone, or closed by its owner) answers
+    ClusterError, not dask's own errors."""
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False)
+    own = distributed.Client(cluster, set_as_default=False)
+    remote = DistributedScene(own, [pg.icosphere(1)])
+    own.close()
+    with pytest.raises(ClusterError):
+        remote.closest(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))
+    cluster.close()
+
+
+def test_motion_deforming_and_order_match_scene(client):
+    """``time``, ``transforms_end``, ``vertices_end`` and ``order``: Scene's answers."""
+    sphere = pg.icosphere(2)
+    grid = pg.grid(8, 4.0)
+    moved = np.eye(4)
+    moved[:3, 3] = (0.5, -0.25, 1.0)
+    ends = [moved, None]
+    vertices_end = [None, (grid[0] + np.float32([0, 0, 0.5])).astype(np.float32)]
+    local = dacrt.Scene(
+        [sphere, grid], transforms_end=ends, vertices_end=vertices_end, order="morton"
+    )
+    rng = np.random.default_rng(6)
+    origins = rng.uniform(-3, 5, (2000, 3)).astype(np.float32)
+    directions = pg.unit_vectors(2000, rng)
+    times = rng.uniform(0, 1, 2000).astype(np.float32)
+    with DistributedScene(
+        client, [sphere, grid], transforms_end=ends, vertices_end=vertices_end, order="morton",
+        **SMALL_SHARDS,
+    ) as remote:  # fmt: skip
+        for query in ("closest", "occluded", "hits", "count"):
+            expected = getattr(local, query)(origins, directions, time=times)
+            same(getattr(remote, query)(origins, directions, time=times), expected)
+        same(
+            remote.closest(origins, directions, time=0.5),
+            local.closest(origins, directions, time=0.5),
+        )
+        with pytest.raises(ValueError, match=r"time\[3\]"):
+            remote.closest(origins, directions, time=np.where(np.arange(2000) == 3, 2.0, 0.5))
+
+
+def test_bad_arguments_are_named_as_scene_names_them(client):
+    meshes = [pg.icosphere(1)]
+    origins = np.zeros((3000, 3), np.float32)
+    directions = np.tile(np.float32([0, 0, 1]), (3000, 1))
+    with DistributedScene(client, meshes, **SMALL_SHARDS) as remote:
+        for mask in (-1, 2**33):
+            with pytest.raises(ValueError) as remote_error:
+                remote.closest(origins, directions, mask=mask)
+            with pytest.raises(ValueError) as local_error:
+                dacrt.Scene(meshes).closest(origins, directions, mask=mask)
+            assert str(remote_error.value) == str(local_error.value)  # the batch's 3000 rays
+    for bad in ([pg.icosphere(1), 5], [(np.zeros((3, 3)),)], 7):
+        with pytest.raises(dacrt.InputError) as remote_error:
+            DistributedScene(client, bad)
+        with pytest.raises(dacrt.InputError) as local_error:
+            dacrt.Scene(bad)
+        assert str(remote_error.value) == str(local_error.value)
+    for name in ("min_shard_rays", "max_shard_rays"):
+        with pytest.raises(dacrt.InputError, match=name):
+            DistributedScene(client, meshes, **{name: 0})

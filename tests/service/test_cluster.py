@@ -94,6 +94,23 @@ def test_large_queries_run_on_the_cluster(api, scene_name):
     assert np.array_equal(small["t"], expected.t[: MIN_RAYS - 1])
 
 
+def test_a_ray_beyond_float32_in_a_mesh_space_names_the_mesh_on_the_cluster(api, scene_name):
+    """The 422 names the mesh as the scene does, on the cluster as in process."""
+    vertices, faces = grid(4)
+    for name in ("ground", "tiny"):
+        api.put_mesh(scene_name, name, vertices, faces)
+    api.set_transform(scene_name, "tiny", np.diag([1e-6, 1e-6, 1e-6, 1.0]))
+    origins, directions = rays(MIN_RAYS + 10, 3)
+    origins[7] = (0.0, 0.0, -3e34)
+    directions[7] = (0.0, 0.0, 1.0)
+    response = api.http.post(
+        f"/v1/scenes/{scene_name}/closest",
+        json={"origins": origins.tolist(), "directions": directions.tolist()},
+    )
+    assert response.status_code == 422, response.text
+    assert "in the space of mesh 'tiny'" in response.json()["detail"], response.text
+
+
 def test_a_new_version_replaces_the_old_on_the_workers(api, workers, scene_name):
     vertices, faces = grid(8)
     api.put_mesh(scene_name, "ground", vertices, faces)
