@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from server_process import ServerProcess
 
+from service import admission as admission_module
 from service import footprint
 from service.admission import Admission
 from service.errors import Overloaded, TooLarge
@@ -410,3 +411,33 @@ def test_a_mesh_file_is_held_at_no_less_than_its_real_peak(servers, fmt, body):
     assert answer.status_code in (200, 201), answer.text
     estimate = footprint.decode_bytes(len(body), fmt)
     assert peak <= estimate, f"peak {peak / len(body):.1f} x the body, held {estimate / len(body)}"
+
+
+def test_a_ticket_of_exactly_the_whole_budget_is_admitted():
+    async def scenario():
+        admission = Admission(100, wait=0)
+        ticket = admission.ticket()
+        await ticket.hold(100, "a body of 100 bytes")
+        assert admission.held == 100 and ticket.nbytes == 100
+
+    run(scenario())
+
+
+def test_a_waiting_ticket_is_admitted_when_it_exactly_fills_the_budget():
+    async def scenario():
+        admission = Admission(100, wait=5)
+        holder, ticket = admission.ticket(), admission.ticket()
+        await holder.hold(90, "holder")
+        waiting = asyncio.create_task(ticket.hold(20, "twenty"))
+        await asyncio.sleep(0)
+        assert not waiting.done()
+        await holder.hold(80, "holder, less")  # 80 + 20 == the whole budget: it fits
+        await asyncio.wait_for(waiting, 1)
+        assert admission.held == 100
+
+    run(scenario())
+
+
+def test_the_default_budget_is_a_quarter_of_the_machines_memory(monkeypatch):
+    monkeypatch.setattr(admission_module, "machine_memory", lambda: 8 << 30)
+    assert admission_module.default_budget() == 2 << 30

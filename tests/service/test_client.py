@@ -18,7 +18,7 @@ from service_helpers import NPY, NPZ, down_rays, grid, npy_bytes, npz_bytes, qua
 
 import dacrt
 from service import wire
-from service.client import Answer, APIError, Client
+from service.client import Answer, APIError, Client, rays_array
 
 CLOSEST_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")
 
@@ -867,3 +867,19 @@ def test_client_patterns(client, server_room, scene_name):
     with pytest.raises(APIError) as gone:
         client.pattern(scene_name)
     assert gone.value.status == 404
+
+
+def test_the_all_ones_mask_is_a_mask():
+    client, sent = recording_client({"/v1/scenes/s/meshes/m": {"mesh": "m"}})
+    client.put_mesh("s", "m", V3, [[0, 1, 2]], mask=0xFFFFFFFF)
+    assert sent[-1].url.params["mask"] == "4294967295"
+
+
+def test_an_n_by_8_array_keeps_its_tmin_when_only_tmax_is_given():
+    rays = np.zeros((2, 8), np.float32)
+    rays[:, 5] = 1
+    rays[:, 6], rays[:, 7] = [0.25, 0.5], [10, 20]
+    made = rays_array(rays, tmax=5.0)
+    assert made[:, 6].tolist() == [0.25, 0.5] and made[:, 7].tolist() == [5.0, 5.0]
+    made = rays_array(rays, tmin=0.125)
+    assert made[:, 6].tolist() == [0.125, 0.125] and made[:, 7].tolist() == [10, 20]

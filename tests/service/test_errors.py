@@ -3,6 +3,7 @@ names the problem, and (for changes) that a rejected request changes nothing."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import re
 
@@ -13,6 +14,7 @@ from mesh_files import BAD_MESH_FILES, GLB, png, triangle_glb
 from service_helpers import NPY, NPZ, TOKEN, down_rays, grid, npy_bytes, npz_bytes, quad
 
 from service.client import APIError, Client
+from service.errors import CatchAll
 
 RAYS = np.hstack(down_rays([[0.5, 0.5], [0.2, 0.7]])).astype(np.float32)
 
@@ -485,3 +487,31 @@ def test_client_raises_api_error_with_the_detail(app_api):
         app_api.scene("does-not-exist")
     assert caught.value.status == 404 and "no scene 'does-not-exist'" in caught.value.detail
     assert json.loads(caught.value.response.text) == {"detail": caught.value.detail}
+
+
+async def _collect(app):
+    sent = []
+
+    async def send(message):
+        sent.append(message)
+
+    await CatchAll(app)({"type": "http", "method": "GET", "path": "/x"}, None, send)
+    return sent
+
+
+def test_an_error_after_the_answer_started_closes_the_connection_rather_than_answer_twice():
+    async def app(scope, receive, send):
+        await send({"type": "http.response.start", "status": 200, "headers": []})
+        raise RuntimeError("failed mid-answer")
+
+    with pytest.raises(RuntimeError, match="failed mid-answer"):
+        asyncio.run(_collect(app))
+
+
+def test_an_error_before_the_answer_is_a_json_500():
+    async def app(scope, receive, send):
+        raise RuntimeError("failed")
+
+    sent = asyncio.run(_collect(app))
+    assert [m["type"] for m in sent] == ["http.response.start", "http.response.body"]
+    assert sent[0]["status"] == 500 and b"the error is in its log" in sent[1]["body"]

@@ -9,7 +9,7 @@ from typing import Any, get_args
 
 import pytest
 
-from service import options, params, wire
+from service import footprint, options, params, wire
 from service.errors import Invalid
 from service.options import Options, Query, Sensor, make_options
 from service.settings import Settings
@@ -93,3 +93,23 @@ def test_the_one_shot_trace_takes_a_query_by_name_only():
 def test_a_bad_mask_is_a_422_naming_the_query_parameter(mask):
     with pytest.raises(Invalid, match=r"\?mask="):
         params.hits_options(Settings(), mask=mask)
+
+
+def test_a_hits_query_keeps_16_hits_a_ray_by_default():
+    assert make_options("hits").max_hits == 16
+    assert params.hits_options(Settings()).max_hits == 16
+
+
+def test_hit_buffers_hold_max_hits_plus_one_slots_a_ray():
+    assert (
+        make_options("hits", max_hits=3).hit_buffer_bytes(10) == 10 * 4 * footprint.HIT_SLOT_BYTES
+    )
+    assert make_options("closest").hit_buffer_bytes(10) == 0
+
+
+def test_a_pictures_cull_reaches_its_options():
+    assert params.render_options(Settings(), cull="back").cull == "back"
+
+
+def test_the_one_shot_trace_answers_closest_by_default():
+    assert params.trace_options(Settings()).kind is Query.CLOSEST

@@ -661,3 +661,58 @@ def test_a_manifest_nested_too_deep_is_logged_and_skipped(tmp_path, caplog):
     with caplog.at_level(logging.ERROR, logger="service"):
         assert [s.scene for s in open_store(tmp_path).snapshots()] == ["other"]
     assert "JSON nested too deep" in caplog.text
+
+
+def test_a_mesh_index_equal_to_next_index_is_logged_and_skipped(tmp_path, placed, caplog):
+    [path] = (tmp_path / "scenes" / "s").glob("scene.*.json")
+    record = json.loads(path.read_bytes())
+    next(m for m in record["meshes"] if m["name"] == "car0")["index"] = record["next_index"]
+    path.write_text(json.dumps(record))
+    with caplog.at_level(logging.ERROR, logger="service"):
+        assert open_store(tmp_path).snapshots() == []
+    assert "skipped scene 's'" in caplog.text and "not below next_index" in caplog.text
+
+
+def test_an_array_file_corrupted_in_place_is_logged_and_skipped(tmp_path, caplog):
+    store = open_store(tmp_path)
+    store.put_mesh("s", "a", MeshArrays(*grid(4)))
+    [vertices] = (tmp_path / "scenes" / "s").glob("*.vertices.npy")
+    data = bytearray(vertices.read_bytes())
+    data[-1] ^= 0x40  # same size, same header: only the checksum tells
+    vertices.write_bytes(bytes(data))
+    with caplog.at_level(logging.ERROR, logger="service"):
+        assert open_store(tmp_path).snapshots() == []
+    assert "skipped scene 's'" in caplog.text and "fails its CRC-32 check" in caplog.text
+
+
+def test_a_manifest_naming_a_file_outside_its_scene_is_logged_and_skipped(tmp_path, caplog):
+    store = open_store(tmp_path)
+    for scene in ("s", "t"):
+        store.put_mesh(scene, "a", MeshArrays(*grid(4)))  # the same arrays: same shape and CRC
+    [path] = (tmp_path / "scenes" / "s").glob("scene.*.json")
+    [elsewhere] = (tmp_path / "scenes" / "t").glob("*.vertices.npy")
+    record = json.loads(path.read_bytes())
+    record["meshes"][0]["vertices"]["file"] = f"../t/{elsewhere.name}"
+    path.write_text(json.dumps(record))
+    with caplog.at_level(logging.ERROR, logger="service"):
+        assert [s.scene for s in open_store(tmp_path).snapshots()] == ["t"]
+    assert "skipped scene 's'" in caplog.text and "is not a file of the scene" in caplog.text
+
+
+def test_a_replaced_mesh_is_restored_with_its_new_faces(tmp_path):
+    store = open_store(tmp_path)
+    store.put_mesh("s", "a", MeshArrays(*grid(4)))
+    store.put_mesh("s", "a", MeshArrays(*grid(3)))  # new vertices and new faces
+    restored = open_store(tmp_path).snapshot("s").mesh("a")
+    assert np.array_equal(restored.faces, grid(3)[1])
+    assert np.array_equal(restored.vertices, grid(3)[0])
+
+
+def test_a_manifest_whose_name_and_version_differ_is_logged_and_skipped(tmp_path, caplog):
+    store = open_store(tmp_path)
+    store.put_mesh("s", "a", MeshArrays(*grid(4)))
+    [path] = (tmp_path / "scenes" / "s").glob("scene.*.json")
+    path.rename(path.with_name("scene.7.json"))
+    with caplog.at_level(logging.ERROR, logger="service"):
+        assert open_store(tmp_path).snapshots() == []
+    assert "names another scene or version" in caplog.text

@@ -384,3 +384,47 @@ def test_info_shows_mask_transform_and_source(store):
     assert info["transform"] == turn(0, shift=(1, 2, 3)).tolist()
     assert store.snapshot("s").meshes["car"].info("s")["transform"] == np.eye(4).tolist()
     assert store.snapshot("s").meshes["car"].info("s")["mask"] == 0xF0
+
+
+def test_the_triangle_limit_is_exact():
+    store = Store(max_triangles_per_scene=201, max_scene_bytes=10**9)
+    store.put_mesh("s", "grid", MeshArrays(*grid(10)))  # 200 triangles
+    with pytest.raises(TooLarge, match="202 triangles, over the limit of 201"):
+        store.put_mesh("s", "quad", mesh())  # 2 more
+    assert store.snapshot("s").n_triangles == 200
+    exact = Store(max_triangles_per_scene=202, max_scene_bytes=10**9)
+    exact.put_mesh("s", "grid", MeshArrays(*grid(10)))
+    assert exact.put_mesh("s", "quad", mesh())[1] and exact.snapshot("s").n_triangles == 202
+
+
+def test_the_byte_limit_is_exact():
+    nbytes = 3852 + 200 * TRIANGLE_BYTES  # grid(10): its arrays and its engine scene
+    Store(1000, max_scene_bytes=nbytes).put_mesh("s", "m", MeshArrays(*grid(10)))
+    with pytest.raises(TooLarge, match=f"{nbytes} bytes .* limit of {nbytes - 1} bytes"):
+        Store(1000, max_scene_bytes=nbytes - 1).put_mesh("s", "m", MeshArrays(*grid(10)))
+
+
+def test_a_replaced_mesh_no_longer_deforms(store):
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    store.apply_frame(
+        "s", {"a": FrameChange(vertices=vertices, faces=faces, vertices_end=vertices + 1)}
+    )
+    assert store.snapshot("s").meshes["a"].vertices_end is not None
+    replaced, created = store.put_mesh("s", "a", mesh(0, 2, 0, 2, 0))
+    assert not created and replaced.vertices_end is None
+    assert replaced.info("s")["vertices_end"] is None
+
+
+def shift(x: float) -> np.ndarray:
+    matrix = np.eye(4)
+    matrix[0, 3] = x
+    return matrix
+
+
+def test_setting_a_transform_makes_a_moving_mesh_static(store):
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    change = FrameChange(vertices=vertices, faces=faces, transform=shift(1), transform_end=shift(2))
+    assert store.apply_frame("s", {"a": change}).meshes["a"].transform_end is not None
+    placed = store.set_transform("s", "a", shift(3))
+    assert np.array_equal(placed.transform, shift(3)) and placed.transform_end is None
+    assert store.snapshot("s").meshes["a"].info("s")["transform_end"] is None

@@ -832,3 +832,81 @@ def test_bodies_with_random_bytes_changed_are_read_or_refused_as_4xx(compressed)
         except (BadBody, Invalid, TooLarge):
             refused += 1
     assert refused > 100  # the mutations did reach the readers' refusals
+
+
+def test_npz_members_adding_up_to_one_byte_over_the_limit_are_413():
+    body = npz_bytes(True, big=np.zeros(1000, np.float32))
+    total = len(npy_bytes(np.zeros(1000, np.float32)))  # the member's inflated size
+    assert set(wire.read_npz(body, max_bytes=total)) == {"big"}
+    with pytest.raises(TooLarge, match=f"add up to {total} bytes, over the limit of {total - 1}"):
+        wire.read_npz(body, max_bytes=total - 1)
+
+
+def test_a_stored_member_whose_two_sizes_differ_is_400():
+    data = npy_bytes(np.zeros((4, 3), np.float32))
+    body = hostile_bodies.raw_zip([{"name": "origins.npy", "payload": data, "size": 1}])
+    with pytest.raises(BadBody, match="stored but its two sizes differ"):
+        wire.read_npz(body)
+
+
+def test_one_member_over_the_most_an_npz_may_list_is_400():
+    data = npy_bytes(np.zeros(1, np.float32))
+    n = wire.MAX_NPZ_MEMBERS + 1
+    body = hostile_bodies.raw_zip(
+        [{"name": "a.npy", "payload": data}], [{"member": 0, "name": f"a{i}"} for i in range(n)]
+    )
+    with pytest.raises(BadBody, match=f"lists {n} members, over the {wire.MAX_NPZ_MEMBERS} read"):
+        wire.read_npz(body)
+
+
+def test_a_deflated_member_whose_stream_never_ends_is_400():
+    data = npy_bytes(np.zeros((4, 3), np.float32))
+    deflater = zlib.compressobj(9, zlib.DEFLATED, -zlib.MAX_WBITS)
+    unended = deflater.compress(data) + deflater.flush(zlib.Z_SYNC_FLUSH)  # no final block
+    body = hostile_bodies.raw_zip(
+        [
+            {
+                "name": "origins.npy",
+                "payload": unended,
+                "method": 8,
+                "size": len(data),
+                "crc": zlib.crc32(data),
+            }
+        ]
+    )
+    with pytest.raises(BadBody, match="truncated"):
+        wire.read_npz(body)
+
+
+def test_json_ray_masks_take_the_whole_uint32_range():
+    body = {"origins": [[0, 0, 0]] * 2, "directions": [[0, 0, 1]] * 2}
+    rays = wire.decode_rays(json.dumps({**body, "mask": [0, 4294967295]}).encode(), "json")
+    assert rays.mask.dtype == np.uint32 and rays.mask.tolist() == [0, 0xFFFFFFFF]
+    rays = wire.decode_rays(json.dumps({**body, "mask": 4294967295}).encode(), "json")
+    assert rays.mask == 0xFFFFFFFF
+
+
+def test_a_face_index_equal_to_the_vertex_count_is_refused():
+    vertices = np.zeros((3, 3), np.float32)
+    faces = np.array([[0, 1, 2], [0, 1, 3]], np.int32)
+    with pytest.raises(InputError, match=r"faces\[1\] refers to vertex 3, but there are 3"):
+        wire.decode_mesh(npz_bytes(vertices=vertices, faces=faces), "npz")
+
+
+@pytest.mark.parametrize("fmt", ["npy", "json"])
+def test_too_many_points_is_413_naming_the_limit(fmt):
+    def body(n):
+        points = np.random.default_rng(n).normal(size=(n, 3)).astype(np.float32)
+        return (
+            npy_bytes(points) if fmt == "npy" else json.dumps({"points": points.tolist()}).encode()
+        )
+
+    assert wire.decode_points(body(10), fmt, max_points=10).shape == (10, 3)
+    with pytest.raises(TooLarge, match="11 points .* limit of 10 .*DACRT_MAX_RAYS_PER_REQUEST"):
+        wire.decode_points(body(11), fmt, max_points=10)
+
+
+@pytest.mark.parametrize("value", [0, 0.0, np.array([0.0], np.float32), 1, 0.25])
+def test_reflectivity_takes_both_ends_of_its_range(value):
+    expected = float(np.asarray(value).ravel()[0])
+    assert wire.parse_reflectivity(value, "car.reflectivity") == expected
