@@ -49,17 +49,26 @@ def test_tickets_within_the_budget_are_admitted_at_once():
     run(scenario())
 
 
-def test_a_ticket_waits_until_bytes_are_released():
+@pytest.mark.parametrize(
+    "first_bytes, wanted, first_keeps, held", [(80, 50, 0, 50), (90, 20, 80, 100)]
+)
+def test_a_waiting_ticket_is_admitted_once_it_fits(first_bytes, wanted, first_keeps, held):
+    """It waits until the holder releases its bytes, or gives back just enough that the waiting
+    ticket fills the budget exactly."""
+
     async def scenario():
         admission = Admission(100, wait=5)
         first, second = admission.ticket(), admission.ticket()
-        await first.hold(80, "first")
-        waiting = asyncio.create_task(second.hold(50, "second"))
+        await first.hold(first_bytes, "first")
+        waiting = asyncio.create_task(second.hold(wanted, "second"))
         await asyncio.sleep(0)
-        assert not waiting.done() and admission.held == 80
-        first.release()
+        assert not waiting.done() and admission.held == first_bytes
+        if first_keeps:
+            await first.hold(first_keeps, "first, less")
+        else:
+            first.release()
         await asyncio.wait_for(waiting, 5)
-        assert admission.held == 50
+        assert admission.held == held
 
     run(scenario())
 
@@ -419,21 +428,6 @@ def test_a_ticket_of_exactly_the_whole_budget_is_admitted():
         ticket = admission.ticket()
         await ticket.hold(100, "a body of 100 bytes")
         assert admission.held == 100 and ticket.nbytes == 100
-
-    run(scenario())
-
-
-def test_a_waiting_ticket_is_admitted_when_it_exactly_fills_the_budget():
-    async def scenario():
-        admission = Admission(100, wait=5)
-        holder, ticket = admission.ticket(), admission.ticket()
-        await holder.hold(90, "holder")
-        waiting = asyncio.create_task(ticket.hold(20, "twenty"))
-        await asyncio.sleep(0)
-        assert not waiting.done()
-        await holder.hold(80, "holder, less")  # 80 + 20 == the whole budget: it fits
-        await asyncio.wait_for(waiting, 1)
-        assert admission.held == 100
 
     run(scenario())
 
