@@ -15,6 +15,7 @@ import procedural as pg
 import pytest
 
 import dacrt
+from dacrt.validation import MAX_ROWS, check_row_count
 
 N_RAYS = 400
 FIRST_BAD = 137
@@ -428,3 +429,10 @@ def test_a_scene_of_more_triangles_than_int32_indexes_is_refused(monkeypatch):
     assert dacrt.Scene([(vertices, faces)]).n_triangles == 6
     with pytest.raises(dacrt.InputError, match="the scene has 12 triangles; .* at most 10"):
         dacrt.Scene([(vertices, faces), (vertices, faces)])
+
+
+def test_max_rows_is_the_most_rows_accepted():
+    """MAX_ROWS rows are indexable by int32; one more is not."""
+    check_row_count(MAX_ROWS, "a batch", "rays")
+    with pytest.raises(dacrt.InputError, match="a batch has 2,147,483,648 rays"):
+        check_row_count(MAX_ROWS + 1, "a batch", "rays")

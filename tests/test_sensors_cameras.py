@@ -11,6 +11,7 @@ from sensor_scenes import ROOM
 
 import dacrt
 from dacrt.sensors import Camera, look_at_pose
+from dacrt.sensors.checks import FLOAT32_MAX
 
 POSE = np.array([[1, 0, 0, 0], [0, 0, 1, -7], [0, -1, 0, 1], [0, 0, 0, 1]], np.float64)
 LOOK_ATS = [
@@ -115,3 +116,12 @@ def test_a_look_at_pose_far_from_the_origin_looks_at_its_target():
     np.testing.assert_allclose(pose[:3, :3].T @ pose[:3, :3], np.eye(3), atol=1e-15)
     tiny_up = look_at_pose((0, 0, 0), (1, 0, 0), (0, 0, 1e-300))
     np.testing.assert_array_equal(tiny_up, look_at_pose((0, 0, 0), (1, 0, 0), (0, 0, 1)))
+
+
+def test_a_camera_whose_edge_rays_just_fit_float32_is_accepted():
+    """The guard on the edge rays' slope uses the outermost pixel, width - 1 - cx."""
+    fx = 1 / (0.75 * FLOAT32_MAX)  # the edge ray's slope (1 - 0) / fx is 0.75 of float32's max
+    camera = Camera(2, 1, fx=fx, fy=1.0, cx=0.0, cy=0.0)
+    directions = camera.shot(np.eye(4)).rays.directions
+    assert np.isfinite(directions).all()
+    assert directions[1, 0] == np.float32(0.75 * FLOAT32_MAX)

@@ -115,3 +115,13 @@ def test_a_bad_pattern_file_is_refused(file, words):
     with pytest.raises(dacrt.InputError) as error:
         Pattern.load(file)
     assert words in str(error.value)
+
+
+def test_the_extreme_elevations_and_channel_are_accepted():
+    """Elevation in [-90, 90] and channel in [0, 65535] are inclusive."""
+    pattern = Pattern([0.0, 0.0, 0.0], [-90.0, 90.0, 0.0], channel=[0, 65535, 7])
+    assert pattern.channel.tolist() == [0, 65535, 7] and pattern.channel.dtype == np.uint16
+    with pytest.raises(dacrt.InputError, match=r"elevation_deg\[0\] must be in \[-90, 90\]"):
+        Pattern([0.0], [90.5])
+    with pytest.raises(dacrt.InputError, match=r"channel\[0\] must be in \[0, 65535\]"):
+        Pattern([0.0], [0.0], channel=[65536])

@@ -11,7 +11,7 @@ import pytest
 import sensor_reference as ref
 
 import dacrt
-from dacrt.sensors import Lidar, Materials
+from dacrt.sensors import Lidar, Materials, physics
 
 
 def quad(corner, side_a, side_b):
@@ -267,3 +267,82 @@ def test_organized_answers_have_the_documented_shapes_and_fill(options, shape):
     assert (grid["intensity"][filled] == 0).all() and (grid["return"][filled] == -1).all()
     for name in listed:  # the filled cells hold the list's points, in order
         np.testing.assert_array_equal(grid[name][~filled], listed[name], err_msg=name)
+
+
+def test_a_label_of_the_largest_uint32_is_a_label():
+    """Labels are uint32: 2**32 - 1 is a label."""
+    largest = int(np.iinfo(np.uint32).max)
+    _, label = Materials(label=[largest, 0]).per_mesh(2)
+    assert label.tolist() == [largest, 0] and label.dtype == np.uint32
+    with pytest.raises(dacrt.InputError, match="label must be in"):
+        Materials(label=[largest + 1])
+
+
+def test_cos_incidence_is_at_most_one_when_the_float32_direction_is_a_little_long():
+    """A float32 direction is unit only up to rounding: |n . d| can come out above 1, and the
+    documented value is min(|n . d|, 1)."""
+    long = np.float32(1) + np.finfo(np.float32).eps
+    directions = np.array([[long, 0, 0], [0, -long, 0], [0.6, 0.8, 0]], np.float32)
+    normal = np.array([[1, 0, 0], [0, 1, 0], [1, 0, 0]], np.float32)
+    cosine = physics.cos_incidence(directions, normal)
+    assert cosine.dtype == np.float32
+    np.testing.assert_array_equal(cosine, np.array([1, 1, 0.6], np.float32))
+
+
+def test_a_range_resolution_of_zero_still_merges_hits_at_the_same_range():
+    """Sub-rays of a beam without divergence hit at one range: a return goes on while each hit is
+    *within* range_resolution of the one before, so even 0 makes them one return."""
+    scene = wall_scene()
+    options = dict(vertical_angles_deg=[-3.0, 4.0], horizontal_steps=16)
+    alone = Lidar(**options).scan(scene, level_pose())
+    sampled = Lidar(**options, beam_samples=4, range_resolution=0.0, max_returns=4).scan(
+        scene, level_pose()
+    )
+    assert alone.n_points > 0
+    np.testing.assert_array_equal(sampled["ray"], alone["ray"])
+    np.testing.assert_array_equal(sampled["return"], np.zeros(alone.n_points, np.int16))
+    np.testing.assert_allclose(sampled["intensity"], alone["intensity"], rtol=1e-6)
+
+
+def _returns(intensity, beam=None):
+    n = len(intensity)
+    beam = np.zeros(n, np.int64) if beam is None else np.asarray(beam, np.int64)
+    rank = np.concatenate([np.arange(k) for k in np.bincount(beam)]).astype(np.int64)
+    return physics.Returns(np.arange(n), beam, rank, np.asarray(intensity, np.float64))
+
+
+def test_strongest_of_equally_intense_returns_is_the_nearest():
+    """Mode strongest (and dual) keeps the nearest of equals."""
+    returns = _returns([0.2, 0.5, 0.5, 0.5, 0.1], beam=[0, 0, 0, 1, 1])
+    assert physics.select_returns(returns, "strongest", 1).tolist() == [0, 1, 0, 1, 0]
+    assert physics.select_returns(returns, "dual", 2).tolist() == [0, 1, 1, 1, 1]
+
+
+def test_mode_all_keeps_the_nearest_max_returns_of_a_beam():
+    """Several sub-rays can make more returns than max_returns: ``all`` keeps the nearest
+    max_returns."""
+    returns = _returns([0.1, 0.2, 0.3, 0.4, 0.5], beam=[0, 0, 0, 1, 1])
+    assert physics.select_returns(returns, "all", 2).tolist() == [1, 1, 0, 1, 1]
+    assert physics.select_returns(returns, "all", 1).tolist() == [1, 0, 0, 1, 0]
+
+
+def test_dropout_keeps_a_point_whose_intensity_is_min_intensity():
+    """A point is kept when intensity >= min_intensity."""
+    scene = wall_scene()
+    full = Lidar(**WALL_LIDAR).scan(scene, level_pose())
+    threshold = float(np.sort(full["intensity"])[len(full["intensity"]) // 2])  # a point's own
+    points = Lidar(**WALL_LIDAR, dropout={"min_intensity": threshold}).scan(scene, level_pose())
+    kept = full["intensity"] >= np.float32(threshold)
+    assert (full["intensity"] == np.float32(threshold)).any()
+    np.testing.assert_array_equal(points["ray"], full["ray"][kept])
+
+
+def test_dropout_keeps_a_point_whose_deviate_equals_the_rate():
+    """A point is kept when its uniform deviate u >= rate."""
+    scene = wall_scene()
+    full = Lidar(**WALL_LIDAR).scan(scene, level_pose())
+    u = np.random.default_rng(11).random(full.n_points)
+    rate = float(u.min())  # every point's u is at least the rate: all are kept
+    points = Lidar(**WALL_LIDAR, dropout={"rate": rate, "seed": 11}).scan(scene, level_pose())
+    assert points.n_points == full.n_points
+    np.testing.assert_array_equal(points["ray"], full["ray"])

@@ -3,11 +3,13 @@ HTTP body of /lidar names it (``noise.range_sigma must be >= 0``), so the servic
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
 import dacrt
-from dacrt.sensors import Lidar, Materials
+from dacrt.sensors import Lidar, Materials, Pattern
 
 BEAMS = {"model": "VLP-16"}
 
@@ -125,3 +127,44 @@ def test_max_returns_alone_asks_for_every_return_as_over_http():
     along_x = points["ray"] == 0  # the beam along +x crosses both walls
     assert points["range"][along_x].tolist() == [10.0, 12.0]
     assert points["return"][along_x].tolist() == [0, 1]
+
+
+def test_max_returns_of_two_alone_asks_for_every_return():
+    """Any max_returns > 1 without a mode is ``all``."""
+    lidar = Lidar("VLP-16", max_returns=2)
+    assert lidar.return_mode == "all" and lidar.slots == 2
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"model": "VLP-16", "max_returns": 64},
+        {"model": "VLP-16", "beam_samples": 64},
+        {"vertical_angles_deg": list(np.linspace(-90, 90, 1024))},
+    ],
+)
+def test_the_largest_accepted_values_are_accepted(options):
+    """The documented upper bounds are inclusive: 64 returns, 64 sub-rays, 1024 beams, +-90
+    degrees."""
+    Lidar(**options)
+
+
+@pytest.mark.parametrize(
+    ("options", "words"),
+    [
+        ({"vertical_angles_deg": [0.0] * 1025}, "vertical_angles_deg must be a list of 1 to 1024"),
+        ({"model": "VLP-16", "beam_samples": 65}, "beam_samples must be >= 1 and <= 64"),
+    ],
+)
+def test_one_beyond_the_largest_is_refused(options, words):
+    with pytest.raises(dacrt.InputError, match=re.escape(words)):
+        Lidar(**options)
+
+
+def test_a_ray_firing_at_the_sweeps_end_is_within_it():
+    """time_s up to period_s inclusive is within the sweep."""
+    pattern = Pattern([0.0, 90.0], [0.0, 0.0], time_s=[0.0, 0.1])
+    lidar = Lidar(pattern=pattern, period_s=0.1)
+    assert lidar.period_s == 0.1
+    with pytest.raises(dacrt.InputError, match=r"time_s\[1\] is 0.1, beyond period_s"):
+        Lidar(pattern=pattern, period_s=0.05)

@@ -266,3 +266,29 @@ def test_a_changed_mesh_is_read_again_as_trimeshs_intersectors_read_it():
     np.testing.assert_array_equal(
         once.intersects_first(origins, directions), fresh.intersects_first(origins, directions)
     )
+
+
+def test_max_hits_zero_gives_no_hits():
+    """max_hits=0 asks for no hit: an empty answer, not an error."""
+    intersector = RayMeshIntersector(trimesh.creation.box())
+    index_tri, index_ray = intersector.intersects_id([[0.0, 0, -5]], [[0.0, 0, 1]], max_hits=0)
+    assert index_tri.tolist() == [] and index_ray.tolist() == []
+    assert index_tri.dtype == np.int64 and index_ray.dtype == np.int64
+
+
+def test_points_on_the_bounding_box_are_not_contained_as_trimesh_says():
+    """trimesh's bounds test is strict: a point on a box's face is outside."""
+    box = trimesh.creation.box()
+    on_faces = np.array([[0.5, 0.1, 0.2], [0.1, -0.5, 0.3], [0.2, 0.1, 0.5], [-0.5, -0.5, 0.1]])
+    assert RayMeshIntersector(box).contains_points(on_faces).tolist() == [False] * 4
+    assert box.contains(on_faces).tolist() == [False] * 4
+
+
+def test_a_ray_out_through_a_hole_says_outside():
+    """A point whose two opposite rays disagree, one leaving through a hole into free space,
+    is outside, whatever the other ray's parity."""
+    box = trimesh.creation.box()
+    assert (CONTAINS_DIRECTION > 0).all()  # so the -z face is where the backward ray leaves
+    open_box = trimesh.Trimesh(box.vertices, box.faces[box.face_normals[:, 2] != -1], process=False)
+    point = np.array([[0.1, 0.05, 0.02]])
+    assert RayMeshIntersector(open_box).contains_points(point).tolist() == [False]

@@ -90,3 +90,11 @@ def test_vertex_is_trimeshs_own():
     brute = np.linalg.norm(points[:, None] - mesh.vertices[None], axis=2)
     np.testing.assert_array_equal(vertex, brute.argmin(axis=1))
     np.testing.assert_allclose(distance, brute.min(axis=1))
+
+
+def test_points_exactly_on_the_surface_have_a_positive_zero():
+    """On the surface counts as inside: the signed distance is +0.0, not -0.0."""
+    box = trimesh.creation.box()
+    signed = ProximityQuery(box).signed_distance(box.vertices)
+    assert (signed == 0).all()
+    assert not np.signbit(signed).any()
