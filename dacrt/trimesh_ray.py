@@ -149,6 +149,16 @@ class RayMeshIntersector:
             self._bounds = np.stack([corners.min(axis=0), corners.max(axis=0)])
         else:
             self._bounds = None
+        self._rounding = None  # ``rounding``'s, derived on first use
+
+    def rounding(self):
+        """(the backend's shift, the most a vertex moves when the mesh is rounded to float32
+        after that shift), for the mesh as it is now; once per read of the mesh."""
+        backend = self.backend()
+        if self._rounding is None:
+            shift = getattr(backend, "shift", np.zeros(3))
+            self._rounding = (shift, rounding_slack(self._vertices, shift).max(initial=0.0))
+        return self._rounding
 
     def intersects_first(self, ray_origins, ray_directions):
         """The index of the first triangle each ray hits.
@@ -309,9 +319,7 @@ class ProximityQuery:
         _, distance, _ = self.on_surface(points)
         # the distance is between the point and the mesh as rounded to float32: within their
         # rounding, the point may be on the surface
-        intersector = self._intersector
-        shift = getattr(intersector.backend(), "shift", np.zeros(3))
-        mesh_rounding = rounding_slack(intersector._vertices, shift).max(initial=0.0)
+        shift, mesh_rounding = self._intersector.rounding()
         slack = rounding_slack(points, shift) + mesh_rounding
         on_surface = distance <= slack * (1 + 2**-22)
         inside = self._intersector.contains_points(points) | on_surface
