@@ -34,6 +34,8 @@ from typing import Any
 import httpx
 import numpy as np
 
+from dacrt.sensors.patterns import MAX_CHANNEL
+
 from . import wire
 from .errors import ServiceError
 from .store import NAME
@@ -470,7 +472,7 @@ class Client:
             body, fmt = _ray_arrays(rays), "npz"
             body["mask"] = _mask_array(mask, len(rays))
         return self._query(
-            f"/v1/scenes/{_seg(scene)}/{_seg(query, 'query')}",
+            f"/v1/scenes/{_seg(scene)}/{query}",  # one of QUERIES, checked above
             body,
             fmt,
             params=params,
@@ -617,8 +619,8 @@ class Client:
             channels = np.asarray(channel)
             if channels.dtype.kind not in "iu":
                 raise ValueError(f"channel must be integers, got dtype {channels.dtype}")
-            if channels.size and not (0 <= channels.min() and channels.max() <= 65535):
-                raise ValueError("channel values must lie in [0, 65535]")
+            if channels.size and not (0 <= channels.min() and channels.max() <= MAX_CHANNEL):
+                raise ValueError(f"channel values must lie in [0, {MAX_CHANNEL}]")
             arrays["channel"] = channels.astype("<u2")
         return self._binary("PUT", f"/v1/patterns/{_seg(name, 'pattern')}", arrays).json()
 
