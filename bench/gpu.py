@@ -5,7 +5,9 @@ nothing installable there): Sibenik and Sponza with primary rays, and the 3.3M-t
 world (``bench.world``) with lidar rays, at about 131K, 1M and 4M rays. Each row is the median
 of ``--frames`` closest queries on the GPU (after one untimed frame that compiles the kernels)
 and of fewer on the CPU engine (every core), and how many rays' answers differ (t bit for bit,
-mesh, prim). The scenes come from a folder given on the command line (the shared folder does
+mesh, prim). The world's rows also hold its 40 cars, placed meshes traced in their mesh's space
+(``bench.world``'s frame: the world and the car placed by its first frame's transforms). The
+scenes come from a folder given on the command line (the shared folder does
 not travel to the device machine: copy sibenik.npz, sponza.npz and the .npz files
 ``bench.world`` builds the world from into an ignored folder and name it in ``carry``).
 
@@ -26,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 RAY_COUNTS = (131_072, 1_048_576, 4_194_304)
+CARS = 40  # the world's moving actors, as in ``bench.world``
 
 
 def log(message: str) -> None:
@@ -71,7 +74,8 @@ def lidar(length: float, n: int):
 
 
 def workloads(scenes: Path):
-    """(name, (vertices, faces), rays_of(n)) of each scene found in ``scenes``."""
+    """(name, dacrt.Scene, rays_of(n)) of each scene found in ``scenes``."""
+    import dacrt
     from bench.scene_io import load_mesh
 
     for name in ("sibenik", "sponza"):
@@ -80,15 +84,21 @@ def workloads(scenes: Path):
             log(f"{name}: no {path}, skipped")
             continue
         vertices, faces = load_mesh(path)
-        yield name, (vertices, faces), (lambda n, p=path, v=vertices, f=faces: primary(p, v, f, n))
+        scene = dacrt.Scene([(vertices, faces)])
+        yield name, scene, (lambda n, p=path, v=vertices, f=faces: primary(p, v, f, n))
     try:
-        from bench.world import build_world
+        from bench.world import actor_transforms, build_world, car_mesh
 
         world = build_world(scenes)
+        car = car_mesh(scenes)
     except (OSError, KeyError) as error:
         log(f"world: cannot build it from {scenes} ({error}), skipped")
         return
-    yield "world", (world.vertices, world.faces), (lambda n: lidar(world.length, n))
+    placements = actor_transforms(CARS, 1, world.length)[0]
+    scene = dacrt.Scene(
+        [(world.vertices, world.faces)] + [car] * CARS, transforms=[None, *placements]
+    )
+    yield f"world + {CARS} cars", scene, (lambda n: lidar(world.length, n))
 
 
 def main(argv=None) -> int:
@@ -103,15 +113,13 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     start = time.perf_counter()
 
-    import dacrt
     from dacrt import cuda as dcuda
 
     if not dcuda.is_available():
         log("no CUDA GPU: nothing measured")
         return 1
     log("scene | triangles | rays | GPU ms/frame | CPU ms/frame | rays differing")
-    for name, mesh, rays_of in workloads(args.scenes):
-        scene = dacrt.Scene([mesh])
+    for name, scene, rays_of in workloads(args.scenes):
         for n in (int(k) for k in args.rays.split(",")):
             if time.perf_counter() - start > args.budget_s:
                 log(f"{name} {n}: budget of {args.budget_s:.0f} s spent, skipped")

@@ -125,11 +125,13 @@ Traced.__doc__ = """What the kernels leave of one level's trace: each ray's best
 ``QueryArrays`` (without scratch), and the stats arrays of its chunks (a list)."""
 
 Query = namedtuple(
-    "Query", ["flags", "origins", "directions", "tmin", "tmax", "ray_masks", "threads", "times"]
+    "Query",
+    ["flags", "origins", "directions", "tmin", "tmax", "ray_masks", "threads", "times", "tracer"],
 )
 Query.__doc__ = """A checked query: its flags word (kind, culling, strategy), float32 origins,
-directions, tmin and tmax, its (n,) uint32 ray masks or None, its thread count, and its rays'
-times (n,) float32, or None where every ray is at 0 or nothing in the scene moves."""
+directions, tmin and tmax, its (n,) uint32 ray masks or None, its thread count, its rays'
+times (n,) float32, or None where every ray is at 0 or nothing in the scene moves, and what
+traces each of its levels (``Scene._trace_level``, or the GPU's ``dacrt.cuda.level_tracer``)."""
 
 
 InstanceTraced = namedtuple(
@@ -588,7 +590,7 @@ class Scene:
         time : None (every ray at 0), a number, or (n,) float in [0, 1]: the instant of each
             ray in the frame's interval, where meshes move (``transforms_end``)
         device : "cpu", or "cuda" (``dacrt.cuda``: the same answers on an NVIDIA GPU; no
-            placed meshes, ``time`` or ``stats`` yet; strategy and threads do not apply)
+            deforming meshes, ``time`` or ``stats`` yet; strategy and threads do not apply)
         Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
         """
         if check_device(device, stats, strategy, threads) == "cuda":
@@ -597,9 +599,19 @@ class Scene:
             return cuda.closest(
                 self, origins, directions, tmin, tmax, cull=cull, mask=mask, time=time
             )
-        query, traced = self._trace(
-            0, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time
+        return self._closest(
+            origins, directions, tmin, tmax, cull, mask, strategy, threads, stats, time
         )
+
+    def _closest(
+        self, origins, directions, tmin, tmax, cull, mask, strategy, threads, stats, time,
+        tracer=None,
+    ):  # fmt: skip
+        """``closest`` with its levels traced by ``tracer`` (None: ``_trace_level``)."""
+        query, traced = self._trace(
+            0, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time,
+            tracer=tracer,
+        )  # fmt: skip
         t = traced.best_t
         best_tri, u, v = traced.arrays.best_tri, traced.arrays.hit_u, traced.arrays.hit_v
         n = len(t)
@@ -683,9 +695,19 @@ class Scene:
             return cuda.occluded(
                 self, origins, directions, tmin, tmax, cull=cull, mask=mask, time=time
             )
-        query, traced = self._trace(
-            ANY_HIT, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time
+        return self._occluded(
+            origins, directions, tmin, tmax, cull, mask, strategy, threads, stats, time
         )
+
+    def _occluded(
+        self, origins, directions, tmin, tmax, cull, mask, strategy, threads, stats, time,
+        tracer=None,
+    ):  # fmt: skip
+        """``occluded`` with its levels traced by ``tracer`` (None: ``_trace_level``)."""
+        query, traced = self._trace(
+            ANY_HIT, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time,
+            tracer=tracer,
+        )  # fmt: skip
         occluded = traced.arrays.best_tri != NO_HIT
         per_level = [traced.stats]
         open_rays = np.flatnonzero(~occluded) if self._deforming is not None else []
@@ -1162,10 +1184,12 @@ class Scene:
         threads,
         list_size=0,
         time=None,
+        tracer=None,
     ):
         """Check a query and trace its base level with ``flags`` (``dacrt.query``) and its
         options; returns (``Query``, ``Traced``). ``list_size`` is the length of each ray's
-        list of hits (ALL_HITS); ``time`` the rays' instants (``check_time``)."""
+        list of hits (ALL_HITS); ``time`` the rays' instants (``check_time``); ``tracer``
+        traces each level (None: ``_trace_level``)."""
         strategy = check_strategy(strategy)
         threads = check_threads(threads, N_CORES)
         flags |= CULL_FLAGS[check_cull(cull)] | STRATEGY_CODES[strategy] << STRATEGY_SHIFT
@@ -1175,9 +1199,10 @@ class Scene:
         times = check_time(time, n_rays)
         if not self._moving or (times is not None and not times.any()):
             times = None  # every ray at 0, or nothing moves: the static trace, bit for bit
-        query = Query(flags, origins, directions, tmin, tmax, ray_masks, threads, times)
+        tracer = tracer or self._trace_level
+        query = Query(flags, origins, directions, tmin, tmax, ray_masks, threads, times, tracer)
         mask_flags, visible_rows, tri_masks = self._visible_rows(ray_masks)
-        traced = self._trace_level(
+        traced = tracer(
             self._base,
             flags | mask_flags,
             origins,
@@ -1232,7 +1257,7 @@ class Scene:
             """Trace rays given in mesh space into ``instance``'s mesh: ``Traced``."""
             list_size = min(max_hits, len(instance.packed)) + 1 if kind & ALL_HITS else 0
             try:
-                return self._trace_level(
+                return query.tracer(
                     instance.packed,
                     instance.flags(flags, mirrored),
                     *mesh_rays,

@@ -271,7 +271,8 @@ def device_for(
     engine: EngineScene, rays: Rays, options: Options, where: str
 ) -> tuple[str, str | None]:
     """Where a query is traced: ("cuda", None) where DACRT_DEVICE=cuda and the CUDA backend
-    answers it; else "cpu" and what that backend lacks ("placed meshes", "deforming meshes",
+    answers it; else "cpu" and what that backend lacks ("placed meshes" in hits and count,
+    "deforming meshes",
     "time", "stats", or "cluster": a dask cluster's workers trace on their CPUs), None where
     DACRT_DEVICE=cpu."""
     if options.device != "cuda":
@@ -280,7 +281,7 @@ def device_for(
         return "cpu", "cluster"
     from dacrt import cuda  # numba.cuda is imported only where DACRT_DEVICE=cuda
 
-    lacking = cuda.lacks(engine.scene, rays.time, options.stats)
+    lacking = cuda.lacks(engine.scene, rays.time, options.stats, Query(options.kind).value)
     return ("cpu", lacking) if lacking is not None else ("cuda", None)
 
 

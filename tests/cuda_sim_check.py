@@ -118,6 +118,79 @@ def compare_crossings(label, scene, o, d, max_hits, by_scene=False, **kw):
     return cpu
 
 
+def affine(linear, offset):
+    m = np.eye(4)
+    m[:3, :3] = linear
+    m[:3, 3] = offset
+    return m
+
+
+def rotation(rng):
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    return q * np.sign(np.linalg.det(q))
+
+
+def check_placed_meshes(rng):
+    """Placed meshes (instances traced in their mesh's space, merged on the host): closest and
+    occluded as the CPU's, bit for bit; hits and count refuse them."""
+    base, car = soup(rng, 60)
+    placements = [
+        None,
+        affine(rotation(rng) * 0.5, (0.3, 0.2, 0.1)),
+        affine(np.diag([-0.7, 0.6, 0.8]), (0.9, 0.4, 0.5)),  # mirrored: culling swaps
+        affine(rotation(rng) @ np.diag([1.2, 0.4, 0.9]), (0.1, 0.8, 0.6)),
+        affine(np.eye(3), (0.5, 0.5, 0.5)),
+    ]
+    meshes = [base] + [car] * 4  # one packing of the car, four placements
+    masks = np.array([1, 2, 4, 2, 8], np.uint32)
+    scene = dacrt.Scene(meshes, transforms=placements, masks=masks)
+    o, d = random_rays(rng, 120)
+    compare("placed", scene, o, d, DEFAULT)
+    compare("placed batched", scene, o, d, 16)
+    ray_masks = rng.integers(0, 16, len(o)).astype(np.uint32)
+    for cull in ("back", "front"):
+        compare(f"placed cull {cull}, masks", scene, o, d, DEFAULT, cull=cull, mask=ray_masks)
+    # One mask for every ray: the base level traces the rows it sees, instances it does not see
+    # take no rays.
+    compare("placed, one mask", scene, o, d, DEFAULT, mask=6)
+    tmin = (rng.random(len(o)) * 0.2).astype(np.float32)
+    tmax = (0.2 + rng.random(len(o))).astype(np.float32)
+    compare("placed tmin tmax", scene, o, d, DEFAULT, tmin=tmin, tmax=tmax)
+    # Only placed meshes (no base rows), one of them moving (time=None: its start placement).
+    only = dacrt.Scene([car, car], transforms=placements[1:3], transforms_end=[placements[4], None])
+    compare("placed only, moving at 0", only, o, d, DEFAULT)
+    # A later version that moves the instances answers as a new Scene.
+    moved = scene.with_changes(transforms={1: placements[3], 3: placements[1]})
+    compare("placed with_changes", moved, o, d, DEFAULT)
+    same(
+        "with_changes on the GPU against a new Scene",
+        moved.closest(o, d, device="cuda").t,
+        dacrt.Scene(meshes, transforms=[None, placements[3], placements[2], placements[1],
+                                        placements[4]], masks=masks).closest(o, d).t,
+    )  # fmt: skip
+    for kind in ("count", "hits"):
+        try:
+            getattr(scene, kind)(o, d, device="cuda")
+        except ValueError as error:
+            assert "placed meshes in " + kind in str(error), error
+        else:
+            raise AssertionError(f"{kind} took placed meshes")
+    # A ray that leaves float32's range in a mesh's space is named with that mesh, as on the CPU.
+    halved = dacrt.Scene(
+        [base, car], transforms=[affine(np.eye(3), (5, 5, 0)), affine(np.eye(3) * 0.5, (0, 0, 0))]
+    )
+    far_o = np.array([[0.1, 0.1, 3e38], [0.1, 0.1, 5.0]], np.float32)
+    far_d = np.array([[0, 0, -1], [0, 0, -1]], np.float32)
+    for call in (halved.closest, halved.occluded):
+        for device in ("cpu", "cuda"):
+            try:
+                call(far_o, far_d, device=device)
+            except dacrt.MeshSpaceError as error:
+                assert error.mesh == 1 and "space of mesh 1" in str(error), error
+            else:
+                raise AssertionError(f"{device}: a ray beyond float32 in a mesh space was traced")
+
+
 def main():
     # 0 * inf in the slab test is NaN by design (``geometry.intersect_box``); the simulator's
     # threads would warn of it.
@@ -189,6 +262,7 @@ def main():
         compare_crossings("beyond float32", flat, fo, fd, 2, tmax=tmax)
         hit = dcuda.closest(flat, fo, fd, tmax=tmax).mesh >= 0
         assert hit.tolist() == [False, False, False, True, True], hit
+    check_placed_meshes(rng)
     # No rays, and a scene without triangles.
     none = np.zeros((0, 3), np.float32)
     assert len(dcuda.count(scene, none, none)) == 0

@@ -64,14 +64,17 @@ def test_cuda_refuses_unsupported_options():
         [(verts, [[0, 1, 2]])],
         transforms=[[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]],
     )
-    with pytest.raises(InputError, match="placed meshes"):
-        dcuda.closest(placed, [[0.2, 0.2, 1]], [[0, 0, -1]])
+    with pytest.raises(InputError, match="placed meshes in hits"):
+        dcuda.hits(placed, [[0.2, 0.2, 1]], [[0, 0, -1]])
+    assert dcuda.lacks(placed, kind="closest") is None
+    assert dcuda.lacks(placed, kind="occluded") is None
+    assert dcuda.lacks(placed, kind="count") == "placed meshes"
     scene = dacrt.Scene([(verts, [[0, 1, 2]])])
     with pytest.raises(InputError, match="time="):
         dcuda.occluded(scene, [[0.2, 0.2, 1]], [[0, 0, -1]], time=0.5)
     with pytest.raises(InputError, match="stats"):
         scene.closest([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda", stats=True)
-    with pytest.raises(InputError, match="placed meshes"):
+    with pytest.raises(InputError, match="placed meshes in count"):
         placed.count([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda")
     with pytest.raises(InputError, match="stats"):
         scene.hits([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda", stats=True)

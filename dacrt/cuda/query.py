@@ -2,15 +2,16 @@
 engine does, trace the scene's base level breadth-first (``traversal``), finish the answers with
 the CPU's code."""
 
+import threading
 from typing import NamedTuple
 
 import numpy as np
 from numba import cuda
 
-from ..contracts import FLOAT, INDEX, Counts, HitList, Hits, Occlusion
+from ..contracts import FLOAT, INDEX, Counts, HitList
 from ..leaf import NO_HIT
-from ..query import ALL_MASKS, CULL_BACK, CULL_FLAGS, CULL_FRONT
-from ..results import finish_closest
+from ..query import ALL_MASKS, ANY_HIT, CULL_BACK, CULL_FLAGS, CULL_FRONT, MASKED, QueryArrays
+from ..scene import Traced
 from ..validation import (
     InputError,
     check_cull,
@@ -22,15 +23,18 @@ from ..validation import (
 from . import kernels
 from .traversal import MAX_PAIRS, launch, traverse
 
+# A level's masks where the query checks none.
+NO_MASKS = np.zeros(0, np.uint32)
 # The most device memory ``hits`` takes for its lists: 8 bytes a key, min(max_hits, triangles)
 # keys a ray.
 MAX_LIST_BYTES = 1 << 31
 
 
-def lacks(scene, time=None, stats=False):
-    """What of a query this backend does not have: "placed meshes" (the scene's transforms),
-    "deforming meshes" (vertices_end), "time" or "stats"; None where it answers it."""
-    if scene._instances:
+def lacks(scene, time=None, stats=False, kind="closest"):
+    """What of a query of ``kind`` ("closest", "occluded", "hits", "count") this backend does
+    not have: "placed meshes" (the scene's transforms, for hits and count), "deforming meshes"
+    (vertices_end), "time" or "stats"; None where it answers it."""
+    if scene._instances and kind in ("hits", "count"):
         return "placed meshes"
     if scene._deforming is not None:
         return "deforming meshes"
@@ -41,14 +45,16 @@ def lacks(scene, time=None, stats=False):
     return None
 
 
-def check_supported(scene, time, max_pairs):
-    """InputError naming an option this backend does not have yet, or a bad ``max_pairs``."""
+def check_supported(scene, time, max_pairs, kind):
+    """InputError naming an option this backend does not have yet for a query of ``kind``, or
+    a bad ``max_pairs``."""
     if isinstance(max_pairs, bool) or not isinstance(max_pairs, int | np.integer) or max_pairs < 1:
         raise InputError(f"max_pairs must be a positive integer, got {max_pairs!r}")
-    lacking = lacks(scene, time)
+    lacking = lacks(scene, time, kind=kind)
     if lacking == "placed meshes":
         raise InputError(
-            "device='cuda' does not support placed meshes yet (transforms, transforms_end)"
+            f"device='cuda' does not support placed meshes in {kind} yet (transforms, "
+            "transforms_end); closest and occluded take them"
         )
     if lacking == "deforming meshes":
         raise InputError("device='cuda' does not support deforming meshes yet (vertices_end)")
@@ -58,6 +64,149 @@ def check_supported(scene, time, max_pairs):
 
 def prepare(scene, origins, directions, tmin, tmax, cull, mask):
     """The checked query's device arrays, culling side and masks."""
+    origins, directions, tmin, tmax = check_query_rays(origins, directions, tmin, tmax)
+    flags = CULL_FLAGS[check_cull(cull)]
+    # det * cull_side > 0 culls, as ``geometry.culled_side``.
+    cull_side = -1.0 if flags & CULL_BACK else (1.0 if flags & CULL_FRONT else 0.0)
+    n = len(origins)
+    if mask is None and scene.masks.all():  # the default mask sees every mesh: no masks to test
+        ray_masks = np.zeros(0, np.uint32)
+        tri_masks = np.zeros(0, np.uint32)
+    else:  # a mesh with mask 0 is hidden from the default mask too
+        ray_masks = check_masks(ALL_MASKS if mask is None else mask, n, "mask", "ray")
+        tri_masks = scene._row_masks
+    device = device_rays(origins, directions, tmin, tmax, ray_masks, tri_masks)
+    return origins, directions, tmin, tmax, cull_side, device
+
+
+def level_arrays(verts, ids):
+    """A level's rows on the device: corners (F, 9), tie keys (global ids), centroids, per-row
+    boxes; and the root box, on the host."""
+    verts = np.ascontiguousarray(verts)
+    corners = verts.reshape(-1, 3, 3)
+    tri_box = np.concatenate([corners.min(axis=1), corners.max(axis=1)], axis=1).astype(FLOAT)
+    centroids = (corners.sum(axis=1) / np.float32(3)).astype(FLOAT)
+    box = np.concatenate([tri_box[:, :3].min(axis=0), tri_box[:, 3:].max(axis=0)])
+    return (
+        cuda.to_device(verts),
+        cuda.to_device(np.ascontiguousarray(ids, np.int32)),
+        cuda.to_device(centroids),
+        cuda.to_device(tri_box),
+        box.astype(FLOAT),
+    )
+
+
+def scene_arrays(scene):
+    """The base level's rows on the device (``level_arrays``)."""
+    return level_arrays(scene._base.verts, scene._base.ids)
+
+
+# One level traced at a time: a query's instance batches run side by side on host threads.
+DEVICE_LOCK = threading.Lock()
+
+
+def level_tracer(max_pairs=MAX_PAIRS):
+    """What traces each level of a ``closest`` or ``occluded`` query on the GPU, in place of
+    ``Scene._trace_level`` (same arguments): the base level, then each instance batch in its
+    mesh's space, as the CPU engine merges them. Returns ``Traced``: best_t, and best_tri
+    (the level's kernel row; for ANY_HIT any row where the ray is blocked), hit_u, hit_v; no
+    stats."""
+
+    def trace(level, flags, origins, directions, tmin, tmax, ray_masks, visible_rows,
+              tri_masks, threads, list_size, times=None):  # fmt: skip
+        # A bad ray (or one that leaves float32 in a mesh's space) is named, not sent.
+        origins, directions, tmin, tmax = check_query_rays(origins, directions, tmin, tmax)
+        n = len(origins)
+        best_t = np.array(tmax, FLOAT)
+        best_tri = np.full(n, NO_HIT, INDEX)
+        u = np.zeros(n, FLOAT)
+        v = np.zeros(n, FLOAT)
+        verts, ids = level.verts, level.ids
+        if visible_rows is not None:  # the rows a batch with one mask sees
+            verts, ids = verts[visible_rows], ids[visible_rows]
+        if not flags & MASKED:
+            ray_masks, tri_masks = NO_MASKS, NO_MASKS
+        if n and len(ids):
+            cull_side = -1.0 if flags & CULL_BACK else (1.0 if flags & CULL_FRONT else 0.0)
+            rays = (origins, directions, tmin, tmax)
+            with DEVICE_LOCK:
+                if flags & ANY_HIT:
+                    blocked = trace_any(
+                        verts, ids, rays, ray_masks, tri_masks, cull_side, max_pairs
+                    )
+                    best_tri[blocked] = 0
+                else:
+                    best_t, best_tri, u, v = trace_closest(
+                        verts, ids, rays, ray_masks, tri_masks, cull_side, max_pairs
+                    )
+            if visible_rows is not None:
+                found = best_tri != NO_HIT
+                best_tri[found] = visible_rows[best_tri[found]]
+        arrays = QueryArrays(best_tri, u, v, *([NO_MASKS] * 9))
+        return Traced(best_t, arrays, [])
+
+    return trace
+
+
+def device_rays(origins, directions, tmin, tmax, ray_masks, tri_masks):
+    """A level's rays and masks on the device: origins, directions, inverse directions, tmin,
+    tmax, ray masks, row masks."""
+    with np.errstate(divide="ignore"):
+        inv_dirs = (np.float32(1.0) / directions).astype(FLOAT)
+    return tuple(
+        cuda.to_device(np.ascontiguousarray(a))
+        for a in (origins, directions, inv_dirs, tmin, tmax, ray_masks, tri_masks)
+    )
+
+
+def trace_closest(verts, ids, rays, ray_masks, tri_masks, cull_side, max_pairs):
+    """Each ray's nearest hit on the rows (``verts``, tie keys ``ids``): (best_t, best_tri,
+    u, v), best_t tmax and best_tri NO_HIT on a miss."""
+    n = len(rays[0])
+    o, d, inv_d, lo, hi, ray_masks, tri_masks = device_rays(*rays, ray_masks, tri_masks)
+    verts, keys, centroids, tri_box, box = level_arrays(verts, ids)
+    best_key = cuda.to_device(np.full(n, kernels.NO_KEY, np.uint64))
+
+    def run_leaves(frontier, kind):
+        launch(
+            kernels.leaf_closest, frontier.ray_ids.shape[0], frontier.ray_ids,
+            frontier.ray_node, kind, cuda.to_device(frontier.tri_lo),
+            cuda.to_device(frontier.tri_n), frontier.rows, o, d, lo, hi, verts, keys,
+            ray_masks, tri_masks, cull_side, best_key,
+        )  # fmt: skip
+
+    traverse((centroids, tri_box, box), (o, inv_d, lo, hi), run_leaves, max_pairs)
+    row_of_key = np.full(int(ids.max()) + 1, -1, np.int32)
+    row_of_key[ids] = np.arange(len(ids), dtype=np.int32)
+    out = [
+        cuda.to_device(a)
+        for a in (np.array(rays[3], FLOAT), np.full(n, NO_HIT, INDEX), np.zeros(n, FLOAT),
+                  np.zeros(n, FLOAT))
+    ]  # fmt: skip
+    launch(kernels.finish_best, n, best_key, cuda.to_device(row_of_key), o, d, verts, NO_HIT, *out)
+    return tuple(a.copy_to_host() for a in out)
+
+
+def trace_any(verts, ids, rays, ray_masks, tri_masks, cull_side, max_pairs):
+    """Whether each ray hits any of the rows (``verts``) in its window: (n,) bool."""
+    n = len(rays[0])
+    o, d, inv_d, lo, hi, ray_masks, tri_masks = device_rays(*rays, ray_masks, tri_masks)
+    verts, _, centroids, tri_box, box = level_arrays(verts, ids)
+    hit = cuda.to_device(np.zeros(n, np.uint8))
+
+    def run_leaves(frontier, kind):
+        launch(
+            kernels.leaf_any, frontier.ray_ids.shape[0], frontier.ray_ids, frontier.ray_node,
+            kind, cuda.to_device(frontier.tri_lo), cuda.to_device(frontier.tri_n),
+            frontier.rows, o, d, lo, hi, verts, ray_masks, tri_masks, cull_side, hit,
+        )  # fmt: skip
+
+    traverse((centroids, tri_box, box), (o, inv_d, lo, hi), run_leaves, max_pairs)
+    return hit.copy_to_host().astype(bool)
+
+
+def check_query_rays(origins, directions, tmin, tmax):
+    """ValueError naming the first bad ray, before any is sent to the device."""
     origins, directions, tmin, tmax = check_rays(origins, directions, tmin, tmax)
     bad = (
         ~np.isfinite(origins).all(axis=1)
@@ -69,116 +218,34 @@ def prepare(scene, origins, directions, tmin, tmax, cull, mask):
     )
     if bad.any():
         explain_bad_rays(origins, directions, tmin, tmax)
-    flags = CULL_FLAGS[check_cull(cull)]
-    # det * cull_side > 0 culls, as ``geometry.culled_side``.
-    cull_side = -1.0 if flags & CULL_BACK else (1.0 if flags & CULL_FRONT else 0.0)
-    n = len(origins)
-    if mask is None and scene.masks.all():  # the default mask sees every mesh: no masks to test
-        ray_masks = np.zeros(0, np.uint32)
-        tri_masks = np.zeros(0, np.uint32)
-    else:  # a mesh with mask 0 is hidden from the default mask too
-        ray_masks = check_masks(ALL_MASKS if mask is None else mask, n, "mask", "ray")
-        tri_masks = scene._row_masks
-    with np.errstate(divide="ignore"):
-        inv_dirs = (np.float32(1.0) / directions).astype(FLOAT)
-    device = tuple(
-        cuda.to_device(np.ascontiguousarray(a))
-        for a in (origins, directions, inv_dirs, tmin, tmax, ray_masks, tri_masks)
-    )
-    return origins, directions, tmin, tmax, cull_side, device
-
-
-def scene_arrays(scene):
-    """The base level's rows on the device: corners (F, 9), tie keys (global ids), centroids,
-    per-row boxes; and the root box, on the host."""
-    verts = np.ascontiguousarray(scene._base.verts)
-    corners = verts.reshape(-1, 3, 3)
-    tri_box = np.concatenate([corners.min(axis=1), corners.max(axis=1)], axis=1).astype(FLOAT)
-    centroids = (corners.sum(axis=1) / np.float32(3)).astype(FLOAT)
-    box = np.concatenate([tri_box[:, :3].min(axis=0), tri_box[:, 3:].max(axis=0)])
-    return (
-        cuda.to_device(verts),
-        cuda.to_device(np.ascontiguousarray(scene._base.ids, np.int32)),
-        cuda.to_device(centroids),
-        cuda.to_device(tri_box),
-        box.astype(FLOAT),
-    )
+    return origins, directions, tmin, tmax
 
 
 def closest(scene, origins, directions, tmin=None, tmax=None, *, cull="none", mask=None,
             time=None, max_pairs=MAX_PAIRS):  # fmt: skip
-    """``Scene.closest`` on the GPU: the same ``Hits``, bit for bit (no ``stats``)."""
-    check_supported(scene, time, max_pairs)
-    origins, directions, tmin, tmax, cull_side, device = prepare(
-        scene, origins, directions, tmin, tmax, cull, mask
+    """``Scene.closest`` on the GPU: the same ``Hits``, bit for bit (no ``stats``); the levels
+    are traced here, their answers merged on the host as the CPU engine merges them."""
+    check_supported(scene, time, max_pairs, "closest")
+    tracer = level_tracer(max_pairs)
+    return scene._closest(
+        origins, directions, tmin, tmax, cull, mask, "sampling", None, False, time, tracer
     )
-    n = len(origins)
-    t = tmax.copy()
-    best_tri = np.full(n, NO_HIT, np.int32)
-    u = np.zeros(n, FLOAT)
-    v = np.zeros(n, FLOAT)
-    if n and len(scene._base.ids):
-        o, d, inv_d, lo, hi, ray_masks, tri_masks = device
-        verts, keys, centroids, tri_box, box = scene_arrays(scene)
-        best_key = cuda.to_device(np.full(n, kernels.NO_KEY, np.uint64))
-
-        def run_leaves(frontier, kind):
-            launch(
-                kernels.leaf_closest, frontier.ray_ids.shape[0], frontier.ray_ids,
-                frontier.ray_node, kind, cuda.to_device(frontier.tri_lo),
-                cuda.to_device(frontier.tri_n), frontier.rows, o, d, lo, hi, verts, keys,
-                ray_masks, tri_masks, cull_side, best_key,
-            )  # fmt: skip
-
-        traverse((centroids, tri_box, box), (o, inv_d, lo, hi), run_leaves, max_pairs)
-        row_of_key = np.full(scene.n_triangles, -1, np.int32)
-        row_of_key[scene._base.ids] = np.arange(len(scene._base.ids), dtype=np.int32)
-        out = [cuda.to_device(a) for a in (t, best_tri, u, v)]
-        launch(
-            kernels.finish_best, n, best_key, cuda.to_device(row_of_key), o, d, verts,
-            NO_HIT, *out,
-        )  # fmt: skip
-        t, best_tri, u, v = (a.copy_to_host() for a in out)
-    mesh = np.empty(n, INDEX)
-    prim = np.empty(n, INDEX)
-    normal = np.empty((n, 3), FLOAT)
-    base = scene._base
-    finish_closest(
-        t, best_tri, base.ids, scene.mesh_offsets, base.verts, scene._no_normals, mesh, prim,
-        normal,
-    )  # fmt: skip
-    return Hits(t, mesh, prim, u, v, normal)
 
 
 def occluded(scene, origins, directions, tmin=None, tmax=None, *, cull="none", mask=None,
              time=None, max_pairs=MAX_PAIRS):  # fmt: skip
     """``Scene.occluded`` on the GPU: the same ``Occlusion`` (no ``stats``)."""
-    check_supported(scene, time, max_pairs)
-    origins, directions, tmin, tmax, cull_side, device = prepare(
-        scene, origins, directions, tmin, tmax, cull, mask
+    check_supported(scene, time, max_pairs, "occluded")
+    tracer = level_tracer(max_pairs)
+    return scene._occluded(
+        origins, directions, tmin, tmax, cull, mask, "sampling", None, False, time, tracer
     )
-    n = len(origins)
-    if not (n and len(scene._base.ids)):
-        return Occlusion(np.zeros(n, bool))
-    o, d, inv_d, lo, hi, ray_masks, tri_masks = device
-    verts, _, centroids, tri_box, box = scene_arrays(scene)
-    hit = cuda.to_device(np.zeros(n, np.uint8))
-
-    def run_leaves(frontier, kind):
-        launch(
-            kernels.leaf_any, frontier.ray_ids.shape[0], frontier.ray_ids, frontier.ray_node,
-            kind, cuda.to_device(frontier.tri_lo), cuda.to_device(frontier.tri_n),
-            frontier.rows, o, d, lo, hi, verts, ray_masks, tri_masks, cull_side, hit,
-        )  # fmt: skip
-
-    traverse((centroids, tri_box, box), (o, inv_d, lo, hi), run_leaves, max_pairs)
-    return Occlusion(hit.copy_to_host().astype(bool))
 
 
 def count(scene, origins, directions, tmin=None, tmax=None, *, cull="none", mask=None,
           time=None, max_pairs=MAX_PAIRS):  # fmt: skip
     """``Scene.count`` on the GPU: the same ``Counts`` (no ``stats``)."""
-    check_supported(scene, time, max_pairs)
+    check_supported(scene, time, max_pairs, "count")
     counts, _, _ = crossings(scene, origins, directions, tmin, tmax, cull, mask, 0, max_pairs)
     return Counts(counts)
 
@@ -190,7 +257,7 @@ def hits(scene, origins, directions, tmin=None, tmax=None, *, max_hits=16, cull=
     Each ray keeps its min(max_hits, triangles) nearest keys on the device, 8 bytes each: a
     batch that needs more than ``MAX_LIST_BYTES`` (2 GiB) for them is refused (InputError
     naming max_hits); split it into batches of fewer rays."""
-    check_supported(scene, time, max_pairs)
+    check_supported(scene, time, max_pairs, "hits")
     max_hits = check_max_hits(max_hits)
     counts, keys, checked = crossings(
         scene, origins, directions, tmin, tmax, cull, mask, max_hits, max_pairs
