@@ -38,15 +38,38 @@ def materials(snapshot: Snapshot, engine: EngineScene) -> Materials:
     )
 
 
-def _query(options: Options) -> dict:
-    """What the request asks of the engine's ``Scene.closest`` / ``Scene.hits``."""
+def _query(options: Options, device: str) -> dict:
+    """What the request asks of the engine's ``Scene.closest`` / ``Scene.hits``, traced on
+    ``device`` (``sensor_device``)."""
     return {
         "strategy": options.strategy,
         "threads": options.threads,
         "cull": options.cull,
         "mask": options.mask,
         "stats": options.stats,
+        "device": device,
     }
+
+
+def sensor_device(
+    engine: EngineScene, sensors: list[Camera | Lidar], options: Options
+) -> tuple[str, str | None]:
+    """Where sensors' rays are traced: ("cuda", None) where DACRT_DEVICE=cuda and the CUDA
+    backend has what every sensor needs (``dacrt.cuda.lacks``: closest, or hits for a lidar
+    that sees through surfaces; times for a lidar with ``period_s``); else "cpu" and what the
+    backend lacks, None where DACRT_DEVICE=cpu."""
+    if options.device != "cuda":
+        return "cpu", None
+    from dacrt import cuda  # numba.cuda is imported only where DACRT_DEVICE=cuda
+
+    for sensor in sensors:
+        lidar = isinstance(sensor, Lidar)
+        kind = "hits" if lidar and sensor.return_mode == "all" else "closest"
+        timed = True if lidar and sensor.period_s is not None else None
+        lacking = cuda.lacks(engine.scene, timed, options.stats, kind)
+        if lacking is not None:
+            return "cpu", lacking
+    return "cuda", None
 
 
 def _stats(stats: dict | None, options: Options) -> dict | None:
@@ -68,8 +91,9 @@ def render(snapshot: Snapshot, camera: Camera, pose, style: str, options: Option
     start = time.perf_counter()
     engine = engine_scene(snapshot)
     shot = camera.shot(pose)
+    device, fallback = sensor_device(engine, [camera], options)
     with meshes_by_name(snapshot, engine):
-        (image,) = capture(engine.scene, [shot], None, **_query(options))
+        (image,) = capture(engine.scene, [shot], None, **_query(options, device))
     t, headers = image["depth"], {}
     if style == "depth":
         pixels, span = shading.depth_pixels(t)
@@ -84,8 +108,9 @@ def render(snapshot: Snapshot, camera: Camera, pose, style: str, options: Option
     seconds = time.perf_counter() - start
     stats = _stats(image.stats, options)
     return TraceResult(
-        {"pixels": pixels}, snapshot.version, stats, seconds, t.size, headers=headers
-    )
+        {"pixels": pixels}, snapshot.version, stats, seconds, t.size, headers=headers,
+        fallback=fallback,
+    )  # fmt: skip
 
 
 def sense(
@@ -96,17 +121,19 @@ def sense(
     materials."""
     start = time.perf_counter()
     engine = engine_scene(snapshot)
+    device, fallback = sensor_device(engine, [sensor], options)
+    query = _query(options, device)
     with meshes_by_name(snapshot, engine):
         if isinstance(sensor, Lidar):
-            found = sensor.scan(
-                engine.scene, pose, materials(snapshot, engine), pose_end, **_query(options)
-            )
+            found = sensor.scan(engine.scene, pose, materials(snapshot, engine), pose_end, **query)
         else:
-            found = sensor.capture(engine.scene, pose, **_query(options))
+            found = sensor.capture(engine.scene, pose, **query)
     seconds = time.perf_counter() - start
     arrays = _answer(found, engine, options)
     stats = _stats(found.stats, options)
-    return TraceResult(arrays, snapshot.version, stats, seconds, sensor.n_traced_rays)
+    return TraceResult(
+        arrays, snapshot.version, stats, seconds, sensor.n_traced_rays, fallback=fallback
+    )
 
 
 def sense_rig(
@@ -122,9 +149,10 @@ def sense_rig(
     engine = engine_scene(snapshot)
     rig = Rig({name: sensor for name, (sensor, _) in sensors.items()})
     poses = {name: pose for name, (_, pose) in sensors.items()}
+    device, fallback = sensor_device(engine, [sensor for sensor, _ in sensors.values()], options)
     with meshes_by_name(snapshot, engine):
         found = rig.capture(
-            engine.scene, poses, materials(snapshot, engine), poses_end, **_query(options)
+            engine.scene, poses, materials(snapshot, engine), poses_end, **_query(options, device)
         )
     seconds = time.perf_counter() - start
     arrays = {
@@ -134,7 +162,7 @@ def sense_rig(
     }
     stats = _stats(next(iter(found.values())).stats, options)
     n_rays = sum(sensor.n_traced_rays for sensor, _ in sensors.values())
-    return TraceResult(arrays, snapshot.version, stats, seconds, n_rays)
+    return TraceResult(arrays, snapshot.version, stats, seconds, n_rays, fallback=fallback)
 
 
 def hits_per_ray(sensor: Camera | Lidar) -> int:

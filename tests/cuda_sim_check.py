@@ -168,6 +168,7 @@ def check_placed_meshes(rng):
         dacrt.Scene(meshes, transforms=[None, placements[3], placements[2], placements[1],
                                         placements[4]], masks=masks).closest(o, d).t,
     )  # fmt: skip
+    check_sensors(scene, rng)
     for kind in ("count", "hits"):
         try:
             getattr(scene, kind)(o, d, device="cuda")
@@ -189,6 +190,49 @@ def check_placed_meshes(rng):
                 assert error.mesh == 1 and "space of mesh 1" in str(error), error
             else:
                 raise AssertionError(f"{device}: a ray beyond float32 in a mesh space was traced")
+
+
+def check_sensors(scene, rng):
+    """A lidar (moving during its sweep: its rays carry times, which a scene where nothing moves
+    ignores), a camera and a rig of both traced on the GPU: the CPU's answers, bit for bit."""
+    from dacrt.sensors import Camera, Lidar, Rig, look_at_pose
+
+    pose = np.eye(4)
+    pose[:3, 3] = (0.45, 0.5, 0.55)
+    pose_end = pose.copy()
+    pose_end[:3, 3] += (0.05, 0.0, 0.0)
+    lidar = Lidar(vertical_angles_deg=[-30, -10, 0, 10, 30], horizontal_steps=12, period_s=0.1)
+    camera = Camera.from_fov(6, 5, fov_deg=60)
+    eye = look_at_pose(eye=[1.6, 1.4, 1.5], target=[0.5, 0.5, 0.5], up=[0, 0, 1])
+    cpu = lidar.scan(scene, pose, pose_end=pose_end)
+    gpu = lidar.scan(scene, pose, pose_end=pose_end, device="cuda")
+    assert list(gpu) == list(cpu) and cpu.n_points > 0, (list(gpu), cpu.n_points)
+    for key in cpu:
+        same(f"lidar {key}", gpu[key], cpu[key])
+    cpu_image = camera.capture(scene, eye)
+    gpu_image = camera.capture(scene, eye, device="cuda")
+    for key in ("depth", "range", "mesh", "prim", "normal"):
+        same(f"camera {key}", gpu_image[key], cpu_image[key])
+    rig = Rig({"roof": lidar, "front": camera})
+    poses = {"roof": pose, "front": eye}
+    by_rig = rig.capture(scene, poses, poses_end={"roof": pose_end}, device="cuda")
+    for key in cpu:
+        same(f"rig lidar {key}", by_rig["roof"][key], cpu[key])
+    same("rig camera depth", by_rig["front"]["depth"], cpu_image["depth"])
+    print("sensors", cpu.n_points, "points,", int((cpu_image["mesh"] >= 0).sum()), "pixels hit")
+    # Times in a scene where nothing moves are checked and ignored, as on the CPU.
+    o, d = random_rays(rng, 40)
+    times = rng.random(len(o)).astype(np.float32)
+    static = dacrt.Scene(soup(rng, 40))
+    compare("time where nothing moves", static, o, d, DEFAULT, time=times)
+    compare_crossings("time where nothing moves", static, o, d, 4, time=times)
+    for bad in (1.5, np.float32(np.nan)):
+        try:
+            dcuda.count(static, o, d, time=bad)
+        except ValueError as error:
+            assert "time" in str(error), error
+        else:
+            raise AssertionError(f"time={bad} was accepted")
 
 
 def main():

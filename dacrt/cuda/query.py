@@ -18,6 +18,7 @@ from ..validation import (
     check_masks,
     check_max_hits,
     check_rays,
+    check_time,
     explain_bad_rays,
 )
 from . import kernels
@@ -38,7 +39,7 @@ def lacks(scene, time=None, stats=False, kind="closest"):
         return "placed meshes"
     if scene._deforming is not None:
         return "deforming meshes"
-    if time is not None:
+    if time is not None and scene._moving:  # where nothing moves, every instant is the same
         return "time"
     if stats:
         return "stats"
@@ -59,7 +60,7 @@ def check_supported(scene, time, max_pairs, kind):
     if lacking == "deforming meshes":
         raise InputError("device='cuda' does not support deforming meshes yet (vertices_end)")
     if lacking == "time":
-        raise InputError("device='cuda' does not support time= yet")
+        raise InputError("device='cuda' does not support time= in a scene that moves yet")
 
 
 def prepare(scene, origins, directions, tmin, tmax, cull, mask):
@@ -246,7 +247,7 @@ def count(scene, origins, directions, tmin=None, tmax=None, *, cull="none", mask
           time=None, max_pairs=MAX_PAIRS):  # fmt: skip
     """``Scene.count`` on the GPU: the same ``Counts`` (no ``stats``)."""
     check_supported(scene, time, max_pairs, "count")
-    counts, _, _ = crossings(scene, origins, directions, tmin, tmax, cull, mask, 0, max_pairs)
+    counts, _, _ = crossings(scene, origins, directions, tmin, tmax, cull, mask, time, 0, max_pairs)
     return Counts(counts)
 
 
@@ -260,7 +261,7 @@ def hits(scene, origins, directions, tmin=None, tmax=None, *, max_hits=16, cull=
     check_supported(scene, time, max_pairs, "hits")
     max_hits = check_max_hits(max_hits)
     counts, keys, checked = crossings(
-        scene, origins, directions, tmin, tmax, cull, mask, max_hits, max_pairs
+        scene, origins, directions, tmin, tmax, cull, mask, time, max_hits, max_pairs
     )
     origins, directions = checked
     # Each row's keys, nearest first (NO_KEY, the largest, after the held ones).
@@ -299,7 +300,7 @@ def key_distances(keys):
     return bits.astype(np.uint32).view(FLOAT)
 
 
-def crossings(scene, origins, directions, tmin, tmax, cull, mask, max_hits, max_pairs):
+def crossings(scene, origins, directions, tmin, tmax, cull, mask, time, max_hits, max_pairs):
     """Each ray's crossing count (int32) and, for max_hits > 0, its min(max_hits, triangles)
     smallest (t, tie key) keys, unsorted, NO_KEY where it has fewer: (counts, keys (n, K)
     uint64, (origins, directions) checked)."""
@@ -307,6 +308,7 @@ def crossings(scene, origins, directions, tmin, tmax, cull, mask, max_hits, max_
         scene, origins, directions, tmin, tmax, cull, mask
     )
     n = len(origins)
+    check_time(time, n)  # checked as on the CPU; nothing moves, so every instant is 0's
     n_rows = len(scene._base.ids)
     width = min(max_hits, n_rows)
     if n * width * 8 > MAX_LIST_BYTES:

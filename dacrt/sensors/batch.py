@@ -17,7 +17,7 @@ from .physics import Materials, options
 
 #: The keywords a sensor passes on to ``Scene.closest`` and ``Scene.hits``; the rays, their
 #: windows and times are the sensor's own.
-QUERY_KEYS = ("threads", "strategy", "stats", "mask", "cull")
+QUERY_KEYS = ("threads", "strategy", "stats", "mask", "cull", "device")
 
 
 @dataclass(frozen=True)

@@ -12,10 +12,12 @@ import numpy as np
 from service_helpers import REPO, quad
 
 import dacrt.cache
-from service import tracing, wire
-from service.options import make_options
+from service import sensing, tracing, wire
+from service.options import Sensor, make_options
 
 IDENTITY = np.eye(4)
+SHIFTED = np.eye(4)
+SHIFTED[:3, 3] = 1.0
 
 
 def rays(**extra) -> wire.Rays:
@@ -33,10 +35,32 @@ def test_the_cpu_traces_what_the_cuda_backend_lacks_and_says_what():
     assert tracing.device_for(placed, rays(), cuda, "process") == ("cuda", None)
     placed_count = make_options("count", device="cuda")
     assert tracing.device_for(placed, rays(), placed_count, "process") == ("cpu", "placed meshes")
-    assert tracing.device_for(plain, rays(time=0.5), cuda, "process") == ("cpu", "time")
+    # times matter only where something moves
+    assert tracing.device_for(plain, rays(time=0.5), cuda, "process") == ("cuda", None)
+    moving = tracing.build_engine_scene([(0, vertices, faces, 1, IDENTITY, SHIFTED)])
+    assert tracing.device_for(moving, rays(time=0.5), cuda, "process") == ("cpu", "time")
     stats = make_options("hits", stats=True, device="cuda")
     assert tracing.device_for(plain, rays(), stats, "process") == ("cpu", "stats")
     assert tracing.device_for(plain, rays(), cuda, "cluster") == ("cpu", "cluster")
+
+
+def test_sensors_go_to_the_gpu_where_the_backend_has_what_they_need():
+    from dacrt.sensors import Camera, Lidar
+
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    placed = tracing.build_engine_scene([(0, vertices, faces, 1, IDENTITY)])
+    moving = tracing.build_engine_scene([(0, vertices, faces, 1, IDENTITY, SHIFTED)])
+    first = Lidar("VLP-16", horizontal_steps=8)
+    every = Lidar("VLP-16", horizontal_steps=8, return_mode="all", max_returns=2)
+    sweeping = Lidar("VLP-16", horizontal_steps=8, period_s=0.1)
+    camera = Camera.from_fov(4, 3, fov_deg=60)
+    cuda = make_options(Sensor.LIDAR, device="cuda")
+    assert sensing.sensor_device(placed, [first, camera], cuda) == ("cuda", None)
+    assert sensing.sensor_device(placed, [first], make_options(Sensor.LIDAR)) == ("cpu", None)
+    assert sensing.sensor_device(placed, [camera, every], cuda) == ("cpu", "placed meshes")
+    assert sensing.sensor_device(placed, [sweeping], cuda) == ("cuda", None)
+    assert sensing.sensor_device(moving, [sweeping], cuda) == ("cpu", "time")
+    assert sensing.sensor_device(moving, [first], cuda) == ("cuda", None)
 
 
 # Run under the simulator: DACRT_DEVICE=cuda is accepted, and its answers are the CPU's.
@@ -70,6 +94,19 @@ for kind, stats in (("closest", False), ("count", False), ("hits", False), ("clo
         assert array.dtype == cpu.arrays[name].dtype, name
         assert array.tobytes() == cpu.arrays[name].tobytes(), (kind, name)
     print(kind, "stats" if stats else "", {k: v.tolist() for k, v in gpu.arrays.items()})
+# A lidar above the quads, on the GPU and on the CPU: the same points.
+from dacrt.sensors import Lidar
+from service import sensing
+from service.options import Sensor
+
+pose = np.eye(4)
+pose[:3, 3] = (1.0, 0.5, 0.5)
+lidar = Lidar(vertical_angles_deg=[-60, -30], horizontal_steps=8)
+gpu = sensing.sense(store.snapshot("s"), lidar, pose, make_options(Sensor.LIDAR, device="cuda"))
+cpu = sensing.sense(store.snapshot("s"), lidar, pose, make_options(Sensor.LIDAR))
+assert gpu.fallback is None and len(cpu.arrays["range"]) > 0
+for name, array in cpu.arrays.items():
+    assert array.tobytes() == gpu.arrays[name].tobytes(), ("lidar", name)
 print("ok")
 """
 
