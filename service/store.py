@@ -393,16 +393,14 @@ class Store:
         self, scene: str, name: str, arrays: MeshArrays, mask: int | None = None
     ) -> tuple[Mesh, bool]:
         """Add or replace a mesh (creating the scene); answers (mesh, created). A replaced mesh
-        keeps its transform (and transform_end), and its mask unless ``mask`` is given; it is no
-        longer an instance, and its end vertices, made for the old vertices, are dropped."""
+        keeps its transform, and its mask unless ``mask`` is given; it is no longer an instance,
+        and it is static (new start vertices without an end: ``_changed``)."""
         check_name("scene", scene), check_name("mesh", name)
         geometry = new_geometry(arrays)
         with self._lock:
             old = self._scenes.get(scene)
             before = old.meshes.get(name) if old is not None else None
-            mesh = self._changed(
-                before, name, mask=mask, geometry=geometry, instance_of=None, vertices_end=None
-            )
+            mesh = self._changed(before, name, mask=mask, geometry=geometry, instance_of=None)
             snapshot = self._commit(scene, old, {name: mesh})
             return snapshot.meshes[name], before is None
 
@@ -417,23 +415,22 @@ class Store:
         """Add or replace mesh ``name`` as an instance of mesh ``source`` of the same scene,
         sharing its arrays; answers (mesh, created). ``transform`` (checked, (4, 4)) and
         ``mask`` are the instance's own: a replaced mesh keeps its own where they are None, and
-        drops its end vertices (an instance does not deform)."""
+        it is static (new start vertices without an end: ``_changed``)."""
         check_name("scene", scene), check_name("mesh", name), check_name("mesh", source)
         with self._lock:
             old = self.snapshot(scene)
             before = old.meshes.get(name)
-            mesh = self._changed(
-                before, name, transform, mask, instance_of=source, vertices_end=None
-            )
+            mesh = self._changed(before, name, transform, mask, instance_of=source)
             snapshot = self._commit(scene, old, {name: mesh})
             return snapshot.meshes[name], before is None
 
     def update_vertices(self, scene: str, name: str, vertices: np.ndarray) -> Mesh:
-        """New positions for a mesh's vertices, same count; faces, mask and transform are kept
-        (409 on a count change or for an instance)."""
+        """New positions for a mesh's vertices, same count; faces, mask and transform are kept,
+        and the mesh is static again (409 on a count change or for an instance)."""
         with self._lock:
             old = self.snapshot(scene)
-            mesh = self._moved(old.mesh(name), vertices, old.scene)
+            before = old.mesh(name)
+            mesh = self._changed(before, name, geometry=self._moved(before, vertices, old.scene))
             return self._commit(scene, old, {name: mesh}).meshes[name]
 
     def set_transform(self, scene: str, name: str, transform: np.ndarray | None) -> Mesh:
@@ -442,9 +439,7 @@ class Store:
         with self._lock:
             old = self.snapshot(scene)
             matrix = IDENTITY if transform is None else transform
-            mesh = self._changed(
-                old.mesh(name), name, transform=matrix, transform_end=None, vertices_end=None
-            )
+            mesh = self._changed(old.mesh(name), name, transform=matrix)
             return self._commit(scene, old, {name: mesh}).meshes[name]
 
     def set_mask(self, scene: str, name: str, mask: int) -> Mesh:
@@ -471,24 +466,12 @@ class Store:
         """Change several meshes in one version (``wire.FrameChange``, or a (vertices, faces)
         pair): vertices with faces add or replace a mesh, vertices alone move an existing mesh's
         vertices, ``instance_of`` makes the mesh an instance, and ``transform`` and ``mask`` set
-        its placement and mask (kept where not given); ``transform_end`` sets its placement at
-        the interval's end, and a ``transform`` without one makes the mesh static again;
-        ``vertices_end`` sets its vertices at the interval's end, and ``vertices`` without them
-        make the mesh static again."""
+        its placement and mask (kept where not given); ``transform_end`` and ``vertices_end`` set
+        its placement and vertices at the interval's end (an end alone keeps the start), and a
+        new start (``transform``, ``vertices`` or ``instance_of``) without an end makes the mesh
+        static again (``_changed``)."""
         check_name("scene", scene)
         changes = {name: FrameChange(*change) for name, change in changes.items()}
-        # A new start placement without an end makes the mesh static; an end alone keeps its start.
-        ends = {
-            name: change.transform_end
-            for name, change in changes.items()
-            if change.transform_end is not None or change.transform is not None
-        }
-        # New start vertices without end ones make the mesh static; end ones alone keep its start.
-        vertex_ends = {
-            name: change.vertices_end
-            for name, change in changes.items()
-            if change.vertices_end is not None or change.vertices is not None
-        }
         for name in changes:
             check_name("mesh", name)
         added = {
@@ -501,8 +484,9 @@ class Store:
             meshes: dict[str, Mesh] = {}
             for name, change in changes.items():
                 before = old.meshes.get(name) if old is not None else None
-                end = ends.get(name, ...)
-                vertices_end = vertex_ends.get(name, ...)
+                # an end not given is kept, or dropped by a new start (``_changed``)
+                end = ... if change.transform_end is None else change.transform_end
+                vertices_end = ... if change.vertices_end is None else change.vertices_end
                 material = Material(change.reflectivity, change.label)
                 if name in added:
                     meshes[name] = self._changed(
@@ -534,14 +518,15 @@ class Store:
                         f"{name}.instance_of) to create it"
                     )
                 else:
-                    mesh = before
+                    moved = None
                     if change.vertices is not None:
-                        mesh = self._moved(before, change.vertices, scene)
+                        moved = self._moved(before, change.vertices, scene)
                     meshes[name] = self._changed(
-                        mesh,
+                        before,
                         name,
                         change.transform,
                         change.mask,
+                        moved,
                         material=material,
                         transform_end=end,
                         vertices_end=vertices_end,
@@ -591,9 +576,15 @@ class Store:
         """``before`` (or a new mesh) with what is given changed; ``instance_of=None`` makes it a
         mesh of its own, ``transform_end=None`` or ``vertices_end=None`` static, ``...`` keeps
         what it was (422 where end vertices do not fit the mesh: ``check_deforming``). An
-        instance's geometry is linked by ``_commit``."""
+        instance's geometry is linked by ``_commit``.
+
+        A new start (a transform, vertices or an instance's source) drops every end not given
+        with it: a mesh given a new start and no end is static."""
         if before is None:
             before = Mesh(name, -1, geometry or EMPTY, EMPTY.bounds, 0)
+        if transform is not None or geometry is not None or instance_of is not ...:
+            transform_end = None if transform_end is ... else transform_end
+            vertices_end = None if vertices_end is ... else vertices_end
         changes: dict[str, Any] = {}
         if transform is not None:
             changes["transform"] = owned_transform(transform)
@@ -616,7 +607,8 @@ class Store:
         return placed(check_deforming(replace(before, **changes))) if changes else before
 
     @staticmethod
-    def _moved(mesh: Mesh, vertices: np.ndarray, scene: str) -> Mesh:
+    def _moved(mesh: Mesh, vertices: np.ndarray, scene: str) -> Geometry:
+        """The mesh's geometry with new vertices (409 for an instance or another count)."""
         if mesh.instance_of is not None:
             raise Conflict(
                 f"mesh {mesh.name!r} of scene {scene!r} is an instance of {mesh.instance_of!r}, "
@@ -631,9 +623,7 @@ class Store:
                 f"PUT the whole mesh to /v1/scenes/{scene}/meshes/{mesh.name}"
             )
         vertices = _owned(vertices, "<f4")
-        geometry = Geometry(vertices, mesh.faces, referenced_bounds(vertices, mesh.faces))
-        # New start vertices alone make the mesh static (a frame gives its end with them).
-        return placed(replace(mesh, geometry=geometry, vertices_end=None))
+        return Geometry(vertices, mesh.faces, referenced_bounds(vertices, mesh.faces))
 
     def _commit(
         self, scene: str, old: Snapshot | None, changes: Mapping[str, Mesh | None]

@@ -408,3 +408,29 @@ def test_fields_a_lidar_without_period_does_not_answer_are_422(app_client, scene
         url, params={"fields": "range,velocity"}, json=body, headers={"Accept": accept}
     )
     assert response.status_code == 200, response.text  # the range, as a rig's sensor answers
+
+
+def test_a_new_start_without_an_end_makes_a_mesh_static(app_client, scene_name):
+    """A frame's new start placement of either kind (vertices, or a transform) and no end makes
+    a mesh static whichever way it moved, and it may then take an end of the other kind."""
+    upload_floor(app_client, scene_name)
+    url = f"/v1/scenes/{scene_name}/frame"
+    o, d, times = rays()
+    info = lambda response: {m["mesh"]: m for m in response.json()["meshes"]}["floor"]  # noqa: E731
+    moving = {"floor.transform": lift(0), "floor.transform_end": lift(RISE)}
+    for frame in ({"floor.vertices": floor_at(1.0)}, {"floor.vertices": floor_at(1.0),
+                  "floor.faces": quad(-9, 9, -9, 9, 0)[1].tolist()}):  # fmt: skip
+        assert app_client.post(url, json=moving).status_code == 200
+        response = app_client.post(url, json=frame)
+        assert response.status_code == 200 and info(response)["transform_end"] is None
+        np.testing.assert_allclose(closest_json(app_client, scene_name, o, d, times)["t"], 9.0)
+    assert app_client.post(url, json=moving).status_code == 200
+    frame = {"floor.vertices": floor_at(0), "floor.vertices_end": floor_at(RISE)}
+    response = app_client.post(url, json=frame)
+    assert response.status_code == 200, response.text
+    assert info(response)["transform_end"] is None and info(response)["vertices_end"] == 4
+    # the deforming floor placed by a transform and no end: static, as PUT .../transform makes it
+    response = app_client.post(url, json={"floor.transform": lift(1.0)})
+    assert response.status_code == 200, response.text
+    assert info(response)["vertices_end"] is None
+    np.testing.assert_allclose(closest_json(app_client, scene_name, o, d, times)["t"], 9.0)

@@ -428,3 +428,52 @@ def test_setting_a_transform_makes_a_moving_mesh_static(store):
     placed = store.set_transform("s", "a", shift(3))
     assert np.array_equal(placed.transform, shift(3)) and placed.transform_end is None
     assert store.snapshot("s").meshes["a"].info("s")["transform_end"] is None
+
+
+def test_new_start_vertices_make_a_moving_mesh_static(store):
+    """Every change that gives a mesh new start vertices and no end (a frame's vertices, with
+    faces or not, PUT .../vertices, PUT of the whole mesh) drops its transform_end."""
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    moving = FrameChange(vertices=vertices, faces=faces, transform_end=shift(2))
+    changes = [
+        lambda: store.apply_frame("s", {"a": FrameChange(vertices=vertices)}),
+        lambda: store.apply_frame("s", {"a": FrameChange(vertices=vertices, faces=faces)}),
+        lambda: store.update_vertices("s", "a", vertices),
+        lambda: store.put_mesh("s", "a", MeshArrays(vertices, faces)),
+    ]
+    for change in changes:
+        assert store.apply_frame("s", {"a": moving}).meshes["a"].transform_end is not None
+        change()
+        assert store.snapshot("s").meshes["a"].transform_end is None
+        assert store.snapshot("s").meshes["a"].info("s")["transform_end"] is None
+    # so the moving mesh may deform instead: start and end vertices in one frame
+    store.apply_frame("s", {"a": moving})
+    deforming = FrameChange(vertices=vertices, vertices_end=vertices + 1)
+    mesh = store.apply_frame("s", {"a": deforming}).meshes["a"]
+    assert mesh.transform_end is None and mesh.vertices_end is not None
+    # an end alone keeps the other end
+    mesh = store.apply_frame("s", {"a": FrameChange(mask=3)}).meshes["a"]
+    assert mesh.vertices_end is not None
+
+
+def test_a_new_transform_makes_a_deforming_mesh_static(store):
+    """A frame's transform without an end drops a mesh's vertices_end, as PUT .../transform
+    does, the identity too."""
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    deforming = FrameChange(
+        vertices=vertices, faces=faces, transform=np.eye(4), vertices_end=vertices + 1
+    )
+    for transform in (shift(1), np.eye(4)):
+        assert store.apply_frame("s", {"a": deforming}).meshes["a"].vertices_end is not None
+        mesh = store.apply_frame("s", {"a": FrameChange(transform=transform)}).meshes["a"]
+        assert mesh.vertices_end is None and mesh.transform_end is None
+        np.testing.assert_array_equal(
+            mesh.transform if mesh.transform is not None else np.eye(4), transform
+        )
+    store.apply_frame("s", {"a": deforming})
+    assert store.set_transform("s", "a", shift(1)).vertices_end is None
+    # a transform with its end: now moving by the transform
+    store.apply_frame("s", {"a": deforming})
+    change = FrameChange(transform=shift(1), transform_end=shift(2))
+    mesh = store.apply_frame("s", {"a": change}).meshes["a"]
+    assert mesh.vertices_end is None and np.array_equal(mesh.transform_end, shift(2))
