@@ -314,13 +314,23 @@ def _frame_change(mesh: str, arrays: dict[str, Any]) -> FrameChange:
     )
 
 
-def _one_value(value: Any, name: str, kinds: str) -> Any:
-    """A JSON scalar, or the one element of an npz array of a dtype kind in ``kinds``."""
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind not in kinds or value.size != 1:
-            raise Invalid(f"{name} must be one number, got {value.dtype} {value.shape}")
+#: What ``_one_value``'s dtype kinds are, for its messages: a noun and a dtype of the kind.
+_KINDS = {"iu": ("an integer", "uint32"), "fiu": ("a number", "float32")}
+
+
+def _one_value(value: Any, name: str, kinds: str, fix: str = "") -> Any:
+    """A JSON scalar, or the one element of an npz array of a dtype kind in ``kinds``; 422
+    saying which is wrong, the array's dtype or its size (then ``fix``, where given)."""
+    if not isinstance(value, np.ndarray):
+        return value
+    if value.dtype.kind not in kinds:
+        noun, example = _KINDS[kinds]
+        problem = f"must be {noun} (an array of dtype {example}, say), got {value.dtype}"
+    elif value.size != 1:
+        problem = f"must be one value, got {value.size} values of shape {value.shape}"
+    else:
         return value.ravel()[0].item()
-    return value
+    raise Invalid(f"{name} {problem}" + (f"; {fix}" if fix else ""))
 
 
 def _shown(value: Any, most: int = 60) -> str:
@@ -355,10 +365,7 @@ def parse_mask(value: Any, name: str) -> int:
     """A uint32 visibility mask from decimal or ``0x`` hex text, a JSON integer or an integer
     array of one element; 422 naming the value otherwise."""
     fix = "a mask is a uint32, in decimal (255) or hex (0xff), from 0 to 0xFFFFFFFF"
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind not in "iu" or value.size != 1:
-            raise Invalid(f"{name} must be one integer, got {value.dtype} {value.shape}; {fix}")
-        value = int(value.ravel()[0])
+    value = _one_value(value, name, "iu", fix)
     if isinstance(value, str):
         text = value.strip()
         if not _MASK_TEXT.fullmatch(text):

@@ -159,8 +159,8 @@ def test_a_frame_sets_masks(app_client, scene_name, fmt, value):
 @pytest.mark.parametrize(
     "value, named",
     [
-        (np.float32(1), "a.mask must be one integer"),
-        (np.array([1, 2], np.uint32), "a.mask must be one integer"),
+        (np.float32(1), "a.mask must be an integer (an array of dtype uint32, say), got float32"),
+        (np.array([1, 2], np.uint32), "a.mask must be one value, got 2 values"),
         (np.int64(-3), "a.mask=-3 is negative"),
         (np.uint64(2**40), "a.mask=1099511627776 is over"),
     ],

@@ -910,3 +910,30 @@ def test_too_many_points_is_413_naming_the_limit(fmt):
 def test_reflectivity_takes_both_ends_of_its_range(value):
     expected = float(np.asarray(value).ravel()[0])
     assert wire.parse_reflectivity(value, "car.reflectivity") == expected
+
+
+INTEGER = "must be an integer (an array of dtype uint32, say)"
+
+
+@pytest.mark.parametrize(
+    "parse, key, value, message",
+    [
+        (wire.parse_label, "car.label", np.float32([5]), f"{INTEGER}, got float32"),
+        (wire.parse_label, "car.label", np.array(5.0), f"{INTEGER}, got float64"),
+        (wire.parse_label, "car.label", np.uint32([5, 6]), "must be one value, got 2 values"),
+        (wire.parse_mask, "car.mask", np.float32([1]), f"{INTEGER}, got float32; a mask is"),
+        (wire.parse_mask, "car.mask", np.uint32([1, 2]), "must be one value, got 2 values"),
+        (
+            wire.parse_reflectivity,
+            "car.reflectivity",
+            np.array(["0.5"]),
+            "must be a number (an array of dtype float32, say), got <U3",
+        ),
+        (wire.parse_reflectivity, "car.reflectivity", np.zeros(0), "must be one value, got 0"),
+    ],
+)
+def test_a_one_value_array_of_a_wrong_dtype_or_size_is_422_saying_which(parse, key, value, message):
+    """A frame's one-value keys: a float label is one number of the wrong dtype, and the message
+    says so; a size other than one is told apart."""
+    with pytest.raises(Invalid, match=re.escape(f"{key} {message}")):
+        parse(value, key)
