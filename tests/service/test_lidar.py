@@ -431,3 +431,17 @@ def test_a_rig_sensor_without_a_known_kind_is_named(app_client, room, kind, word
     assert response.status_code in (400, 422), response.text
     assert words in response.json()["detail"]
     assert "discriminator" not in response.text and "tag" not in response.text
+
+
+def test_a_pcd_of_no_points_is_a_header_only_file(app_client, room):
+    """Every point dropped: the PCD has its fields, WIDTH 0, HEIGHT 1, POINTS 0 and no data, as
+    PCL writes an empty cloud (docs/sensors.md says which readers take it)."""
+    body = {"pose": POSES[0].tolist(), "vertical_angles_deg": [0.0], "horizontal_steps": 8}
+    response = lidar(
+        app_client, room, {**body, "dropout": {"rate": 1.0}}, "?fields=xyz", Accept=PCD
+    )
+    assert response.status_code == 200 and response.headers["content-type"] == PCD
+    header, records = read_pcd(response.content)
+    assert header["FIELDS"] == "x y z" and len(records) == 0
+    assert (header["WIDTH"], header["HEIGHT"], header["POINTS"]) == ("0", "1", "0")
+    assert response.content.endswith(b"DATA binary\n")
