@@ -18,6 +18,10 @@ if TYPE_CHECKING:
     from .admission import Admission
     from .persistence import DataDir
 
+#: Scope key of the method the client sent, where a middleware outside the metrics serves the
+#: request as another (``protocol.HeadAsGet``: a HEAD as its GET)
+CLIENT_METHOD = "dacrt.client_method"
+
 _SECONDS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60)
 
 
@@ -117,7 +121,8 @@ class DataDirCollector(Collector):
 
 
 class MetricsMiddleware:
-    """Pure ASGI middleware counting every HTTP request by its route template (not its path)."""
+    """Pure ASGI middleware counting every HTTP request by the method the client sent and its
+    route template (not its path)."""
 
     def __init__(self, app, metrics: Metrics) -> None:
         self.app, self.metrics = app, metrics
@@ -138,5 +143,6 @@ class MetricsMiddleware:
             await self.app(scope, receive, send_and_note)
         finally:
             route = getattr(scope.get("route"), "path", "unmatched")
-            self.metrics.requests.labels(scope["method"], route, str(status)).inc()
+            method = scope.get(CLIENT_METHOD, scope["method"])
+            self.metrics.requests.labels(method, route, str(status)).inc()
             self.metrics.request_seconds.labels(route).observe(time.perf_counter() - start)

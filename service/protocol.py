@@ -50,6 +50,7 @@ from .errors import (
     TooManyConnections,
     status_of,
 )
+from .metrics import CLIENT_METHOD
 from .settings import Settings, load_settings_or_exit
 
 RETRY_AFTER_SECONDS = 1  # connections free up as soon as requests finish
@@ -156,7 +157,8 @@ class HeadAsGet:
                 message = {**message, "body": b""}
             await send(message)
 
-        await self.app({**scope, "method": "GET"}, receive, headers_only)
+        # the metrics, inside, count the method the client sent
+        await self.app({**scope, "method": "GET", CLIENT_METHOD: "HEAD"}, receive, headers_only)
 
 
 class WatchedFlow(FlowControl):

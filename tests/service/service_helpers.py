@@ -90,3 +90,12 @@ def npz_bytes(compressed: bool = False, **arrays) -> bytes:
 
 NPY = {"Content-Type": "application/x-npy"}
 NPZ = {"Content-Type": "application/x-npz"}
+
+
+def metric_sample(text: str, sample: str) -> float:
+    """The value of ``sample`` (a name with its labels, as Prometheus writes it) in /metrics
+    text; 0 when it is absent, as for a counter nothing has counted yet."""
+    for line in text.splitlines():
+        if line.startswith(sample + " "):
+            return float(line.split()[-1])
+    return 0.0

@@ -1,0 +1,23 @@
+"""What /metrics counts, in process: requests by the method the client sent and by the route
+that served them."""
+
+from __future__ import annotations
+
+from service_helpers import metric_sample
+
+
+def requests(app_client, method: str, route: str, status: int) -> float:
+    text = app_client.get("/metrics").text
+    labels = f'method="{method}",route="{route}",status="{status}"'
+    return metric_sample(text, f"dacrt_requests_total{{{labels}}}")
+
+
+def test_head_is_counted_as_head(app_client):
+    """A HEAD is served as its GET, and counted as the HEAD the client sent."""
+    heads, gets = (
+        requests(app_client, "HEAD", "/v1/capabilities", 200),
+        requests(app_client, "GET", "/v1/capabilities", 200),
+    )
+    assert app_client.head("/v1/capabilities").status_code == 200
+    assert requests(app_client, "HEAD", "/v1/capabilities", 200) == heads + 1
+    assert requests(app_client, "GET", "/v1/capabilities", 200) == gets
