@@ -110,7 +110,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.add_middleware(AdmissionMiddleware, admission=admission)  # a ticket for each request
     app.add_middleware(errors.CatchAll)  # inside the metrics, so that they count its 500s
-    app.add_middleware(MetricsMiddleware, metrics=metrics)
+    app.add_middleware(MetricsMiddleware, metrics=metrics, routes=app.router.routes)
     app.add_middleware(HeadAsGet)
     return app
 

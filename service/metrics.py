@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
+from starlette.routing import BaseRoute, Match
 
 if TYPE_CHECKING:
     from .admission import Admission
@@ -21,6 +22,8 @@ if TYPE_CHECKING:
 #: Scope key of the method the client sent, where a middleware outside the metrics serves the
 #: request as another (``protocol.HeadAsGet``: a HEAD as its GET)
 CLIENT_METHOD = "dacrt.client_method"
+#: The route label of a request that no route matched (a 404)
+UNMATCHED_ROUTE = "unmatched"
 
 _SECONDS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60)
 
@@ -121,17 +124,18 @@ class DataDirCollector(Collector):
 
 
 class MetricsMiddleware:
-    """Pure ASGI middleware counting every HTTP request by the method the client sent and its
-    route template (not its path)."""
+    """Pure ASGI middleware counting every HTTP request by the method the client sent and the
+    template of the route (of ``routes``, the app's) that served it, not its path."""
 
-    def __init__(self, app, metrics: Metrics) -> None:
-        self.app, self.metrics = app, metrics
+    def __init__(self, app, metrics: Metrics, routes: list[BaseRoute]) -> None:
+        self.app, self.metrics, self.routes = app, metrics, routes
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         status = 500
         start = time.perf_counter()
+        arrived = dict(scope)  # the router rewrites what it matches (a mount's root_path)
 
         async def send_and_note(message):
             nonlocal status
@@ -142,7 +146,21 @@ class MetricsMiddleware:
         try:
             await self.app(scope, receive, send_and_note)
         finally:
-            route = getattr(scope.get("route"), "path", "unmatched")
+            route = route_template(scope, arrived, self.routes)
             method = scope.get(CLIENT_METHOD, scope["method"])
             self.metrics.requests.labels(method, route, str(status)).inc()
             self.metrics.request_seconds.labels(route).observe(time.perf_counter() - start)
+
+
+def route_template(scope, arrived, routes: list[BaseRoute]) -> str:
+    """The path template of the route that served a request: its FastAPI route's, which the
+    router puts in ``scope``, else that of the first of ``routes`` that the request as it
+    ``arrived`` matches whole (Starlette's own: ``/openapi.json``, a mount's
+    ``/static/swagger-ui/{path}``); UNMATCHED_ROUTE when none does."""
+    route = scope.get("route")
+    if route is not None:
+        return route.path
+    for candidate in routes:
+        if candidate.matches(arrived)[0] is Match.FULL:
+            return candidate.path_format
+    return UNMATCHED_ROUTE
