@@ -125,6 +125,12 @@ STATUS: dict[type[ServiceError], int] = {
 CLIENT_GONE = 499
 
 
+#: Key, in a request's ``scope["state"]``, of the error that the HTTP protocol answered the request
+#: with when it cut its body off (``protocol.GuardedHttpProtocol.cut_off_body``): the app then
+#: sees a client gone, but the request is counted as that answer's status, not CLIENT_GONE.
+CUT_OFF = "dacrt.cut_off"
+
+
 def status_of(error: ServiceError) -> int:
     """HTTP status for a domain error (500 for a ServiceError subclass missing from STATUS)."""
     for cls in type(error).__mro__:
@@ -156,6 +162,9 @@ def install(app) -> None:
         return JSONResponse({"detail": describe_validation(exc.errors())}, status_code=422)
 
     async def on_client_gone(request, exc: ClientDisconnect):
+        cut_off = request.scope.get("state", {}).get(CUT_OFF)
+        if cut_off is not None:  # the protocol answered (and logged) it: the client is told
+            return Response(status_code=status_of(cut_off))
         log.info(
             "%s %s: the client went away before sending the whole body",
             request.method,

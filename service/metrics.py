@@ -15,6 +15,8 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 from starlette.routing import BaseRoute, Match
 
+from .errors import CUT_OFF, status_of
+
 if TYPE_CHECKING:
     from .admission import Admission
     from .persistence import DataDir
@@ -146,6 +148,9 @@ class MetricsMiddleware:
         try:
             await self.app(scope, receive, send_and_note)
         finally:
+            cut_off = scope.get("state", {}).get(CUT_OFF)
+            if cut_off is not None:  # what the client got; the app's own answer went nowhere
+                status = status_of(cut_off)
             route = route_template(scope, arrived, self.routes)
             method = scope.get(CLIENT_METHOD, scope["method"])
             self.metrics.requests.labels(method, route, str(status)).inc()

@@ -32,6 +32,7 @@ from __future__ import annotations
 import asyncio
 import functools
 import json
+import logging
 import weakref
 from collections import Counter
 from collections.abc import Callable
@@ -43,6 +44,7 @@ from uvicorn.protocols.http.httptools_impl import STATUS_LINE, HttpToolsProtocol
 from uvicorn.server import ServerState
 
 from .errors import (
+    CUT_OFF,
     BadBody,
     HeadersTooLarge,
     ServiceError,
@@ -52,6 +54,8 @@ from .errors import (
 )
 from .metrics import CLIENT_METHOD
 from .settings import Settings, load_settings_or_exit
+
+log = logging.getLogger("service")
 
 RETRY_AFTER_SECONDS = 1  # connections free up as soon as requests finish
 #: Bytes of a request's line and headers (a read's worth more may be held before it is known).
@@ -400,7 +404,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         if self.cycle is not None and not self.cycle.response_complete:
             self.end_after_answers()
             return
-        self.answer_and_close(error)
+        self.answer_and_close(error, "a request")
 
     def ignore_upgrade(self, upgrade: httptools.HttpParserUpgrade) -> bool:
         """Answer a request whose ``Upgrade`` the server does not speak (``h2c``, as ``curl
@@ -467,7 +471,8 @@ class GuardedHttpProtocol(HttpToolsProtocol):
                 TimedOut(
                     f"request headers not received within {self.header_timeout:g} s "
                     "(DACRT_HEADER_TIMEOUT)"
-                )
+                ),
+                "a request",
             )
         else:
             self.transport.close()  # nothing was asked: there is no one to answer
@@ -513,15 +518,22 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         if cycle.response_started:
             self.transport.close()
             return
+        cycle.scope["state"][CUT_OFF] = error  # counted as this answer, not as a client gone
         cycle.disconnected = True  # the app's receive() sees a disconnect and its send() is mute
         cycle.message_event.set()
-        self.answer_and_close(error)
+        self.answer_and_close(error, f"{cycle.scope['method']} {cycle.scope['path']}")
 
-    def answer_and_close(self, error: ServiceError) -> None:
-        """Write ``error`` as a whole response outside any ASGI cycle, then close."""
+    def answer_and_close(self, error: ServiceError, request: str) -> None:
+        """Write ``error`` as a whole response outside any ASGI cycle, then close; log it with
+        ``request``, what was read of the request (its method and path)."""
         status, headers, body = error_parts(error, {})
+        log.info("%s: %s answered %d: %s", self.peer(), request, status, error.detail)
         lines = [STATUS_LINE[status]]
         for name, value in [*self.server_state.default_headers, *headers]:
             lines += [name, b": ", value, b"\r\n"]
         self.transport.write(b"".join([*lines, b"\r\n", body]))
         self.transport.close()
+
+    def peer(self) -> str:
+        """The client's address and port, as the access log writes them."""
+        return f"{self.client[0]}:{self.client[1]}" if self.client else "-"

@@ -15,6 +15,7 @@ import httpx
 import numpy as np
 import pytest
 from server_process import ServerProcess
+from service_helpers import metric_sample
 
 HEADER_TIMEOUT, ANSWER_IDLE_TIMEOUT = 1.0, 1.0
 MARGIN = 2.0  # seconds a cut-off may come after its deadline on a busy machine
@@ -224,6 +225,24 @@ def test_an_upgrade_not_spoken_with_a_chunked_body_is_400_naming_it(server):
         answer, _ = read_until_closed(s, 10)
     assert STATUS.match(answer).group(1) == b"400"
     assert "Upgrade: h2c with a chunked body is not served" in detail(answer)
+
+
+def closest_counted(server: ServerProcess, status: int) -> float:
+    text = httpx.get(f"{server.url}/metrics").text
+    labels = f'method="POST",route="/v1/scenes/{{scene}}/closest",status="{status}"'
+    return metric_sample(text, f"dacrt_requests_total{{{labels}}}")
+
+
+def test_an_upgrade_refused_for_its_chunked_body_is_counted_as_its_400(server):
+    """The app sees a client gone, but the client was answered 400: /metrics counts a 400."""
+    before = {status: closest_counted(server, status) for status in (400, 499)}
+    test_an_upgrade_not_spoken_with_a_chunked_body_is_400_naming_it(server)
+    deadline = time.monotonic() + 10  # the app's task ends a little after the answer
+    while closest_counted(server, 400) == before[400] and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert closest_counted(server, 400) == before[400] + 1
+    assert closest_counted(server, 499) == before[499]
+    assert "POST /v1/scenes/s/closest answered 400: Upgrade: h2c" in server.output(last=10**6)
 
 
 @pytest.mark.parametrize(

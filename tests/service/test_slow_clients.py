@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import httpx
 import pytest
 from server_process import ServerProcess
+from service_helpers import metric_sample
 
 HEADER_TIMEOUT, BODY_IDLE_TIMEOUT, BODY_TIMEOUT = 1.0, 1.5, 3.0
 MAX_CONNECTIONS, MAX_PER_CLIENT = 8, 4  # of the ``bounds`` server
@@ -184,6 +185,29 @@ def check_stall(
     ):
         return f"no 408 naming {plan.setting}: {received[-300:]!r}"
     return None
+
+
+def requests_counted(url: str, route: str, status: int) -> float:
+    text = httpx.get(f"{url}/metrics", timeout=5).text
+    return metric_sample(
+        text, f'dacrt_requests_total{{method="POST",route="{route}",status="{status}"}}'
+    )
+
+
+@pytest.mark.parametrize("name", ["body shorter than its Content-Length", "trickled body"])
+def test_a_body_cut_off_is_counted_and_logged_as_the_408_sent(server, process, name):
+    """The app sees a client gone, but the client was answered 408: /metrics counts a 408 (not
+    a 499) and the log says what was answered."""
+    before = {status: requests_counted(server, "/v1/trace", status) for status in (408, 499)}
+    _, received, _ = stall(server, STALLS[name])
+    assert received.startswith(b"HTTP/1.1 408 "), received[:200]
+    deadline = time.monotonic() + WAIT  # the app's task ends a little after the answer
+    while requests_counted(server, "/v1/trace", 408) == before[408]:
+        assert time.monotonic() < deadline, "the 408 was never counted"
+        time.sleep(0.1)
+    assert requests_counted(server, "/v1/trace", 408) == before[408] + 1
+    assert requests_counted(server, "/v1/trace", 499) == before[499]
+    assert "POST /v1/trace answered 408: request body" in process.output(last=10**6)
 
 
 def test_a_hundred_stalled_bodies_are_cut_off_while_health_answers(server, process):
