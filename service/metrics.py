@@ -26,6 +26,11 @@ if TYPE_CHECKING:
 CLIENT_METHOD = "dacrt.client_method"
 #: The route label of a request that no route matched (a 404)
 UNMATCHED_ROUTE = "unmatched"
+#: The route label of an answer the HTTP protocol writes itself (``service.protocol``): to
+#: headers too slow, too large or not HTTP/1.1, and to a connection over a bound
+PROTOCOL_ROUTE = "protocol"
+#: The method label of a request answered before its method was read
+UNKNOWN_METHOD = "unknown"
 
 _SECONDS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60)
 
@@ -97,6 +102,11 @@ class Metrics:
             registry=self.registry,
         ).inc
 
+    def answered(self, method: str, route: str, status: int, seconds: float) -> None:
+        """Count a request answered ``status`` after ``seconds``."""
+        self.requests.labels(method, route, str(status)).inc()
+        self.request_seconds.labels(route).observe(seconds)
+
     def traced(self, query: str, n_rays: int, seconds: float) -> None:
         self.rays.labels(query).inc(n_rays)
         self.trace_seconds.labels(query).observe(seconds)
@@ -153,8 +163,7 @@ class MetricsMiddleware:
                 status = status_of(cut_off)
             route = route_template(scope, arrived, self.routes)
             method = scope.get(CLIENT_METHOD, scope["method"])
-            self.metrics.requests.labels(method, route, str(status)).inc()
-            self.metrics.request_seconds.labels(route).observe(time.perf_counter() - start)
+            self.metrics.answered(method, route, status, time.perf_counter() - start)
 
 
 def route_template(scope, arrived, routes: list[BaseRoute]) -> str:

@@ -23,6 +23,9 @@ A connection opened while ``max_connections`` others are open, or while its clie
 ``/metrics`` are served (and the connection then closed), so that a monitor can always see a full
 server; any other request gets 503 with ``Retry-After`` naming the setting.
 
+Each answer it writes itself, and each 503 of a connection over a bound, is counted in the app's
+``dacrt_requests_total`` under route ``protocol`` (``app_metrics``).
+
 ``python -m service`` uses it; with uvicorn's CLI, pass
 ``--http service.protocol:GuardedHttpProtocol`` (it then reads the DACRT_* environment).
 """
@@ -33,10 +36,11 @@ import asyncio
 import functools
 import json
 import logging
+import time
 import weakref
 from collections import Counter
 from collections.abc import Callable
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import httptools
 from uvicorn.protocols.http.flow_control import FlowControl
@@ -52,8 +56,11 @@ from .errors import (
     TooManyConnections,
     status_of,
 )
-from .metrics import CLIENT_METHOD
+from .metrics import CLIENT_METHOD, PROTOCOL_ROUTE, UNKNOWN_METHOD
 from .settings import Settings, load_settings_or_exit
+
+if TYPE_CHECKING:
+    from .metrics import Metrics
 
 log = logging.getLogger("service")
 
@@ -94,13 +101,29 @@ def error_parts(
     return status_of(error), headers, body
 
 
-def refusal_app(error: ServiceError, extra: dict[str, str]):
-    """An ASGI app that answers every request with ``error`` and closes the connection."""
+def app_metrics(app) -> Metrics | None:
+    """The service's metrics (``app.state.metrics``) of the app uvicorn serves, found inside
+    the middleware uvicorn wraps it in (each holds the next as ``app``); None for another app."""
+    while app is not None:
+        metrics = getattr(getattr(app, "state", None), "metrics", None)
+        if metrics is not None:
+            return metrics
+        app = getattr(app, "app", None)
+    return None
+
+
+def refusal_app(error: ServiceError, extra: dict[str, str], metrics: Metrics | None):
+    """An ASGI app that answers every request with ``error`` and closes the connection,
+    counting each answer in ``metrics`` under route ``protocol``."""
     status, headers, body = error_parts(error, extra)
 
     async def refuse(scope, receive, send) -> None:
+        start = time.perf_counter()
         await send({"type": "http.response.start", "status": status, "headers": headers})
         await send({"type": "http.response.body", "body": body})
+        if metrics is not None:
+            seconds = time.perf_counter() - start
+            metrics.answered(scope["method"], PROTOCOL_ROUTE, status, seconds)
 
     return refuse
 
@@ -123,10 +146,10 @@ def is_probe(scope) -> bool:
     )
 
 
-def reserve_app(app, error: ServiceError, extra: dict[str, str]):
+def reserve_app(app, error: ServiceError, extra: dict[str, str], metrics: Metrics | None):
     """The app of a connection over a bound: ``app`` for probes (``is_probe``), answered with
-    ``Connection: close``; 503 ``error`` for anything else."""
-    refuse = refusal_app(error, extra)
+    ``Connection: close``; 503 ``error`` for anything else (counted in ``metrics``)."""
+    refuse = refusal_app(error, extra, metrics)
 
     async def serve(scope, receive, send) -> None:
         if not is_probe(scope):
@@ -216,10 +239,14 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         self.ending = False  # the connection ends after its answers; later bytes are ignored
         self.answering = None  # the cycle whose answer is being made (pipelining: not self.cycle)
         self.upgrade_body_left = 0  # bytes of a body after an Upgrade not taken, still to come
+        self.metrics: Metrics | None = None  # the app's, where its answers are counted
+        self.request_method = UNKNOWN_METHOD  # of the request being read, once its line names it
+        self.header_clock_start = 0.0  # loop time the awaited request's header clock started
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
         self.flow = WatchedFlow(transport, self.body_read_resumed)
+        self.metrics = app_metrics(self.app)
         per_client = _PER_CLIENT.setdefault(self.server_state, Counter())
         if self.client:  # a Unix socket has no client address
             self.client_host = self.client[0]
@@ -239,8 +266,9 @@ class GuardedHttpProtocol(HttpToolsProtocol):
             refusal = None
         if refusal is not None:
             # uvicorn starts ``self.app`` for each request of this connection
-            self.app = reserve_app(self.app, refusal, {"retry-after": str(RETRY_AFTER_SECONDS)})
-        self.header_deadline = self.loop.call_later(self.header_timeout, self.headers_too_slow)
+            retry = {"retry-after": str(RETRY_AFTER_SECONDS)}
+            self.app = reserve_app(self.app, refusal, retry, self.metrics)
+        self.start_header_clock()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.cancel_deadlines()
@@ -278,7 +306,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
                 return
         if self.awaiting_headers and self.header_deadline is None:
             # bytes between requests, even an empty line, start the next one's header clock
-            self.header_deadline = self.loop.call_later(self.header_timeout, self.headers_too_slow)
+            self.start_header_clock()
         self._unset_keepalive_if_required()
         self.boundary_seen = False
         try:
@@ -309,10 +337,17 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         super().on_message_begin()
         self.request_begun = True
         self.message_header_bytes = 0
+        self.request_method = UNKNOWN_METHOD
         if self.header_deadline is None:  # a later request on a keep-alive connection
-            self.header_deadline = self.loop.call_later(self.header_timeout, self.headers_too_slow)
+            self.start_header_clock()
+
+    def start_header_clock(self) -> None:
+        self.header_deadline = self.loop.call_later(self.header_timeout, self.headers_too_slow)
+        self.header_clock_start = self.loop.time()
 
     def on_url(self, url: bytes) -> None:
+        # the parser has read the method (one of those llhttp knows) before the target
+        self.request_method = self.parser.get_method().decode("ascii")
         self.count_header_bytes(len(url) + 2)  # with the request line's spaces
         super().on_url(url)
 
@@ -404,7 +439,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         if self.cycle is not None and not self.cycle.response_complete:
             self.end_after_answers()
             return
-        self.answer_and_close(error, "a request")
+        self.answer_unread(error)
 
     def ignore_upgrade(self, upgrade: httptools.HttpParserUpgrade) -> bool:
         """Answer a request whose ``Upgrade`` the server does not speak (``h2c``, as ``curl
@@ -467,12 +502,11 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         if self.cycle is not None and not self.cycle.response_complete:
             self.cycle.keep_alive = False  # a pipelined request: end after the answer in progress
         elif self.request_begun:
-            self.answer_and_close(
+            self.answer_unread(
                 TimedOut(
                     f"request headers not received within {self.header_timeout:g} s "
                     "(DACRT_HEADER_TIMEOUT)"
-                ),
-                "a request",
+                )
             )
         else:
             self.transport.close()  # nothing was asked: there is no one to answer
@@ -522,6 +556,15 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         cycle.disconnected = True  # the app's receive() sees a disconnect and its send() is mute
         cycle.message_event.set()
         self.answer_and_close(error, f"{cycle.scope['method']} {cycle.scope['path']}")
+
+    def answer_unread(self, error: ServiceError) -> None:
+        """Answer ``error`` to a request whose line and headers the app never got, counted in
+        the metrics under route ``protocol`` and the method read (``unknown`` before it), and
+        close."""
+        if self.metrics is not None:
+            seconds = self.loop.time() - self.header_clock_start
+            self.metrics.answered(self.request_method, PROTOCOL_ROUTE, status_of(error), seconds)
+        self.answer_and_close(error, f"{self.request_method} request")
 
     def answer_and_close(self, error: ServiceError, request: str) -> None:
         """Write ``error`` as a whole response outside any ASGI cycle, then close; log it with

@@ -283,3 +283,42 @@ def test_a_client_leaving_a_pipeline_leaves_no_error_behind(server):
     time.sleep(2.0)
     assert httpx.get(f"{server.url}/health").status_code == 200
     assert "Traceback" not in server.output(last=200_000)
+
+
+def protocol_counted(server: ServerProcess, method: str, status: int) -> tuple[float, float]:
+    """Requests counted under route "protocol" with ``method`` and ``status``, and the
+    requests the route's time histogram counted."""
+    text = httpx.get(f"{server.url}/metrics").text
+    labels = f'method="{method}",route="protocol",status="{status}"'
+    return (
+        metric_sample(text, f"dacrt_requests_total{{{labels}}}"),
+        metric_sample(text, 'dacrt_request_seconds_count{route="protocol"}'),
+    )
+
+
+@pytest.mark.parametrize(
+    "request_bytes, method, status, words",
+    [
+        (b"GET /v1/scenes HTTP/1.1\r\nHost: x\r\n", "GET", 408, "request headers not received"),
+        (
+            b"GET /v1/scenes HTTP/1.1\r\nHost: x\r\nX-Big: " + b"a" * 70_000 + b"\r\n\r\n",
+            "GET",
+            431,
+            "request line and headers over",
+        ),
+        (b"GARBAGE / HTTP/9\r\n\r\n", "unknown", 400, "the request is not valid HTTP/1.1"),
+    ],
+    ids=["headers too slow", "headers too large", "not HTTP"],
+)
+def test_answers_the_protocol_writes_are_counted_and_logged(
+    server, request_bytes, method, status, words
+):
+    """Answers written before the app sees a request are counted under route "protocol", with
+    the method read (``unknown`` before it is), and logged."""
+    counted, timed = protocol_counted(server, method, status)
+    with connect(server) as s:
+        s.sendall(request_bytes)
+        answer, _ = read_until_closed(s, HEADER_TIMEOUT + 10)
+    assert STATUS.match(answer).group(1) == str(status).encode(), answer[:200]
+    assert protocol_counted(server, method, status) == (counted + 1, timed + 1)
+    assert f"{method} request answered {status}: {words}" in server.output(last=10**6)

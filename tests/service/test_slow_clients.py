@@ -285,6 +285,25 @@ def test_connections_beyond_the_bound_get_503_but_health_and_metrics_answer(boun
         first(lambda: http.get(f"{bounded}/v1/scenes"), 200)
 
 
+def test_refusals_over_the_connection_bound_are_counted(bounded):
+    """A 503 of a connection over a bound is counted under route "protocol"; the probes it
+    still answers are counted under their routes."""
+
+    def counted(method: str, route: str, status: int) -> float:
+        text = httpx.get(f"{bounded}/metrics", timeout=5).text
+        labels = f'method="{method}",route="{route}",status="{status}"'
+        return metric_sample(text, f"dacrt_requests_total{{{labels}}}")
+
+    refusals, probes = counted("GET", "protocol", 503), counted("HEAD", "/health", 200)
+    with client("127.0.0.4") as crowded:
+        with idle_sockets(bounded, ["127.0.0.4"] * MAX_PER_CLIENT):
+            refused = first(lambda: crowded.get(f"{bounded}/v1/scenes"), 503)
+            assert "DACRT_MAX_CONNECTIONS_PER_CLIENT" in refused.json()["detail"]
+            assert crowded.head(f"{bounded}/health").status_code == 200
+    assert counted("GET", "protocol", 503) > refusals  # ``first`` may have met one more
+    assert counted("HEAD", "/health", 200) == probes + 1
+
+
 def test_connections_per_client_address_are_bounded(bounded):
     with client("127.0.0.2") as crowded, client("127.0.0.3") as other:
         with idle_sockets(bounded, ["127.0.0.2"] * MAX_PER_CLIENT):
