@@ -295,9 +295,19 @@ class Snapshot:
 
     @property
     def held_bytes(self) -> int:
-        """Bytes the version holds now: its arrays, and the engine's scene if one was built."""
-        engine = self._cache.get("dacrt")
-        return self.array_bytes + (engine.scene.nbytes if engine is not None else 0)
+        """Bytes the version holds now: its arrays, and the engine's scene if one was built;
+        with those of the earlier version it keeps until its own engine scene is built
+        (``_earlier``), each array and engine scene once."""
+        versions = [self, *self._earlier]
+        arrays = {
+            id(a): a.nbytes
+            for version in versions
+            for m in version.meshes.values()
+            for a in (m.vertices, m.faces)
+        }
+        engines = [version._cache.get("dacrt") for version in versions]
+        scenes = {id(e.scene): e.scene.nbytes for e in engines if e is not None}
+        return sum(arrays.values()) + sum(scenes.values())
 
     @property
     def bounds(self) -> np.ndarray:

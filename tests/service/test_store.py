@@ -154,6 +154,24 @@ def test_held_bytes_count_the_engine_scene_once_built(store):
     assert store.held_bytes() == 3852 + engine.scene.nbytes <= store.nbytes
 
 
+def test_held_bytes_count_the_earlier_engine_scene_kept_for_reuse(store):
+    """After a vertices update, the new version holds the earlier one (its vertices and engine
+    scene) until its own engine scene is built from it; /metrics counts them, the shared faces
+    once, and lets them go once the new version's is built."""
+    vertices, faces = grid(10)
+    store.put_mesh("s", "a", MeshArrays(vertices, faces))
+    before = store.snapshot("s")
+    engine = before.cached("dacrt", tracing._snapshot_engine)
+    store.update_vertices("s", "a", vertices + 1)
+    after = store.snapshot("s")
+    assert after.earlier("dacrt") == (before, engine)
+    assert after.meshes["a"].faces is before.meshes["a"].faces
+    vertex_bytes = after.meshes["a"].vertices.nbytes
+    assert store.held_bytes() == after.array_bytes + vertex_bytes + engine.scene.nbytes
+    built = after.cached("dacrt", tracing._snapshot_engine)
+    assert store.held_bytes() == after.array_bytes + built.scene.nbytes
+
+
 def test_memory_accounting_returns_to_zero(store):
     store.put_mesh("s", "a", MeshArrays(*grid(3)))
     store.put_mesh("s", "b", mesh())
