@@ -59,7 +59,12 @@ class Metrics:
             registry=self.registry,
         )
         self.rays = Counter(
-            "dacrt_rays_traced", "Rays traced, by query", ("query",), registry=self.registry
+            "dacrt_rays_traced",
+            "Rays traced, by query, as DACRT_MAX_RAYS_PER_REQUEST counts them: a query's rays, a "
+            "picture's pixels, a lidar's beams x beam_samples (x max_returns with return_mode "
+            "all), a point query's points (x nsamples with sign=true)",
+            ("query",),
+            registry=self.registry,
         )
         self.cuda_fallbacks = Counter(
             "dacrt_cuda_fallbacks",

@@ -132,7 +132,7 @@ def sense(
     arrays = _answer(found, engine, options)
     stats = _stats(found.stats, options)
     return TraceResult(
-        arrays, snapshot.version, stats, seconds, sensor.n_traced_rays, fallback=fallback
+        arrays, snapshot.version, stats, seconds, request_rays(sensor), fallback=fallback
     )
 
 
@@ -161,8 +161,14 @@ def sense_rig(
         for key, array in _answer(found[name], engine, options).items()
     }
     stats = _stats(next(iter(found.values())).stats, options)
-    n_rays = sum(sensor.n_traced_rays for sensor, _ in sensors.values())
+    n_rays = sum(request_rays(sensor) for sensor, _ in sensors.values())
     return TraceResult(arrays, snapshot.version, stats, seconds, n_rays, fallback=fallback)
+
+
+def request_rays(sensor: Camera | Lidar) -> int:
+    """A sensor's rays as DACRT_MAX_RAYS_PER_REQUEST counts them (API.md): a camera's pixels, a
+    lidar's beams x beam_samples, x max_returns with return_mode all (``Lidar.n_rays``)."""
+    return sensor.n_traced_rays * hits_per_ray(sensor)
 
 
 def hits_per_ray(sensor: Camera | Lidar) -> int:

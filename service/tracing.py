@@ -305,6 +305,11 @@ class PointOptions:
     def fields(self) -> tuple[str, ...]:
         return NEAREST_FIELDS + (SIGN_FIELDS if self.sign else ())
 
+    def rays(self, n_points: int) -> int:
+        """The rays of a query of ``n_points`` points, as DACRT_MAX_RAYS_PER_REQUEST counts
+        them: one a point, or with ``sign`` the inside test's, ``nsamples`` a point."""
+        return n_points * self.nsamples if self.sign else n_points
+
 
 def point_options(
     max_distance: float | None,
@@ -329,7 +334,7 @@ def point_options(
 def check_point_rays(options: PointOptions, n_points: int, max_rays: int) -> None:
     """413 when ``n_points`` points' inside test (``nsamples`` rays a point, with ``sign``)
     traces more than ``max_rays`` rays: the rays' budget of one request."""
-    if options.sign and n_points * options.nsamples > max_rays:
+    if options.sign and options.rays(n_points) > max_rays:
         raise TooLarge(
             f"{n_points} points x nsamples {options.nsamples} is {n_points * options.nsamples} "
             f"rays, over the limit of {max_rays} (DACRT_MAX_RAYS_PER_REQUEST); send fewer "
@@ -354,4 +359,4 @@ def nearest(snapshot: Snapshot, points: np.ndarray, options: PointOptions) -> Tr
         arrays["signed_distance"] = signed(found.distance, inside)
     stats = None if found.stats is None else {**found.stats, "where": "process"}
     seconds = time.perf_counter() - start
-    return TraceResult(arrays, snapshot.version, stats, seconds, len(points))
+    return TraceResult(arrays, snapshot.version, stats, seconds, options.rays(len(points)))

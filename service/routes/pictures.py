@@ -305,7 +305,7 @@ def check_sensors(sensors: dict, settings: Settings) -> None:
                 f"{name}: {sensor.width} x {sensor.height} = {pixels} pixels is over the limit "
                 f"of {settings.max_image_pixels} pixels (DACRT_MAX_IMAGE_PIXELS)"
             )
-        total += sensor.n_traced_rays * sensing.hits_per_ray(sensor)
+        total += sensing.request_rays(sensor)
     if total > settings.max_rays_per_request:
         (name, sensor), *others = sensors.items()
         what = "the sensors' rays together" if others else RAY_WORDS[type(sensor)]

@@ -1,5 +1,5 @@
 """What /metrics counts, in process: requests by the method the client sent and by the route
-that served them."""
+that served them, and rays as DACRT_MAX_RAYS_PER_REQUEST counts them."""
 
 from __future__ import annotations
 
@@ -43,3 +43,35 @@ def test_a_path_no_route_matches_is_counted_as_unmatched(app_client):
     before = requests(app_client, "GET", "unmatched", 404)
     assert app_client.get("/no/such/path").status_code == 404
     assert requests(app_client, "GET", "unmatched", 404) == before + 1
+
+
+BOX = {
+    "vertices": [[-5, -5, -1], [5, -5, -1], [5, 5, -1], [-5, 5, -1], [-5, -5, 1], [5, -5, 1]],
+    "faces": [[0, 2, 1], [0, 3, 2], [4, 5, 1]],
+}
+POSE = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+#: VLP-16 (16 beams a step), 32 steps, 2 sub-rays a beam, 3 returns each: 3072 rays
+LIDAR = {"pose": POSE, "model": "VLP-16", "horizontal_steps": 32, "beam_samples": 2}
+ALL_RETURNS = {"max_returns": 3, "return_mode": "all"}
+
+
+@pytest.mark.parametrize(
+    "query, path, body, rays",
+    [
+        ("lidar", "lidar", {**LIDAR, **ALL_RETURNS}, 16 * 32 * 2 * 3),
+        ("lidar", "lidar", {**LIDAR, "max_returns": 3, "return_mode": "strongest"}, 16 * 32 * 2),
+        ("sensors", "sensors", {"sensors": {"a": {"kind": "lidar", **LIDAR, **ALL_RETURNS}}}, 3072),
+        ("nearest", "nearest?sign=true&nsamples=5", {"points": [[0, 0, 0], [0, 0, 3]]}, 2 * 5),
+        ("nearest", "nearest", {"points": [[0, 0, 0], [0, 0, 3]]}, 2),
+    ],
+    ids=["lidar all", "lidar strongest", "rig", "nearest sign", "nearest"],
+)
+def test_rays_are_counted_as_the_limit_counts_them(app_client, scene_name, query, path, body, rays):
+    """dacrt_rays_traced_total counts what DACRT_MAX_RAYS_PER_REQUEST bounds (API.md): a
+    lidar's beams x beam_samples (x max_returns with "all"), a point query's points (x nsamples
+    with its inside test)."""
+    app_client.put(f"/v1/scenes/{scene_name}/meshes/box", json=BOX).raise_for_status()
+    sample = f'dacrt_rays_traced_total{{query="{query}"}}'
+    before = metric_sample(app_client.get("/metrics").text, sample)
+    app_client.post(f"/v1/scenes/{scene_name}/{path}", json=body).raise_for_status()
+    assert metric_sample(app_client.get("/metrics").text, sample) == before + rays
