@@ -756,23 +756,23 @@ class Scene:
                 self, origins, directions, tmin, tmax, max_hits=max_hits, cull=cull, mask=mask,
                 time=time,
             )  # fmt: skip
+        return self._hits(
+            origins, directions, tmin, tmax, max_hits, cull, mask, strategy, threads, stats, time
+        )
+
+    def _hits(
+        self, origins, directions, tmin, tmax, max_hits, cull, mask, strategy, threads, stats,
+        time, tracer=None,
+    ):  # fmt: skip
+        """``hits`` with its levels traced by ``tracer`` (None: ``_trace_level``)."""
         max_hits = check_max_hits(max_hits)
         # One entry beyond max_hits tells a truncated list from a full one; a ray has no more
         # hits than the level has triangles.
         list_size = min(max_hits, len(self._base)) + 1
         query, traced = self._trace(
-            ALL_HITS,
-            origins,
-            directions,
-            tmin,
-            tmax,
-            cull,
-            mask,
-            strategy,
-            threads,
-            list_size,
-            time,
-        )
+            ALL_HITS, origins, directions, tmin, tmax, cull, mask, strategy, threads, list_size,
+            time, tracer,
+        )  # fmt: skip
         n_rays = len(query.origins)
         # With instances or deforming meshes, each level keeps its max_hits + 1 nearest, merged
         # below.
@@ -881,9 +881,19 @@ class Scene:
             return cuda.count(
                 self, origins, directions, tmin, tmax, cull=cull, mask=mask, time=time
             )
-        query, traced = self._trace(
-            COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time
+        return self._count(
+            origins, directions, tmin, tmax, cull, mask, strategy, threads, stats, time
         )
+
+    def _count(
+        self, origins, directions, tmin, tmax, cull, mask, strategy, threads, stats, time,
+        tracer=None,
+    ):  # fmt: skip
+        """``count`` with its levels traced by ``tracer`` (None: ``_trace_level``)."""
+        query, traced = self._trace(
+            COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time,
+            tracer=tracer,
+        )  # fmt: skip
         counts = traced.arrays.n_hits
         per_level = [traced.stats]
         if self._deforming is not None and len(counts):

@@ -55,20 +55,16 @@ def sensor_device(
     engine: EngineScene, sensors: list[Camera | Lidar], options: Options
 ) -> tuple[str, str | None]:
     """Where sensors' rays are traced: ("cuda", None) where DACRT_DEVICE=cuda and the CUDA
-    backend has what every sensor needs (``dacrt.cuda.lacks``: closest, or hits for a lidar
-    that sees through surfaces; times for a lidar with ``period_s``); else "cpu" and what the
-    backend lacks, None where DACRT_DEVICE=cpu."""
+    backend has what the sensors need (``dacrt.cuda.lacks``: times for a lidar with
+    ``period_s``); else "cpu" and what the backend lacks, None where DACRT_DEVICE=cpu."""
     if options.device != "cuda":
         return "cpu", None
     from dacrt import cuda  # numba.cuda is imported only where DACRT_DEVICE=cuda
 
-    for sensor in sensors:
-        lidar = isinstance(sensor, Lidar)
-        kind = "hits" if lidar and sensor.return_mode == "all" else "closest"
-        timed = True if lidar and sensor.period_s is not None else None
-        lacking = cuda.lacks(engine.scene, timed, options.stats, kind)
-        if lacking is not None:
-            return "cpu", lacking
+    timed = any(isinstance(sensor, Lidar) and sensor.period_s is not None for sensor in sensors)
+    lacking = cuda.lacks(engine.scene, True if timed else None, options.stats)
+    if lacking is not None:
+        return "cpu", lacking
     return "cuda", None
 
 

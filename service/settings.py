@@ -88,8 +88,8 @@ class Settings(BaseSettings):
     max_inflight_bytes: Bytes | None = None
     #: seconds a request waits for room in that budget before it is answered 503
     admission_wait: Annotated[float, Field(ge=0)] = 5
-    #: where queries are traced: "cpu", or "cuda" (``dacrt.cuda``: closest, occluded, hits and
-    #: count on scenes without placed meshes, rays without times, no ?stats; the CPU traces the
+    #: where queries and sensors are traced: "cpu", or "cuda" (``dacrt.cuda``: on scenes without
+    #: deforming meshes, rays without times where something moves, no ?stats; the CPU traces the
     #: rest); "cuda" is refused at start where no GPU (nor Numba's CUDA simulator) is available
     device: Literal["cpu", "cuda"] = "cpu"
 

@@ -6,7 +6,8 @@ placements, vertices and masks changed (a frame that moves actors packs only the
 engine's mesh positions to the meshes' stable indices, picks the answer's keys (``Options.pick``)
 and lets the engine's ``InputError`` (bad rays, named by the engine) through: ``errors`` maps it
 to 422. With DACRT_DEVICE=cuda, closest, occluded, hits and count run on the GPU where the CUDA
-backend answers them, and on the CPU otherwise (``device_for``: placed meshes, times, stats).
+backend answers them, and on the CPU otherwise (``device_for``: deforming meshes, times where
+something moves, stats, a dask cluster).
 """
 
 from __future__ import annotations
@@ -271,8 +272,7 @@ def device_for(
     engine: EngineScene, rays: Rays, options: Options, where: str
 ) -> tuple[str, str | None]:
     """Where a query is traced: ("cuda", None) where DACRT_DEVICE=cuda and the CUDA backend
-    answers it; else "cpu" and what that backend lacks ("placed meshes" in hits and count,
-    "deforming meshes",
+    answers it; else "cpu" and what that backend lacks ("deforming meshes",
     "time", "stats", or "cluster": a dask cluster's workers trace on their CPUs), None where
     DACRT_DEVICE=cpu."""
     if options.device != "cuda":
@@ -281,7 +281,7 @@ def device_for(
         return "cpu", "cluster"
     from dacrt import cuda  # numba.cuda is imported only where DACRT_DEVICE=cuda
 
-    lacking = cuda.lacks(engine.scene, rays.time, options.stats, Query(options.kind).value)
+    lacking = cuda.lacks(engine.scene, rays.time, options.stats)
     return ("cpu", lacking) if lacking is not None else ("cuda", None)
 
 

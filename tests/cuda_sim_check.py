@@ -131,8 +131,8 @@ def rotation(rng):
 
 
 def check_placed_meshes(rng):
-    """Placed meshes (instances traced in their mesh's space, merged on the host): closest and
-    occluded as the CPU's, bit for bit; hits and count refuse them."""
+    """Placed meshes (instances traced in their mesh's space, merged on the host): closest,
+    occluded, count and hits as the CPU's, bit for bit."""
     base, car = soup(rng, 60)
     placements = [
         None,
@@ -169,13 +169,11 @@ def check_placed_meshes(rng):
                                         placements[4]], masks=masks).closest(o, d).t,
     )  # fmt: skip
     check_sensors(scene, rng)
-    for kind in ("count", "hits"):
-        try:
-            getattr(scene, kind)(o, d, device="cuda")
-        except ValueError as error:
-            assert "placed meshes in " + kind in str(error), error
-        else:
-            raise AssertionError(f"{kind} took placed meshes")
+    compare_crossings("placed", scene, o, d, 3, by_scene=True)
+    compare_crossings("placed cull back, masks", scene, o, d, 16, cull="back", mask=ray_masks)
+    compare_crossings("placed cull front, one mask", scene, o, d, 2, cull="front", mask=6)
+    compare_crossings("placed tmin tmax", scene, o, d, 4, tmin=tmin, tmax=tmax)
+    compare_crossings("placed only, moving at 0", only, o, d, 5)
     # A ray that leaves float32's range in a mesh's space is named with that mesh, as on the CPU.
     halved = dacrt.Scene(
         [base, car], transforms=[affine(np.eye(3), (5, 5, 0)), affine(np.eye(3) * 0.5, (0, 0, 0))]
@@ -314,15 +312,10 @@ def main():
     assert len(empty_hits) == 0 and list(empty_hits.offsets) == [0]
     empty = dacrt.Scene([(np.zeros((0, 3), np.float32), np.zeros((0, 3), int))])
     compare_crossings("no triangles", empty, o[:3], d[:3], 2)
-    # Lists beyond the device bound are refused, naming max_hits.
+    # Lists beyond the device bound are traced in chunks of rays that fit: 3 rays a chunk.
     bound = cuda_query.MAX_LIST_BYTES
-    cuda_query.MAX_LIST_BYTES = 8 * len(o) * 3 - 1
-    try:
-        dcuda.hits(scene, o, d, max_hits=3)
-    except ValueError as error:
-        assert "max_hits=3" in str(error), error
-    else:
-        raise AssertionError("lists over the bound were accepted")
+    cuda_query.MAX_LIST_BYTES = 8 * 3 * (3 + 1)
+    compare_crossings("lists in chunks", scene, o, d, 3)
     cuda_query.MAX_LIST_BYTES = bound
     # No rays, and a bad ray: the CPU engine's answer and error.
     assert len(dcuda.closest(scene, np.zeros((0, 3)), np.zeros((0, 3)))) == 0

@@ -64,11 +64,7 @@ def test_cuda_refuses_unsupported_options():
         [(verts, [[0, 1, 2]])],
         transforms=[[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]],
     )
-    with pytest.raises(InputError, match="placed meshes in hits"):
-        dcuda.hits(placed, [[0.2, 0.2, 1]], [[0, 0, -1]])
-    assert dcuda.lacks(placed, kind="closest") is None
-    assert dcuda.lacks(placed, kind="occluded") is None
-    assert dcuda.lacks(placed, kind="count") == "placed meshes"
+    assert dcuda.lacks(placed) is None
     scene = dacrt.Scene([(verts, [[0, 1, 2]])])
     shifted = np.eye(4)
     shifted[:3, 3] = 1.0
@@ -78,8 +74,6 @@ def test_cuda_refuses_unsupported_options():
     assert dcuda.lacks(moving, time=0.5) == "time" and dcuda.lacks(scene, time=0.5) is None
     with pytest.raises(InputError, match="stats"):
         scene.closest([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda", stats=True)
-    with pytest.raises(InputError, match="placed meshes in count"):
-        placed.count([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda")
     with pytest.raises(InputError, match="stats"):
         scene.hits([[0.2, 0.2, 1]], [[0, 0, -1]], device="cuda", stats=True)
     with pytest.raises(InputError, match="max_hits"):

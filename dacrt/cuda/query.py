@@ -1,24 +1,27 @@
-"""``closest``, ``occluded``, ``hits`` and ``count`` on the GPU: check the query as the CPU
-engine does, trace the scene's base level breadth-first (``traversal``), finish the answers with
-the CPU's code."""
+"""``closest``, ``occluded``, ``hits`` and ``count`` on the GPU: ``Scene``'s own queries, each
+level (the base level, each batch of instances in its mesh's space) traced breadth-first here
+(``traversal``), the levels' answers checked, merged and finished by the CPU engine's code."""
 
 import threading
-from typing import NamedTuple
 
 import numpy as np
 from numba import cuda
 
-from ..contracts import FLOAT, INDEX, Counts, HitList
+from ..contracts import FLOAT, INDEX
 from ..leaf import NO_HIT
-from ..query import ALL_MASKS, ANY_HIT, CULL_BACK, CULL_FLAGS, CULL_FRONT, MASKED, QueryArrays
+from ..query import (
+    ALL_HITS,
+    ANY_HIT,
+    COLLECT,
+    CULL_BACK,
+    CULL_FRONT,
+    MASKED,
+    QueryArrays,
+)
 from ..scene import Traced
 from ..validation import (
     InputError,
-    check_cull,
-    check_masks,
-    check_max_hits,
     check_rays,
-    check_time,
     explain_bad_rays,
 )
 from . import kernels
@@ -26,17 +29,14 @@ from .traversal import MAX_PAIRS, launch, traverse
 
 # A level's masks where the query checks none.
 NO_MASKS = np.zeros(0, np.uint32)
-# The most device memory ``hits`` takes for its lists: 8 bytes a key, min(max_hits, triangles)
-# keys a ray.
+# The most device memory a trace's hit lists take at once: 8 bytes a key, min(max_hits,
+# triangles) + 1 keys a ray; more rays are traced in chunks.
 MAX_LIST_BYTES = 1 << 31
 
 
-def lacks(scene, time=None, stats=False, kind="closest"):
-    """What of a query of ``kind`` ("closest", "occluded", "hits", "count") this backend does
-    not have: "placed meshes" (the scene's transforms, for hits and count), "deforming meshes"
-    (vertices_end), "time" or "stats"; None where it answers it."""
-    if scene._instances and kind in ("hits", "count"):
-        return "placed meshes"
+def lacks(scene, time=None, stats=False):
+    """What of a query this backend does not have: "deforming meshes" (vertices_end), "time"
+    (rays with times in a scene that moves) or "stats"; None where it answers it."""
     if scene._deforming is not None:
         return "deforming meshes"
     if time is not None and scene._moving:  # where nothing moves, every instant is the same
@@ -46,38 +46,15 @@ def lacks(scene, time=None, stats=False, kind="closest"):
     return None
 
 
-def check_supported(scene, time, max_pairs, kind):
-    """InputError naming an option this backend does not have yet for a query of ``kind``, or
-    a bad ``max_pairs``."""
+def check_supported(scene, time, max_pairs):
+    """InputError naming an option this backend does not have yet, or a bad ``max_pairs``."""
     if isinstance(max_pairs, bool) or not isinstance(max_pairs, int | np.integer) or max_pairs < 1:
         raise InputError(f"max_pairs must be a positive integer, got {max_pairs!r}")
-    lacking = lacks(scene, time, kind=kind)
-    if lacking == "placed meshes":
-        raise InputError(
-            f"device='cuda' does not support placed meshes in {kind} yet (transforms, "
-            "transforms_end); closest and occluded take them"
-        )
+    lacking = lacks(scene, time)
     if lacking == "deforming meshes":
         raise InputError("device='cuda' does not support deforming meshes yet (vertices_end)")
     if lacking == "time":
         raise InputError("device='cuda' does not support time= in a scene that moves yet")
-
-
-def prepare(scene, origins, directions, tmin, tmax, cull, mask):
-    """The checked query's device arrays, culling side and masks."""
-    origins, directions, tmin, tmax = check_query_rays(origins, directions, tmin, tmax)
-    flags = CULL_FLAGS[check_cull(cull)]
-    # det * cull_side > 0 culls, as ``geometry.culled_side``.
-    cull_side = -1.0 if flags & CULL_BACK else (1.0 if flags & CULL_FRONT else 0.0)
-    n = len(origins)
-    if mask is None and scene.masks.all():  # the default mask sees every mesh: no masks to test
-        ray_masks = np.zeros(0, np.uint32)
-        tri_masks = np.zeros(0, np.uint32)
-    else:  # a mesh with mask 0 is hidden from the default mask too
-        ray_masks = check_masks(ALL_MASKS if mask is None else mask, n, "mask", "ray")
-        tri_masks = scene._row_masks
-    device = device_rays(origins, directions, tmin, tmax, ray_masks, tri_masks)
-    return origins, directions, tmin, tmax, cull_side, device
 
 
 def level_arrays(verts, ids):
@@ -95,11 +72,6 @@ def level_arrays(verts, ids):
         cuda.to_device(tri_box),
         box.astype(FLOAT),
     )
-
-
-def scene_arrays(scene):
-    """The base level's rows on the device (``level_arrays``)."""
-    return level_arrays(scene._base.verts, scene._base.ids)
 
 
 # One level traced at a time: a query's instance batches run side by side on host threads.
@@ -127,8 +99,13 @@ def level_tracer(max_pairs=MAX_PAIRS):
             verts, ids = verts[visible_rows], ids[visible_rows]
         if not flags & MASKED:
             ray_masks, tri_masks = NO_MASKS, NO_MASKS
+        if flags & COLLECT:
+            return trace_collect(
+                verts, ids, visible_rows, flags, (origins, directions, tmin, tmax), ray_masks,
+                tri_masks, list_size, max_pairs,
+            )  # fmt: skip
         if n and len(ids):
-            cull_side = -1.0 if flags & CULL_BACK else (1.0 if flags & CULL_FRONT else 0.0)
+            cull_side = culling_side(flags)
             rays = (origins, directions, tmin, tmax)
             with DEVICE_LOCK:
                 if flags & ANY_HIT:
@@ -147,6 +124,81 @@ def level_tracer(max_pairs=MAX_PAIRS):
         return Traced(best_t, arrays, [])
 
     return trace
+
+
+def culling_side(flags):
+    """det * side > 0 culls (``geometry.culled_side``): -1 for back, 1 for front, 0 for none."""
+    return -1.0 if flags & CULL_BACK else (1.0 if flags & CULL_FRONT else 0.0)
+
+
+def trace_collect(verts, ids, visible_rows, flags, rays, ray_masks, tri_masks, list_size,
+                  max_pairs):  # fmt: skip
+    """``Traced`` of a COUNT or ALL_HITS trace of the rows (``verts``, tie keys ``ids``; kernel
+    rows ``visible_rows`` of the level, or None for all): n_hits, each ray's crossings (COUNT)
+    or the hits its list holds (ALL_HITS: its ``list_size`` nearest, list_t and list_tri in
+    (t, tie key) order)."""
+    n = len(rays[0])
+    width = min(list_size, len(ids)) if flags & ALL_HITS else 0
+    counts = np.zeros(n, INDEX)
+    keys = np.full((n, width), kernels.NO_KEY, np.uint64)
+    if n and len(ids):
+        with DEVICE_LOCK:
+            trace_crossings(
+                verts, ids, rays, ray_masks, tri_masks, culling_side(flags), counts, keys,
+                max_pairs,
+            )  # fmt: skip
+    list_t = np.empty((0, 0), FLOAT)
+    list_tri = np.empty((0, 0), INDEX)
+    if flags & ALL_HITS:
+        keys.sort(axis=1)  # nearest first: (t, tie key) order
+        held = keys != kernels.NO_KEY
+        counts = np.minimum(counts, width).astype(INDEX)
+        list_t = key_distances(keys)
+        rows = np.full(len(ids) and int(ids.max()) + 1, NO_HIT, INDEX)
+        rows[ids] = np.arange(len(ids), dtype=INDEX) if visible_rows is None else visible_rows
+        list_tri = np.where(held, rows[np.where(held, keys & kernels.LOW32, 0)], NO_HIT)
+        list_tri = list_tri.astype(INDEX)
+    empty = np.zeros(0, np.uint32)
+    arrays = QueryArrays(
+        np.zeros(0, INDEX), np.zeros(0, FLOAT), np.zeros(0, FLOAT), empty, empty, empty, counts,
+        list_t, list_tri, empty, empty, empty,
+    )  # fmt: skip
+    return Traced(np.array(rays[3], FLOAT), arrays, [])
+
+
+def trace_crossings(verts, ids, rays, ray_masks, tri_masks, cull_side, counts, keys, max_pairs):
+    """Each ray's crossings of the rows into ``counts``, and its ``keys.shape[1]`` smallest
+    (t, tie key) keys, unsorted, into ``keys`` (NO_KEY where it has fewer); the rays in chunks
+    whose lists fit MAX_LIST_BYTES."""
+    n, width = keys.shape
+    level = level_arrays(verts, ids)
+    per_chunk = max(1, MAX_LIST_BYTES // (8 * max(width, 1)))
+    for lo in range(0, n, per_chunk):
+        part = slice(lo, min(n, lo + per_chunk))
+        masks = ray_masks[part] if len(ray_masks) else ray_masks
+        chunk = device_rays(*(a[part] for a in rays), masks, tri_masks)
+        counts[part], keys[part] = crossings_of_chunk(
+            level, chunk, cull_side, counts[part], keys[part], max_pairs
+        )
+
+
+def crossings_of_chunk(level, chunk, cull_side, counts, keys, max_pairs):
+    """(counts, keys) of one chunk of rays (``device_rays``) on a level (``level_arrays``)."""
+    verts, tie_keys, centroids, tri_box, box = level
+    o, d, inv_d, lo, hi, ray_masks, tri_masks = chunk
+    counts_d = cuda.to_device(counts)
+    keys_d = cuda.to_device(keys)
+
+    def run_leaves(frontier, kind):
+        launch(
+            kernels.leaf_crossings, frontier.ray_ids.shape[0], frontier.ray_ids,
+            frontier.ray_node, kind, cuda.to_device(frontier.tri_lo),
+            cuda.to_device(frontier.tri_n), frontier.rows, o, d, lo, hi, verts, tie_keys,
+            ray_masks, tri_masks, cull_side, counts_d, keys_d,
+        )  # fmt: skip
+
+    traverse((centroids, tri_box, box), (o, inv_d, lo, hi), run_leaves, max_pairs)
+    return counts_d.copy_to_host(), keys_d.copy_to_host()
 
 
 def device_rays(origins, directions, tmin, tmax, ray_masks, tri_masks):
@@ -226,7 +278,7 @@ def closest(scene, origins, directions, tmin=None, tmax=None, *, cull="none", ma
             time=None, max_pairs=MAX_PAIRS):  # fmt: skip
     """``Scene.closest`` on the GPU: the same ``Hits``, bit for bit (no ``stats``); the levels
     are traced here, their answers merged on the host as the CPU engine merges them."""
-    check_supported(scene, time, max_pairs, "closest")
+    check_supported(scene, time, max_pairs)
     tracer = level_tracer(max_pairs)
     return scene._closest(
         origins, directions, tmin, tmax, cull, mask, "sampling", None, False, time, tracer
@@ -236,7 +288,7 @@ def closest(scene, origins, directions, tmin=None, tmax=None, *, cull="none", ma
 def occluded(scene, origins, directions, tmin=None, tmax=None, *, cull="none", mask=None,
              time=None, max_pairs=MAX_PAIRS):  # fmt: skip
     """``Scene.occluded`` on the GPU: the same ``Occlusion`` (no ``stats``)."""
-    check_supported(scene, time, max_pairs, "occluded")
+    check_supported(scene, time, max_pairs)
     tracer = level_tracer(max_pairs)
     return scene._occluded(
         origins, directions, tmin, tmax, cull, mask, "sampling", None, False, time, tracer
@@ -246,50 +298,26 @@ def occluded(scene, origins, directions, tmin=None, tmax=None, *, cull="none", m
 def count(scene, origins, directions, tmin=None, tmax=None, *, cull="none", mask=None,
           time=None, max_pairs=MAX_PAIRS):  # fmt: skip
     """``Scene.count`` on the GPU: the same ``Counts`` (no ``stats``)."""
-    check_supported(scene, time, max_pairs, "count")
-    counts, _, _ = crossings(scene, origins, directions, tmin, tmax, cull, mask, time, 0, max_pairs)
-    return Counts(counts)
+    check_supported(scene, time, max_pairs)
+    tracer = level_tracer(max_pairs)
+    return scene._count(
+        origins, directions, tmin, tmax, cull, mask, "sampling", None, False, time, tracer
+    )
 
 
 def hits(scene, origins, directions, tmin=None, tmax=None, *, max_hits=16, cull="none",
          mask=None, time=None, max_pairs=MAX_PAIRS):  # fmt: skip
     """``Scene.hits`` on the GPU: the same ``HitList`` (no ``stats``).
 
-    Each ray keeps its min(max_hits, triangles) nearest keys on the device, 8 bytes each: a
-    batch that needs more than ``MAX_LIST_BYTES`` (2 GiB) for them is refused (InputError
-    naming max_hits); split it into batches of fewer rays."""
-    check_supported(scene, time, max_pairs, "hits")
-    max_hits = check_max_hits(max_hits)
-    counts, keys, checked = crossings(
-        scene, origins, directions, tmin, tmax, cull, mask, time, max_hits, max_pairs
-    )
-    origins, directions = checked
-    # Each row's keys, nearest first (NO_KEY, the largest, after the held ones).
-    keys.sort(axis=1)
-    held = keys != kernels.NO_KEY
-    row_of_key = np.zeros(scene.n_triangles, INDEX)
-    row_of_key[scene._base.ids] = np.arange(len(scene._base.ids), dtype=INDEX)
-    rows = row_of_key[np.where(held, keys & kernels.LOW32, 0).astype(np.int64)]
-    lists = CrossingLists(counts, key_distances(keys), rows)
-    offsets, t, mesh, prim, u, v, normal = scene._finish_hits(
-        TracedLists(lists), origins, directions, scene._base, scene.mesh_offsets, max_hits
-    )
-    return HitList(offsets, t, mesh, prim, u, v, normal, counts > max_hits)
-
-
-class CrossingLists(NamedTuple):
-    """The fields of ``QueryArrays`` that ``Scene._finish_hits`` reads: each ray's crossing
-    count, and its nearest crossings' t and kernel rows, sorted by (t, tie key)."""
-
-    n_hits: np.ndarray
-    list_t: np.ndarray
-    list_tri: np.ndarray
-
-
-class TracedLists(NamedTuple):
-    """A trace's answer as ``Scene._finish_hits`` takes it."""
-
-    arrays: CrossingLists
+    Each ray keeps its min(max_hits, triangles) + 1 nearest keys on the device, 8 bytes each;
+    a batch whose lists need more than ``MAX_LIST_BYTES`` (2 GiB) is traced in chunks of rays
+    that fit."""
+    check_supported(scene, time, max_pairs)
+    tracer = level_tracer(max_pairs)
+    return scene._hits(
+        origins, directions, tmin, tmax, max_hits, cull, mask, "sampling", None, False, time,
+        tracer,
+    )  # fmt: skip
 
 
 def key_distances(keys):
@@ -298,42 +326,3 @@ def key_distances(keys):
     positive = bits >= kernels.SIGN32
     bits = np.where(positive, bits ^ kernels.SIGN32, bits ^ kernels.LOW32)
     return bits.astype(np.uint32).view(FLOAT)
-
-
-def crossings(scene, origins, directions, tmin, tmax, cull, mask, time, max_hits, max_pairs):
-    """Each ray's crossing count (int32) and, for max_hits > 0, its min(max_hits, triangles)
-    smallest (t, tie key) keys, unsorted, NO_KEY where it has fewer: (counts, keys (n, K)
-    uint64, (origins, directions) checked)."""
-    origins, directions, tmin, tmax, cull_side, device = prepare(
-        scene, origins, directions, tmin, tmax, cull, mask
-    )
-    n = len(origins)
-    check_time(time, n)  # checked as on the CPU; nothing moves, so every instant is 0's
-    n_rows = len(scene._base.ids)
-    width = min(max_hits, n_rows)
-    if n * width * 8 > MAX_LIST_BYTES:
-        raise InputError(
-            f"max_hits={max_hits} for {n} rays needs {n * width * 8 / 2**30:.1f} GiB of device "
-            f"memory for the hit lists, over device='cuda''s {MAX_LIST_BYTES / 2**30:.0f} GiB: "
-            "pass fewer rays a call or a smaller max_hits"
-        )
-    counts = np.zeros(n, INDEX)
-    keys = np.full((n, width), kernels.NO_KEY, np.uint64)
-    if n and n_rows:
-        o, d, inv_d, lo, hi, ray_masks, tri_masks = device
-        verts, tie_keys, centroids, tri_box, box = scene_arrays(scene)
-        counts_d = cuda.to_device(counts)
-        keys_d = cuda.to_device(keys)
-
-        def run_leaves(frontier, kind):
-            launch(
-                kernels.leaf_crossings, frontier.ray_ids.shape[0], frontier.ray_ids,
-                frontier.ray_node, kind, cuda.to_device(frontier.tri_lo),
-                cuda.to_device(frontier.tri_n), frontier.rows, o, d, lo, hi, verts, tie_keys,
-                ray_masks, tri_masks, cull_side, counts_d, keys_d,
-            )  # fmt: skip
-
-        traverse((centroids, tri_box, box), (o, inv_d, lo, hi), run_leaves, max_pairs)
-        counts = counts_d.copy_to_host()
-        keys = keys_d.copy_to_host()
-    return counts, keys, (origins, directions)

@@ -34,7 +34,7 @@ def test_the_cpu_traces_what_the_cuda_backend_lacks_and_says_what():
     assert tracing.device_for(plain, rays(), make_options("count"), "process") == ("cpu", None)
     assert tracing.device_for(placed, rays(), cuda, "process") == ("cuda", None)
     placed_count = make_options("count", device="cuda")
-    assert tracing.device_for(placed, rays(), placed_count, "process") == ("cpu", "placed meshes")
+    assert tracing.device_for(placed, rays(), placed_count, "process") == ("cuda", None)
     # times matter only where something moves
     assert tracing.device_for(plain, rays(time=0.5), cuda, "process") == ("cuda", None)
     moving = tracing.build_engine_scene([(0, vertices, faces, 1, IDENTITY, SHIFTED)])
@@ -57,10 +57,12 @@ def test_sensors_go_to_the_gpu_where_the_backend_has_what_they_need():
     cuda = make_options(Sensor.LIDAR, device="cuda")
     assert sensing.sensor_device(placed, [first, camera], cuda) == ("cuda", None)
     assert sensing.sensor_device(placed, [first], make_options(Sensor.LIDAR)) == ("cpu", None)
-    assert sensing.sensor_device(placed, [camera, every], cuda) == ("cpu", "placed meshes")
+    assert sensing.sensor_device(placed, [camera, every], cuda) == ("cuda", None)
     assert sensing.sensor_device(placed, [sweeping], cuda) == ("cuda", None)
     assert sensing.sensor_device(moving, [sweeping], cuda) == ("cpu", "time")
     assert sensing.sensor_device(moving, [first], cuda) == ("cuda", None)
+    stats = make_options(Sensor.LIDAR, stats=True, device="cuda")
+    assert sensing.sensor_device(placed, [first], stats) == ("cpu", "stats")
 
 
 # Run under the simulator: DACRT_DEVICE=cuda is accepted, and its answers are the CPU's.
