@@ -107,7 +107,8 @@ One-shot trace (``decode_trace``; formats npz, json)
 Answers (``negotiate`` and ``encode_answer``)
     ``Accept`` picks ``application/x-npz``, ``application/x-npy`` or ``application/json`` (q-values
     honoured); absent, ``*/*`` or ``application/*`` gives JSON for a JSON request and npz for any
-    other; naming none of these is 406.
+    other; naming none of these is 406. A type's q is that of the most specific range naming it
+    (``type/sub``, then ``type/*``, then ``*/*``), so ``application/json;q=0, */*`` refuses JSON.
     npz  one uncompressed member per field (``t``, ``mesh``, ...); the body is sent as zip headers
          around the answer arrays' own memory, never joined into one copy.
     npy  a single field is a plain array; several fields are one structured array with a named

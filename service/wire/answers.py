@@ -24,16 +24,21 @@ def negotiate(
     why_not: str | None = None,
 ) -> str:
     """The answer format for an ``Accept`` header: one of ``formats`` (npz, npy or json; 406 if
-    none fits, with ``why_not`` saying why the answer has no other format)."""
+    none fits, with ``why_not`` saying why the answer has no other format). The best quality
+    wins, then the range listed first, then the request's own format (json for a JSON request,
+    else npz), then the order of ``formats``."""
     default = "json" if request_format == "json" else "npz"
     if not accept or not accept.strip():
         return default
-    for media in ranked_media(accept):
-        if media in ("*/*", "application/*"):
-            return default
-        fmt = CONTENT_TYPES.get(media)
-        if fmt in formats:
-            return fmt
+    ranges = media_ranges(accept)
+    ranked = []
+    for order, fmt in enumerate(formats):
+        aliases = [media for media, known in CONTENT_TYPES.items() if known == fmt]
+        q, position = quality(ranges, aliases)
+        if q > 0:
+            ranked.append((-q, position, fmt != default, order, fmt))
+    if ranked:
+        return min(ranked)[-1]
     choices = [MEDIA_TYPES[fmt] for fmt in formats]
     raise NotAcceptable(
         f"Accept: {accept} names no format {why_not}"
@@ -47,16 +52,16 @@ def check_accepts(accept: str | None, media: str) -> None:
     """406 unless ``Accept`` (if any) admits ``media``, the only answer of its route (a PNG)."""
     if not accept or not accept.strip():
         return
-    kind = media.split("/", 1)[0]
-    if any(m in (media, f"{kind}/*", "*/*") for m in ranked_media(accept)):
+    if quality(media_ranges(accept), [media])[0] > 0:
         return
     raise NotAcceptable(f"Accept: {accept} does not admit {media}, the only answer of this route")
 
 
-def ranked_media(accept: str) -> list[str]:
-    """The media types an ``Accept`` header admits (q > 0), most wanted first, lower case."""
-    ranked = []
-    for position, part in enumerate(accept.split(",")):
+def media_ranges(accept: str) -> list[tuple[str, float]]:
+    """The media ranges of an ``Accept`` header with their q (``q=0``: not acceptable), in the
+    header's order, lower case."""
+    ranges = []
+    for part in accept.split(","):
         media, *params = [p.strip() for p in part.split(";")]
         q = 1.0
         for param in params:
@@ -66,9 +71,21 @@ def ranked_media(accept: str) -> list[str]:
                     q = float(value)
                 except ValueError:
                     q = 0.0
-        if q > 0:
-            ranked.append((-q, position, media.lower()))
-    return [media for _, _, media in sorted(ranked)]
+        ranges.append((media.lower(), q))
+    return ranges
+
+
+def quality(ranges: list[tuple[str, float]], names: list[str]) -> tuple[float, int]:
+    """(q, position) of a media type known by ``names`` (its aliases) under the most specific
+    ranges that match one of them (RFC 9110 12.5.1: ``type/sub`` over ``type/*`` over
+    ``*/*``): the best q of those, the first listed; (0, its length) when none matches."""
+    kinds = {name.split("/", 1)[0] + "/*" for name in names}
+    for patterns in (set(names), kinds, {"*/*"}):
+        matches = [(-q, i) for i, (given, q) in enumerate(ranges) if given in patterns]
+        if matches:
+            best, position = min(matches)
+            return -best, position
+    return 0.0, len(ranges)
 
 
 def encode_answer(

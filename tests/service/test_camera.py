@@ -144,6 +144,8 @@ def test_fields_pick_arrays_and_formats_follow_accept(app_client, room):
     assert list(as_json) == list(FIELDS)
     json_depth = np.array([[np.inf if x is None else x for x in row] for row in as_json["depth"]])
     assert np.array_equal(json_depth.astype(np.float32), answer["depth"])
+    refused_json = camera(app_client, room, body, Accept="application/json;q=0, */*")
+    assert refused_json.headers["content-type"] == "application/x-npz"
     response = camera(app_client, room, body, "?fields=depth,t")
     assert response.status_code == 422
     assert "'t'" in response.json()["detail"] and "depth, range" in response.json()["detail"]

@@ -209,6 +209,8 @@ def test_other_requests_are_refused_with_their_status(app_client, room, scene_na
     assert app_client.post(url, json=BASE, headers={"Accept": "image/*"}).status_code == 200
     response = app_client.post(url, json=BASE, headers={"Accept": "image/png;q=0, */*;q=0"})
     assert response.status_code == 406
+    response = app_client.post(url, json=BASE, headers={"Accept": "image/png;q=0, */*;q=0.1"})
+    assert response.status_code == 406 and "does not admit image/png" in response.json()["detail"]
     response = app_client.post(url + "?strategy=fast", json=BASE)
     assert response.status_code == 422 and "strategy" in response.json()["detail"]
     response = app_client.post(f"/v1/scenes/{scene_name}-none/render", json=BASE)

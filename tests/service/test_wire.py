@@ -513,10 +513,36 @@ def test_one_shot_body():
         ("application/x-npz;q=0.5, application/json", "npy", "json"),
         ("text/html, application/x-npz;q=0.9, */*;q=0.1", "json", "npz"),
         ("application/json;q=0, */*", "npy", "npz"),
+        ("application/json;q=0, */*", "json", "npz"),
+        ("application/x-npz;q=0, application/*", "npy", "npy"),
+        ("application/x-npz;q=0, application/x-npy;q=0, */*;q=0.1", "npz", "json"),
+        ("application/*;q=0, application/json;q=0.2", "json", "json"),
     ],
 )
 def test_accept_negotiation(accept, request_format, fmt):
     assert wire.negotiate(accept, request_format) == fmt
+
+
+@pytest.mark.parametrize(
+    "accept",
+    [
+        "application/json;q=0, application/x-npz;q=0, application/x-npy;q=0, */*",
+        "application/*;q=0, */*",
+        "*/*;q=0",
+    ],
+)
+def test_a_type_refused_with_q_0_is_not_admitted_by_a_wildcard(accept):
+    # RFC 9110 12.5.1: the most specific range that matches a type gives its quality
+    with pytest.raises(NotAcceptable):
+        wire.negotiate(accept, "json")
+
+
+def test_check_accepts_takes_the_quality_of_the_most_specific_range():
+    for accept in ("image/png;q=0, */*;q=0.1", "image/*;q=0, */*", "image/png;Q=0.0, image/*"):
+        with pytest.raises(NotAcceptable, match="does not admit image/png"):
+            wire.check_accepts(accept, "image/png")
+    for accept in ("image/png;q=0.5, */*;q=0", "image/*, */*;q=0", "text/html, */*;q=0.1"):
+        wire.check_accepts(accept, "image/png")
 
 
 def test_unacceptable_accept_is_406():
