@@ -40,8 +40,8 @@ deflated, unencrypted, each named once, and must not overlap (400 otherwise), at
 it passes its declared size, so no body costs more than the limit in memory.
 
 JSON values are read as JSON types: numbers where numbers are expected (a string such as
-``"0.5"`` or a boolean is 422), JSON nested too deeply for the parser or an integer of over 4300
-digits is 400.
+``"0.5"`` or a boolean is 422), JSON nested too deeply for the parser is 400, and an integer of
+more digits than Python converts (4300) is 422 naming where it is (``body's width``).
 
 Rays (``decode_rays``; formats npy, npz, json)
     npy  float32 (N, 6) ``[ox, oy, oz, dx, dy, dz]`` or (N, 8) ``[..., tmin, tmax]``.

@@ -59,20 +59,59 @@ def parse_json(text: bytes, what: str, unique_keys: bool = True) -> Any:
     """``json.loads`` of ``text``, or 400 saying what is wrong with ``what`` (the body, a GLB's
     JSON chunk) in its own terms. With ``unique_keys`` a key given twice in one object is
     refused, not resolved to its last value (a file from elsewhere is read as its readers
-    read it: the last)."""
+    read it: the last). An integer of more digits than Python converts is 422 naming where it
+    is (valid JSON, but beyond every number a request or file may hold)."""
+    hook = _unique_keys if unique_keys else None
     try:
-        return json.loads(text, object_pairs_hook=_unique_keys if unique_keys else None)
+        try:
+            return json.loads(text, object_pairs_hook=hook)
+        except ValueError as exc:
+            if "integer string conversion" not in str(exc):  # Python's guard on slow int parsing
+                raise
+        doc = json.loads(text, object_pairs_hook=hook, parse_int=_integer_or_long)
     except _RepeatedKey as exc:
         raise BadBody(
             f"{what} gives the key {quoted(str(exc.args[0]))} twice in one object"
         ) from None
     except RecursionError:
         raise BadBody(f"{what} is not valid JSON: it is nested too deeply") from None
-    except ValueError as exc:  # JSONDecodeError, bad UTF-8, integers of over 4300 digits
-        problem = str(exc)
-        if "integer string conversion" in problem:  # Python's guard against slow int parsing
-            problem = f"an integer in it has more than {sys.get_int_max_str_digits()} digits"
-        raise BadBody(f"{what} is not valid JSON: {problem}") from None
+    except ValueError as exc:  # JSONDecodeError, bad UTF-8
+        raise BadBody(f"{what} is not valid JSON: {exc}") from None
+    where, digits = _first_long_integer(doc)
+    place = f"{what}'s {where}" if where else what
+    raise Invalid(f"{place} is an integer of {digits} digits, out of every range (beyond float64)")
+
+
+class _LongInteger:
+    """A JSON integer of more digits than ``sys.get_int_max_str_digits()``, in place of its
+    value (Python refuses to convert it)."""
+
+    def __init__(self, digits: int) -> None:
+        self.digits = digits
+
+
+def _integer_or_long(text: str) -> int | _LongInteger:
+    digits = len(text.lstrip("-"))
+    limit = sys.get_int_max_str_digits()
+    return _LongInteger(digits) if limit and digits > limit else int(text)
+
+
+def _first_long_integer(doc: Any) -> tuple[str, int]:
+    """(where, its digits) of the first _LongInteger in ``doc``: ``width``, ``pose[1][2]``,
+    ``sensors.front.width`` ('' for the document itself)."""
+    pending = [("", doc)]
+    while pending:
+        where, value = pending.pop()
+        if isinstance(value, _LongInteger):
+            return where, value.digits
+        if isinstance(value, dict):
+            items = [(f"{where}.{key}" if where else str(key), v) for key, v in value.items()]
+        elif isinstance(value, list):
+            items = [(f"{where}[{i}]", v) for i, v in enumerate(value)]
+        else:
+            continue
+        pending.extend(reversed(items))
+    return "", 0  # not reached: the first parse met an integer too long to convert
 
 
 def read_json(buf: Buffer, expected: str) -> dict[str, Any]:

@@ -194,3 +194,25 @@ def test_the_query_strings_mask_is_every_pixels_ray_mask(app_client, app_api, ro
     assert np.array_equal(same["depth"], seen["depth"])
     hidden = npz(camera(app_client, room, body, "?mask=0").content)
     assert (hidden["mesh"] == -1).all() and np.isinf(hidden["depth"]).all()
+
+
+@pytest.mark.parametrize(
+    "route, body, key",
+    [
+        ("camera", b'{"width": %s, "height": 2, "eye": [3, 3, 3], "target": [0, 0, 0]}', "width"),
+        (
+            "sensors",
+            b'{"sensors": {"front": {"kind": "camera", "width": 4, "height": %s, "eye": [3, 3, 3],'
+            b' "target": [0, 0, 0]}}}',
+            "sensors.front.height",
+        ),
+    ],
+)
+def test_an_integer_too_long_to_convert_is_422_naming_its_key(app_client, room, route, body, key):
+    """Valid JSON: Python's limit on converting long integers is not the body's fault."""
+    body = body % (b"1" + b"0" * 5000)
+    response = app_client.post(
+        f"/v1/scenes/{room}/{route}", content=body, headers={"Content-Type": "application/json"}
+    )
+    assert response.status_code == 422, response.text
+    assert f"{key} is an integer of 5001 digits" in response.json()["detail"]

@@ -190,8 +190,8 @@ CORPUS = [
         "closest",
         JSON,
         lambda: json_with(origins="[[1" + "0" * 5000 + ", 0, 0]]", directions="[[0, 0, 1]]"),
-        400,
-        "4300 digits",
+        422,
+        "origins[0][0] is an integer of 5001 digits",
     ),
     (
         "tmax of 10**400",
@@ -268,8 +268,8 @@ CORPUS = [
         "closest",
         JSON,
         lambda: b'{"origins": [[' + b"9" * 5000 + b', 0, 0]], "directions": [[0, 0, 1]]}',
-        400,
-        "body is not valid JSON: an integer in it has more than 4300 digits",
+        422,
+        "body's origins[0][0] is an integer of 5000 digits, out of every range",
     ),
     (
         "an npy of 2 GiB promised, 48 bytes sent",
