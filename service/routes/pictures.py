@@ -34,6 +34,7 @@ from ..responses import BuffersResponse
 from ..sensor_requests import (
     CameraRequest,
     LidarRequest,
+    LookAtCamera,
     RenderRequest,
     SensorsRequest,
     parse,
@@ -96,6 +97,7 @@ async def render(
 
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(RenderRequest, body, "render")
+        check_pixels({"render": wanted}, settings)
         camera, pose = wanted.sensor()
         check_sensors({"render": camera}, settings)
         return sensor_decoded((camera, pose, wanted.shading), body, [camera], "png")
@@ -137,7 +139,9 @@ async def camera(
     answer_format = wire.negotiate(request.headers.get("accept"), "json")
 
     def decode(body: memoryview, fmt: str) -> Decoded:
-        sensor, pose = parse(CameraRequest, body, "camera").sensor()
+        wanted = parse(CameraRequest, body, "camera")
+        check_pixels({"camera": wanted}, settings)
+        sensor, pose = wanted.sensor()
         check_sensors({"camera": sensor}, settings)
         return sensor_decoded((sensor, pose), body, [sensor], answer_format)
 
@@ -226,6 +230,9 @@ async def sensors(
 
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(SensorsRequest, body, "sensors", settings.max_rig_sensors)
+        check_pixels(
+            {name: s for name, s in wanted.sensors.items() if s.kind == "camera"}, settings
+        )
         rig, ends = rig_sensors(wanted, patterns)
         check_sensors({name: sensor for name, (sensor, _) in rig.items()}, settings)
         sensors = [sensor for sensor, _ in rig.values()]
@@ -294,17 +301,25 @@ RAY_WORDS = {
 }
 
 
-def check_sensors(sensors: dict, settings: Settings) -> None:
-    """413 for a picture over DACRT_MAX_IMAGE_PIXELS, or for more rays (and hits) than
-    DACRT_MAX_RAYS_PER_REQUEST in all the sensors of a request together."""
-    total = 0
-    for name, sensor in sensors.items():
-        if isinstance(sensor, Camera) and sensor.width * sensor.height > settings.max_image_pixels:
-            pixels = sensor.width * sensor.height
+def check_pixels(pictures: dict[str, LookAtCamera | CameraRequest], settings: Settings) -> None:
+    """413 for a picture of a body over DACRT_MAX_IMAGE_PIXELS, before its camera is made: a side
+    too long for the engine's Camera (422) is over that limit first."""
+    for name, picture in pictures.items():
+        pixels = picture.width * picture.height
+        if pixels > settings.max_image_pixels:
+            # sides of thousands of digits are named, not written out
+            sizes = f"{picture.width} x {picture.height} = {pixels}" if pixels < 10**30 else None
             raise TooLarge(
-                f"{name}: {sensor.width} x {sensor.height} = {pixels} pixels is over the limit "
+                f"{name}: {sizes or 'width x height'} pixels is over the limit "
                 f"of {settings.max_image_pixels} pixels (DACRT_MAX_IMAGE_PIXELS)"
             )
+
+
+def check_sensors(sensors: dict, settings: Settings) -> None:
+    """413 for more rays (and hits) than DACRT_MAX_RAYS_PER_REQUEST in all the sensors of a
+    request together."""
+    total = 0
+    for sensor in sensors.values():
         total += sensing.request_rays(sensor)
     if total > settings.max_rays_per_request:
         (name, sensor), *others = sensors.items()

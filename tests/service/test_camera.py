@@ -179,10 +179,27 @@ def test_bad_cameras_are_refused_naming_the_problem(app_client, room, body, stat
     assert words in response.json()["detail"]
 
 
-def test_limits(app_client, room):
-    body = {**LOOK, "width": 4096, "height": 1025}
+@pytest.mark.parametrize(
+    "width, height",
+    [(4096, 1025), (2**31, 1), (1, 2**31), (10**12, 10**12), (10**4000, 3)],
+    ids=["4096x1025", "2**31x1", "1x2**31", "10**12x10**12", "10**4000x3"],
+)
+def test_a_picture_over_the_pixel_limit_is_413_whatever_its_sides(app_client, room, width, height):
+    """Sides beyond the engine's own bound (2**31 - 1, 422) are over the pixel limit first."""
+    body = {**LOOK, "width": width, "height": height}
     response = camera(app_client, room, body)
     assert response.status_code == 413 and "DACRT_MAX_IMAGE_PIXELS" in response.json()["detail"]
+    rig = {"sensors": {"front": {**body, "kind": "camera"}}}
+    response = app_client.post(f"/v1/scenes/{room}/sensors", json=rig)
+    assert response.status_code == 413, response.text
+    assert response.json()["detail"].startswith("front: ")
+    assert "DACRT_MAX_IMAGE_PIXELS" in response.json()["detail"]
+
+
+@pytest.mark.parametrize("width", [0, -(2**31), 2.5, True])
+def test_a_side_that_is_not_a_positive_integer_is_still_422(app_client, room, width):
+    response = camera(app_client, room, {**LOOK, "width": width, "height": 10**12})
+    assert response.status_code == 422 and "width" in response.json()["detail"]
 
 
 def test_the_query_strings_mask_is_every_pixels_ray_mask(app_client, app_api, room):

@@ -200,6 +200,9 @@ def test_other_requests_are_refused_with_their_status(app_client, room, scene_na
     too_large = {**BASE, "width": 2049, "height": 2048}  # 4 MiB + 2048 pixels
     response = app_client.post(url, json=too_large)
     assert response.status_code == 413 and "DACRT_MAX_IMAGE_PIXELS" in response.json()["detail"]
+    for width, height in ((2**31, 1), (10**12, 10**12)):  # sides beyond the engine's 2**31 - 1
+        response = app_client.post(url, json={**BASE, "width": width, "height": height})
+        assert response.status_code == 413 and "DACRT_MAX_IMAGE_PIXELS" in response.text
     response = app_client.post(
         url, content=b"\x93NUMPY", headers={"Content-Type": "application/x-npy"}
     )
