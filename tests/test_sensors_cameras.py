@@ -77,6 +77,8 @@ def test_the_image_is_closests_answer(room, view):
         (lambda: Camera(4, 4, 1.0, 1.0, np.inf, 0.0), "cx must be a finite number"),
         (lambda: Camera(4, 4, 1.0, 1.0, 0.0, 0.0, near=-1), "near must be >= 0"),
         (lambda: Camera(4, 4, 1.0, 1.0, 0.0, 0.0, near=2, far=1), "far must be > 2"),
+        (lambda: Camera(4, 4, 1.0, 1.0, 0.0, 0.0, near=1e39), "near must be <= 3.40282e+38"),
+        (lambda: Camera.from_fov(4, 4, near=10**39), "near must be <= 3.40282e+38"),
         (lambda: Camera(4, 4, 1e-300, 1.0, 0.0, 0.0), "fx: 1e-300 is too small"),
         (lambda: Camera.from_fov(4, 4, 180.0), "fov_deg must be between 0 and 180"),
         # integers beyond float64 (JSON has them): named, not an OverflowError
@@ -106,6 +108,13 @@ def test_a_bad_camera_is_refused_naming_its_key(make, words):
     with pytest.raises(dacrt.InputError) as error:
         make()
     assert words in str(error.value)
+
+
+def test_a_far_beyond_float32_is_no_limit():
+    """The depth window is the rays' float32 tmin and tmax, as a lidar's range window is."""
+    assert Camera(4, 4, 1.0, 1.0, 0.0, 0.0, far=1e39).far == np.inf
+    assert Camera(4, 4, 1.0, 1.0, 0.0, 0.0, far=FLOAT32_MAX).far == FLOAT32_MAX
+    assert Camera(4, 4, 1.0, 1.0, 0.0, 0.0, near=FLOAT32_MAX).near == FLOAT32_MAX
 
 
 def test_a_look_at_pose_far_from_the_origin_looks_at_its_target():

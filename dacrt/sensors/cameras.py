@@ -195,6 +195,8 @@ class Camera:
     ``Camera(640, 480, fx=500, fy=500, cx=319.5, cy=239.5).capture(scene, pose)``, or for a
     look-at camera ``Camera.from_fov(640, 480, fov_deg=45).capture(scene, look_at_pose(eye,
     target, up))``. Bad values raise InputError naming the key (``fx must be > 0, got -1.0``).
+    ``near`` is at most float32's largest; a ``far`` beyond it is no limit (the rays' depth
+    window is float32, as a lidar's range window is).
     """
 
     width: int
@@ -213,8 +215,10 @@ class Camera:
             number(getattr(self, key), key, above=0)
         for key in ("cx", "cy"):
             number(getattr(self, key), key)
-        number(self.near, "near", at_least=0)
+        number(self.near, "near", at_least=0, at_most=FLOAT32_MAX)
         number(self.far, "far", above=self.near, infinite=True)
+        if self.far > FLOAT32_MAX:  # the rays' windows are float32: beyond it is no limit
+            object.__setattr__(self, "far", math.inf)
         x = edge_slope(self.fx, self.cx, self.width)
         y = edge_slope(self.fy, self.cy, self.height)
         # a direction x R[:, 0] + y R[:, 1] + R[:, 2] has components of at most |x| + |y| + 1
