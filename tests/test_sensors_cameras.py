@@ -10,7 +10,7 @@ from sensor_reference import look_at, pinhole_rays
 from sensor_scenes import ROOM
 
 import dacrt
-from dacrt.sensors import Camera, look_at_pose
+from dacrt.sensors import Camera, Rig, check_pose, look_at_pose
 from dacrt.sensors.checks import FLOAT32_MAX
 
 POSE = np.array([[1, 0, 0, 0], [0, 0, 1, -7], [0, -1, 0, 1], [0, 0, 0, 1]], np.float64)
@@ -134,3 +134,17 @@ def test_a_camera_whose_edge_rays_just_fit_float32_is_accepted():
     directions = camera.shot(np.eye(4)).rays.directions
     assert np.isfinite(directions).all()
     assert directions[1, 0] == np.float32(0.75 * FLOAT32_MAX)
+
+
+def test_edge_rays_a_legal_pose_takes_beyond_float32_name_the_cameras_keys(room):
+    """A rotation orthonormal within the tolerance lengthens the columns by up to 5e-5: edge rays
+    whose slope just fits float32 may not, and the camera says so in its own keys."""
+    pose = np.eye(4)
+    pose[0, 0], pose[:3, 3] = 1.00004, (0.5, 0.5, -3.0)
+    check_pose(pose)  # a legal pose
+    camera = Camera(2, 1, fx=1 / FLOAT32_MAX, fy=1.0, cx=0.0, cy=0.0)
+    with pytest.raises(dacrt.InputError, match=r"^fx: .* is too small for cx 0.0 at this pose"):
+        camera.shot(pose)
+    rig = Rig({"ok": Camera(2, 2, 1.0, 1.0, 0.5, 0.5), "bad": camera})
+    with pytest.raises(dacrt.InputError, match=r"^sensors.bad: fx: .* at this pose"):
+        rig.capture(room, {"ok": POSE, "bad": pose})

@@ -79,7 +79,8 @@ class Pinhole:
         column = x[:, None] * rotation[:, 0]
         row = y[:, None] * rotation[:, 1] + rotation[:, 2]
         directions = np.empty((self.height, self.width, 3), np.float32)
-        np.add(column[None, :, :], row[:, None, :], out=directions, casting="same_kind")
+        with np.errstate(over="ignore"):  # beyond float32 is inf, which the camera refuses
+            np.add(column[None, :, :], row[:, None, :], out=directions, casting="same_kind")
         directions = directions.reshape(-1, 3)
         origins = np.tile(self.origin.astype(np.float32), (len(directions), 1))
         return origins, directions
@@ -223,11 +224,7 @@ class Camera:
         y = edge_slope(self.fy, self.cy, self.height)
         # a direction x R[:, 0] + y R[:, 1] + R[:, 2] has components of at most |x| + |y| + 1
         if not x + y + 1 <= FLOAT32_MAX:
-            key, centre_key = ("fx", "cx") if x >= y else ("fy", "cy")
-            raise InputError(
-                f"{key}: {getattr(self, key)!r} is too small for {centre_key} "
-                f"{getattr(self, centre_key)!r}: the edge rays' slope is beyond the float32 range"
-            )
+            raise self._edge_rays_error("")
 
     @property
     def n_traced_rays(self) -> int:
@@ -255,6 +252,9 @@ class Camera:
         """The camera at ``pose`` (4x4 camera-to-scene, rigid), ready to trace."""
         check_row_count(self.n_traced_rays, "an image (width x height)", "pixels")
         origins, directions = self.pinhole(pose).rays()
+        # a rotation orthonormal within ROTATION_TOLERANCE may lengthen rays that just fit
+        if not np.isfinite(directions).all():
+            raise self._edge_rays_error(" at this pose")
         rays = Rays(origins, directions, self.near, self.far)
         return Shot(rays, lambda traced, _materials: self._image(directions, traced))
 
@@ -262,6 +262,17 @@ class Camera:
         """What the camera at ``pose`` sees of ``scene`` (a ``dacrt.Scene``); ``query`` goes to
         ``Scene.closest`` (strategy, threads, cull, mask, stats)."""
         return capture(scene, [self.shot(pose)], None, **query)[0]
+
+    def _edge_rays_error(self, where: str) -> InputError:
+        """The error of edge rays beyond float32, naming the keys of the steeper of them."""
+        x = edge_slope(self.fx, self.cx, self.width)
+        y = edge_slope(self.fy, self.cy, self.height)
+        key, centre_key = ("fx", "cx") if x >= y else ("fy", "cy")
+        return InputError(
+            f"{key}: {getattr(self, key)!r} is too small for {centre_key} "
+            f"{getattr(self, centre_key)!r}{where}: the edge rays' slope is beyond the float32 "
+            "range"
+        )
 
     def _image(self, directions: np.ndarray, traced: Traced) -> CameraImage:
         shape = (self.height, self.width)

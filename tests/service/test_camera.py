@@ -233,3 +233,20 @@ def test_an_integer_too_long_to_convert_is_422_naming_its_key(app_client, room, 
     )
     assert response.status_code == 422, response.text
     assert f"{key} is an integer of 5001 digits" in response.json()["detail"]
+
+
+def test_edge_rays_a_legal_pose_takes_beyond_float32_are_named_by_the_cameras_keys(
+    app_client, room
+):
+    pose = [[1.00004, 0, 0, 0.5], [0, 1.0, 0, 0.5], [0, 0, 1.0, -3.0], [0, 0, 0, 1]]  # legal
+    tight = {"width": 2, "height": 1, "fx": 1 / 3.4028234663852886e38, "fy": 1.0, "cx": 0.0}
+    body = {**tight, "cy": 0.0, "pose": pose}
+    response = camera(app_client, room, body)
+    assert response.status_code == 422, response.text
+    assert response.json()["detail"].startswith("fx: ")
+    assert "at this pose" in response.json()["detail"]
+    rig = {"sensors": {"ok": {**LOOK, "width": 3, "height": 3, "kind": "camera"}}}
+    rig["sensors"]["bad"] = {**body, "kind": "camera"}
+    response = app_client.post(f"/v1/scenes/{room}/sensors", json=rig)
+    assert response.status_code == 422, response.text
+    assert response.json()["detail"].startswith("sensors.bad: fx: ")
