@@ -148,3 +148,27 @@ def test_edge_rays_a_legal_pose_takes_beyond_float32_name_the_cameras_keys(room)
     rig = Rig({"ok": Camera(2, 2, 1.0, 1.0, 0.5, 0.5), "bad": camera})
     with pytest.raises(dacrt.InputError, match=r"^sensors.bad: fx: .* at this pose"):
         rig.capture(room, {"ok": POSE, "bad": pose})
+
+
+def far_wall_view():
+    """A triangle at depth 3.2e38 before a 3x1 camera whose side pixels' rays are 1.077 long:
+    the side pixels' range, 3.45e38, is beyond float32, their depth is not."""
+    x, half = 1.6e38, 3.3e38
+    wall = np.array([[x, -half, -half], [x, half, -half], [x, 0, half]], np.float32)
+    pose = np.array([[0, 0, 1, -x], [-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
+    return dacrt.Scene([(wall, [[0, 1, 2]])]), Camera(3, 1, fx=2.5, fy=2.5, cx=1.0, cy=0.0), pose
+
+
+def test_a_hit_whose_range_is_beyond_float32_is_a_miss_in_every_key():
+    scene, camera, pose = far_wall_view()
+    image = camera.capture(scene, pose)
+    hit = np.isfinite(image["depth"])
+    assert hit.tolist() == [[False, True, False]]
+    assert image["depth"][0, 1] == np.float32(3.2e38)
+    assert image["range"][0, 1] == image["depth"][0, 1]
+    np.testing.assert_array_equal(np.isfinite(image["range"]), hit)
+    np.testing.assert_array_equal(image["mesh"] >= 0, hit)
+    np.testing.assert_array_equal(image["prim"] >= 0, hit)
+    np.testing.assert_array_equal(image["normal"].any(axis=2), hit)
+    assert image["mesh"].dtype == np.int32 and image["depth"].dtype == np.float32
+    assert image["normal"].dtype == np.float32

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..contracts import MISS
 from ..validation import InputError, check_row_count
 from .batch import Rays, Shot, Traced, capture
 from .checks import FLOAT32_MAX, float_array, integer, number
@@ -277,12 +278,22 @@ class Camera:
     def _image(self, directions: np.ndarray, traced: Traced) -> CameraImage:
         shape = (self.height, self.width)
         length = np.linalg.norm(directions.astype(np.float64), axis=1)
+        with np.errstate(over="ignore"):
+            distance = (traced.t * length).astype(np.float32)
+        t, mesh, prim, normal = traced.t, traced.mesh, traced.prim, traced.normal
+        # a hit whose range is beyond float32 is a miss in every key, as one whose t is
+        beyond = np.isinf(distance) & np.isfinite(t)
+        if beyond.any():
+            t = np.where(beyond, np.float32(np.inf), t)
+            mesh = np.where(beyond, MISS, mesh)
+            prim = np.where(beyond, MISS, prim)
+            normal = np.where(beyond[:, None], np.float32(0), normal)
         arrays = {
-            "depth": traced.t.reshape(shape),
-            "range": (traced.t * length).astype(np.float32).reshape(shape),
-            "mesh": traced.mesh.reshape(shape),
-            "prim": traced.prim.reshape(shape),
-            "normal": traced.normal.reshape(*shape, 3),
+            "depth": t.reshape(shape),
+            "range": distance.reshape(shape),
+            "mesh": mesh.reshape(shape),
+            "prim": prim.reshape(shape),
+            "normal": normal.reshape(*shape, 3),
         }
         return CameraImage(arrays, traced.stats)
 
@@ -292,7 +303,8 @@ class CameraImage(Mapping):
     """A camera's answer: ``image["depth"]`` ... by the names of CAMERA_FIELDS, row 0 at the top.
 
     depth float32: distance along the optical axis (inf on a miss); range float32: along the ray;
-    mesh, prim int32 (-1 on a miss); normal float32 (height, width, 3), unit, 0 on a miss."""
+    mesh, prim int32 (-1 on a miss); normal float32 (height, width, 3), unit, 0 on a miss. A hit
+    whose range is beyond float32's range is a miss in every key."""
 
     arrays: dict[str, np.ndarray]
     stats: dict | None = None  #: the trace's counters when asked with stats=True

@@ -250,3 +250,19 @@ def test_edge_rays_a_legal_pose_takes_beyond_float32_are_named_by_the_cameras_ke
     response = app_client.post(f"/v1/scenes/{room}/sensors", json=rig)
     assert response.status_code == 422, response.text
     assert response.json()["detail"].startswith("sensors.bad: fx: ")
+
+
+def test_a_hit_whose_range_is_beyond_float32_is_a_miss_in_every_key(
+    app_api, app_client, scene_name
+):
+    x, half = 1.6e38, 3.3e38
+    wall = np.array([[x, -half, -half], [x, half, -half], [x, 0, half]], np.float32)
+    app_api.put_mesh(scene_name, "wall", wall, np.array([[0, 1, 2]], np.int32))
+    pose = [[0, 0, 1, -x], [-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, 0, 1]]
+    body = {"width": 3, "height": 1, "fx": 2.5, "fy": 2.5, "cx": 1.0, "cy": 0.0, "pose": pose}
+    image = npz(camera(app_client, scene_name, body).content)
+    hit = np.isfinite(image["depth"])
+    assert hit.tolist() == [[False, True, False]]  # the side pixels' range is 3.45e38
+    np.testing.assert_array_equal(np.isfinite(image["range"]), hit)
+    np.testing.assert_array_equal(image["mesh"] >= 0, hit)
+    np.testing.assert_array_equal(image["normal"].any(axis=2), hit)
