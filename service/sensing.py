@@ -51,21 +51,16 @@ def _query(options: Options, device: str) -> dict:
     }
 
 
-def sensor_device(
-    engine: EngineScene, sensors: list[Camera | Lidar], options: Options
-) -> tuple[str, str | None]:
+def sensor_device(engine: EngineScene, options: Options) -> tuple[str, str | None]:
     """Where sensors' rays are traced: ("cuda", None) where DACRT_DEVICE=cuda and the CUDA
-    backend has what the sensors need (``dacrt.cuda.lacks``: times for a lidar with
-    ``period_s``); else "cpu" and what the backend lacks, None where DACRT_DEVICE=cpu."""
+    backend answers on the scene (``dacrt.cuda.lacks``); else "cpu" and what the backend
+    lacks, None where DACRT_DEVICE=cpu."""
     if options.device != "cuda":
         return "cpu", None
     from dacrt import cuda  # numba.cuda is imported only where DACRT_DEVICE=cuda
 
-    timed = any(isinstance(sensor, Lidar) and sensor.period_s is not None for sensor in sensors)
-    lacking = cuda.lacks(engine.scene, True if timed else None, options.stats)
-    if lacking is not None:
-        return "cpu", lacking
-    return "cuda", None
+    lacking = cuda.lacks(engine.scene, options.stats)
+    return ("cpu", lacking) if lacking is not None else ("cuda", None)
 
 
 def _stats(stats: dict | None, options: Options) -> dict | None:
@@ -87,7 +82,7 @@ def render(snapshot: Snapshot, camera: Camera, pose, style: str, options: Option
     start = time.perf_counter()
     engine = engine_scene(snapshot)
     shot = camera.shot(pose)
-    device, fallback = sensor_device(engine, [camera], options)
+    device, fallback = sensor_device(engine, options)
     with meshes_by_name(snapshot, engine):
         (image,) = capture(engine.scene, [shot], None, **_query(options, device))
     t, headers = image["depth"], {}
@@ -117,7 +112,7 @@ def sense(
     materials."""
     start = time.perf_counter()
     engine = engine_scene(snapshot)
-    device, fallback = sensor_device(engine, [sensor], options)
+    device, fallback = sensor_device(engine, options)
     query = _query(options, device)
     with meshes_by_name(snapshot, engine):
         if isinstance(sensor, Lidar):
@@ -145,7 +140,7 @@ def sense_rig(
     engine = engine_scene(snapshot)
     rig = Rig({name: sensor for name, (sensor, _) in sensors.items()})
     poses = {name: pose for name, (_, pose) in sensors.items()}
-    device, fallback = sensor_device(engine, [sensor for sensor, _ in sensors.values()], options)
+    device, fallback = sensor_device(engine, options)
     with meshes_by_name(snapshot, engine):
         found = rig.capture(
             engine.scene, poses, materials(snapshot, engine), poses_end, **_query(options, device)

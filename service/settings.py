@@ -89,8 +89,8 @@ class Settings(BaseSettings):
     #: seconds a request waits for room in that budget before it is answered 503
     admission_wait: Annotated[float, Field(ge=0)] = 5
     #: where queries and sensors are traced: "cpu", or "cuda" (``dacrt.cuda``: on scenes without
-    #: deforming meshes, rays without times where something moves, no ?stats; the CPU traces the
-    #: rest); "cuda" is refused at start where no GPU (nor Numba's CUDA simulator) is available
+    #: deforming meshes, no ?stats; the CPU traces the rest); "cuda" is refused at start where no
+    #: GPU (nor Numba's CUDA simulator) is available
     device: Literal["cpu", "cuda"] = "cpu"
 
     @field_validator("dask_scheduler", mode="before")

@@ -6,8 +6,8 @@ placements, vertices and masks changed (a frame that moves actors packs only the
 engine's mesh positions to the meshes' stable indices, picks the answer's keys (``Options.pick``)
 and lets the engine's ``InputError`` (bad rays, named by the engine) through: ``errors`` maps it
 to 422. With DACRT_DEVICE=cuda, closest, occluded, hits and count run on the GPU where the CUDA
-backend answers them, and on the CPU otherwise (``device_for``: deforming meshes, times where
-something moves, stats, a dask cluster).
+backend answers them, and on the CPU otherwise (``device_for``: deforming meshes, stats, a dask
+cluster).
 """
 
 from __future__ import annotations
@@ -252,7 +252,7 @@ def _run(
         kwargs["time"] = rays.time
     if options.kind is Query.HITS:
         kwargs["max_hits"] = options.max_hits
-    device, fallback = device_for(engine, rays, options, where)
+    device, fallback = device_for(engine, options, where)
     if device == "cuda":
         kwargs["device"] = device
     query = getattr(engine.scene, Query(options.kind).value)
@@ -268,20 +268,17 @@ def _run(
     return TraceResult(arrays, version, stats, seconds, len(rays), where, fallback=fallback)
 
 
-def device_for(
-    engine: EngineScene, rays: Rays, options: Options, where: str
-) -> tuple[str, str | None]:
+def device_for(engine: EngineScene, options: Options, where: str) -> tuple[str, str | None]:
     """Where a query is traced: ("cuda", None) where DACRT_DEVICE=cuda and the CUDA backend
-    answers it; else "cpu" and what that backend lacks ("deforming meshes",
-    "time", "stats", or "cluster": a dask cluster's workers trace on their CPUs), None where
-    DACRT_DEVICE=cpu."""
+    answers it; else "cpu" and what that backend lacks ("deforming meshes", "stats", or
+    "cluster": a dask cluster's workers trace on their CPUs), None where DACRT_DEVICE=cpu."""
     if options.device != "cuda":
         return "cpu", None
     if where != "process":
         return "cpu", "cluster"
     from dacrt import cuda  # numba.cuda is imported only where DACRT_DEVICE=cuda
 
-    lacking = cuda.lacks(engine.scene, rays.time, options.stats)
+    lacking = cuda.lacks(engine.scene, options.stats)
     return ("cpu", lacking) if lacking is not None else ("cuda", None)
 
 

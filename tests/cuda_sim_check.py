@@ -159,9 +159,28 @@ def check_placed_meshes(rng):
     # Only placed meshes (no base rows), one of them moving (time=None: its start placement).
     only = dacrt.Scene([car, car], transforms=placements[1:3], transforms_end=[placements[4], None])
     compare("placed only, moving at 0", only, o, d, DEFAULT)
+    # Rays at their own instants: the moving instance placed at each ray's time (on the host),
+    # a placement mirrored at some instants and not others where culling swaps faces.
+    times = rng.random(len(o)).astype(np.float32)
+    flipping = dacrt.Scene(
+        [base, car, car],
+        transforms=[None, placements[1], placements[3]],
+        transforms_end=[None, placements[2], placements[4]],
+    )
+    for cull in ("none", "back"):
+        compare(f"moving, rays' times, cull {cull}", flipping, o, d, DEFAULT, time=times, cull=cull)
+        compare_crossings(
+            f"moving, rays' times, cull {cull}", flipping, o, d, 4, time=times, cull=cull
+        )
     # A later version that moves the instances answers as a new Scene.
     moved = scene.with_changes(transforms={1: placements[3], 3: placements[1]})
+    # The new version shares the earlier one's levels: nothing is uploaded again.
+    uploads = []
+    upload = cuda_query.upload_rows
+    cuda_query.upload_rows = lambda verts, ids: uploads.append(len(ids)) or upload(verts, ids)
     compare("placed with_changes", moved, o, d, DEFAULT)
+    cuda_query.upload_rows = upload
+    assert uploads == [], uploads
     same(
         "with_changes on the GPU against a new Scene",
         moved.closest(o, d, device="cuda").t,
@@ -218,6 +237,12 @@ def check_sensors(scene, rng):
         same(f"rig lidar {key}", by_rig["roof"][key], cpu[key])
     same("rig camera depth", by_rig["front"]["depth"], cpu_image["depth"])
     print("sensors", cpu.n_points, "points,", int((cpu_image["mesh"] >= 0).sum()), "pixels hit")
+    # A lidar sweeping a scene whose instances move: each ray at its instant.
+    moving = scene.with_changes(transforms_end={1: affine(np.eye(3) * 0.5, (0.6, 0.5, 0.4))})
+    cpu = lidar.scan(moving, pose, pose_end=pose_end)
+    gpu = lidar.scan(moving, pose, pose_end=pose_end, device="cuda")
+    for key in cpu:
+        same(f"lidar in a moving scene {key}", gpu[key], cpu[key])
     # Times in a scene where nothing moves are checked and ignored, as on the CPU.
     o, d = random_rays(rng, 40)
     times = rng.random(len(o)).astype(np.float32)

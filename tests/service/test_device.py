@@ -28,41 +28,30 @@ def rays(**extra) -> wire.Rays:
 def test_the_cpu_traces_what_the_cuda_backend_lacks_and_says_what():
     vertices, faces = quad(0, 1, 0, 1, 0)
     plain = tracing.build_engine_scene([(0, vertices, faces)])
-    placed = tracing.build_engine_scene([(0, vertices, faces, 1, IDENTITY)])
-    cuda = make_options("closest", device="cuda")
-    assert tracing.device_for(plain, rays(), cuda, "process") == ("cuda", None)
-    assert tracing.device_for(plain, rays(), make_options("count"), "process") == ("cpu", None)
-    assert tracing.device_for(placed, rays(), cuda, "process") == ("cuda", None)
-    placed_count = make_options("count", device="cuda")
-    assert tracing.device_for(placed, rays(), placed_count, "process") == ("cuda", None)
-    # times matter only where something moves
-    assert tracing.device_for(plain, rays(time=0.5), cuda, "process") == ("cuda", None)
-    moving = tracing.build_engine_scene([(0, vertices, faces, 1, IDENTITY, SHIFTED)])
-    assert tracing.device_for(moving, rays(time=0.5), cuda, "process") == ("cpu", "time")
+    placed = tracing.build_engine_scene([(0, vertices, faces, 1, IDENTITY, SHIFTED)])
+    deforming = tracing.build_engine_scene([(0, vertices, faces, 1, None, None, vertices + 1)])
+    for kind in ("closest", "occluded", "hits", "count"):
+        cuda = make_options(kind, device="cuda")
+        assert tracing.device_for(plain, cuda, "process") == ("cuda", None)
+        assert tracing.device_for(placed, cuda, "process") == ("cuda", None)  # moving too
+        assert tracing.device_for(deforming, cuda, "process") == ("cpu", "deforming meshes")
+        assert tracing.device_for(plain, cuda, "cluster") == ("cpu", "cluster")
+        assert tracing.device_for(plain, make_options(kind), "process") == ("cpu", None)
     stats = make_options("hits", stats=True, device="cuda")
-    assert tracing.device_for(plain, rays(), stats, "process") == ("cpu", "stats")
-    assert tracing.device_for(plain, rays(), cuda, "cluster") == ("cpu", "cluster")
+    assert tracing.device_for(plain, stats, "process") == ("cpu", "stats")
 
 
-def test_sensors_go_to_the_gpu_where_the_backend_has_what_they_need():
-    from dacrt.sensors import Camera, Lidar
-
+def test_sensors_go_to_the_gpu_where_the_backend_answers():
     vertices, faces = quad(0, 1, 0, 1, 0)
-    placed = tracing.build_engine_scene([(0, vertices, faces, 1, IDENTITY)])
-    moving = tracing.build_engine_scene([(0, vertices, faces, 1, IDENTITY, SHIFTED)])
-    first = Lidar("VLP-16", horizontal_steps=8)
-    every = Lidar("VLP-16", horizontal_steps=8, return_mode="all", max_returns=2)
-    sweeping = Lidar("VLP-16", horizontal_steps=8, period_s=0.1)
-    camera = Camera.from_fov(4, 3, fov_deg=60)
-    cuda = make_options(Sensor.LIDAR, device="cuda")
-    assert sensing.sensor_device(placed, [first, camera], cuda) == ("cuda", None)
-    assert sensing.sensor_device(placed, [first], make_options(Sensor.LIDAR)) == ("cpu", None)
-    assert sensing.sensor_device(placed, [camera, every], cuda) == ("cuda", None)
-    assert sensing.sensor_device(placed, [sweeping], cuda) == ("cuda", None)
-    assert sensing.sensor_device(moving, [sweeping], cuda) == ("cpu", "time")
-    assert sensing.sensor_device(moving, [first], cuda) == ("cuda", None)
+    placed = tracing.build_engine_scene([(0, vertices, faces, 1, IDENTITY, SHIFTED)])
+    deforming = tracing.build_engine_scene([(0, vertices, faces, 1, None, None, vertices + 1)])
+    for kind in (Sensor.LIDAR, Sensor.CAMERA, Sensor.RENDER, Sensor.RIG):
+        cuda = make_options(kind, device="cuda")
+        assert sensing.sensor_device(placed, cuda) == ("cuda", None)
+        assert sensing.sensor_device(placed, make_options(kind)) == ("cpu", None)
+        assert sensing.sensor_device(deforming, cuda) == ("cpu", "deforming meshes")
     stats = make_options(Sensor.LIDAR, stats=True, device="cuda")
-    assert sensing.sensor_device(placed, [first], stats) == ("cpu", "stats")
+    assert sensing.sensor_device(placed, stats) == ("cpu", "stats")
 
 
 # Run under the simulator: DACRT_DEVICE=cuda is accepted, and its answers are the CPU's.
