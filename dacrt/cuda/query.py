@@ -110,11 +110,12 @@ DEVICE_LOCK = threading.Lock()
 
 
 def level_tracer(max_pairs=MAX_PAIRS):
-    """What traces each level of a ``closest`` or ``occluded`` query on the GPU, in place of
-    ``Scene._trace_level`` (same arguments): the base level, then each instance batch in its
-    mesh's space, as the CPU engine merges them. Returns ``Traced``: best_t, and best_tri
-    (the level's kernel row; for ANY_HIT any row where the ray is blocked), hit_u, hit_v; no
-    stats."""
+    """What traces each level of a query on the GPU, in place of ``Scene._trace_level`` (same
+    arguments; ``times`` is for deforming levels, which this backend refuses earlier): the base
+    level, then each instance batch in its mesh's space, as the CPU engine merges them. Returns
+    ``Traced``: best_t; for closest best_tri (the level's kernel row), hit_u and hit_v; for
+    ANY_HIT a row where the ray is blocked; for COUNT and ALL_HITS n_hits and the lists
+    (``collected``); no stats."""
 
     def trace(level, flags, origins, directions, tmin, tmax, ray_masks, visible_rows,
               tri_masks, threads, list_size, times=None):  # fmt: skip
