@@ -277,6 +277,9 @@ class DataDir:
         #: scene -> mesh name -> its array files in the current version
         self._files: dict[str, dict[str, MeshFiles]] = {}
         self._current: dict[str, Snapshot] = {}  #: the snapshot each scene's files hold
+        #: the version of each deleted scene's manifest ``{"deleted": true}``, removed once the
+        #: scene is made again (its next manifest keeps the versions from being reused)
+        self._deleted: dict[str, int] = {}
         #: why the last change failed, until one succeeds: None while the folder takes writes
         self.fault: Fault | None = None
         #: failed changes by OS error name (``ENOSPC``...), since start
@@ -339,7 +342,8 @@ class DataDir:
         except OSError as exc:
             raise self._failed(exc, created) from None
         self.fault = None
-        self._forget(folder, old_files, files, old, snapshot.version)
+        old_version = old.version if old is not None else self._deleted.pop(snapshot.scene, None)
+        self._forget(folder, old_files, files, old_version, snapshot.version)
         self._files[snapshot.scene], self._current[snapshot.scene] = files, snapshot
 
     def delete(self, scene: str, version: int) -> None:
@@ -365,7 +369,8 @@ class DataDir:
         self.fault = None
         self._files.pop(scene, None)
         self._current.pop(scene, None)
-        self._forget(folder, old_files, {}, old, version)
+        self._deleted[scene] = version
+        self._forget(folder, old_files, {}, None if old is None else old.version, version)
 
     def write_pattern(self, name: str, pattern: Pattern, old: Pattern | None) -> None:
         """Make pattern ``name`` durable, replacing ``old`` (None: a new one). On failure what
@@ -510,13 +515,14 @@ class DataDir:
         sync_folder(folder)
 
     @staticmethod
-    def _forget(folder: Path, old_files, new_files, old: Snapshot | None, version: int) -> None:
-        """Remove what the new manifest no longer names (a crash or a failure here leaves only
-        orphans, removed at the next start: the change is made)."""
+    def _forget(folder: Path, old_files, new_files, old_version: int | None, version: int) -> None:
+        """Remove what the new manifest no longer names, the manifest of ``old_version`` (or
+        None) included (a crash or a failure here leaves only orphans, removed at the next
+        start: the change is made)."""
         kept = {file.name for pair in new_files.values() for file in pair}
         names = {file.name for pair in old_files.values() for file in pair} - kept
-        if old is not None and old.version != version:
-            names.add(f"scene.{old.version}.json")
+        if old_version is not None and old_version != version:
+            names.add(f"scene.{old_version}.json")
         for name in names:
             try:
                 (folder / name).unlink(missing_ok=True)
@@ -556,6 +562,8 @@ class DataDir:
             if snapshot is not None:
                 snapshots.append(snapshot)
                 self._files[folder.name], self._current[folder.name] = files, snapshot
+            else:
+                self._deleted[folder.name] = version
         return Restored(snapshots, last_versions)
 
     def restore_patterns(self, limit: int) -> dict[str, Pattern]:

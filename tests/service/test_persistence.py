@@ -92,6 +92,23 @@ def test_versions_go_on_after_a_restart_also_for_a_deleted_scene(tmp_path, chang
     assert again.snapshot("gone").version == 3 and again.snapshot("s").version == 6
 
 
+@pytest.mark.parametrize("restart", [False, True])
+def test_a_scene_deleted_and_made_again_keeps_one_manifest(tmp_path, restart):
+    """A deleted scene's manifest ({"deleted": true}) goes once the scene is made again, so
+    episodes that delete and remake a scene leave one manifest, not one each (also when the
+    deletion was read back by a restart)."""
+    store = open_store(tmp_path)
+    for _ in range(4):
+        store.put_mesh("episode", "a", MeshArrays(*quad(0, 1, 0, 1, 0)))
+        store.delete_scene("episode")
+        if restart:
+            store = open_store(tmp_path)
+    store.put_mesh("episode", "a", MeshArrays(*quad(0, 1, 0, 1, 0)))
+    manifests = sorted(p.name for p in (tmp_path / "scenes" / "episode").glob("scene.*.json"))
+    assert manifests == ["scene.5.json"]
+    assert open_store(tmp_path).snapshot("episode").version == 5
+
+
 def test_indices_stay_and_are_not_reused_after_a_restart(tmp_path, changed):
     restored = open_store(tmp_path)
     restored.put_mesh("s", "d", MeshArrays(*quad(0, 1, 0, 1, 0)))
