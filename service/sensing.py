@@ -12,7 +12,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from dacrt.sensors import Camera, Lidar, Materials, Rig
-from dacrt.sensors.batch import capture
+from dacrt.sensors.batch import batch_stats, capture
 
 from . import shading
 from .options import Options
@@ -151,7 +151,7 @@ def sense_rig(
         for name in sensors
         for key, array in _answer(found[name], engine, options).items()
     }
-    stats = _stats(next(iter(found.values())).stats, options)
+    stats = _stats(batch_stats(found.values()), options)
     n_rays = sum(request_rays(sensor) for sensor, _ in sensors.values())
     return TraceResult(arrays, snapshot.version, stats, seconds, n_rays, fallback=fallback)
 

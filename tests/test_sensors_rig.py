@@ -10,6 +10,7 @@ from sensor_scenes import POSES, ROOM
 
 import dacrt
 from dacrt.sensors import Camera, Lidar, Materials, Rig, look_at_pose
+from dacrt.sensors.batch import batch_stats
 
 SENSORS = {
     "roof": Lidar("VLP-16", horizontal_steps=120, return_mode="dual", beam_divergence_deg=2.0,
@@ -117,3 +118,19 @@ def test_a_rig_tracing_more_rays_than_int32_indexes_is_refused(monkeypatch):
     with pytest.raises(dacrt.InputError, match=r"the rig's batch \(.*\) has 28 rays"):
         rig.capture(scene, poses)
     assert sensors["a"].capture(scene, np.eye(4))["depth"].shape == (4, 4)
+
+
+def test_a_rigs_counters_add_up_its_closest_and_hits_calls():
+    """A rig traces its sensors in a closest call and a hits call (sensors that see through
+    surfaces); its counters are both calls' together."""
+    scene = dacrt.Scene(ROOM)
+    answers = Rig(SENSORS).capture(scene, POSE_OF, MATERIALS, stats=True)
+    total = batch_stats(answers.values())
+    assert total["rays"] == sum(sensor.n_traced_rays for sensor in SENSORS.values())
+    assert total["triangles"] == scene.n_triangles
+    alone = [
+        Rig({k: SENSORS[k]}).capture(scene, {k: POSE_OF[k]}, MATERIALS, stats=True)[k].stats
+        for k in ("bumper", "front")
+    ]
+    assert total["max_depth"] >= max(c["max_depth"] for c in alone)
+    assert batch_stats(Rig(SENSORS).capture(scene, POSE_OF, MATERIALS).values()) is None

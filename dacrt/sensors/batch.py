@@ -71,6 +71,24 @@ def capture(scene, shots: list[Shot], materials: Materials | dict | None, **quer
     )
 
 
+def batch_stats(answers) -> dict | None:
+    """The counters of a batch's whole trace (``stats=True``) from its sensors' answers (their
+    ``stats``): its ``Scene.closest`` call's and its ``Scene.hits`` call's, each shared by the
+    sensors it traced, added up (the scene's triangles once, the deepest max_depth); None
+    without stats."""
+    calls = list({id(a.stats): a.stats for a in answers if a.stats is not None}.values())
+    if not calls:
+        return None
+    total = dict(calls[0])
+    for counters in calls[1:]:
+        for name, value in counters.items():
+            if name == "max_depth":
+                total[name] = max(total[name], value)
+            elif name != "triangles":
+                total[name] += value
+    return total
+
+
 def check_query(query: dict) -> None:
     for key in query:
         if key not in QUERY_KEYS:

@@ -286,6 +286,21 @@ def test_query_options_are_those_of_the_queries(app_client, app_api, room):
         assert response.status_code == 422 and words in response.json()["detail"]
 
 
+def test_a_rigs_trace_stats_count_every_sensor(app_client, room):
+    """A rig of a lidar that sees through surfaces (traced by the engine's hits) and one that
+    does not (closest): X-Trace-Stats counts both calls' rays."""
+    body = {"pose": POSES[1].tolist(), "model": "VLP-16", "horizontal_steps": 30}
+    rig = {
+        "sensors": {
+            "first": {"kind": "lidar", **body},
+            "every": {"kind": "lidar", **body, "return_mode": "all", "max_returns": 2},
+        }
+    }
+    response = app_client.post(f"/v1/scenes/{room}/sensors?stats=true", json=rig)
+    assert response.status_code == 200, response.text
+    assert json.loads(response.headers["x-trace-stats"])["rays"] == 2 * 16 * 30
+
+
 @pytest.mark.parametrize("max_returns", [1, 3])
 def test_the_query_strings_mask_is_every_beams_ray_mask(app_client, inside_sphere, max_returns):
     """``?mask=`` masks a lidar's rays as a query's: mask 0 sees nothing, so no point returns."""
