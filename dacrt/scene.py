@@ -590,7 +590,7 @@ class Scene:
         time : None (every ray at 0), a number, or (n,) float in [0, 1]: the instant of each
             ray in the frame's interval, where meshes move (``transforms_end``)
         device : "cpu", or "cuda" (``dacrt.cuda``: the same answers on an NVIDIA GPU; no
-            deforming meshes, ``time`` or ``stats`` yet; strategy and threads do not apply)
+            deforming meshes or ``stats`` yet; strategy and threads do not apply)
         Returns ``Hits``; ties in t go to the lowest (mesh, triangle).
         """
         if check_device(device, stats, strategy, threads) == "cuda":
@@ -747,8 +747,8 @@ class Scene:
         vertex shared by two triangles crosses one of them, not both (``count``). Returns
         ``HitList``: ray i's hits are rows offsets[i]:offsets[i + 1], sorted by (t, mesh, prim);
         truncated[i] where it had more than max_hits, of which the nearest are kept.
-        With device="cuda" each ray holds min(max_hits, triangles) 8-byte keys in device memory:
-        a batch needing over 2 GiB for them is refused (InputError naming max_hits)."""
+        With device="cuda" each ray holds min(max_hits, triangles) + 1 8-byte keys in device
+        memory: a batch needing over 2 GiB for them is traced in chunks of rays that fit."""
         if check_device(device, stats, strategy, threads) == "cuda":
             from . import cuda
 
