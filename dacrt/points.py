@@ -673,7 +673,7 @@ def nearest_query(scene, points, max_distance=None, mask=None, threads=None, sta
     beyond = (np.isinf(distance) | (distance.astype(np.float64) > max_distance)) & (mesh != MISS)
     if beyond.any():
         mesh[beyond] = prim[beyond] = MISS
-        point[beyond], u[beyond], v[beyond] = np.inf, 0.0, 0.0
+        distance[beyond], point[beyond], u[beyond], v[beyond] = np.inf, np.inf, 0.0, 0.0
     return Nearest(
         distance=distance,
         point=point,

@@ -178,6 +178,23 @@ def test_a_reported_distance_given_back_as_max_distance_keeps_its_answer():
         assert scene.nearest(points[k : k + 1], max_distance=below).prim[0] == -1, k
 
 
+def test_a_closest_point_just_beyond_max_distance_is_none_in_every_field():
+    """The search covers the distances that round just above the limit (``search_limit2``);
+    those the query then drops read as none: distance and point inf, mesh and prim -1, and the
+    signed distance inf, also for a limit float32 holds exactly."""
+    scene = dacrt.Scene([pg.single_triangle()])
+    above_one = np.nextafter(np.float32(1), np.float32(2))
+    points = np.array([[0.2, 0.2, above_one], [0.2, 0.2, 1.0], [0.2, 0.2, -1.0]], np.float32)
+    for limit, kept in ((1.0, [False, True, True]), (0.99999999, [False, False, False])):
+        found = scene.nearest(points, max_distance=limit)
+        np.testing.assert_array_equal(found.distance, np.where(kept, np.float32(1), np.inf))
+        np.testing.assert_array_equal(found.mesh, np.where(kept, 0, -1))
+        np.testing.assert_array_equal(found.prim, np.where(kept, 0, -1))
+        assert np.isinf(found.point[~np.array(kept)]).all()
+        signed = scene.signed_distance(points, 1, limit)
+        np.testing.assert_array_equal(np.abs(signed), found.distance)
+
+
 def test_max_distance_zero_keeps_points_on_the_surface():
     vertices, faces = pg.grid(4, 1.0)
     points = np.array([[0.5, 0.5, 0.0], [0.5, 0.5, 1e-3]], np.float32)

@@ -114,6 +114,23 @@ def test_max_distance_mask_and_stats(app_api, sphere_scene):
     assert (ball_only.mesh == 1).all()
 
 
+@pytest.mark.parametrize("answer", ["npz", "json"])
+def test_a_closest_point_just_beyond_max_distance_is_none_in_every_key(app_api, scene_name, answer):
+    """The engine's answer: a distance that rounds just above ?max_distance (float32 1 and
+    the next float32 above it) reads inf, and so does the signed distance, with mesh and prim
+    -1 and point inf; a distance at the limit is kept."""
+    vertices = np.float32([[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    app_api.put_mesh(scene_name, "triangle", vertices, np.int32([[0, 1, 2]]))
+    above_one = np.nextafter(np.float32(1), np.float32(2))
+    points = np.array([[0.2, 0.2, above_one], [0.2, 0.2, 1.0]], np.float32)
+    near = app_api.nearest(scene_name, points, 1.0, sign=True, answer=answer)
+    np.testing.assert_array_equal(near.distance, [np.inf, 1.0])
+    np.testing.assert_array_equal(near.mesh, [-1, 0])
+    np.testing.assert_array_equal(near.prim, [-1, 0])
+    assert np.isinf(near.point[0]).all()
+    np.testing.assert_array_equal(np.abs(near.signed_distance), [np.inf, 1.0])
+
+
 def _ball():
     vertices, faces = procedural.icosphere(2)
     return vertices + [2.0, 2.0, 3.0], faces
