@@ -37,6 +37,7 @@ from .validation import (
     check_threads,
     check_time,
     explain_bad_rays,
+    hide_rays,
 )
 
 try:
@@ -248,12 +249,14 @@ class DistributedScene:
         options["threads"] = check_threads(options.get("threads"), 1)
         if query == "hits":
             options["max_hits"] = check_max_hits(options.get("max_hits", 16))
-        origins, directions, tmin, tmax = check_rays(origins, directions, tmin, tmax)
+        origins, directions, tmin, tmax, empty = check_rays(origins, directions, tmin, tmax)
         n = len(origins)
         mask = options.pop("mask", None)
         if mask is not None:
             checked = check_masks(mask, n, "mask", "ray")  # counts the batch's rays
             mask = checked if np.ndim(mask) else np.asarray(mask, np.uint32)
+        if empty is not None:
+            mask = hide_rays(None if mask is None else np.broadcast_to(mask, (n,)), empty, n)
         times = check_time(options.pop("time", None), n)
         try:
             nthreads = self.client.nthreads()

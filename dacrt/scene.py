@@ -106,6 +106,7 @@ from .validation import (
     check_vertices_end,
     explain_bad_rays,
     explain_bad_vertices,
+    hide_rays,
     mesh_pairs,
     place_vertices,
 )
@@ -580,7 +581,8 @@ class Scene:
         """Nearest hit of each ray ``origins + t * directions`` with tmin <= t <= tmax.
 
         origins, directions : (n, 3) float; directions need not be unit, t is in their units
-        tmin, tmax : None, a number, or (n,) float (defaults 0 and +inf)
+        tmin, tmax : None, a number, or (n,) float (defaults 0 and +inf); a hit has
+            tmin <= t <= tmax for the bounds as given (``validation.ray_window``)
         cull : "none", "back" (faces whose normal (p1-p0)x(p2-p0) points along the ray never
             hit) or "front" (faces whose normal points against it never hit)
         mask : None (all ones), an integer, or (n,) uint32: a ray sees a mesh only where its
@@ -1203,9 +1205,10 @@ class Scene:
         strategy = check_strategy(strategy)
         threads = check_threads(threads, N_CORES)
         flags |= CULL_FLAGS[check_cull(cull)] | STRATEGY_CODES[strategy] << STRATEGY_SHIFT
-        origins, directions, tmin, tmax = check_rays(origins, directions, tmin, tmax)
+        origins, directions, tmin, tmax, empty = check_rays(origins, directions, tmin, tmax)
         n_rays = len(origins)
         ray_masks = None if mask is None else check_masks(mask, n_rays, "mask", "ray")
+        ray_masks = hide_rays(ray_masks, empty, n_rays)
         times = check_time(time, n_rays)
         if not self._moving or (times is not None and not times.any()):
             times = None  # every ray at 0, or nothing moves: the static trace, bit for bit

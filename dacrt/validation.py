@@ -178,18 +178,49 @@ LARGEST_T = np.finfo(FLOAT).max
 
 def check_rays(origins, directions, tmin, tmax):
     """Check a ray batch's shapes and dtypes; returns float32 origins, directions, tmin, tmax
-    (``kernel_input``: the columns of one (n, 6) array are copied). The values are checked as
-    the kernels pack them (``rays.pack_rays``); ``explain_bad_rays`` then names a bad one."""
+    (``kernel_input``: the columns of one (n, 6) array are copied) and ``empty``: None, or
+    (n,) bool, the rays whose window holds no float32 (``ray_window``), which must see nothing
+    (``hide_rays``). The values are checked as the kernels pack them (``rays.pack_rays``);
+    ``explain_bad_rays`` then names a bad one."""
     origins = as_float_rows(origins, "origins", check_finite=False, indexed=True)
     directions = as_float_rows(directions, "directions", check_finite=False, indexed=True)
     n = len(origins)
     if len(directions) != n:
         raise InputError(f"origins has {n} rows but directions has {len(directions)}")
-    tmin = _ray_range(tmin, 0.0, n, "tmin")
-    tmax = _ray_range(tmax, LARGEST_T, n, "tmax")
+    tmin, tmax, empty = ray_window(tmin, tmax, n)
     if (tmax > LARGEST_T).any():
         tmax = np.minimum(tmax, LARGEST_T)  # a copy: the caller's array stays as it was
-    return origins, directions, tmin, tmax
+    return origins, directions, tmin, tmax, empty
+
+
+def ray_window(tmin, tmax, n):
+    """Each ray's [tmin, tmax] as float32 (n,) arrays, rounded inward where float32 cannot hold
+    a bound (tmin up, tmax down), so that every float32 t within it is within the bounds as
+    given, and ``empty``: None, or (n,) bool, the rays whose window, tmin <= tmax as given,
+    holds no float32 (both bounds between the same two neighbours); their float32 window is
+    [tmax, tmax], and they must see nothing (``hide_rays``)."""
+    lo = _ray_range(tmin, 0.0, n, "tmin", toward=np.inf)
+    hi = _ray_range(tmax, LARGEST_T, n, "tmax", toward=-np.inf)
+    crossed = lo > hi
+    if not crossed.any():
+        return lo, hi, None
+    given_lo = 0.0 if tmin is None else np.asarray(tmin, np.float64)
+    given_hi = np.inf if tmax is None else np.asarray(tmax, np.float64)
+    # else tmin > tmax as given, or tmin beyond float32's range: refused
+    empty = crossed & (given_lo <= given_hi) & np.isfinite(lo)
+    if not empty.any():
+        return lo, hi, None
+    return np.where(empty, hi, lo), hi, empty
+
+
+def hide_rays(ray_masks, empty, n):
+    """The rays' masks (None: all ones) with 0 for the rays ``empty`` (None: none), so that
+    they see nothing; None where no ray is hidden and none was given."""
+    if empty is None:
+        return ray_masks
+    masks = np.full(n, 0xFFFFFFFF, np.uint32) if ray_masks is None else ray_masks.copy()
+    masks[empty] = 0
+    return masks
 
 
 def explain_bad_rays(origins, directions, tmin, tmax):
@@ -203,19 +234,26 @@ def explain_bad_rays(origins, directions, tmin, tmax):
     _first_bad(tmin > tmax, "tmin", "is greater than tmax", "rays with tmin > tmax")
 
 
-def _ray_range(value, default, n, name):
-    """A scalar or (n,) bound as a float32 (n,) array."""
+def _ray_range(value, default, n, name, toward=None):
+    """A scalar or (n,) bound as a float32 (n,) array, each value rounded to the nearest float32
+    or, with ``toward`` (inf or -inf), to the next one that way: a window's bounds round inward,
+    so that a t within the float32 window is within the caller's."""
     if value is None:
         return np.full(n, default, FLOAT)
     value = np.asarray(value)
     if value.dtype.kind not in "fiu" or value.dtype.kind == "b":
         raise InputError(f"{name} must be a number or a float array, got dtype {value.dtype}")
-    if value.ndim == 0:
-        return np.full(n, value, FLOAT)
-    if value.shape != (n,):
+    if value.ndim != 0 and value.shape != (n,):
         raise InputError(f"{name} must be a scalar or have shape ({n},), got {value.shape}")
     with np.errstate(over="ignore"):
-        return kernel_input(value, FLOAT)
+        bound = np.full(n, value, FLOAT) if value.ndim == 0 else kernel_input(value, FLOAT)
+    if toward is None or np.can_cast(value.dtype, FLOAT):  # float32 holds every value as given
+        return bound
+    given = value.astype(np.float64)
+    rounded_out = bound < given if toward > 0 else bound > given  # NaN is neither
+    if rounded_out.any():
+        bound = np.where(rounded_out, np.nextafter(bound, FLOAT(toward)), bound)
+    return bound
 
 
 def check_time(time, n):

@@ -295,6 +295,19 @@ def main():
     crossed = compare_crossings("grid", g, go, gd, 1)
     assert (crossed[: (k + 1) ** 2] == 2).any() and (crossed == 1).sum() == 0, crossed
     compare_crossings("grid tmax at hit", g, go, gd, 4, tmax=2.0)
+    # float64 bounds float32 cannot hold round inward on the host, for both: no hit at t = 2.
+    inner_o = np.float32([[0.3, 0.6, 2.0], [1.7, 2.2, 2.0]])
+    inner_d = np.float32([[0, 0, -1], [0, 0, -1]])
+    assert (dcuda.closest(g, inner_o, inner_d, tmax=2.0).t == 2).all()
+    for bounds in (
+        {"tmax": 1.99999999},
+        {"tmin": 2.00000001},
+        {"tmin": 2.00000001, "tmax": 2.00000002},
+    ):
+        compare(f"grid float64 {bounds}", g, go, gd, DEFAULT, **bounds)
+        compare_crossings(f"grid float64 {bounds}", g, go, gd, 4, **bounds)
+        assert (dcuda.closest(g, inner_o, inner_d, **bounds).mesh == -1).all(), bounds
+        assert (dcuda.count(g, inner_o, inner_d, **bounds).count == 0).all(), bounds
     # A mesh of mask 0 is hidden from rays with the default mask, as from every ray.
     hidden = dacrt.Scene(soup(rng, 120), masks=np.array([0, 1], np.uint32))
     compare("mesh mask 0, default ray mask", hidden, o, d, DEFAULT)

@@ -77,6 +77,29 @@ def test_every_query_matches_scene(client, seed):
             same(getattr(remote, query)(origins, directions, **kwargs), expected)
 
 
+def test_float64_windows_that_hold_no_float32_see_nothing_as_on_scene(client):
+    """Every third ray's window is a quarter of a float32 step above its closest hit's t: it
+    holds no float32, so that ray sees nothing (to the nearest float32 it would hit), with any
+    mask, as ``Scene`` answers it."""
+    meshes = sample_scenes.multi(1)
+    local = dacrt.Scene(meshes)
+    origins, directions = sample_scenes.mixed_rays(meshes, 1, n=600)
+    t = local.closest(origins, directions).t.astype(np.float64)
+    narrow = np.zeros(len(origins), bool)
+    narrow[::3] = np.isfinite(t[::3]) & (t[::3] > 0)
+    assert narrow.sum() > 50
+    step = np.spacing(t[narrow].astype(np.float32)).astype(np.float64)
+    tmin = np.zeros(len(origins))
+    tmax = np.full(len(origins), np.inf)
+    tmin[narrow] = tmax[narrow] = t[narrow] + step / 4
+    masks = np.random.default_rng(1).integers(0, 4, len(origins)).astype(np.uint32)
+    with DistributedScene(client, meshes, **SMALL_SHARDS) as remote:
+        for query, kwargs in [("closest", {}), ("count", {"mask": 3}), ("hits", {"mask": masks})]:
+            expected = getattr(local, query)(origins, directions, tmin, tmax, **kwargs)
+            same(getattr(remote, query)(origins, directions, tmin, tmax, **kwargs), expected)
+    assert (local.closest(origins, directions, tmin, tmax).mesh[narrow] == -1).all()
+
+
 def test_order_and_stats(client):
     meshes = sample_scenes.soup(3)
     origins, directions = sample_scenes.mixed_rays(meshes, 3, n=2000)

@@ -294,6 +294,47 @@ def test_valid_edge_values_are_accepted(query):
     getattr(scene, query)(origins, directions, threads=64)
 
 
+def _hit_at_one(query, tmin, tmax, **options):
+    """Whether ``query`` sees the single triangle from (0.2, 0.2, 1) straight down, at t = 1
+    exactly, with float64 rays and the window ``tmin``, ``tmax``."""
+    scene = dacrt.Scene([pg.single_triangle()])
+    o, d = np.array([[0.2, 0.2, 1.0]]), np.array([[0.0, 0.0, -1.0]])
+    answer = getattr(scene, query)(o, d, tmin, tmax, **options)
+    if query == "closest":
+        return bool(answer.mesh[0] == 0 and answer.t[0] == 1)
+    if query == "occluded":
+        return bool(answer.occluded[0])
+    return bool((answer.count if query == "count" else answer.counts)[0] == 1)
+
+
+@pytest.mark.parametrize("query", ["closest", "occluded", "count", "hits"])
+def test_float64_bounds_round_inward_so_t_stays_within_them(query):
+    """A hit counts if tmin <= t <= tmax for the bounds as given: a float64 bound that float32
+    cannot hold rounds inward (tmin up, tmax down), not to the nearest float32 (t = 1 there);
+    a window that holds no float32 sees nothing; float32 bounds are taken as they are."""
+    assert _hit_at_one(query, 1.0, 1.0)  # inclusive at both ends
+    assert _hit_at_one(query, 0.99999999, 1.00000001)
+    assert not _hit_at_one(query, 1.00000001, None)
+    assert not _hit_at_one(query, None, 0.99999999)
+    assert not _hit_at_one(query, np.array([1.00000001]), np.array([2.0]))
+    assert not _hit_at_one(query, np.array([0.5]), np.array([0.99999999]))
+    assert not _hit_at_one(query, 1.00000001, 1.00000002)  # no float32 between them
+    assert not _hit_at_one(query, 1.00000001, 1.00000001, mask=[7])
+    assert _hit_at_one(query, np.float32(1.00000001), np.float32(0.99999999))  # both 1.0
+    with pytest.raises(dacrt.InputError, match="tmin"):
+        _hit_at_one(query, 1.00000002, 1.00000001)  # tmin > tmax as given
+
+
+def test_a_window_that_holds_no_float32_hides_only_its_ray():
+    scene = dacrt.Scene([pg.single_triangle()])
+    o = np.array([[0.2, 0.2, 1.0]] * 3)
+    d = np.array([[0.0, 0.0, -1.0]] * 3)
+    tmin = np.array([0.0, 1.00000001, 0.5])
+    tmax = np.array([2.0, 1.00000002, 1.5])
+    np.testing.assert_array_equal(scene.closest(o, d, tmin, tmax).mesh, [0, -1, 0])
+    np.testing.assert_array_equal(scene.closest(o, d, tmin, tmax, mask=[1, 1, 0]).mesh, [0, -1, -1])
+
+
 def _compiled_signatures():
     """{kernel: signatures compiled} over every Numba dispatcher of dacrt's modules."""
     import numba

@@ -117,6 +117,21 @@ def test_a_far_beyond_float32_is_no_limit():
     assert Camera(4, 4, 1.0, 1.0, 0.0, 0.0, near=FLOAT32_MAX).near == FLOAT32_MAX
 
 
+def test_near_and_far_round_to_the_nearest_float32_as_documented():
+    """A camera's window is rounded to the nearest float32, as its rays are (docs/sensors.md):
+    a near of 2.00000001 or a far of 1.99999999 is float32's 2.0, so a hit at depth 2.0 is seen,
+    though the engine's query with those float64 bounds (rounded inward) sees nothing."""
+    floor = dacrt.Scene([(np.float32([[-9, -9, 0], [9, -9, 0], [0, 9, 0]]), [[0, 1, 2]])])
+    pose = look_at_pose((0.0, 0.0, 2.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+    for window in ({"near": 2.00000001}, {"far": 1.99999999}):
+        image = Camera.from_fov(1, 1, 60.0, **window).capture(floor, pose)
+        assert image["depth"][0, 0] == 2.0, window
+    rays = Camera.from_fov(1, 1, 60.0).shot(pose).rays
+    assert floor.closest(rays.origins, rays.directions).t[0] == 2.0
+    assert floor.closest(rays.origins, rays.directions, 2.00000001).mesh[0] == -1
+    assert floor.closest(rays.origins, rays.directions, 0.0, 1.99999999).mesh[0] == -1
+
+
 def test_a_look_at_pose_far_from_the_origin_looks_at_its_target():
     """eye and target 2e300 apart: the view's length overflows float64, its direction does not."""
     pose = look_at_pose((1e300, 0, 0), (-1e300, 0, 0), (0, 0, 1))

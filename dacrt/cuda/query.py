@@ -290,7 +290,8 @@ def trace_any(rows, rays, ray_masks, tri_masks, cull_side, max_pairs):
 
 def check_query_rays(origins, directions, tmin, tmax):
     """ValueError naming the first bad ray, before any is sent to the device."""
-    origins, directions, tmin, tmax = check_rays(origins, directions, tmin, tmax)
+    # float32 bounds (the host's checked ones) leave no window empty (``ray_window``)
+    origins, directions, tmin, tmax, _ = check_rays(origins, directions, tmin, tmax)
     bad = (
         ~np.isfinite(origins).all(axis=1)
         | ~np.isfinite(directions).all(axis=1)

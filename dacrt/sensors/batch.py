@@ -126,8 +126,8 @@ def _joined(scene_rays: list[Rays]):
     origins = np.concatenate([rays.origins for rays in scene_rays])
     directions = np.concatenate([rays.directions for rays in scene_rays])
     windows = {(rays.tmin, rays.tmax) for rays in scene_rays}
-    if len(windows) == 1:
-        tmin, tmax = windows.pop()
+    if len(windows) == 1:  # the bounds round to the nearest float32, as per ray
+        tmin, tmax = (np.float32(bound) for bound in windows.pop())
     else:
         counts = np.diff(bounds)
         tmin = np.repeat([rays.tmin for rays in scene_rays], counts).astype(np.float32)
