@@ -1585,18 +1585,17 @@ one None or (4, 4) float64 a mesh, vertices_end one None or (V, 3) float32 a mes
 def check_scene_arguments(meshes, masks, transforms, order, transforms_end, vertices_end):
     """The (vertices, faces) pairs as given and ``SceneArguments``: ``Scene``'s checks, which a
     ``DistributedScene`` makes too before it sends anything. InputError naming the argument."""
-    if order not in ORDERS:
+    if not isinstance(order, str) or order not in ORDERS:
         raise InputError(f"order must be one of {', '.join(ORDERS)}; got {order!r}")
     given = [pair for _, pair in mesh_pairs(meshes)]
     checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in enumerate(given)]
     check_row_count(sum(len(faces) for _, faces in checked), "the scene", "triangles")
     matrices = checked_transforms(transforms, len(checked), "transforms")
     ends = checked_transforms(transforms_end, len(checked), "transforms_end")
-    if vertices_end is not None and len(vertices_end) != len(checked):
-        raise InputError(f"vertices_end has {len(vertices_end)} entries for {len(checked)} meshes")
+    ends_given = one_per_mesh(vertices_end, len(checked), "vertices_end", "a (V, 3) array or None")
     deformed = [
         None if end is None else check_vertices_end(i, end, checked[i][0], matrices[i], ends[i])
-        for i, end in enumerate(vertices_end or [None] * len(checked))
+        for i, end in enumerate(ends_given)
     ]
     mesh_masks = check_masks(ALL_MASKS if masks is None else masks, len(checked), "masks", "mesh")
     return given, SceneArguments(checked, mesh_masks, matrices, order, ends, deformed)
@@ -1605,21 +1604,33 @@ def check_scene_arguments(meshes, masks, transforms, order, transforms_end, vert
 def checked_transforms(transforms, n_meshes, name):
     """``transforms`` (None, or one None or matrix per mesh) as a list of None or checked
     (4, 4) float64 matrices; InputError naming ``name`` or its entry."""
-    if transforms is None:
-        return [None] * n_meshes
-    transforms = list(transforms)
-    if len(transforms) != n_meshes:
-        raise InputError(f"{name} has {len(transforms)} entries for {n_meshes} meshes")
+    matrices = one_per_mesh(transforms, n_meshes, name, "a (4, 4) matrix or None")
     return [
         None if matrix is None else check_transform(matrix, f"{name}[{i}]")
-        for i, matrix in enumerate(transforms)
+        for i, matrix in enumerate(matrices)
     ]
+
+
+def one_per_mesh(values, n_meshes, name, what):
+    """``values`` (None, or a sequence of one entry a mesh) as a list of ``n_meshes`` entries
+    (None for none); InputError naming ``name``, with ``what`` an entry is, otherwise."""
+    if values is None:
+        return [None] * n_meshes
+    try:
+        values = list(values)
+    except TypeError:
+        raise InputError(
+            f"{name} must be a sequence with {what} for each mesh, got {type(values).__name__}"
+        ) from None
+    if len(values) != n_meshes:
+        raise InputError(f"{name} has {len(values)} entries for {n_meshes} meshes")
+    return values
 
 
 def check_device(device, stats, strategy, threads):
     """``device`` ("cpu" or "cuda"), or InputError; stats are counted on the CPU only, and the
     GPU's query checks ``strategy`` and ``threads`` as the CPU's does though neither applies."""
-    if device not in DEVICES:
+    if not isinstance(device, str) or device not in DEVICES:
         raise InputError(f"unknown device {device!r}; use one of {', '.join(DEVICES)}")
     if device == "cuda":
         if stats:

@@ -48,10 +48,19 @@ def check_row_count(n, name, what):
         )
 
 
+def numeric_array(value, message):
+    """``np.asarray(value)``, or InputError(``message``) where NumPy cannot make one array of
+    it (ragged lists)."""
+    try:
+        return np.asarray(value)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(message) from None
+
+
 def as_float_rows(array, name, width=3, check_finite=True, indexed=False):
     """``array`` as a float32 (n, width) array (``kernel_input``); finite values required;
     at most MAX_ROWS rows when ``indexed`` (rays and points), checked before any copy."""
-    array = np.asarray(array)
+    array = numeric_array(array, f"{name} must be an (n, {width}) array of numbers")
     if array.ndim != 2 or array.shape[1] != width:
         raise InputError(f"{name} must have shape (n, {width}), got {array.shape}")
     if indexed:
@@ -93,7 +102,7 @@ def mesh_pairs(meshes):
 
 def check_int_rows(values, name):
     """``values`` as a flat int64 array; InputError naming ``name`` unless integers."""
-    array = np.asarray(values)
+    array = numeric_array(values, f"{name} must be integers")
     if array.dtype.kind not in "iu":
         raise InputError(f"{name} must be integers, got {array.dtype}")
     return array.astype(np.int64).reshape(-1)
@@ -118,8 +127,8 @@ def check_mesh(index, vertices, faces):
     """Validate one mesh; returns (vertices float32 (V, 3), faces int32 or int64 (F, 3)), as
     ``kernel_input`` gives them."""
     label = f"mesh {index}"
-    vertices = np.asarray(vertices)
-    faces = np.asarray(faces)
+    vertices = numeric_array(vertices, f"{label}: vertices must be a (V, 3) array of numbers")
+    faces = numeric_array(faces, f"{label}: faces must be an (F, 3) array of integers")
     if vertices.ndim != 2 or vertices.shape[1] != 3:
         raise InputError(f"{label}: vertices must have shape (V, 3), got {vertices.shape}")
     if faces.ndim != 2 or faces.shape[1] != 3:
@@ -240,7 +249,7 @@ def _ray_range(value, default, n, name, toward=None):
     so that a t within the float32 window is within the caller's."""
     if value is None:
         return np.full(n, default, FLOAT)
-    value = np.asarray(value)
+    value = numeric_array(value, f"{name} must be a number or a float array")
     if value.dtype.kind not in "fiu" or value.dtype.kind == "b":
         raise InputError(f"{name} must be a number or a float array, got dtype {value.dtype}")
     if value.ndim != 0 and value.shape != (n,):
@@ -272,7 +281,7 @@ def check_time(time, n):
 
 
 def check_strategy(strategy):
-    if strategy not in STRATEGIES:
+    if not isinstance(strategy, str) or strategy not in STRATEGIES:
         raise InputError(f"unknown strategy {strategy!r}; use one of {', '.join(STRATEGIES)}")
     return strategy
 
@@ -380,7 +389,7 @@ def check_max_hits(max_hits):
 
 
 def check_cull(cull):
-    if cull not in CULL_MODES:
+    if not isinstance(cull, str) or cull not in CULL_MODES:
         raise InputError(f"unknown cull {cull!r}; use one of {', '.join(CULL_MODES)}")
     return cull
 
@@ -388,10 +397,12 @@ def check_cull(cull):
 def check_masks(masks, n, name, what):
     """A mask per item as a uint32 (n,) array: ``masks`` an integer scalar (every item) or (n,)
     integer array with values in [0, 2**32); ``what`` names the items in the error."""
-    masks = np.asarray(masks)
+    masks = numeric_array(masks, f"{name} must be an integer (uint32) array")
     if masks.dtype.kind not in "iu":
         raise InputError(f"{name} must be an integer (uint32) array, got dtype {masks.dtype}")
     if masks.ndim == 0:
+        if not 0 <= int(masks) <= 0xFFFFFFFF:
+            raise InputError(f"{name} is {int(masks)}, outside the uint32 range [0, 2**32)")
         masks = np.full(n, masks)
     if masks.shape != (n,):
         raise InputError(
@@ -420,10 +431,14 @@ def check_max_distance(max_distance):
         return np.inf
     if isinstance(max_distance, bool) or not isinstance(max_distance, int | float | np.number):
         raise InputError(f"max_distance must be a number or None, got {max_distance!r}")
-    if not float(max_distance) >= 0:  # NaN too
+    try:
+        limit = float(max_distance)
+    except OverflowError:  # an integer beyond float64's range
+        limit = np.inf if max_distance > 0 else -np.inf
+    if not limit >= 0:  # NaN too
         raise InputError(f"max_distance must be >= 0, got {max_distance!r}")
     # distances are float32: beyond its largest number a limit is no limit
-    return float(max_distance) if float(max_distance) <= float(LARGEST_T) else np.inf
+    return limit if limit <= float(LARGEST_T) else np.inf
 
 
 def check_nsamples(nsamples):

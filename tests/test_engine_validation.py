@@ -335,6 +335,83 @@ def test_a_window_that_holds_no_float32_hides_only_its_ray():
     np.testing.assert_array_equal(scene.closest(o, d, tmin, tmax, mask=[1, 1, 0]).mesh, [0, -1, -1])
 
 
+def _triangle_scene():
+    return dacrt.Scene([pg.single_triangle()])
+
+
+ORIGIN, DOWN = [[0.2, 0.2, 1.0]], [[0.0, 0.0, -1.0]]
+MALFORMED = {
+    "ragged origins": (lambda s: s.closest([[0, 0, 1], [0, 0]], DOWN * 2), "origins must be an"),
+    "ragged directions": (lambda s: s.hits(ORIGIN * 2, [[0, 0, -1], [0, 0]]), "directions must be"),
+    "ragged tmin": (lambda s: s.count(ORIGIN * 2, DOWN * 2, [[0], [0, 1]]), "tmin must be"),
+    "ragged mask": (lambda s: s.occluded(ORIGIN * 2, DOWN * 2, mask=[[1], [1, 2]]), "mask must be"),
+    "ragged points": (lambda s: s.nearest([[0, 0, 1], [0, 0]]), "points must be an"),
+    "ragged vertices": (
+        lambda s: dacrt.Scene([([[0, 0, 0], [1, 0]], [[0, 1, 0]])]),
+        "mesh 0: vertices must be",
+    ),
+    "ragged faces": (
+        lambda s: dacrt.Scene([(pg.single_triangle()[0], [[0, 1, 2], [0, 1]])]),
+        "mesh 0: faces must be",
+    ),
+    "ragged new vertices": (
+        lambda s: s.with_changes(vertices={0: [[0, 0, 0], [1, 0], [0, 1, 0]]}),
+        r"vertices\[0\] must be",
+    ),
+    "cull array": (
+        lambda s: s.closest(ORIGIN, DOWN, cull=np.array(["none", "back"])),
+        "unknown cull",
+    ),
+    "strategy array": (
+        lambda s: s.closest(ORIGIN, DOWN, strategy=np.array(["sah", "middle"])),
+        "unknown strategy",
+    ),
+    "device array": (
+        lambda s: s.count(ORIGIN, DOWN, device=np.array(["cpu", "cuda"])),
+        "unknown device",
+    ),
+    "order array": (
+        lambda s: dacrt.Scene([pg.single_triangle()], order=np.array(["auto", "file"])),
+        "order must be one of",
+    ),
+    "transforms a number": (
+        lambda s: dacrt.Scene([pg.single_triangle()], transforms=5),
+        "transforms must be a sequence with a",
+    ),
+    "transforms_end a number": (
+        lambda s: dacrt.Scene([pg.single_triangle()], transforms_end=5),
+        "transforms_end must be a sequence with a",
+    ),
+    "vertices_end a number": (
+        lambda s: dacrt.Scene([pg.single_triangle()], vertices_end=5),
+        "vertices_end must be a sequence with a",
+    ),
+    "max_distance below float64's range": (
+        lambda s: s.nearest(ORIGIN, -(10**400)),
+        "max_distance must be >= 0",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MALFORMED))
+def test_malformed_arguments_are_input_errors_naming_them(case):
+    """Ragged lists, arrays for a name, a number for a sequence: InputError, not NumPy's or
+    Python's own error."""
+    call, words = MALFORMED[case]
+    with pytest.raises(dacrt.InputError, match=words):
+        call(_triangle_scene())
+
+
+@pytest.mark.parametrize("mask", [-1, 2**32])
+def test_a_scalar_mask_out_of_range_is_named_as_given(mask):
+    scene = _triangle_scene()
+    with pytest.raises(dacrt.InputError) as error:
+        scene.with_changes(masks={0: mask})
+    assert str(error.value) == f"masks[0] is {mask}, outside the uint32 range [0, 2**32)"
+    with pytest.raises(dacrt.InputError, match=rf"^mask is {mask}, outside"):
+        scene.closest(ORIGIN, DOWN, mask=mask)
+
+
 def _compiled_signatures():
     """{kernel: signatures compiled} over every Numba dispatcher of dacrt's modules."""
     import numba

@@ -271,7 +271,7 @@ def test_a_max_distance_beyond_float32_is_no_limit():
     scene = dacrt.Scene(sample_scenes.SCENES["sphere"](0))
     points = np.array([[0.1, 0.2, 0.3], [5.0, 0, 0]])
     unlimited = scene.nearest(points)
-    for limit in (1e39, 1e200, np.finfo(np.float64).max):
+    for limit in (1e39, 1e200, np.finfo(np.float64).max, 10**400):
         np.testing.assert_array_equal(scene.nearest(points, limit).distance, unlimited.distance)
     signed = scene.signed_distance(points, max_distance=1e200)
     np.testing.assert_array_equal(np.abs(signed), unlimited.distance)
@@ -295,6 +295,9 @@ def test_a_max_distance_beyond_float32_is_no_limit():
         (lambda s: s.contains(np.zeros((1, 3)), nsamples=2**63 - 1), "up to 16777215"),
         (lambda s: s.signed_distance(np.zeros((1, 3)), nsamples=2**31 + 1), "up to 16777215"),
         (lambda s: s.signed_distance(np.zeros((1, 4))), "points"),
+        (lambda s: s.nearest([[0, 0, 1], [0, 0]]), "points must be an"),
+        (lambda s: s.contains([[0, 0, 1], [0, 0]]), "points must be an"),
+        (lambda s: s.signed_distance([[0, 0, 1], [0, 0]]), "points must be an"),
     ],
 )
 def test_bad_input_names_the_argument(call, message):
