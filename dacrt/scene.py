@@ -106,6 +106,7 @@ from .validation import (
     check_vertices_end,
     explain_bad_rays,
     explain_bad_vertices,
+    float64_points,
     hide_rays,
     mesh_pairs,
     place_vertices,
@@ -1088,10 +1089,7 @@ class Scene:
         mesh = check_int_rows(mesh, "mesh")
         if ((mesh < -1) | (mesh >= len(self._meshes))).any():
             raise InputError(f"mesh must hold -1 or indices below {len(self._meshes)}")
-        try:
-            points = np.asarray(points, np.float64).reshape(-1, 3)
-        except (TypeError, ValueError):
-            raise InputError("points must be an (n, 3) array of numbers") from None
+        points = float64_points(points, "points")
         if len(points) != len(mesh):
             raise InputError(f"points has {len(points)} rows but mesh has {len(mesh)}")
         n = len(mesh)

@@ -79,6 +79,18 @@ def as_float_rows(array, name, width=3, check_finite=True, indexed=False):
     return converted
 
 
+def float64_points(points, name):
+    """``points`` as a float64 (n, 3) array, each row finite; InputError naming ``name``."""
+    array = numeric_array(points, f"{name} must be an (n, 3) array of numbers")
+    if array.dtype.kind not in "fiu" or array.dtype.kind == "b":
+        raise InputError(f"{name} must be an (n, 3) array of numbers, got dtype {array.dtype}")
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise InputError(f"{name} must have shape (n, 3), got {array.shape}")
+    array = array.astype(np.float64)
+    _first_bad(~np.isfinite(array).all(axis=1), name, "is not finite", "rows are not finite")
+    return array
+
+
 def mesh_pairs(meshes):
     """(i, (vertices, faces)) of each entry of ``meshes``; InputError naming ``meshes`` when it
     is not a sequence, ``meshes[i]`` when an entry is not a pair."""
@@ -271,10 +283,12 @@ def check_time(time, n):
     if time is None:
         return None
     times = _ray_range(time, 0.0, n, "time")
-    bad = np.flatnonzero(~((times >= 0) & (times <= 1)))  # NaN fails both
+    # the range is that of the values given: one just outside [0, 1] may round into it
+    given = np.broadcast_to(np.asarray(time, np.float64), (n,))
+    bad = np.flatnonzero(~((given >= 0) & (given <= 1)))  # NaN fails both
     if len(bad):
         raise InputError(
-            f"time[{bad[0]}] is {times[bad[0]]}: each time must be finite and in [0, 1] "
+            f"time[{bad[0]}] is {given[bad[0]]}: each time must be finite and in [0, 1] "
             f"({len(bad)} rays)"
         )
     return times

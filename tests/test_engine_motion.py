@@ -283,6 +283,9 @@ BAD_TIMES = {
     "negative": (np.array([0.5, -0.1, 0.0, 0.0]), "time[1]"),
     "beyond one": (np.array([0.5, 0.0, 0.0, 1.5]), "time[3]"),
     "inf": (np.inf, "time[0]"),
+    # checked as given, before rounding to float32 (1.0 and -0.0)
+    "just beyond one": (np.array([0.5, 0.0, 1 + 1e-9, 0.0]), "time[2] is 1.000000001"),
+    "just below zero": (-1e-50, "time[0] is -1e-50"),
     "strings": (np.array(["a", "b", "c", "d"]), "dtype"),
 }
 
@@ -298,6 +301,26 @@ def test_bad_times_are_input_errors_naming_time(case):
         with pytest.raises(InputError, match="time") as error:
             query(o, d, time=value)
         assert words in str(error.value)
+
+
+@pytest.mark.parametrize(
+    ("points", "words"),
+    [
+        (np.zeros(6), r"points must have shape \(n, 3\), got \(6,\)"),
+        (np.zeros((2, 1, 3)), r"points must have shape \(n, 3\), got \(2, 1, 3\)"),
+        ([[0, 0, 0], [0, 0]], "points must be an"),
+        ([[0, 0, 0], [0, np.nan, 0]], r"points\[1\] is not finite \(1 rows"),
+        ([[np.inf, 0, 0], [0, -np.inf, 0]], r"points\[0\] is not finite \(2 rows"),
+        (np.zeros((2, 3), bool), "dtype bool"),
+    ],
+)
+def test_motion_takes_finite_points_n_by_3(points, words):
+    meshes, starts, ends = _moving()
+    scene = dacrt.Scene(meshes, transforms=starts, transforms_end=ends)
+    with pytest.raises(InputError, match=words):
+        scene.motion([0, 0], points, 0.5)
+    with pytest.raises(InputError, match=r"time\[1\] is 1.000000001"):
+        scene.motion([0, 0], np.zeros((2, 3)), [0.5, 1 + 1e-9])
 
 
 def test_bad_end_placements_are_input_errors_naming_them():
