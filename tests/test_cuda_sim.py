@@ -89,3 +89,24 @@ def test_cuda_refuses_unsupported_options():
     for bad in (0, -5, 2.5, True):
         with pytest.raises(InputError, match="max_pairs"):
             dcuda.count(scene, [[0.2, 0.2, 1]], [[0, 0, -1]], max_pairs=bad)
+
+
+def test_cuda_where_no_gpu_is_available_is_an_input_error(monkeypatch):
+    """No CUDA driver, or no GPU it can use: InputError saying so, not the driver's error; the
+    query's own checks come first."""
+    from dacrt import cuda as dcuda
+    from dacrt.cuda import query
+
+    monkeypatch.setattr(query.cuda, "is_available", lambda: False)
+    assert not dcuda.is_available()
+    scene = dacrt.Scene([([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])])
+    o, d = [[0.2, 0.2, 1]], [[0, 0, -1]]
+    for query_name in ("closest", "occluded", "count", "hits"):
+        with pytest.raises(InputError, match="device='cuda': no CUDA GPU is available"):
+            getattr(scene, query_name)(o, d, device="cuda")
+        with pytest.raises(InputError, match="no CUDA GPU is available"):
+            getattr(dcuda, query_name)(scene, o, d)
+    with pytest.raises(InputError, match="unknown strategy"):
+        scene.closest(o, d, device="cuda", strategy="bogus")
+    with pytest.raises(InputError, match=r"directions\[0\] is zero"):
+        scene.closest(o, [[0, 0, 0]], device="cuda")

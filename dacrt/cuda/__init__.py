@@ -5,17 +5,6 @@ a GPU).
 ``dacrt.cuda.closest(scene, ...)`` is ``scene.closest(..., device="cuda")``.
 """
 
-from numba import cuda
-
-from .query import closest, count, hits, lacks, occluded
-
-
-def is_available() -> bool:
-    """Whether a CUDA GPU (or the simulator, ``NUMBA_ENABLE_CUDASIM=1``) can run the kernels."""
-    try:
-        return bool(cuda.is_available())
-    except Exception:  # a driver that fails to load means no GPU
-        return False
-
+from .query import closest, count, hits, is_available, lacks, occluded
 
 __all__ = ["closest", "count", "hits", "is_available", "lacks", "occluded"]

@@ -46,6 +46,23 @@ def lacks(scene, stats=False):
     return None
 
 
+def is_available() -> bool:
+    """Whether a CUDA GPU (or the simulator, ``NUMBA_ENABLE_CUDASIM=1``) can run the kernels."""
+    try:
+        return bool(cuda.is_available())
+    except Exception:  # a driver that fails to load means no GPU
+        return False
+
+
+def check_available():
+    """InputError where no CUDA GPU is available (rather than the driver's error)."""
+    if not is_available():
+        raise InputError(
+            "device='cuda': no CUDA GPU is available here (no CUDA driver, or no GPU it can "
+            "use); use device='cpu'"
+        )
+
+
 def check_supported(scene, max_pairs):
     """InputError naming an option this backend does not have yet, or a bad ``max_pairs``."""
     if isinstance(max_pairs, bool) or not isinstance(max_pairs, int | np.integer) or max_pairs < 1:
@@ -121,6 +138,7 @@ def level_tracer(max_pairs=MAX_PAIRS):
               tri_masks, threads, list_size, times=None):  # fmt: skip
         # A bad ray (or one that leaves float32 in a mesh's space) is named, not sent.
         origins, directions, tmin, tmax = check_query_rays(origins, directions, tmin, tmax)
+        check_available()  # after the query's own checks: bad input is named first
         n = len(origins)
         best_t = np.array(tmax, FLOAT)
         best_tri = np.full(n, NO_HIT, INDEX)
