@@ -14,6 +14,10 @@ from .formats import Buffer
 
 #: The longest .npy header read (numpy itself refuses headers over 10,000 bytes).
 MAX_NPY_HEADER_BYTES = 65536 + 16
+#: The most axes a NumPy array has.
+MAX_NPY_AXES = 64
+#: The most bytes a NumPy array's shape may span, zero-length axes left out.
+MAX_NPY_BYTES = np.iinfo(np.intp).max
 
 
 def read_npy(buf: bytes | memoryview, name: str = "body", structured: bool = False) -> np.ndarray:
@@ -72,6 +76,14 @@ def read_npy(buf: bytes | memoryview, name: str = "body", structured: bool = Fal
             f"{name} is {problem}: its header promises {dtype} {shape} = {expected} "
             f"bytes of data, but {len(view) - offset} follow"
         )
+    # a shape of no elements (a zero length) carries no data, yet numpy cannot make every such shape
+    if len(shape) > MAX_NPY_AXES:
+        raise BadBody(
+            f"{name} is not a readable .npy: its shape has {len(shape)} axes, "
+            f"over the {MAX_NPY_AXES} numpy holds"
+        )
+    if math.prod(length for length in shape if length) * dtype.itemsize > MAX_NPY_BYTES:
+        raise BadBody(f"{name} is not a readable .npy: its shape {shape} is too big for an array")
     array = np.frombuffer(view, dtype=dtype, count=count, offset=offset)
     return array.reshape(shape, order="F" if fortran else "C")
 

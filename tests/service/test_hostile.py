@@ -111,6 +111,22 @@ CORPUS = [
             ((2**64, 6), "truncated"),
         ]
     ],
+    *[
+        (
+            f"npy shape {name} and no data",
+            method,
+            path,
+            NPY,
+            lambda shape=shape: hostile.npy_with_header("<f4", shape),
+            400,
+            problem,
+        )
+        for name, shape, problem in [
+            ("(2**62, 0)", (2**62, 0), "too big for an array"),
+            ("of 65 zeros", (0,) * 65, "65 axes"),
+        ]
+        for method, path in [("POST", "closest"), ("POST", "nearest")]
+    ],
     (
         "npy dtype |V0",
         "POST",

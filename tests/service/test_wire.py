@@ -138,6 +138,10 @@ def unclosed_header_npy() -> bytes:
             npy_with_header("{'descr': '<f4', 'fortran_order': False, 'shape': (2**62, 6), }"),
             "not a readable .npy: its header holds an expression, not literals",
         ),
+        # consistent headers (no elements, no data) whose shape numpy cannot make
+        (hostile_bodies.npy_with_header("<f4", (2**62, 0)), "too big for an array"),
+        (hostile_bodies.npy_with_header("<f8", (0, 2**60)), "too big for an array"),
+        (hostile_bodies.npy_with_header("<f4", (0,) * 65), "65 axes, over the 64"),
     ],
 )
 def test_unreadable_npy_is_400(body, message):
