@@ -9,6 +9,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated
 
+from anyio.to_thread import run_sync
 from fastapi import Depends, Request
 from fastapi.routing import APIRoute
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -187,6 +188,19 @@ def check_codings(request: Request) -> None:
         )
 
 
+async def hold_decoding(
+    request: Request, body: memoryview, fmt: str, estimate: Estimate, max_bytes: int
+) -> int:
+    """Hold the request's ticket at ``estimate`` for the body in the format it turned out to be
+    in, with what an .npz's deflated members declare they inflate to, before any is inflated;
+    those inflated bytes (0 for other formats)."""
+    inflated = await run_sync(wire.inflated_bytes, body, max_bytes) if fmt == "npz" else 0
+    ticket: Ticket = request.state.ticket
+    what = f"{request.method} {request.url.path} with a {fmt} body of {len(body)} bytes"
+    await ticket.hold(estimate(len(body), fmt) + inflated, what)
+    return inflated
+
+
 async def read_change(
     request: Request, settings: Settings, format: str | None, formats: tuple[str, ...]
 ) -> tuple[memoryview, str]:
@@ -195,6 +209,6 @@ async def read_change(
     ``formats`` and the route."""
     body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
     route = f"{request.method} {request.scope['route'].path}"
-    return body, wire.resolve_format(
-        request.headers.get("content-type"), format, formats, body, route
-    )
+    fmt = wire.resolve_format(request.headers.get("content-type"), format, formats, body, route)
+    await hold_decoding(request, body, fmt, footprint.decode_bytes, settings.max_body_bytes)
+    return body, fmt

@@ -19,7 +19,7 @@ from fastapi import Request
 
 from . import wire
 from .admission import Ticket
-from .deps import Estimate, read_body
+from .deps import Estimate, hold_decoding, read_body
 from .metrics import Metrics
 from .options import Options
 from .responses import BuffersResponse
@@ -74,7 +74,7 @@ async def answer(
 
     decoded = await run_sync(decode)
     what = f"{request.method} {request.url.path} of {decoded.n_rays} rays"
-    await got.ticket.hold(decoded.peak, what)
+    await got.ticket.hold(decoded.peak + got.inflated, what)
 
     def work() -> tuple[TraceResult, Encoded]:
         with got.timing("trace"):
@@ -93,6 +93,7 @@ class Received:
     body: memoryview
     fmt: str  #: the body's format (``wire.resolve_format``)
     ticket: Ticket  #: the request's share of the in-flight budget
+    inflated: int  #: bytes an .npz body's deflated members inflate to (held with its estimate)
     timing: ServerTiming = field(default_factory=ServerTiming)
 
 
@@ -107,7 +108,7 @@ async def receive(
 ) -> Received:
     """404 for an unknown scene before the body is read, then the body (its estimated peak held
     in the budget) and its format (415 naming ``formats``); the estimate is held again for the
-    format the body turned out to be in."""
+    format the body turned out to be in, with what a compressed .npz inflates to."""
     if scene is not None:  # the trace step takes the scene's version current by then
         store.snapshot(check_name("scene", scene))
     timing = ServerTiming()
@@ -117,9 +118,8 @@ async def receive(
     fmt = wire.resolve_format(
         request.headers.get("content-type"), format, formats, body, f"POST {route}"
     )
-    ticket: Ticket = request.state.ticket
-    await ticket.hold(estimate(len(body), fmt), f"POST {request.url.path} with a {fmt} body")
-    return Received(body, fmt, ticket, timing)
+    inflated = await hold_decoding(request, body, fmt, estimate, settings.max_body_bytes)
+    return Received(body, fmt, request.state.ticket, inflated, timing)
 
 
 def encode_arrays(result: TraceResult, answer_format: str) -> Encoded:

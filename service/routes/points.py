@@ -79,7 +79,7 @@ async def nearest(
     points = await run_sync(decode)
     tracing.check_point_rays(options, len(points), max_points)
     what = f"{request.method} {request.url.path} of {len(points)} points"
-    await got.ticket.hold(peak(len(got.body), None, len(points)), what)
+    await got.ticket.hold(peak(len(got.body), None, len(points)) + got.inflated, what)
 
     def work():
         with got.timing("trace"):

@@ -183,7 +183,7 @@ from .formats import (
     resolve_format,
 )
 from .npy import array_bytes, npy_header, read_npy
-from .npz_reader import MAX_NPZ_MEMBERS, read_npz
+from .npz_reader import MAX_NPZ_MEMBERS, inflated_bytes, read_npz
 from .npz_writer import NpzBody, npz_parts
 
 __all__ = [
@@ -244,6 +244,7 @@ __all__ = [
     "read_mapping",
     "read_npy",
     "read_npz",
+    "inflated_bytes",
     "declared_format",
     "resolve_format",
 ]

@@ -25,27 +25,7 @@ def read_npz(buf: Buffer, max_bytes: int | None = None) -> dict[str, np.ndarray]
     ``max_bytes`` for the whole body, so no body costs more memory than the limit.
     """
     view = memoryview(buf).cast("B")
-    try:
-        file = BufferFile(view)
-        _check_member_count(file)
-        archive = zipfile.ZipFile(file)
-        infos = archive.infolist()
-    # zipfile refuses a record needing a newer zip version with NotImplementedError
-    except (
-        zipfile.BadZipFile,
-        zipfile.LargeZipFile,
-        ValueError,
-        EOFError,
-        struct.error,
-        NotImplementedError,
-    ) as exc:
-        raise BadBody(f"body is not a readable .npz (zip): {exc}") from None
-    total = sum(info.file_size for info in infos)
-    if max_bytes is not None and total > max_bytes:
-        raise TooLarge(
-            f".npz members add up to {total} bytes, over the limit of {max_bytes} bytes "
-            "(DACRT_MAX_BODY_BYTES)"
-        )
+    infos = _directory(view, max_bytes)
     spans = _member_spans(view, infos)
     arrays: dict[str, np.ndarray] = {}
     for info, (start, end) in zip(infos, spans):
@@ -71,6 +51,39 @@ def read_npz(buf: Buffer, max_bytes: int | None = None) -> dict[str, np.ndarray]
             )
         arrays[key] = read_npy(member, name=f".npz member {key!r}")
     return arrays
+
+
+def inflated_bytes(buf: Buffer, max_bytes: int | None = None) -> int:
+    """The bytes an .npz's deflated members declare they inflate to: what reading it adds to the
+    body (stored members are views of it); 413 over ``max_bytes``, 400 for a broken zip."""
+    infos = _directory(memoryview(buf).cast("B"), max_bytes)
+    return sum(info.file_size for info in infos if info.compress_type != zipfile.ZIP_STORED)
+
+
+def _directory(view: memoryview, max_bytes: int | None) -> list[zipfile.ZipInfo]:
+    """The members an .npz's central directory lists; 413 where their declared sizes add up to
+    more than ``max_bytes``, 400 for a broken zip."""
+    try:
+        file = BufferFile(view)
+        _check_member_count(file)
+        infos = zipfile.ZipFile(file).infolist()
+    # zipfile refuses a record needing a newer zip version with NotImplementedError
+    except (
+        zipfile.BadZipFile,
+        zipfile.LargeZipFile,
+        ValueError,
+        EOFError,
+        struct.error,
+        NotImplementedError,
+    ) as exc:
+        raise BadBody(f"body is not a readable .npz (zip): {exc}") from None
+    total = sum(info.file_size for info in infos)
+    if max_bytes is not None and total > max_bytes:
+        raise TooLarge(
+            f".npz members add up to {total} bytes, over the limit of {max_bytes} bytes "
+            "(DACRT_MAX_BODY_BYTES)"
+        )
+    return infos
 
 
 def _check_member_count(file: BufferFile) -> None:

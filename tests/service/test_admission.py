@@ -10,10 +10,13 @@ from __future__ import annotations
 
 import asyncio
 import io
+import tracemalloc
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import hostile_bodies
 import httpx
+import in_process
 import numpy as np
 import pytest
 from server_process import ServerProcess
@@ -22,6 +25,7 @@ from service import admission as admission_module
 from service import footprint
 from service.admission import Admission
 from service.errors import Overloaded, TooLarge
+from service.settings import Settings
 
 MiB = 2**20
 NPY = "application/x-npy"
@@ -165,6 +169,40 @@ def test_a_ticket_over_the_whole_budget_is_413():
         assert admission.held == 0
 
     run(scenario())
+
+
+# ---- a compressed .npz in process: held at what it inflates to before it is inflated
+
+
+@pytest.fixture(scope="module")
+def small_budget_app():
+    settings = Settings(token=None, load_demo=False, max_inflight_bytes=64 * MiB)
+    with in_process.serve(settings) as client:
+        yield client
+
+
+@pytest.mark.parametrize(
+    "method, path",
+    [("POST", "/v1/trace"), ("PUT", "/v1/scenes/npz/meshes/m"), ("POST", "/v1/scenes/npz/frame")],
+)
+def test_a_compressed_npz_is_held_at_what_it_inflates_to_before_inflating(
+    small_budget_app, method, path
+):
+    """An .npz of about 100 KiB whose member inflates to 100 MiB, on a budget of 64 MiB: 413
+    naming the budget, without inflating it."""
+    body = hostile_bodies.honest_big_zip(100 * MiB)
+    assert len(body) < MiB
+    tracemalloc.start()
+    try:
+        answer = small_budget_app.request(
+            method, path, content=body, headers={"content-type": "application/x-npz"}
+        )
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert answer.status_code == 413, answer.text
+    assert "DACRT_MAX_INFLIGHT_BYTES" in answer.json()["detail"]
+    assert peak < 16 * MiB, f"{peak / MiB:.0f} MiB allocated"
 
 
 # ---- a real server
