@@ -64,9 +64,8 @@ def _directory(view: memoryview, max_bytes: int | None) -> list[zipfile.ZipInfo]
     """The members an .npz's central directory lists; 413 where their declared sizes add up to
     more than ``max_bytes``, 400 for a broken zip."""
     try:
-        file = BufferFile(view)
-        _check_member_count(file)
-        infos = zipfile.ZipFile(file).infolist()
+        _check_member_count(view)
+        infos = zipfile.ZipFile(BufferFile(view)).infolist()
     # zipfile refuses a record needing a newer zip version with NotImplementedError
     except (
         zipfile.BadZipFile,
@@ -86,14 +85,37 @@ def _directory(view: memoryview, max_bytes: int | None) -> list[zipfile.ZipInfo]
     return infos
 
 
-def _check_member_count(file: BufferFile) -> None:
-    """400 for an .npz whose central directory lists more than MAX_NPZ_MEMBERS members."""
-    end_record = zipfile._EndRecData(file)  # the end record, zip64 included, as zipfile reads it
+def _check_member_count(view: memoryview) -> None:
+    """400 for an .npz whose central directory lists more than MAX_NPZ_MEMBERS members, by the
+    end record's count and by its entries counted one by one (zipfile reads every entry in the
+    directory's byte span, whatever the count says)."""
+    end_record = zipfile._EndRecData(
+        BufferFile(view)
+    )  # the end record, zip64 included, as zipfile reads it
     if end_record is None:
         raise zipfile.BadZipFile("File is not a zip file")
     count = end_record[zipfile._ECD_ENTRIES_TOTAL]
     if count > MAX_NPZ_MEMBERS:
         raise BadBody(f".npz lists {count} members, over the {MAX_NPZ_MEMBERS} read")
+    # where zipfile starts the directory: its byte size before the end record (and zip64's)
+    size = end_record[zipfile._ECD_SIZE]
+    position = end_record[zipfile._ECD_LOCATION] - size
+    if end_record[zipfile._ECD_SIGNATURE] == zipfile.stringEndArchive64:
+        position -= zipfile.sizeEndCentDir64 + zipfile.sizeEndCentDir64Locator
+    end, entries = position + size, 0
+    while 0 <= position < end and position + _ENTRY_BYTES <= len(view):
+        entries += 1
+        if entries > MAX_NPZ_MEMBERS:
+            raise BadBody(
+                f".npz's central directory holds more than {MAX_NPZ_MEMBERS} entries "
+                f"(its end record says {count}), over the {MAX_NPZ_MEMBERS} read"
+            )
+        name, extra, comment = struct.unpack_from("<3H", view, position + _ENTRY_LENGTHS_AT)
+        position += _ENTRY_BYTES + name + extra + comment
+
+
+#: A central directory entry's fixed bytes, and where its name, extra and comment lengths are.
+_ENTRY_BYTES, _ENTRY_LENGTHS_AT = 46, 28
 
 
 def _member_spans(view: memoryview, infos: list[zipfile.ZipInfo]) -> list[tuple[int, int]]:

@@ -889,6 +889,28 @@ def test_one_member_over_the_most_an_npz_may_list_is_400():
         wire.read_npz(body)
 
 
+@pytest.mark.parametrize("n", [wire.MAX_NPZ_MEMBERS + 1, 60_000])
+def test_a_directory_of_more_entries_than_its_end_record_says_is_400(n):
+    """zipfile reads every entry in the directory's byte span, whatever the end record's count:
+    the entries are counted as they are read, at a cost bounded by the member limit."""
+    data = npy_bytes(np.zeros(1, np.float32))
+    body = bytearray(
+        hostile_bodies.raw_zip(
+            [{"name": "a.npy", "payload": data}], [{"member": 0, "name": "a.npy"}] * n
+        )
+    )
+    body[-22 + 8 : -22 + 12] = (1).to_bytes(2, "little") * 2  # the end record says 1 entry
+    body = bytes(body)
+    tracemalloc.start()
+    try:
+        with pytest.raises(BadBody, match=f"more than {wire.MAX_NPZ_MEMBERS} entries"):
+            wire.read_npz(body)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20, f"{peak} bytes allocated"
+
+
 def test_a_deflated_member_whose_stream_never_ends_is_400():
     data = npy_bytes(np.zeros((4, 3), np.float32))
     deflater = zlib.compressobj(9, zlib.DEFLATED, -zlib.MAX_WBITS)
