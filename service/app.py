@@ -46,7 +46,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or load_settings_or_exit()
     configure_logging(settings.log_level)
     journal = open_data_dir(settings)
-    store = Store(settings.max_triangles_per_scene, settings.max_scene_bytes, journal)
+    store = Store(
+        settings.max_triangles_per_scene,
+        settings.max_scene_bytes,
+        journal,
+        max_meshes_per_scene=settings.max_meshes_per_scene,
+    )
     patterns = Patterns(settings.max_patterns, settings.max_pattern_rays, journal)
     metrics = Metrics(store.held_bytes, lambda: len(store.snapshots()), journal)
     admission = Admission(settings.inflight_budget(), settings.admission_wait)

@@ -202,13 +202,17 @@ async def hold_decoding(
 
 
 async def read_change(
-    request: Request, settings: Settings, format: str | None, formats: tuple[str, ...]
+    request: Request,
+    settings: Settings,
+    format: str | None,
+    formats: tuple[str, ...],
+    estimate: Estimate = footprint.decode_bytes,
 ) -> tuple[memoryview, str]:
     """The body of a change (a mesh, vertices, a frame, a pattern: ``read_body`` within
-    DACRT_MAX_BODY_BYTES, held at the decoders' estimate) and its format, 415 naming
-    ``formats`` and the route."""
-    body = await read_body(request, settings.max_body_bytes, footprint.decode_bytes)
+    DACRT_MAX_BODY_BYTES, held at ``estimate``, by default the decoders') and its format, 415
+    naming ``formats`` and the route."""
+    body = await read_body(request, settings.max_body_bytes, estimate)
     route = f"{request.method} {request.scope['route'].path}"
     fmt = wire.resolve_format(request.headers.get("content-type"), format, formats, body, route)
-    await hold_decoding(request, body, fmt, footprint.decode_bytes, settings.max_body_bytes)
+    await hold_decoding(request, body, fmt, estimate, settings.max_body_bytes)
     return body, fmt

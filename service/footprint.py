@@ -39,6 +39,14 @@ SENSOR_BYTES = 8 * 1024
 #: Bytes per beam and slot of a lidar's organized answer or kept non-hits beyond SENSOR_RAY_BYTES
 #: (every field filled for every beam, then the points placed: measured 125 with noise, one slot).
 FILLED_POINT_BYTES = 160
+#: Bytes per mesh a frame names while it is decoded and applied (its keys parsed, its change, the
+#: new mesh: measured 840 in process for a JSON frame of 4,096 instances) ...
+FRAME_MESH_BYTES = 1024
+#: ... and the fewest body bytes that name a mesh (``"a.mask":0,`` in JSON).
+MIN_FRAME_MESH_BYTES = 10
+#: Bytes per mesh of a scene info answer while it is built and written (its dicts and text:
+#: measured 2.7 KB in process).
+MESH_INFO_BYTES = 4096
 #: Bytes of engine scene per triangle of a one-shot /trace (corners, box, row, normal, mask).
 TRIANGLE_BYTES = 80
 #: Peak bytes per body byte while a JSON body is parsed (measured 3.7-15.5: a digit is an 8-byte
@@ -84,6 +92,20 @@ def decode_bytes(n_body: int, fmt: str | None) -> int:
     if fmt in ("stl", "glb"):
         return n_body * (1 + MESH_FILE_FACTOR)
     return n_body * ARRAY_FACTOR
+
+
+def frame_bytes(n_body: int, fmt: str | None, n_meshes: int, max_meshes: int) -> int:
+    """Peak bytes of a frame of ``n_body`` bytes sent to a scene of ``n_meshes`` meshes: its body
+    decoded, the meshes it names applied, and the scene info it answers (at most ``max_meshes``
+    meshes, DACRT_MAX_MESHES_PER_SCENE)."""
+    named = min(max_meshes, n_body // MIN_FRAME_MESH_BYTES)
+    answered = min(max_meshes, n_meshes + named)
+    return decode_bytes(n_body, fmt) + named * FRAME_MESH_BYTES + scene_info_bytes(answered)
+
+
+def scene_info_bytes(n_meshes: int) -> int:
+    """Peak bytes of a scene info answer (or a list of them) of ``n_meshes`` meshes in all."""
+    return n_meshes * MESH_INFO_BYTES
 
 
 def most_rays(n_body: int, fmt: str | None, max_rays: int) -> int:

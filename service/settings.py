@@ -47,6 +47,7 @@ class Settings(BaseSettings):
     #: most pixels (width x height) of one picture or depth image (render, camera)
     max_image_pixels: PositiveInt = 4 * MiB
     max_triangles_per_scene: PositiveInt = 32 * MiB  #: most triangles in one scene
+    max_meshes_per_scene: PositiveInt = 4096  #: most meshes (instances included) in one scene
     #: total bytes of all scenes: vertices and faces, and the engine's 80 bytes a placed triangle
     max_scene_bytes: Bytes = 4 * GiB
     max_hits: PositiveInt = 1024  #: largest ``max_hits`` of a hits query
@@ -125,6 +126,7 @@ class Settings(BaseSettings):
             "max_rays_per_request": self.max_rays_per_request,
             "max_image_pixels": self.max_image_pixels,
             "max_triangles_per_scene": self.max_triangles_per_scene,
+            "max_meshes_per_scene": self.max_meshes_per_scene,
             "max_scene_bytes": self.max_scene_bytes,
             "max_hits": self.max_hits,
             "max_hits_bytes": self.max_hits_bytes,

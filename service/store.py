@@ -365,9 +365,14 @@ class Store:
     """All scenes of the service, with the limits on their size."""
 
     def __init__(
-        self, max_triangles_per_scene: int, max_scene_bytes: int, journal: DataDir | None = None
+        self,
+        max_triangles_per_scene: int,
+        max_scene_bytes: int,
+        journal: DataDir | None = None,
+        max_meshes_per_scene: int = 4096,
     ) -> None:
         self.max_triangles_per_scene = max_triangles_per_scene
+        self.max_meshes_per_scene = max_meshes_per_scene
         self.max_scene_bytes = max_scene_bytes
         self.journal = journal  #: where each version is made durable before it is served
         self._scenes: dict[str, Snapshot] = {}
@@ -481,6 +486,7 @@ class Store:
         new start (``transform``, ``vertices`` or ``instance_of``) without an end makes the mesh
         static again (``_changed``)."""
         check_name("scene", scene)
+        self._check_mesh_count(scene, len(changes))  # before a mesh is built
         changes = {name: FrameChange(*change) for name, change in changes.items()}
         for name in changes:
             check_name("mesh", name)
@@ -651,6 +657,7 @@ class Store:
             else:
                 index, next_index = next_index, next_index + 1
             meshes[name] = replace(mesh, index=index, version=version)
+        self._check_mesh_count(scene, len(meshes))
         _link_instances(scene, meshes, [n for n, m in changes.items() if m is not None], version)
         meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))
         snapshot = Snapshot(scene, version, MappingProxyType(meshes), next_index)
@@ -677,6 +684,14 @@ class Store:
         self._last_version[scene] = version
         self._nbytes = nbytes
         return snapshot
+
+    def _check_mesh_count(self, scene: str, count: int) -> None:
+        """413 for a scene of more than DACRT_MAX_MESHES_PER_SCENE meshes."""
+        if count > self.max_meshes_per_scene:
+            raise TooLarge(
+                f"scene {scene!r} would hold {count} meshes, over the limit of "
+                f"{self.max_meshes_per_scene} (DACRT_MAX_MESHES_PER_SCENE; an instance is a mesh)"
+            )
 
 
 def _same_faces(old: Mapping[str, Mesh], new: Mapping[str, Mesh]) -> bool:

@@ -3,17 +3,20 @@ inspect, delete."""
 
 from __future__ import annotations
 
+import json
+from collections.abc import Callable
 from functools import partial
+from typing import Any
 
 import numpy as np
 from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request, Response
 
-from .. import openapi, wire
+from .. import footprint, openapi, wire
 from ..deps import SettingsDep, StoreDep, read_change, reject_unknown_query, require_token
-from ..errors import BadBody, Invalid
+from ..errors import BadBody, Invalid, NotFound
 from ..params import FrameFormat, Mask, MeshFormat, MeshName, SceneName, VertexFormat
-from ..store import check_name
+from ..store import Snapshot, Store, check_name
 
 router = APIRouter(
     prefix="/v1/scenes",
@@ -209,14 +212,20 @@ async def post_frame(
     settings: SettingsDep,
     store: StoreDep,
     format: FrameFormat = None,
-) -> dict:
+) -> Response:
     """Change several meshes in one version, atomically: their vertices, faces, transforms and
     masks, and new instances."""
     check_name("scene", scene)
-    body, fmt = await read_change(request, settings, format, wire.FRAME_FORMATS)
-    frame = await run_sync(partial(wire.decode_frame, body, fmt, settings.max_body_bytes))
+    max_meshes = settings.max_meshes_per_scene
+
+    def estimate(n_body: int, fmt: str | None) -> int:
+        return footprint.frame_bytes(n_body, fmt, _mesh_count(store, scene), max_meshes)
+
+    body, fmt = await read_change(request, settings, format, wire.FRAME_FORMATS, estimate)
+    decode = partial(wire.decode_frame, body, fmt, settings.max_body_bytes, max_meshes)
+    frame = await run_sync(decode)
     snapshot = await run_sync(store.apply_frame, scene, frame)
-    return snapshot.info()
+    return await run_sync(_json_answer, snapshot.info)
 
 
 @router.get(
@@ -226,13 +235,39 @@ async def post_frame(
         **openapi.errors(401, 422),
     },
 )
-async def list_scenes(store: StoreDep) -> dict:
-    return {"scenes": [s.info() for s in store.snapshots()]}
+async def list_scenes(request: Request, store: StoreDep) -> Response:
+    snapshots = store.snapshots()
+    await _hold_infos(request, snapshots)
+    return await run_sync(_json_answer, lambda: {"scenes": [s.info() for s in snapshots]})
 
 
 @router.get("/{scene}", responses={**SCENE_ANSWER, **READ_ERRORS})
-async def get_scene(scene: SceneName, store: StoreDep) -> dict:
-    return store.snapshot(check_name("scene", scene)).info()
+async def get_scene(scene: SceneName, request: Request, store: StoreDep) -> Response:
+    snapshot = store.snapshot(check_name("scene", scene))
+    await _hold_infos(request, [snapshot])
+    return await run_sync(_json_answer, snapshot.info)
+
+
+def _mesh_count(store: Store, scene: str) -> int:
+    """The meshes scene ``scene`` of ``store`` holds now (0 before it exists)."""
+    try:
+        return len(store.snapshot(scene).meshes)
+    except NotFound:
+        return 0
+
+
+async def _hold_infos(request: Request, snapshots: list[Snapshot]) -> None:
+    """Hold the request's ticket for the scene info answer of ``snapshots``."""
+    n_meshes = sum(len(snapshot.meshes) for snapshot in snapshots)
+    what = f"{request.method} {request.url.path} of {n_meshes} meshes' info"
+    await request.state.ticket.hold(footprint.scene_info_bytes(n_meshes), what)
+
+
+def _json_answer(make: Callable[[], Any]) -> Response:
+    """The JSON answer of ``make()``, written as FastAPI writes a returned dict; routes call it
+    off the event loop, since a scene of many meshes takes a while."""
+    text = json.dumps(make(), ensure_ascii=False, allow_nan=False, separators=(",", ":"))
+    return Response(text.encode(), media_type="application/json")
 
 
 @router.get("/{scene}/meshes/{mesh}", responses={**MESH_ANSWER, **READ_ERRORS})

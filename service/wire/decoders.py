@@ -283,9 +283,12 @@ class FrameChange(NamedTuple):
 FRAME_PARTS = FrameChange._fields
 
 
-def decode_frame(body: Buffer, fmt: str, max_bytes: int | None = None) -> dict[str, FrameChange]:
+def decode_frame(
+    body: Buffer, fmt: str, max_bytes: int | None = None, max_meshes: int | None = None
+) -> dict[str, FrameChange]:
     """mesh name -> FrameChange from ``MESH.vertices``, ``MESH.faces``, ``MESH.transform``,
-    ``MESH.mask`` and ``MESH.instance_of`` keys (``instance_of`` only in JSON: it is text).
+    ``MESH.mask`` and ``MESH.instance_of`` keys (``instance_of`` only in JSON: it is text); 413
+    for a frame naming more than ``max_meshes`` meshes, before any change is made.
 
     Values are checked here; face indices against the frame's vertices (``check_faces``), and
     which meshes exist by the store.
@@ -303,6 +306,11 @@ def decode_frame(body: Buffer, fmt: str, max_bytes: int | None = None) -> dict[s
         parts.setdefault(mesh, {})[kind] = value
     if not parts:
         raise BadBody("frame body holds no MESH.vertices (or other MESH.*) keys")
+    if max_meshes is not None and len(parts) > max_meshes:
+        raise TooLarge(
+            f"frame names {len(parts)} meshes, over the limit of {max_meshes} meshes in a "
+            "scene (DACRT_MAX_MESHES_PER_SCENE)"
+        )
     return {mesh: _frame_change(mesh, arrays) for mesh, arrays in parts.items()}
 
 

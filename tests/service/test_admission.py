@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import io
+import json
 import tracemalloc
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -29,6 +30,7 @@ from service.settings import Settings
 
 MiB = 2**20
 NPY = "application/x-npy"
+JSON = {"content-type": "application/json"}
 
 # ---- the budget
 
@@ -203,6 +205,34 @@ def test_a_compressed_npz_is_held_at_what_it_inflates_to_before_inflating(
     assert answer.status_code == 413, answer.text
     assert "DACRT_MAX_INFLIGHT_BYTES" in answer.json()["detail"]
     assert peak < 16 * MiB, f"{peak / MiB:.0f} MiB allocated"
+
+
+def test_a_frame_of_the_most_meshes_and_its_scene_list_are_held_at_their_peak(small_budget_app):
+    """A JSON frame of DACRT_MAX_MESHES_PER_SCENE instances, then the scene's info: each
+    allocates less than it holds; one mesh more is 413 naming the setting, and changes nothing."""
+    most = Settings().max_meshes_per_scene
+    doc = {"src.vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "src.faces": [[0, 1, 2]]}
+    doc.update({f"i{i}.instance_of": "src" for i in range(most - 1)})
+    body = json.dumps(doc, separators=(",", ":")).encode()
+    for method, path, content, held in [
+        ("POST", "/v1/scenes/many/frame", body, footprint.frame_bytes(len(body), "json", 0, most)),
+        ("GET", "/v1/scenes", None, footprint.scene_info_bytes(most)),
+    ]:
+        tracemalloc.start()
+        try:
+            answer = small_budget_app.request(method, path, content=content, headers=JSON)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert answer.status_code == 200, answer.text
+        assert peak < held, f"{method} {path}: {peak / MiB:.1f} MiB, held {held / MiB:.1f} MiB"
+    assert len(answer.json()["scenes"][0]["meshes"]) == most
+    more = json.dumps({"one.instance_of": "src"}).encode()
+    refused = small_budget_app.post("/v1/scenes/many/frame", content=more, headers=JSON)
+    assert refused.status_code == 413
+    assert f"over the limit of {most} (DACRT_MAX_MESHES_PER_SCENE" in refused.json()["detail"]
+    scene = small_budget_app.get("/v1/scenes/many").json()
+    assert len(scene["meshes"]) == most and scene["version"] == 1
 
 
 # ---- a real server

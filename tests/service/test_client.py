@@ -65,6 +65,7 @@ def test_capabilities_list_formats_fields_strategies_and_limits(app_api):
     assert "pcd" not in caps["fields"]
     assert "application/x-pcd" in caps["formats"]["lidar_answers"]
     assert caps["limits"]["max_patterns"] == 64
+    assert caps["limits"]["max_meshes_per_scene"] == 4096
 
 
 def test_metrics_count_requests_rays_and_memory(app_api, app_client, teapot_scene):

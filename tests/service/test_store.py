@@ -108,6 +108,28 @@ def test_a_rejected_frame_changes_nothing(store, changes, error):
     assert store.snapshot("s") is before and store.nbytes == nbytes
 
 
+def test_the_meshes_of_a_scene_are_bounded_and_a_refusal_changes_nothing():
+    store = Store(max_triangles_per_scene=1000, max_scene_bytes=100_000, max_meshes_per_scene=3)
+    store.put_mesh("s", "a", mesh())
+    store.put_instance("s", "b", "a")
+    store.apply_frame("s", {"c": FrameChange(instance_of="a")})
+    before, nbytes = store.snapshot("s"), store.nbytes
+    over = "scene 's' would hold 4 meshes, over the limit of 3 .*DACRT_MAX_MESHES_PER_SCENE"
+    with pytest.raises(TooLarge, match=over):
+        store.put_mesh("s", "d", mesh())
+    with pytest.raises(TooLarge, match=over):
+        store.put_instance("s", "d", "a")
+    with pytest.raises(TooLarge, match=over):
+        store.apply_frame("s", {"d": FrameChange(instance_of="a")})
+    with pytest.raises(TooLarge, match="would hold 5 meshes"):  # refused before it is built
+        store.apply_frame("t", {name: quad(0, 1, 0, 1, 0) for name in "abcde"})
+    assert store.snapshot("s") is before and store.nbytes == nbytes
+    assert [s.scene for s in store.snapshots()] == ["s"]
+    store.put_mesh("s", "a", mesh())  # replacing a mesh adds none
+    store.delete_mesh("s", "c")
+    store.put_instance("s", "d", "a")
+
+
 def test_vertex_count_change_is_409_with_advice(store):
     store.put_mesh("s", "a", mesh())
     with pytest.raises(Conflict, match="has 4 vertices but the update has 9.*PUT the whole mesh"):
