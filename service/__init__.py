@@ -9,10 +9,11 @@ where Numba keeps the compiled kernels (``dacrt.cache.use_cache_dir``). Its modu
 - requests: ``routes`` (thin handlers), ``pipeline`` (the one path of a query or sensor:
   receive, decode, trace, encode, respond), ``options`` (what a query or sensor asks: one record,
   ``?fields=`` read once), ``params`` (path and query parameters), ``deps``
-  (dependencies), ``errors`` (domain errors -> statuses), ``openapi`` (what the document says
-  of bodies), ``timing`` (``Server-Timing``), ``responses`` (answers sent as buffers),
-  ``metrics`` (Prometheus), ``admission`` (the budget of bytes the requests in flight hold) and
-  ``footprint`` (what a request holds at its peak);
+  (dependencies), ``hosts`` (the ``Host`` and ``Origin`` a request may give), ``errors``
+  (domain errors -> statuses), ``openapi`` (what the document says of bodies), ``timing``
+  (``Server-Timing``), ``responses`` (answers sent as buffers), ``metrics`` (Prometheus),
+  ``admission`` (the budget of bytes the requests in flight hold) and ``footprint`` (what a
+  request holds at its peak);
 - bodies: ``wire`` (every body format; its docstring is the spec), ``sensor_requests`` (the JSON
   bodies of the sensors);
 - scenes: ``store`` (immutable snapshots), ``persistence`` (DACRT_DATA_DIR's files),

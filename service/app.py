@@ -24,6 +24,7 @@ from .admission import Admission, AdmissionMiddleware
 from .cluster import Cluster
 from .deps import Readiness, require_ready
 from .errors import ServiceError
+from .hosts import HostCheck
 from .logs import configure_logging
 from .metrics import Metrics, MetricsMiddleware
 from .patterns import Patterns
@@ -116,6 +117,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(AdmissionMiddleware, admission=admission)  # a ticket for each request
     app.add_middleware(errors.CatchAll)  # inside the metrics, so that they count its 500s
     app.add_middleware(MetricsMiddleware, metrics=metrics, routes=app.router.routes)
+    # before any ticket is held; outside the metrics, since a refused request reaches no route
+    app.add_middleware(HostCheck, allowed=settings.host_names(), bind=settings.host)
     app.add_middleware(HeadAsGet)
     return app
 

@@ -40,6 +40,9 @@ class Settings(BaseSettings):
 
     host: str = "127.0.0.1"  #: bind address of ``python -m service``
     port: int = Field(8000, ge=0, le=65535)  #: port of ``python -m service``
+    #: names the ``Host`` header may give, comma-separated (``*``: any); None: the loopback names
+    #: for a request that arrives on a loopback address, else any (``service.hosts``)
+    allowed_hosts: str | None = None
     #: when set, every /v1 request needs ``Authorization: Bearer <token>``
     token: SecretStr | None = None
     max_body_bytes: Bytes = 512 * MiB  #: largest request body (also the largest decompressed .npz)
@@ -108,6 +111,23 @@ class Settings(BaseSettings):
     @classmethod
     def _lower_case_level(cls, value: object) -> object:
         return value.lower() if isinstance(value, str) else value
+
+    @field_validator("allowed_hosts")
+    @classmethod
+    def _host_names(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        names = [name.strip() for name in value.split(",")]
+        if not all(names):
+            raise ValueError("give host names separated by commas, or *")
+        return ",".join(names)
+
+    def host_names(self) -> tuple[str, ...] | None:
+        """The names a request's ``Host`` may give; None: by the address it arrives on
+        (``service.hosts``)."""
+        if self.allowed_hosts is None:
+            return None
+        return tuple(name.lower().strip("[]") for name in self.allowed_hosts.split(","))
 
     def demo_path(self) -> Path:
         """The demo scene file to load: DACRT_DEMO_SCENE (relative to the working directory) or

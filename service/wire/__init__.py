@@ -25,9 +25,12 @@ format     Content-Type                                    read with
 ``off``    ``model/off`` (``application/off``)             ``meshfile`` (NumPy)
 =========  ==============================================  =========================================
 
-With no ``Content-Type`` or ``application/octet-stream`` the format is sniffed from the first bytes
-(``\\x93NUMPY`` npy, ``PK`` npz, ``glTF`` glb, ``ply`` ply, ``OFF`` off, ``{`` json); anything else
-is 415, as is a known format the endpoint does not read.
+``?format=`` names the format where the ``Content-Type`` does not, but never against it: a
+``Content-Type`` of another format, or one that pages of any site may send (``text/plain``, form
+and multipart bodies) for an npy, npz or JSON body, is 415; ``text/plain`` may hold a text mesh
+file. With no ``Content-Type`` or ``application/octet-stream`` the format is sniffed from the
+first bytes (``\\x93NUMPY`` npy, ``PK`` npz, ``glTF`` glb, ``ply`` ply, ``OFF`` off, ``{`` json);
+anything else is 415, as is a known format the endpoint does not read.
 
 Binary arrays must be little-endian with exactly the dtype below; a wrong dtype or shape is 422
 with the fix in the message (the binary path never converts behind the caller's back: that would

@@ -51,6 +51,11 @@ TRACE_FORMATS = ("npz", "json")
 PATTERN_FORMATS = ("npz", "json")
 ANSWER_FORMATS = ("npz", "npy", "json")
 
+#: Content-Types a web page may send to any site without asking it first (CORS-safelisted): a body
+#: in one is read only as a text mesh file, never as npy, npz or JSON, even with ``?format=``.
+CROSS_SITE_TYPES = ("text/plain", "application/x-www-form-urlencoded", "multipart/form-data")
+#: The formats a text/plain body may hold (with ``?format=``).
+TEXT_FILE_FORMATS = ("obj", "off", "ply", "stl")
 _SNIFF = (
     (b"\x93NUMPY", "npy"),
     (b"PK\x03\x04", "npz"),
@@ -84,6 +89,13 @@ def resolve_format(
         if fmt not in accepted:
             raise UnsupportedMediaType(
                 f"?format={format} is not read by {what}; use one of: {choices}"
+            )
+        media = (content_type or "").split(";", 1)[0].strip().lower()
+        cross_site = media in CROSS_SITE_TYPES and fmt not in TEXT_FILE_FORMATS
+        if cross_site or CONTENT_TYPES.get(media, fmt) != fmt:
+            raise UnsupportedMediaType(
+                f"Content-Type {media} is not the format ?format={fmt} names; send the body "
+                f"as {MEDIA_TYPES[fmt]} (or application/octet-stream)"
             )
         return fmt
     media = (content_type or "").split(";", 1)[0].strip().lower()

@@ -294,6 +294,74 @@ def test_unsupported_content_type_is_415(app_client, app_api, quad_scene, path, 
     assert state(app_api, quad_scene) == before
 
 
+# ---- 403 and 415: pages of other sites, and DNS rebinding
+
+
+@pytest.fixture
+def loopback(app_client):
+    """The in-process app as a request arriving on the loopback address sees it."""
+    with httpx.Client(transport=app_client._transport, base_url="http://localhost") as client:
+        yield client
+
+
+FRAME = json.dumps({"evil.vertices": quad(0, 1, 0, 1, 0)[0].tolist(), "evil.faces": [[0, 1, 2]]})
+
+
+@pytest.mark.parametrize(
+    "headers, params, status, message",
+    [
+        (
+            {"Content-Type": "text/plain;charset=UTF-8"},
+            {"format": "json"},
+            415,
+            "is not the format",
+        ),
+        (
+            {"Content-Type": "application/json", "Origin": "http://attacker.example"},
+            {},
+            403,
+            "from the page of another origin (http://attacker.example) is refused",
+        ),
+        ({"Content-Type": "application/json", "Origin": "null"}, {}, 403, "another origin"),
+        (
+            {"Content-Type": "application/json", "Host": "attacker.example"},
+            {},
+            403,
+            "Host 'attacker.example' is not one this server answers to",
+        ),
+        (
+            {"Content-Type": "application/json", "Host": "attacker.example:8000"},
+            {},
+            403,
+            "DACRT_ALLOWED_HOSTS",
+        ),
+    ],
+)
+def test_a_page_of_another_site_cannot_change_a_scene(
+    loopback, app_api, quad_scene, headers, params, status, message
+):
+    before = state(app_api, quad_scene)
+    url = f"/v1/scenes/{quad_scene}/frame"
+    response = loopback.post(url, content=FRAME, headers=headers, params=params)
+    assert message in detail(response, status)
+    assert state(app_api, quad_scene) == before
+
+
+@pytest.mark.parametrize(
+    "headers",
+    [
+        {"Origin": "http://localhost"},  # the server's own page (the viewer)
+        {"Host": "127.0.0.1:8000", "Origin": "http://127.0.0.1:8000"},
+        {"Host": "[::1]:8000"},
+        {"Host": "LOCALHOST"},
+    ],
+)
+def test_the_servers_own_pages_and_loopback_names_are_answered(loopback, quad_scene, headers):
+    headers = {"Content-Type": "application/json", **headers}
+    response = loopback.post(f"/v1/scenes/{quad_scene}/frame", content=FRAME, headers=headers)
+    assert response.status_code == 200, response.text
+
+
 # ---- 422: well-formed, invalid values
 
 

@@ -455,7 +455,7 @@ def test_a_client_leaving_mid_body_is_counted_apart_from_server_errors(hostile_s
     host, port = hostile_server.url.removeprefix("http://").split(":")
     with socket.create_connection((host, int(port)), timeout=5) as raw:
         raw.sendall(
-            b"POST /v1/scenes/left/closest HTTP/1.1\r\nHost: x\r\n"
+            b"POST /v1/scenes/left/closest HTTP/1.1\r\nHost: 127.0.0.1\r\n"
             b"Content-Type: application/x-npy\r\nContent-Length: 100000\r\n\r\n" + bytes(1000)
         )
     # the server reads the headers and the 1000 bytes before the end of the stream; it counts the

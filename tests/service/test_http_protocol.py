@@ -86,7 +86,7 @@ def test_an_empty_line_after_an_answer_starts_the_header_clock(server):
     """An empty line between requests is allowed, but it must not stop every deadline: the
     connection ends HEADER_TIMEOUT after it, not never."""
     with connect(server) as s:
-        s.sendall(b"GET /health HTTP/1.1\r\nHost: x\r\n\r\n")
+        s.sendall(b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
         assert STATUS.match(s.recv(65536)).group(1) == b"200"
         s.sendall(b"\r\n")
         _, closed_after = read_until_closed(s, HEADER_TIMEOUT + 10)
@@ -105,7 +105,8 @@ def test_an_answer_left_unread_ends_its_connection_and_frees_its_budget(server):
     np.save(body, rays)
     with connect(server, SO_RCVBUF=4096) as s:
         s.sendall(
-            b"POST /v1/scenes/s/closest HTTP/1.1\r\nHost: x\r\nAccept: application/x-npz\r\n"
+            b"POST /v1/scenes/s/closest HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            b"Accept: application/x-npz\r\n"
             b"Content-Type: application/x-npy\r\nContent-Length: %d\r\n\r\n" % body.tell()
         )
         s.sendall(body.getvalue())
@@ -123,7 +124,7 @@ def test_an_answer_left_unread_ends_its_connection_and_frees_its_budget(server):
 
 def test_headers_over_the_bound_are_431_in_json(server):
     with connect(server) as s:
-        s.sendall(b"GET /health HTTP/1.1\r\nHost: x\r\n")
+        s.sendall(b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n")
         try:
             for _ in range(100):  # 1.6 MB of headers, sent until the server answers
                 s.sendall(b"X-Filler: " + b"a" * 16_000 + b"\r\n")
@@ -137,9 +138,9 @@ def test_headers_over_the_bound_are_431_in_json(server):
 @pytest.mark.parametrize(
     "request_bytes",
     [
-        b"GET /health HTTP/1.1\r\nHost: x\r\nX-Big: " + b"a" * 70_000 + b"\r\n\r\n",
-        b"GET /health?" + b"a" * 66_000 + b" HTTP/1.1\r\nHost: x\r\n\r\n",
-        b"GET /health HTTP/1.1\r\nHost: x\r\n" + b"X-A: " + b"b" * 40_000 + b"\r\n" * 2,
+        b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: " + b"a" * 70_000 + b"\r\n\r\n",
+        b"GET /health?" + b"a" * 66_000 + b" HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",
+        b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n" + b"X-A: " + b"b" * 40_000 + b"\r\n" * 2,
     ],
     ids=["one header of 70 kB", "a request-target of 66 kB", "within the bound"],
 )
@@ -160,7 +161,7 @@ def test_a_pipeline_is_bounded_and_answered_in_order(server):
     """Requests queued behind the one answered are bounded: the connection ends after answering
     MAX_PIPELINED + 1 of 200, in order; later ones go unanswered, as after any close."""
     with connect(server) as s:
-        s.sendall(b"GET /health HTTP/1.1\r\nHost: x\r\n\r\n" * 200)
+        s.sendall(b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n" * 200)
         answers, closed_after = read_until_closed(s, 20)
     assert closed_after < 20
     assert 1 <= answers.count(b"HTTP/1.1 200") <= MAX_PIPELINED + 1
@@ -168,7 +169,7 @@ def test_a_pipeline_is_bounded_and_answered_in_order(server):
 
 def test_a_bad_request_behind_a_good_one_ends_the_connection_after_its_answer(server):
     with connect(server) as s:
-        s.sendall(b"GET /health HTTP/1.1\r\nHost: x\r\n\r\nGARBAGE\x01 / HTTP/1.1\r\n\r\n")
+        s.sendall(b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\nGARBAGE\x01 / HTTP/1.1\r\n\r\n")
         answers, closed_after = read_until_closed(s, 10)
     assert STATUS.findall(answers) == [b"200"] and closed_after < 10
 
@@ -176,7 +177,8 @@ def test_a_bad_request_behind_a_good_one_ends_the_connection_after_its_answer(se
 def test_a_request_that_is_not_http_is_400_in_json(server):
     with connect(server) as s:
         s.sendall(
-            b"GET /health HTTP/1.1\r\nHost: x\r\nContent-Length: 1\r\nContent-Length: 2\r\n\r\n"
+            b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            b"Content-Length: 1\r\nContent-Length: 2\r\n\r\n"
         )
         answer, _ = read_until_closed(s, 10)
     assert STATUS.match(answer).group(1) == b"400"
@@ -197,11 +199,12 @@ def test_an_upgrade_not_spoken_is_answered_over_http_1_1_with_its_body(server, p
     its body whole, however it arrives, and the connection serves the next request."""
     body = json.dumps({"origins": [[-5, 0, 0]], "directions": [[1, 0, 0]]}).encode()
     head = (
-        b"POST /v1/scenes/s/closest HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        b"POST /v1/scenes/s/closest HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+        b"Content-Type: application/json\r\n"
         b"Connection: Upgrade, HTTP2-Settings\r\nUpgrade: h2c\r\n"
         b"HTTP2-Settings: AAMAAABkAAQAoAAAAAIAAAAA\r\nContent-Length: %d\r\n\r\n" % len(body)
     )
-    request = head + body + b"GET /health HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+    request = head + body + b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
     cut = [len(head) + k * len(body) // pieces for k in range(pieces)] + [len(request)]
     with connect(server) as s:
         s.sendall(request[: cut[0]])
@@ -217,7 +220,8 @@ def test_an_upgrade_not_spoken_with_a_chunked_body_is_400_naming_it(server):
     body = json.dumps({"origins": [[-5, 0, 0]], "directions": [[1, 0, 0]]}).encode()
     with connect(server) as s:
         s.sendall(
-            b"POST /v1/scenes/s/closest HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+            b"POST /v1/scenes/s/closest HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            b"Content-Type: application/json\r\n"
             b"Connection: Upgrade\r\nUpgrade: h2c\r\nTransfer-Encoding: chunked\r\n\r\n"
             + b"%x\r\n%s\r\n0\r\n\r\n"
             % (len(body), body)
@@ -261,7 +265,7 @@ def test_bodies_in_codings_the_server_does_not_read_are_refused(server, headers,
     head = "".join(f"{k}: {v}\r\n" for k, v in headers.items()).encode()
     with connect(server) as s:
         s.sendall(
-            b"POST /v1/scenes/s/closest HTTP/1.1\r\nHost: x\r\nConnection: close\r\n"
+            b"POST /v1/scenes/s/closest HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n"
             b"Content-Type: application/json\r\n" + head + b"\r\n" + body
         )
         answer, _ = read_until_closed(s, 10)
@@ -277,7 +281,7 @@ def test_a_client_leaving_a_pipeline_leaves_no_error_behind(server):
             s.settimeout(2)
             try:
                 for _ in range(20):  # more than the server reads once it stops reading
-                    s.sendall(b"GET /health HTTP/1.1\r\nHost: x\r\n\r\n" * 5000)
+                    s.sendall(b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n" * 5000)
             except OSError:
                 pass  # the server ended the connection, or stopped reading it
     time.sleep(2.0)
@@ -299,9 +303,14 @@ def protocol_counted(server: ServerProcess, method: str, status: int) -> tuple[f
 @pytest.mark.parametrize(
     "request_bytes, method, status, words",
     [
-        (b"GET /v1/scenes HTTP/1.1\r\nHost: x\r\n", "GET", 408, "request headers not received"),
         (
-            b"GET /v1/scenes HTTP/1.1\r\nHost: x\r\nX-Big: " + b"a" * 70_000 + b"\r\n\r\n",
+            b"GET /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\n",
+            "GET",
+            408,
+            "request headers not received",
+        ),
+        (
+            b"GET /v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: " + b"a" * 70_000 + b"\r\n\r\n",
             "GET",
             431,
             "request line and headers over",
@@ -322,3 +331,29 @@ def test_answers_the_protocol_writes_are_counted_and_logged(
     assert STATUS.match(answer).group(1) == str(status).encode(), answer[:200]
     assert protocol_counted(server, method, status) == (counted + 1, timed + 1)
     assert f"{method} request answered {status}: {words}" in server.output(last=10**6)
+
+
+@pytest.mark.parametrize(
+    "headers, words",
+    [
+        (b"Host: attacker.example\r\n", "Host 'attacker.example' is not one this server answers"),
+        (
+            b"Host: 127.0.0.1\r\nOrigin: http://attacker.example\r\n",
+            "from the page of another origin",
+        ),
+    ],
+)
+def test_a_rebound_name_or_a_page_elsewhere_is_403_before_the_body_is_read(server, headers, words):
+    """A server on a loopback address answers only loopback names (a DNS-rebinding page's
+    requests name its own host) and refuses a change from another origin's page."""
+    frame = b'{"evil.vertices": [[0, 0, 0], [9, 0, 0], [0, 9, 0]], "evil.faces": [[0, 1, 2]]}'
+    with connect(server) as s:
+        s.sendall(
+            b"POST /v1/scenes/s/frame HTTP/1.1\r\n" + headers + b"Content-Type: application/json"
+            b"\r\nContent-Length: %d\r\nConnection: close\r\n\r\n" % len(frame) + frame
+        )
+        answer, _ = read_until_closed(s, 10)
+    assert STATUS.match(answer).group(1) == b"403"
+    assert words in detail(answer)
+    meshes = httpx.get(f"{server.url}/v1/scenes/s").json()["meshes"]
+    assert [m["mesh"] for m in meshes] == ["wall"]

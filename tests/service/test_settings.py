@@ -15,6 +15,7 @@ from server_process import ServerProcess
 from service_helpers import REPO
 
 import service
+from service import hosts
 from service.settings import (
     MiB,
     Settings,
@@ -90,6 +91,29 @@ def test_sizes_take_units(text, value):
 def test_bad_values_are_refused(field, value):
     with pytest.raises(ValidationError):
         Settings(**{field: value})
+
+
+@pytest.mark.parametrize(
+    "address, allowed, names",
+    [
+        ("127.0.0.1", None, ("localhost", "127.0.0.1", "::1")),
+        ("::1", None, ("localhost", "127.0.0.1", "::1")),
+        ("localhost", None, ("localhost", "127.0.0.1", "::1")),
+        ("0.0.0.0", None, ("*",)),  # the Dockerfile binds it: what a request arrives on decides
+        ("172.17.0.2", None, ("*",)),
+        ("127.0.0.1", " Render.example ,[::1]", ("render.example", "::1")),
+        ("127.0.0.1", "*", ("*",)),
+    ],
+)
+def test_allowed_hosts_default_to_the_loopback_names_on_a_loopback_address(address, allowed, names):
+    given = Settings(allowed_hosts=allowed).host_names()
+    assert (given or hosts.default_allowed_hosts(address)) == names
+
+
+def test_an_empty_allowed_host_is_refused_in_one_line(environ):
+    environ(DACRT_ALLOWED_HOSTS="a.example,,b")
+    with pytest.raises(SettingsError, match="DACRT_ALLOWED_HOSTS='a.example,,b': .*commas"):
+        load_settings()
 
 
 def test_demo_scene_is_package_data(monkeypatch, tmp_path):

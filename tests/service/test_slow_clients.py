@@ -86,8 +86,8 @@ class Stall:
     setting: str
 
 
-HEAD = b"POST /v1/trace HTTP/1.1\r\nHost: test\r\nContent-Type: application/x-npz\r\n"
-GET_HEALTH = b"GET /health HTTP/1.1\r\nHost: test\r\n\r\n"
+HEAD = b"POST /v1/trace HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/x-npz\r\n"
+GET_HEALTH = b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
 HEADERS = "DACRT_HEADER_TIMEOUT"
 STALLS = {
     "nothing": Stall(b"", b"", HEADER_TIMEOUT, HEADERS),
@@ -110,7 +110,7 @@ STALLS = {
         HEAD + b"Content-Length: 1000\r\n\r\n", b"x" * 1000, BODY_TIMEOUT, "DACRT_BODY_TIMEOUT"
     ),
     "trickled body the app never reads": Stall(
-        b"GET /health HTTP/1.1\r\nHost: test\r\nContent-Length: 1000\r\n\r\n",
+        b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 1000\r\n\r\n",
         b"x" * 1000,
         BODY_TIMEOUT,
         "DACRT_BODY_TIMEOUT",

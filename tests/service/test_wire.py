@@ -68,6 +68,31 @@ def test_format_parameter_overrides_content_type():
 
 
 @pytest.mark.parametrize(
+    "content_type, format, accepted",
+    [
+        ("text/plain;charset=UTF-8", "json", wire.FRAME_FORMATS),
+        ("application/x-www-form-urlencoded", "npz", wire.RAY_FORMATS),
+        ("multipart/form-data; boundary=x", "json", wire.MESH_FORMATS),
+        ("text/plain", "glb", wire.MESH_FORMATS),
+        ("application/x-npy", "json", wire.RAY_FORMATS),
+    ],
+)
+def test_a_content_type_other_than_the_format_named_is_415(content_type, format, accepted):
+    """Pages on any site may send text/plain or form bodies without asking (CORS-safelisted):
+    ``?format=`` never reads one as npy, npz or JSON, nor a body declared as another format."""
+    with pytest.raises(UnsupportedMediaType, match="is not the format"):
+        wire.resolve_format(content_type, format, accepted, b'{"a": 1}')
+
+
+@pytest.mark.parametrize(
+    "content_type, format",
+    [("text/plain", "obj"), ("text/plain", "ply"), ("application/zip", "npz"), ("x/y", "json")],
+)
+def test_format_parameter_reads_a_text_file_or_an_unknown_type(content_type, format):
+    assert wire.resolve_format(content_type, format, wire.MESH_FORMATS) == format
+
+
+@pytest.mark.parametrize(
     "content_type, format, body",
     [
         ("text/plain", None, b"1 2 3"),
