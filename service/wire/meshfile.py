@@ -76,6 +76,8 @@ def read_mesh_file(body: Buffer, fmt: str) -> tuple[np.ndarray, np.ndarray]:
             read = None if layout is None else read_ply_by_hand(data, layout)
         except BadBody as exc:
             raise BadBody(f"body cannot be read as {fmt.upper()}: {exc.detail}") from None
+        if fmt == "stl" and not data.isascii() and is_ascii_stl(data):
+            data = data.translate(_ASCII_ONLY)  # only names and comments hold such bytes
         vertices, faces = _read_with_trimesh(data, fmt) if read is None else read
     if len(faces) == 0:
         raise BadBody(f"no triangles found in the {fmt.upper()} body; is it really {fmt.upper()}?")
@@ -753,10 +755,9 @@ _STL_HEADER, _STL_TRIANGLE = 84, 50
 
 def check_stl(data: bytes) -> None:
     """400 unless the body is a binary STL of exactly the length its count gives, or ASCII."""
-    if data[:1024].lstrip()[:5].lower() == b"solid" and b"endsolid" in data[-1024:].lower():
-        if len(data) < _STL_HEADER or _stl_length(data) != len(data):
-            _check_ascii_facets(data)  # ASCII (a binary STL may also start with "solid")
-            return
+    if is_ascii_stl(data):
+        _check_ascii_facets(data)
+        return
     if len(data) < _STL_HEADER:
         raise BadBody(
             f"STL body is {len(data)} bytes: shorter than the 84-byte header of a "
@@ -768,6 +769,19 @@ def check_stl(data: bytes) -> None:
             f"binary STL header declares {count} triangles ({_stl_length(data)} bytes), "
             f"but the body is {len(data)} bytes"
         )
+
+
+def is_ascii_stl(data: bytes) -> bool:
+    """Whether an STL body is ASCII (``solid`` ... ``endsolid``, not the length of a binary STL,
+    which may also start with "solid")."""
+    if data[:1024].lstrip()[:5].lower() != b"solid" or b"endsolid" not in data[-1024:].lower():
+        return False
+    return len(data) < _STL_HEADER or _stl_length(data) != len(data)
+
+
+#: Every byte past ASCII to "?": trimesh reads an ASCII STL as Python text, which takes 4 bytes a
+#: character for all of it once one character is past Latin-1.
+_ASCII_ONLY = bytes(range(128)) + b"?" * 128
 
 
 def _check_ascii_facets(data: bytes) -> None:

@@ -8,6 +8,7 @@ import io
 import json
 import random
 import struct
+import tracemalloc
 
 import numpy as np
 import pytest
@@ -25,7 +26,7 @@ from mesh_files import (
 )
 
 from dacrt import InputError
-from service import wire
+from service import footprint, wire
 from service.errors import BadBody, Invalid, ServiceError, TooLarge
 
 
@@ -469,6 +470,31 @@ def _ascii_stl(vertices_a_facet: list[int]) -> bytes:
 def test_ascii_stl():
     mesh = decode(_ascii_stl([3, 3]), "stl")
     assert mesh.faces.shape == (2, 3) and mesh.vertices.shape[1] == 3
+
+
+def _stl_peak(name: str) -> tuple[int, int]:
+    """(tracemalloc's peak, body bytes) of reading an ASCII STL of 40,000 facets named ``name``."""
+    facet = b"facet\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendfacet\n"
+    body = f"solid {name}\n".encode() + facet * 40_000 + b"endsolid\n"
+    tracemalloc.start()
+    try:
+        mesh = decode(body, "stl")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert mesh.faces.shape == (40_000, 3)
+    return peak, len(body)
+
+
+@pytest.mark.parametrize("name", ["\U0001f600", "b\u00e4r \u6587"])
+def test_an_ascii_stl_costs_the_same_whatever_its_name(name):
+    """trimesh reads an ASCII STL as Python text: one character past Latin-1 in its name made
+    every character 4 bytes (20 x the body, where a plain name costs 11 x); it is read as "?"."""
+    decode(_ascii_stl([3]), "stl")  # trimesh imported: its modules are not the body's cost
+    plain, n_body = _stl_peak("x")
+    named, _ = _stl_peak(name)
+    assert named < plain + 2 * n_body, f"{named / n_body:.1f} x the body, {plain / n_body:.1f}"
+    assert named < footprint.decode_bytes(n_body, "stl")
 
 
 @pytest.mark.parametrize(
