@@ -107,6 +107,14 @@ class Settings(BaseSettings):
     def _empty_token_is_none(cls, value: object) -> object:
         return None if value in ("", None) else value
 
+    @field_validator("token")
+    @classmethod
+    def _presentable_token(cls, value: SecretStr | None) -> SecretStr | None:
+        problem = None if value is None else token_problem(value.get_secret_value())
+        if problem is not None:
+            raise ValueError(problem)
+        return value
+
     @field_validator("log_level", mode="before")
     @classmethod
     def _lower_case_level(cls, value: object) -> object:
@@ -221,6 +229,17 @@ def check_device(device: str) -> None:
         raise SettingsError("DACRT_DEVICE='cuda': no CUDA GPU is available on this machine")
 
 
+def token_problem(token: str) -> str | None:
+    """Why no client could present ``token`` in an ``Authorization`` header, or None: a header
+    value loses surrounding whitespace, and clients differ in how they encode other than
+    visible ASCII."""
+    if token != token.strip():
+        return "the token starts or ends with whitespace, which no Authorization header keeps"
+    if not all("!" <= character <= "~" for character in token):
+        return "the token holds characters other than visible ASCII (! to ~)"
+    return None
+
+
 def read_token(path: Path) -> SecretStr:
     """The token in ``path`` (surrounding whitespace removed); SettingsError if unusable."""
     try:
@@ -229,6 +248,9 @@ def read_token(path: Path) -> SecretStr:
         raise SettingsError(f"DACRT_TOKEN_FILE={str(path)!r}: cannot read it ({error})") from None
     if not token:
         raise SettingsError(f"DACRT_TOKEN_FILE={str(path)!r} is empty")
+    problem = token_problem(token)
+    if problem is not None:
+        raise SettingsError(f"DACRT_TOKEN_FILE={str(path)!r}: {problem}")
     return SecretStr(token)
 
 

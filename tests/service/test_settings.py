@@ -231,6 +231,7 @@ LAUNCHERS = {
             "unknown setting DACRT_MAX_BODY_BYTE; did you mean DACRT_MAX_BODY_BYTES?",
         ),
         ("DACRT_MAX_BODY_BYTES", "lots", "bad setting DACRT_MAX_BODY_BYTES='lots': "),
+        ("DACRT_TOKEN", "abc ", "bad setting DACRT_TOKEN: Value error, the token starts or ends"),
     ],
 )
 def test_the_server_refuses_to_start(launcher, variable, value, message):
@@ -247,6 +248,38 @@ def test_the_server_refuses_to_start(launcher, variable, value, message):
     assert done.returncode != 0
     assert output.splitlines() == [output] and "Traceback" not in output
     assert output.startswith("dacrt-service: " + message), output
+
+
+@pytest.mark.parametrize(
+    "token, problem",
+    [
+        ("abc ", "starts or ends with whitespace"),
+        ("\tabc", "starts or ends with whitespace"),
+        ("p\u00e4ssw\u00f6rd", "other than visible ASCII"),
+        ("two words", "other than visible ASCII"),
+        ("tok\x7f", "other than visible ASCII"),
+    ],
+)
+def test_a_token_no_client_can_present_is_refused_in_one_line(environ, token, problem):
+    environ(DACRT_TOKEN=token)
+    with pytest.raises(SettingsError, match=f"^bad setting DACRT_TOKEN: .*{problem}") as caught:
+        load_settings()
+    assert token.strip() not in str(caught.value)  # the secret is never echoed
+
+
+def test_a_token_file_is_stripped_but_other_than_visible_ascii_is_refused(environ, tmp_path):
+    (tmp_path / "token").write_text(" abc \n")
+    environ(DACRT_TOKEN_FILE=str(tmp_path / "token"))
+    assert load_settings().token.get_secret_value() == "abc"
+    (tmp_path / "token").write_text("p\u00e4ssw\u00f6rd\n")
+    with pytest.raises(SettingsError, match="^DACRT_TOKEN_FILE=.*: the token holds characters"):
+        load_settings()
+
+
+def test_every_visible_ascii_token_is_accepted(environ):
+    token = "".join(chr(c) for c in range(0x21, 0x7F))
+    environ(DACRT_TOKEN=token)
+    assert load_settings().token.get_secret_value() == token
 
 
 def test_the_token_can_come_from_a_file(environ, tmp_path):
