@@ -294,6 +294,9 @@ def decode_frame(
     which meshes exist by the store.
     """
     mapping = read_mapping(body, fmt, "MESH.vertices (and optionally MESH.faces) keys", max_bytes)
+    # a mesh has at most one key a part: refused before a mesh's parts are gathered
+    if max_meshes is not None and len(mapping) > max_meshes * len(FRAME_PARTS):
+        _too_many_meshes(f"at least {-(-len(mapping) // len(FRAME_PARTS))}", max_meshes)
     parts: dict[str, dict[str, Any]] = {}
     for key, value in mapping.items():
         mesh, _, kind = key.rpartition(".")
@@ -307,11 +310,15 @@ def decode_frame(
     if not parts:
         raise BadBody("frame body holds no MESH.vertices (or other MESH.*) keys")
     if max_meshes is not None and len(parts) > max_meshes:
-        raise TooLarge(
-            f"frame names {len(parts)} meshes, over the limit of {max_meshes} meshes in a "
-            "scene (DACRT_MAX_MESHES_PER_SCENE)"
-        )
+        _too_many_meshes(str(len(parts)), max_meshes)
     return {mesh: _frame_change(mesh, arrays) for mesh, arrays in parts.items()}
+
+
+def _too_many_meshes(count: str, max_meshes: int) -> None:
+    raise TooLarge(
+        f"frame names {count} meshes, over the limit of {max_meshes} meshes in a scene "
+        "(DACRT_MAX_MESHES_PER_SCENE)"
+    )
 
 
 def _frame_change(mesh: str, arrays: dict[str, Any]) -> FrameChange:

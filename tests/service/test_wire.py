@@ -1014,3 +1014,13 @@ def test_a_one_value_array_of_a_wrong_dtype_or_size_is_422_saying_which(parse, k
     says so; a size other than one is told apart."""
     with pytest.raises(Invalid, match=re.escape(f"{key} {message}")):
         parse(value, key)
+
+
+def test_a_frame_naming_more_meshes_than_a_scene_holds_is_413_before_its_meshes_are_made():
+    instances = {f"i{i}.instance_of": "src" for i in range(100)}
+    body = json.dumps({"src.vertices": [[0, 0, 0]], **instances}).encode()
+    with pytest.raises(TooLarge, match="frame names 101 meshes, over the limit of 100 meshes"):
+        wire.decode_frame(body, "json", max_meshes=100)
+    with pytest.raises(TooLarge, match=r"names at least \d+ meshes, .*DACRT_MAX_MESHES_PER_SCENE"):
+        wire.decode_frame(body, "json", max_meshes=9)  # by its keys alone
+    assert len(wire.decode_frame(body, "json", max_meshes=101)) == 101
