@@ -5,10 +5,9 @@ posting to it).
 A request whose ``Host`` is not in DACRT_ALLOWED_HOSTS is 403; unset, a request that arrives on a
 loopback address (the server's own, or the bind address where the server does not say) must name
 a loopback host, and one that arrives on another address may name any. A request other than GET
-or HEAD
-that carries an ``Origin`` (browsers add it) is 403 unless that origin is the server's own (its
-``Host``) or one of DACRT_ALLOWED_HOSTS: the service sends no CORS headers, so no other page
-should reach it. Clients that are not browsers send no ``Origin``.
+or HEAD that carries an ``Origin`` (browsers add it) is 403 unless that origin is the server's
+own (its ``Host``) or one of DACRT_ALLOWED_HOSTS: the service sends no CORS headers, so no other
+page should reach it. Clients that are not browsers send no ``Origin``.
 """
 
 from __future__ import annotations
