@@ -150,7 +150,7 @@ def level_tracer(max_pairs=MAX_PAIRS):
         n_rows = len(level) if visible_rows is None else len(visible_rows)
         if not (n and n_rows):
             if flags & COLLECT:
-                return collected(flags, np.zeros(n, INDEX), None, None, rays)
+                return collected(flags, np.zeros(n, INDEX), None, None, tmax)
             return Traced(best_t, QueryArrays(best_tri, u, v, *([NO_MASKS] * 9)), [])
         with DEVICE_LOCK:
             rows = device_level(level, visible_rows)
@@ -190,13 +190,13 @@ def trace_collect(rows, visible_rows, flags, rays, ray_masks, tri_masks, list_si
     counts = np.zeros(n, INDEX)
     keys = np.full((n, width), kernels.NO_KEY, np.uint64)
     trace_crossings(rows, rays, ray_masks, tri_masks, culling_side(flags), counts, keys, max_pairs)
-    return collected(flags, counts, keys, rows.row_of_key, rays, visible_rows)
+    return collected(flags, counts, keys, rows.row_of_key, rays[3], visible_rows)
 
 
-def collected(flags, counts, keys, row_of_key, rays, visible_rows=None):
+def collected(flags, counts, keys, row_of_key, tmax, visible_rows=None):
     """``Traced`` of crossing ``counts`` and, for ALL_HITS, unsorted ``keys`` (n, width)
     (None: no rows, no hits); ``row_of_key`` maps keys to rows, then ``visible_rows`` (or
-    None) to the level's."""
+    None) to the level's; best_t is the rays' ``tmax``."""
     n = len(counts)
     list_t = np.empty((0, 0), FLOAT)
     list_tri = np.empty((0, 0), INDEX)
@@ -216,7 +216,7 @@ def collected(flags, counts, keys, row_of_key, rays, visible_rows=None):
         np.zeros(0, INDEX), np.zeros(0, FLOAT), np.zeros(0, FLOAT), empty, empty, empty, counts,
         list_t, list_tri, empty, empty, empty,
     )  # fmt: skip
-    return Traced(np.array(rays[3], FLOAT), arrays, [])
+    return Traced(np.array(tmax, FLOAT), arrays, [])
 
 
 def trace_crossings(rows, rays, ray_masks, tri_masks, cull_side, counts, keys, max_pairs):
@@ -310,16 +310,7 @@ def check_query_rays(origins, directions, tmin, tmax):
     """ValueError naming the first bad ray, before any is sent to the device."""
     # float32 bounds (the host's checked ones) leave no window empty (``ray_window``)
     origins, directions, tmin, tmax, _ = check_rays(origins, directions, tmin, tmax)
-    bad = (
-        ~np.isfinite(origins).all(axis=1)
-        | ~np.isfinite(directions).all(axis=1)
-        | ~directions.any(axis=1)
-        | ~np.isfinite(tmin)
-        | np.isnan(tmax)
-        | (tmin > tmax)
-    )
-    if bad.any():
-        explain_bad_rays(origins, directions, tmin, tmax)
+    explain_bad_rays(origins, directions, tmin, tmax)  # nothing for a valid batch
     return origins, directions, tmin, tmax
 
 
