@@ -17,7 +17,7 @@ from dacrt.sensors.batch import batch_stats, capture
 from . import shading
 from .options import Options
 from .store import Snapshot
-from .tracing import EngineScene, TraceResult, engine_scene, meshes_by_name
+from .tracing import EngineScene, TraceResult, device_for, engine_scene, meshes_by_name
 
 #: A sensor and its sensor-to-scene pose, as a request gives them.
 Placed = tuple[Camera | Lidar, np.ndarray]
@@ -40,7 +40,7 @@ def materials(snapshot: Snapshot, engine: EngineScene) -> Materials:
 
 def _query(options: Options, device: str) -> dict:
     """What the request asks of the engine's ``Scene.closest`` / ``Scene.hits``, traced on
-    ``device`` (``sensor_device``)."""
+    ``device`` (``tracing.device_for``)."""
     return {
         "strategy": options.strategy,
         "threads": options.threads,
@@ -49,18 +49,6 @@ def _query(options: Options, device: str) -> dict:
         "stats": options.stats,
         "device": device,
     }
-
-
-def sensor_device(engine: EngineScene, options: Options) -> tuple[str, str | None]:
-    """Where sensors' rays are traced: ("cuda", None) where DACRT_DEVICE=cuda and the CUDA
-    backend answers on the scene (``dacrt.cuda.lacks``); else "cpu" and what the backend
-    lacks, None where DACRT_DEVICE=cpu."""
-    if options.device != "cuda":
-        return "cpu", None
-    from dacrt import cuda  # numba.cuda is imported only where DACRT_DEVICE=cuda
-
-    lacking = cuda.lacks(engine.scene, options.stats)
-    return ("cpu", lacking) if lacking is not None else ("cuda", None)
 
 
 def _stats(stats: dict | None, options: Options) -> dict | None:
@@ -82,7 +70,7 @@ def render(snapshot: Snapshot, camera: Camera, pose, style: str, options: Option
     start = time.perf_counter()
     engine = engine_scene(snapshot)
     shot = camera.shot(pose)
-    device, fallback = sensor_device(engine, options)
+    device, fallback = device_for(engine, options, "process")
     with meshes_by_name(snapshot, engine):
         (image,) = capture(engine.scene, [shot], None, **_query(options, device))
     t, headers = image["depth"], {}
@@ -112,7 +100,7 @@ def sense(
     materials."""
     start = time.perf_counter()
     engine = engine_scene(snapshot)
-    device, fallback = sensor_device(engine, options)
+    device, fallback = device_for(engine, options, "process")
     query = _query(options, device)
     with meshes_by_name(snapshot, engine):
         if isinstance(sensor, Lidar):
@@ -140,7 +128,7 @@ def sense_rig(
     engine = engine_scene(snapshot)
     rig = Rig({name: sensor for name, (sensor, _) in sensors.items()})
     poses = {name: pose for name, (_, pose) in sensors.items()}
-    device, fallback = sensor_device(engine, options)
+    device, fallback = device_for(engine, options, "process")
     with meshes_by_name(snapshot, engine):
         found = rig.capture(
             engine.scene, poses, materials(snapshot, engine), poses_end, **_query(options, device)

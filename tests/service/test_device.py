@@ -12,7 +12,7 @@ import numpy as np
 from service_helpers import REPO, quad
 
 import dacrt.cache
-from service import sensing, tracing, wire
+from service import tracing, wire
 from service.options import Sensor, make_options
 
 IDENTITY = np.eye(4)
@@ -47,11 +47,11 @@ def test_sensors_go_to_the_gpu_where_the_backend_answers():
     deforming = tracing.build_engine_scene([(0, vertices, faces, 1, None, None, vertices + 1)])
     for kind in (Sensor.LIDAR, Sensor.CAMERA, Sensor.RENDER, Sensor.RIG):
         cuda = make_options(kind, device="cuda")
-        assert sensing.sensor_device(placed, cuda) == ("cuda", None)
-        assert sensing.sensor_device(placed, make_options(kind)) == ("cpu", None)
-        assert sensing.sensor_device(deforming, cuda) == ("cpu", "deforming meshes")
+        assert tracing.device_for(placed, cuda, "process") == ("cuda", None)
+        assert tracing.device_for(placed, make_options(kind), "process") == ("cpu", None)
+        assert tracing.device_for(deforming, cuda, "process") == ("cpu", "deforming meshes")
     stats = make_options(Sensor.LIDAR, stats=True, device="cuda")
-    assert sensing.sensor_device(placed, stats) == ("cpu", "stats")
+    assert tracing.device_for(placed, stats, "process") == ("cpu", "stats")
 
 
 # Run under the simulator: DACRT_DEVICE=cuda is accepted, and its answers are the CPU's.
