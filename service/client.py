@@ -8,17 +8,24 @@
         every = client.hits("demo", origins, directions, max_hits=8)
         every.t[every.offsets[i]:every.offsets[i + 1]]         # the hits of ray i, nearest first
         client.count("demo", origins, directions, mask=0b10).count  # crossings, masked rays
+        client.frame("demo", {"box": {"transform_end": matrix}})  # moves over the frame
+        client.closest("demo", origins, directions, time=times)  # each ray at its time in [0, 1]
+        client.put_instance("demo", "box2", "box", matrix)      # shares box's arrays
+        client.set_mask("demo", "box2", 0b10), client.mesh("demo", "box2")  # mesh info
         points = client.lidar("demo", pose=pose, model="VLP-16", return_mode="dual")
         points.xyz, points.intensity, points.label                # the body's keys as arguments
         both = client.sensors("demo", {"roof": {"kind": "lidar", ...}, "front": {...}})
         both["roof"].xyz, both["front"].depth                     # one batch, one version
 
-Binary by default (.npy rays in, .npz answers out); arrays are converted to the wire dtypes
-(float32, int32) here, so any float or int arrays may be passed, but nothing is rounded or
-wrapped on the way: faces must be whole numbers within int32, a pattern's channels within its
-range, and a JSON body's numbers finite (ValueError naming the argument). Names are sent as one
-path segment each, checked as the server checks them. Errors raise ``APIError`` with the HTTP
-status and the server's message (also for a redirect, or an answer that cannot be read).
+Binary by default (.npy rays in, or .npz with per-ray masks or times; .npz answers out); arrays
+are converted to the wire dtypes (float32, int32) here, so any float or int arrays may be
+passed, but nothing is rounded or wrapped on the way: faces must be whole numbers within int32,
+a pattern's channels within its range, a ray's time within [0, 1], and a JSON body's numbers
+finite (ValueError naming the argument). Names are sent as one path segment each, checked as the
+server checks them. Errors raise ``APIError`` with the HTTP status and the server's message
+(also for a redirect, or an answer that cannot be read); a connection that fails or times out
+raises httpx's ``TransportError``. ``read_answer`` gives an answer's arrays, in any format, with
+the keys, dtypes and values of its .npz answer.
 Requests go through httpx on urllib3's connection pool (``transport.PooledTransport``), which
 reads big answers at half httpx's own cost.
 """
@@ -69,8 +76,15 @@ ANSWER_DTYPES = {
     "intensity": np.float32,
     "label": np.uint32,
     "time": np.float32,
+    "velocity": np.float32,
+    "radial_speed": np.float32,
     "depth": np.float32,
 }
+#: Answer keys whose JSON null is NaN (a lidar's fill where nothing returned); every other null is
+#: inf, and ``signed_distance``'s takes its sign from ``inside``.
+NAN_KEYS = ("xyz", "velocity", "radial_speed")
+#: Answer keys of three columns, shaped (0, 3) when empty as in the binary answers.
+ROW_KEYS = ("normal", "point", "xyz", "velocity")
 _SUFFIX_FORMATS = {
     ".obj": "obj",
     ".ply": "ply",
@@ -184,6 +198,21 @@ def _ray_bound(value: Any, n_rays: int, name: str) -> np.ndarray:
     return array
 
 
+def _ray_time(value: Any, n_rays: int) -> np.ndarray:
+    """Each ray's time as little-endian float32 (n_rays,) from a scalar (every ray) or (n_rays,)
+    values, each finite and in [0, 1] as given (before rounding to float32), as the engine checks
+    them; ValueError naming ``time`` or its first bad entry ``time[i]`` otherwise."""
+    given = _ray_bound(value, n_rays, "time").astype(np.float64)
+    given = np.broadcast_to(given, (n_rays,))
+    bad = np.flatnonzero(~((given >= 0) & (given <= 1)))  # NaN fails both
+    if len(bad):
+        raise ValueError(
+            f"time[{bad[0]}] is {given[bad[0]]}: each time must be finite and in [0, 1] "
+            f"({len(bad)} rays)"
+        )
+    return np.ascontiguousarray(given, dtype="<f4")
+
+
 class Client:
     """A connection to one service; use as a context manager or call ``close()``."""
 
@@ -280,6 +309,11 @@ class Client:
     def capabilities(self) -> dict[str, Any]:
         return self.request("GET", "/v1/capabilities").json()
 
+    def metrics(self) -> str:
+        """``GET /metrics``: the Prometheus text (requests, rays traced, trace seconds, scene
+        memory)."""
+        return self.request("GET", "/metrics").text
+
     # ---- scenes and meshes
 
     def scenes(self) -> list[dict[str, Any]]:
@@ -299,9 +333,10 @@ class Client:
         format: str | None = None,
         mask: int | None = None,
     ) -> dict[str, Any]:
-        """Add or replace a mesh from arrays, or from a mesh file (path or bytes; ``format`` is
-        obj/ply/stl/glb/off, taken from the path's suffix if not given). ``mask`` is the mesh's
-        32-bit visibility mask (default all ones). Answers mesh info."""
+        """Add or replace a mesh from arrays, or from a file (path or bytes; ``format`` is
+        obj/ply/stl/glb/off, or npz/json for a mesh body saved as a file, taken from the path's
+        suffix if not given). ``mask`` is the mesh's 32-bit visibility mask (default all ones).
+        Answers mesh info."""
         path = f"/v1/scenes/{_seg(scene)}/meshes/{_seg(mesh, 'mesh')}"
         params = {} if mask is None else {"mask": str(_mask_value(mask, "mask"))}
         if file is None:
@@ -318,14 +353,15 @@ class Client:
             format = format or _SUFFIX_FORMATS.get(suffix)
             if format is None:
                 raise ValueError(
-                    f"give format= (obj, ply, stl, glb, off): the suffix {suffix!r} names none"
+                    f"give format= ({', '.join(wire.MESH_FORMATS)}): the suffix {suffix!r} "
+                    "names none"
                 )
             file = Path(file).read_bytes()
         if format is None:
             raise ValueError(
-                "give format= (obj, ply, stl, glb, off) for a mesh file given as bytes"
+                f"give format= ({', '.join(wire.MESH_FORMATS)}) for a mesh file given as bytes"
             )
-        format = _choice(str(format).lower(), "format", wire.MESH_FILE_FORMATS)
+        format = _choice(str(format).lower(), "format", wire.MESH_FORMATS)
         return self.request(
             "PUT",
             path,
@@ -355,14 +391,67 @@ class Client:
 
     def frame(self, scene: str, meshes: Mapping[str, Any]) -> dict[str, Any]:
         """Change several meshes in one version: ``{name: vertices}`` moves a mesh,
-        ``{name: (vertices, faces)}`` adds or replaces one. Answers scene info."""
-        arrays = {}
+        ``{name: (vertices, faces)}`` adds or replaces one, and ``{name: {part: value}}`` sets
+        any of its parts (``wire.FRAME_PARTS``): ``vertices`` (V, 3), ``faces`` (F, 3),
+        ``transform`` 4x4, ``mask``, ``reflectivity``, ``label``, ``instance_of`` (a mesh
+        name), and its placement at the frame's end, ``transform_end`` 4x4 or ``vertices_end``
+        (V, 3) (docs/API.md, "Frames"). Sent as ``.npz`` keys ``NAME.PART``, or as JSON when a
+        mesh has ``instance_of`` (text, which an ``.npz`` cannot hold). Answers scene info."""
+        arrays: dict[str, Any] = {}
         for name, value in meshes.items():
-            vertices, faces = value if isinstance(value, tuple) else (value, None)
-            arrays[f"{name}.vertices"] = np.asarray(vertices, dtype="<f4")
-            if faces is not None:
-                arrays[f"{name}.faces"] = _faces(faces, f"meshes[{name!r}] faces")
-        return self._binary("POST", f"/v1/scenes/{_seg(scene)}/frame", arrays).json()
+            where = f"meshes[{name!r}]"
+            if isinstance(value, Mapping):
+                parts = dict(value)
+            elif isinstance(value, tuple):
+                if len(value) != 2:
+                    raise ValueError(f"{where} is a tuple of {len(value)}: give (vertices, faces)")
+                parts = {"vertices": value[0], "faces": value[1]}
+            else:
+                parts = {"vertices": value}
+            for part, item in parts.items():
+                if part not in wire.FRAME_PARTS:
+                    known = ", ".join(wire.FRAME_PARTS)
+                    raise ValueError(f"{where} has {part!r}, not a part of a frame: {known}")
+                arrays[f"{name}.{part}"] = _frame_part(part, item, f"{where} {part}")
+        path = f"/v1/scenes/{_seg(scene)}/frame"
+        if any(isinstance(value, str) for value in arrays.values()):  # instance_of is text
+            return self.request("POST", path, json=_json_ready(arrays)).json()
+        return self._binary("POST", path, arrays).json()
+
+    def mesh(self, scene: str, mesh: str) -> dict[str, Any]:
+        """One mesh's info."""
+        return self.request("GET", f"/v1/scenes/{_seg(scene)}/meshes/{_seg(mesh, 'mesh')}").json()
+
+    def put_instance(
+        self,
+        scene: str,
+        mesh: str,
+        source: str,
+        transform: Any = None,
+        *,
+        mask: int | None = None,
+    ) -> dict[str, Any]:
+        """Add or replace ``mesh`` as an instance of the mesh ``source`` of the same scene: it
+        shares ``source``'s arrays, placed by a 4x4 row-major ``transform`` (default the
+        identity), with its own ``mask`` (default all ones). Answers mesh info."""
+        body: dict[str, Any] = {"instance_of": _seg(source, "source mesh")}
+        if transform is not None:
+            body["transform"] = np.asarray(_numbers(transform, "transform"), dtype=np.float64)
+        params = {} if mask is None else {"mask": str(_mask_value(mask, "mask"))}
+        return self.request(
+            "PUT",
+            f"/v1/scenes/{_seg(scene)}/meshes/{_seg(mesh, 'mesh')}",
+            json=_json_ready(body),
+            params=params,
+        ).json()
+
+    def set_mask(self, scene: str, mesh: str, mask: int) -> dict[str, Any]:
+        """Set a mesh's 32-bit visibility mask alone; answers mesh info."""
+        return self.request(
+            "PUT",
+            f"/v1/scenes/{_seg(scene)}/meshes/{_seg(mesh, 'mesh')}/mask",
+            json={"mask": _mask_value(mask, "mask")},
+        ).json()
 
     def set_material(
         self, scene: str, mesh: str, reflectivity: float | None = None, label: int | None = None
@@ -392,10 +481,12 @@ class Client:
         directions: Any = None,
         tmin: Any = None,
         tmax: Any = None,
+        *,
+        time: Any = None,
         **options: Any,
     ) -> Answer:
         """Nearest hit per ray: t, mesh, prim, u, v, normal (see ``query`` for the options)."""
-        return self.query(scene, "closest", origins, directions, tmin, tmax, **options)
+        return self.query(scene, "closest", origins, directions, tmin, tmax, time=time, **options)
 
     def occluded(
         self,
@@ -404,10 +495,12 @@ class Client:
         directions: Any = None,
         tmin: Any = None,
         tmax: Any = None,
+        *,
+        time: Any = None,
         **options: Any,
     ) -> Answer:
         """Whether each ray hits anything in [tmin, tmax]: ``answer.occluded``."""
-        return self.query(scene, "occluded", origins, directions, tmin, tmax, **options)
+        return self.query(scene, "occluded", origins, directions, tmin, tmax, time=time, **options)
 
     def hits(
         self,
@@ -417,13 +510,23 @@ class Client:
         tmin: Any = None,
         tmax: Any = None,
         max_hits: int | None = None,
+        *,
+        time: Any = None,
         **options: Any,
     ) -> Answer:
         """Every hit of each ray, nearest first, at most ``max_hits`` (the server's default 16):
         CSR ``offsets`` (N+1) with t, mesh, prim, u, v, normal per hit, ``truncated`` per ray.
         The hits of ray i are ``answer.t[answer.offsets[i]:answer.offsets[i + 1]]``."""
         return self.query(
-            scene, "hits", origins, directions, tmin, tmax, max_hits=max_hits, **options
+            scene,
+            "hits",
+            origins,
+            directions,
+            tmin,
+            tmax,
+            max_hits=max_hits,
+            time=time,
+            **options,
         )
 
     def count(
@@ -433,10 +536,12 @@ class Client:
         directions: Any = None,
         tmin: Any = None,
         tmax: Any = None,
+        *,
+        time: Any = None,
         **options: Any,
     ) -> Answer:
         """How many triangles each ray crosses in [tmin, tmax]: ``answer.count``, int32 (N,)."""
-        return self.query(scene, "count", origins, directions, tmin, tmax, **options)
+        return self.query(scene, "count", origins, directions, tmin, tmax, time=time, **options)
 
     def query(
         self,
@@ -453,24 +558,30 @@ class Client:
         cull: str = "none",
         mask: Any = None,
         max_hits: int | None = None,
+        time: Any = None,
         answer: str = "npz",
     ) -> Answer:
         """A query (closest, occluded, hits or count) on a stored scene. ``origins`` may be a
         whole (N, 6|8) ray array when ``directions`` is None. ``cull`` is none, back or front.
         ``mask`` is one 32-bit mask for every ray (sent as ``?mask=``) or (N,) masks (sent in an
-        .npz body). ``max_hits`` is for hits only. ``answer`` is npz, npy or json (the format
-        the server writes)."""
+        .npz body). ``time`` is each ray's instant in the frame's interval, one value or (N,),
+        in [0, 1] (default 0: the scene's start placements; sent in an .npz body), for meshes
+        that move (``frame``'s ``transform_end``, ``vertices_end``). ``max_hits`` is for hits
+        only. ``answer`` is npz, npy or json (the format the server writes)."""
         _choice(query, "query", QUERIES)
         rays = rays_array(origins, directions, tmin, tmax)
         params = _params(fields, strategy, stats, cull)
         if max_hits is not None:
             params["max_hits"] = str(max_hits)
-        body, fmt = {"rays": rays}, "npy"
         if mask is not None and np.ndim(mask) == 0:
             params["mask"] = str(_mask_value(mask, "mask"))
-        elif mask is not None:
-            body, fmt = _ray_arrays(rays), "npz"
+        body, fmt = {"rays": rays}, "npy"
+        if time is not None or (mask is not None and np.ndim(mask) != 0):
+            body, fmt = _ray_arrays(rays), "npz"  # an .npy ray array has no room for these
+        if mask is not None and np.ndim(mask) != 0:
             body["mask"] = _mask_array(mask, len(rays))
+        if time is not None:
+            body["time"] = _ray_time(time, len(rays))
         return self._query(
             f"/v1/scenes/{_seg(scene)}/{query}",  # one of QUERIES, checked above
             body,
@@ -650,10 +761,12 @@ class Client:
         cull: str = "none",
         mask: Any = None,
         max_hits: int | None = None,
+        time: Any = None,
         answer: str = "npz",
     ) -> Answer:
         """A one-shot query on a mesh sent with the rays (nothing is stored); ``mask`` is one
-        value or (N,) values, sent in the body."""
+        value or (N,) values, sent in the body, and ``time`` as ``query``'s (a one-shot mesh is
+        static, so it changes no answer)."""
         origins, directions = _ray_rows(origins, directions)
         arrays = {
             "vertices": np.asarray(vertices, dtype="<f4"),
@@ -666,6 +779,8 @@ class Client:
                 arrays[name] = np.asarray(_ray_bound(bound, len(origins), name), dtype="<f4")
         if mask is not None:
             arrays["mask"] = _mask_array(mask, len(arrays["origins"]))
+        if time is not None:
+            arrays["time"] = _ray_time(time, len(origins))
         params = {
             "query": _choice(query, "query", QUERIES),
             **_params(fields, strategy, stats, cull),
@@ -717,6 +832,23 @@ def _faces(faces: Any, what: str = "faces") -> np.ndarray:
     if array.size and not (-(2**31) <= array.min() and array.max() < 2**31):
         raise ValueError(f"{what} holds an index beyond int32 ({array.max()!r}): no such vertex")
     return np.asarray(array, dtype="<i4")
+
+
+def _frame_part(part: str, value: Any, what: str) -> Any:
+    """One part of a mesh in a frame as its wire value, checked as ``put_mesh``,
+    ``set_transform``, ``set_mask`` and ``set_material`` check theirs (ValueError naming
+    ``what``): arrays in their .npz dtypes, a mask or label as one uint32, a reflectivity as one
+    float64, ``instance_of`` a mesh name (text)."""
+    if part == "instance_of":
+        return _seg(value, what)
+    if part == "faces":
+        return _faces(value, what)
+    if part in ("mask", "label"):
+        return np.asarray(_mask_value(value, what), dtype="<u4")
+    array = _numbers(value, what)
+    if part in ("vertices", "vertices_end"):
+        return np.asarray(array, dtype="<f4")
+    return np.asarray(array, dtype="<f8")  # transform, transform_end, reflectivity
 
 
 def _ray_arrays(rays: np.ndarray) -> dict[str, np.ndarray]:
@@ -824,7 +956,9 @@ def _api_error(response: httpx.Response) -> APIError:
 
 def read_answer(response: httpx.Response, body: wire.Buffer | None = None) -> dict[str, np.ndarray]:
     """The arrays of an answer body (``body``, else ``response.content``), whatever its format
-    (npz, npy, JSON)."""
+    (npz, npy, JSON), with the keys, dtypes, shapes and values of the .npz answer: a JSON null
+    is NaN for ``NAN_KEYS`` and inf elsewhere (``-inf`` for the ``signed_distance`` of a point
+    ``inside``), and a rig's ``{"NAME": {"KEY": ...}}`` is keys ``NAME.KEY``."""
     body = response.content if body is None else body
     media = response.headers.get("content-type", "").split(";")[0].strip()
     if media == wire.NPZ:
@@ -837,22 +971,38 @@ def read_answer(response: httpx.Response, body: wire.Buffer | None = None) -> di
         params = response.request.url.params
         query = params.get("query") or response.request.url.path.rsplit("/", 1)[-1]
         return {params.get("fields") or query: array}
-    document = wire.read_json(body, "the answer's fields")
-    return {key: _from_json(key, value) for key, value in document.items()}
+    return _from_json_document(wire.read_json(body, "the answer's fields"))
 
 
-def _nulls_to_inf(value: Any) -> Any:
-    """A JSON answer's list, rows too (a point's (N, 3)), with null (inf) made numeric."""
+def _from_json_document(document: Mapping[str, Any], prefix: str = "") -> dict[str, np.ndarray]:
+    """A JSON answer's arrays; a rig's sensors (objects) flattened to ``NAME.KEY``."""
+    arrays: dict[str, np.ndarray] = {}
+    for key, value in document.items():
+        if isinstance(value, Mapping):
+            arrays.update(_from_json_document(value, f"{prefix}{key}."))
+        else:
+            arrays[prefix + key] = _from_json(key, value)
+    signed, inside = arrays.get(prefix + "signed_distance"), arrays.get(prefix + "inside")
+    if signed is not None and inside is not None:
+        # JSON writes -inf as null too: a point inside, beyond max_distance, is -inf
+        signed[np.isinf(signed) & inside] = -np.inf
+    return arrays
+
+
+def _nulls_as(value: Any, fill: float) -> Any:
+    """A JSON answer's list, rows too (a point's (N, 3)), with null made ``fill``."""
     if isinstance(value, list) and value and isinstance(value[0], list):
-        return [_nulls_to_inf(row) for row in value]
-    return wire.nulls_to_inf(value)
+        return [_nulls_as(row, fill) for row in value]
+    if isinstance(value, list) and any(x is None for x in value):
+        return [fill if x is None else x for x in value]
+    return value
 
 
 def _from_json(key: str, value: Any) -> np.ndarray:
     dtype = ANSWER_DTYPES.get(key, np.float64)
     if np.dtype(dtype).kind == "f":
-        value = _nulls_to_inf(value)
+        value = _nulls_as(value, np.nan if key in NAN_KEYS else np.inf)
     array = np.asarray(value, dtype=dtype)
-    if key in ("normal", "point") and array.size == 0:
+    if key in ROW_KEYS and array.size == 0:
         array = array.reshape(0, 3)
     return array

@@ -147,6 +147,7 @@ from .arrays import (
 )
 from .body import BodyBuffer
 from .decoders import (
+    FRAME_PARTS,
     FrameChange,
     check_keys,
     check_matrix,
@@ -193,6 +194,7 @@ __all__ = [
     "ANSWER_FORMATS",
     "CONTENT_TYPES",
     "FRAME_FORMATS",
+    "FRAME_PARTS",
     "JSON",
     "MAX_NPZ_MEMBERS",
     "MEDIA_TYPES",

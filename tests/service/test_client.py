@@ -615,7 +615,7 @@ I4 = np.eye(4)
         (lambda c: c.put_mesh("s", "m", V3, np.array([[0, 1, 2**32 + 3]])), "beyond int32"),
         (lambda c: c.put_mesh("s", "m", V3), "give faces"),
         (lambda c: c.put_mesh("s", "m"), "give vertices and faces, or file="),
-        (lambda c: c.put_mesh("s", "m", file=b"v", format="fbx"), "format must be one of obj"),
+        (lambda c: c.put_mesh("s", "m", file=b"v", format="fbx"), "format must be one of npz"),
         (lambda c: c.put_mesh("s", "m", file="mesh.xyz"), "the suffix '.xyz' names none"),
         (lambda c: c.frame("s", {"m": (V3, [[0, 1, 2.5]])}), r"meshes\['m'\] faces must be"),
         (lambda c: c.trace(V3, [[0, 1, 9.5]], *TWO), "faces must be integers"),
@@ -635,6 +635,21 @@ I4 = np.eye(4)
         (lambda c: c.delete(".."), "scene name must be"),
         (lambda c: c.put_pattern("a b", [0.0], [0.0]), "pattern name must be"),
         (lambda c: c.put_mesh("s", 5, V3, [[0, 1, 2]]), "mesh name must be"),
+        (lambda c: c.closest("s", *TWO, time=[0.0, 1.5]), r"time\[1\] is 1.5: each time must"),
+        (lambda c: c.hits("s", *TWO, time=np.nan), r"time\[0\] is nan"),
+        (lambda c: c.count("s", *TWO, time=[0.5]), r"time must be a scalar or .*\(2,\)"),
+        (lambda c: c.occluded("s", *TWO, time=["0", "1"]), "time must be numbers"),
+        (lambda c: c.trace(V3, [[0, 1, 2]], *TWO, time=-0.5), r"time\[0\] is -0.5"),
+        (lambda c: c.frame("s", {"m": {"colour": 1}}), r"meshes\['m'\] has 'colour', not a"),
+        (lambda c: c.frame("s", {"m": (V3,)}), r"meshes\['m'\] is a tuple of 1: give"),
+        (lambda c: c.frame("s", {"m": {"label": -1}}), r"meshes\['m'\] label must lie in"),
+        (lambda c: c.frame("s", {"m": {"mask": 2.0}}), r"meshes\['m'\] mask must be an"),
+        (lambda c: c.frame("s", {"m": {"instance_of": "a/b"}}), r"meshes\['m'\] instance_of"),
+        (lambda c: c.frame("s", {"m": {"transform": "I"}}), r"meshes\['m'\] transform must"),
+        (lambda c: c.set_mask("s", "m", 2**32), "mask must lie in"),
+        (lambda c: c.put_instance("s", "m", "c/d"), "source mesh name must be"),
+        (lambda c: c.put_instance("s", "m", "car", mask=-1), "mask must lie in"),
+        (lambda c: c.mesh("s", "m?x"), "mesh name must be"),
     ],
 )
 def test_misuse_raises_naming_the_argument_and_sends_nothing(call, phrase):
@@ -884,3 +899,285 @@ def test_an_n_by_8_array_keeps_its_tmin_when_only_tmax_is_given():
     assert made[:, 6].tolist() == [0.25, 0.5] and made[:, 7].tolist() == [5.0, 5.0]
     made = rays_array(rays, tmin=0.125)
     assert made[:, 6].tolist() == [0.125, 0.125] and made[:, 7].tolist() == [10, 20]
+
+
+# ---- motion, frames, instances, masks and JSON answers through the client, on the real server
+
+RISE = 2.0  # the floor's transform_end lifts it this far in z
+
+
+def moving_scene(client: Client, scene: str) -> None:
+    """A floor on [0, 4]^2 at z = 0 lifted by RISE over the frame (``transform_end``) and a sheet
+    on [5, 9] x [0, 4] at z = 0 whose corners rise by 0..3 (``vertices_end``), set by frames."""
+    floor, sheet = quad(0, 4, 0, 4, 0), quad(5, 9, 0, 4, 0)
+    client.frame(scene, {"floor": floor, "sheet": sheet})
+    lifted = np.eye(4)
+    lifted[2, 3] = RISE
+    sheet_end = sheet[0] + np.array([[0, 0, 0], [0, 0, 1], [0, 0, 3], [0, 0, 2]], np.float32)
+    info = client.frame(
+        scene,
+        {
+            "floor": {"transform": np.eye(4), "transform_end": lifted},
+            "sheet": {"vertices": sheet[0], "vertices_end": sheet_end},
+        },
+    )
+    assert [(m["mesh"], m["version"]) for m in info["meshes"]] == [("floor", 2), ("sheet", 2)]
+
+
+def placed_at(tau: float) -> tuple[np.ndarray, np.ndarray]:
+    """``moving_scene``'s triangles at time ``tau`` in plain NumPy (float64): each vertex at the
+    linear interpolation of its placements at 0 and 1 (floor's faces first)."""
+    floor, sheet = quad(0, 4, 0, 4, 0), quad(5, 9, 0, 4, 0)
+    rise = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 3], [0, 0, 2]], np.float64)
+    vertices = np.concatenate(
+        [floor[0] + [0, 0, RISE * tau], sheet[0].astype(np.float64) + tau * rise]
+    )
+    return vertices, np.concatenate([floor[1], sheet[1] + 4])
+
+
+def moving_rays(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rays down from z = 10 onto either mesh (away from their edges), each at one of a few
+    times."""
+    rng = np.random.default_rng(seed)
+    xy = np.column_stack([rng.uniform(0.2, 8.8, n), rng.uniform(0.2, 3.8, n)])
+    xy[np.abs(xy[:, 0] - 4.5) < 0.7, 0] += 1.5  # none through the gap's edges
+    times = rng.choice(np.array([0.0, 0.25, 0.5, 0.75, 1.0], np.float32), n)
+    return (*down_rays(xy), times)
+
+
+def test_queries_at_each_rays_time_see_the_meshes_where_a_frame_moved_them(client, scene_name):
+    """``time=`` on every query (and ``frame``'s ``transform_end`` and ``vertices_end``) answers
+    each ray on the meshes placed at its time in NumPy."""
+    moving_scene(client, scene_name)
+    origins, directions, times = moving_rays(300, seed=51)
+    want_t, want_prim, want_count = np.empty(300), np.empty(300, int), np.empty(300, int)
+    for tau in np.unique(times):
+        rows = times == tau
+        vertices, faces = placed_at(float(tau))
+        hits = reference.closest(vertices, faces, origins[rows], directions[rows])
+        want_t[rows], want_prim[rows] = hits.t, hits.prim
+        want_count[rows] = reference.count(vertices, faces, origins[rows], directions[rows])
+    assert (want_prim >= 0).all() and len(np.unique(times)) == 5
+    for answer in ("npz", "json"):
+        closest = client.closest(scene_name, origins, directions, time=times, answer=answer)
+        np.testing.assert_allclose(closest.t, want_t, rtol=1e-6)
+        assert np.array_equal(closest.mesh, want_prim // 2)
+        assert np.array_equal(closest.prim, want_prim % 2)
+    tmax = want_t.astype(np.float32) + np.where(np.arange(300) % 2 == 0, 0.01, -0.01)
+    occluded = client.occluded(scene_name, origins, directions, tmax=tmax, time=times)
+    assert np.array_equal(occluded.occluded, np.arange(300) % 2 == 0)
+    hits = client.hits(scene_name, origins, directions, time=times, mask=np.full(300, 1))
+    assert np.array_equal(np.diff(hits.offsets), want_count)
+    np.testing.assert_allclose(hits.t, want_t, rtol=1e-6)  # one hit a ray here
+    count = client.query(scene_name, "count", origins, directions, time=times, answer="npy")
+    assert np.array_equal(count.count, want_count)
+    # one time for every ray; no time is time 0
+    at_end = client.closest(scene_name, origins, directions, time=1.0).t
+    np.testing.assert_allclose(
+        at_end, reference.closest(*placed_at(1.0), origins, directions).t, 1e-6
+    )
+    at_start = client.closest(scene_name, origins, directions).t
+    np.testing.assert_allclose(
+        at_start, reference.closest(*placed_at(0.0), origins, directions).t, 1e-6
+    )
+    # a one-shot mesh is static: its rays' times are sent and checked, and change nothing
+    once = client.trace(*quad(0, 4, 0, 4, 0), origins, directions, time=times)
+    still = reference.closest(*quad(0, 4, 0, 4, 0), origins, directions)
+    assert np.array_equal(once.t, still.t.astype(np.float32)) and np.isinf(once.t).any()
+
+
+def test_time_is_sent_as_the_contract_says():
+    """``time`` goes in an .npz body as little-endian float32 (N,), beside origins and
+    directions (and tmin, tmax, mask); one value is repeated for every ray."""
+    client, sent = recording_client({})
+    for call in (
+        lambda: client.closest("s", *TWO, time=[0.0, 0.5]),
+        lambda: client.hits("s", np.zeros((2, 8)) + [0, 0, 0, 0, 0, 1, 0, 5], time=0.25, mask=3),
+        lambda: client.trace(V3, [[0, 1, 2]], *TWO, time=np.array([1, 0])),
+    ):
+        with pytest.raises(KeyError):  # the recording client has no answer for the query
+            call()
+    bodies = [np.load(io.BytesIO(request.content)) for request in sent]
+    assert [request.headers["content-type"] for request in sent] == [wire.NPZ] * 3
+    assert bodies[0].files == ["origins", "directions", "time"]
+    assert bodies[1].files == ["origins", "directions", "tmin", "tmax", "time"]
+    assert sent[1].url.params["mask"] == "3"
+    assert bodies[2].files == ["vertices", "faces", "origins", "directions", "time"]
+    for body, want in zip(bodies, ([0.0, 0.5], [0.25, 0.25], [1.0, 0.0])):
+        assert body["time"].dtype == np.dtype("<f4") and body["time"].tolist() == want
+
+
+def test_frame_sends_every_part_a_frame_may_carry():
+    """Arrays as .npz keys ``NAME.PART`` in their wire dtypes; a frame with ``instance_of``
+    (text, which an .npz cannot hold) as JSON."""
+    client, sent = recording_client({"/v1/scenes/s/frame": {"scene": "s"}})
+    matrix = np.eye(4)
+    matrix[:3, 3] = [1, 2, 3]
+    client.frame(
+        "s",
+        {
+            "a.b": {"vertices": V3, "faces": [[0, 1, 2]], "vertices_end": V3 + 1.0},
+            "c": {"transform": matrix, "transform_end": np.eye(4), "mask": 0xF0},
+            "d": {"reflectivity": 0.25, "label": 7},
+        },
+    )
+    body = np.load(io.BytesIO(sent[-1].content))
+    assert sent[-1].headers["content-type"] == wire.NPZ
+    dtypes = {key: (body[key].dtype.str, body[key].shape) for key in body.files}
+    assert dtypes == {
+        "a.b.vertices": ("<f4", (4, 3)),
+        "a.b.faces": ("<i4", (1, 3)),
+        "a.b.vertices_end": ("<f4", (4, 3)),
+        "c.transform": ("<f8", (4, 4)),
+        "c.transform_end": ("<f8", (4, 4)),
+        "c.mask": ("<u4", ()),
+        "d.reflectivity": ("<f8", ()),
+        "d.label": ("<u4", ()),
+    }
+    assert np.array_equal(body["c.transform"], matrix) and body["c.mask"] == 0xF0
+    assert body["d.reflectivity"] == 0.25 and body["d.label"] == 7
+    client.frame("s", {"car": (V3, [[0, 1, 2]]), "car2": {"instance_of": "car", "mask": 1}})
+    assert sent[-1].headers["content-type"] == "application/json"
+    assert json.loads(sent[-1].content) == {
+        "car.vertices": V3.tolist(),
+        "car.faces": [[0, 1, 2]],
+        "car2.instance_of": "car",
+        "car2.mask": 1,
+    }
+
+
+def test_frame_parts_instances_masks_and_mesh_info(client, scene_name):
+    """A frame's transform, mask, materials and instance_of, ``put_instance`` and ``set_mask``
+    change what rays see as the placements and masks computed in NumPy say; ``mesh`` answers
+    the mesh's info and ``metrics`` the Prometheus text."""
+    vertices, faces = quad(0, 1, 0, 1, 0)
+    shifted = np.eye(4)
+    shifted[:3, 3] = [3, 0, 1]
+    info = client.frame(
+        scene_name,
+        {
+            "tile": {"vertices": vertices, "faces": faces, "mask": 0b01},
+            "copy": {"instance_of": "tile", "transform": shifted, "label": 4},
+        },
+    )
+    assert [m["mesh"] for m in info["meshes"]] == ["tile", "copy"]
+    copy = client.mesh(scene_name, "copy")
+    assert copy == info["meshes"][1] and copy["instance_of"] == "tile" and copy["label"] == 4
+    assert copy["transform"] == shifted.tolist() and copy["mask"] == 0xFFFFFFFF
+    scaled = np.diag([2.0, 2.0, 1.0, 1.0])
+    scaled[:3, 3] = [6, 0, 2]
+    third = client.put_instance(scene_name, "third", "tile", scaled, mask=0b10)
+    assert (third["instance_of"], third["mask"], third["index"]) == ("tile", 0b10, 2)
+    assert (
+        client.frame(scene_name, {"tile": {"reflectivity": 0.75}})["meshes"][0]["reflectivity"]
+        == 0.75
+    )
+    # rays down onto each placement, in NumPy: vertices placed by each matrix
+    placements = [np.eye(4), shifted, scaled]
+    xy = np.array([[0.5, 0.5], [3.5, 0.5], [7.0, 1.0]])
+    origins, directions = down_rays(xy)
+    expected_t = [10.0 - m[2, 3] for m in placements]
+    for index, matrix in enumerate(placements):
+        placed = vertices.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
+        hit = reference.closest(placed, faces, origins[index : index + 1], directions[:1])
+        assert hit.t[0] == expected_t[index]
+    answer = client.closest(scene_name, origins, directions)
+    assert answer.t.tolist() == expected_t and answer.mesh.tolist() == [0, 1, 2]
+    masked = client.closest(scene_name, origins, directions, mask=0b01)
+    assert masked.mesh.tolist() == [0, 1, -1]  # tile's mask 0b01, copy all ones, third 0b10
+    assert client.set_mask(scene_name, "copy", 0b100)["mask"] == 0b100
+    assert client.closest(scene_name, origins, directions, mask=0b01).mesh.tolist() == [0, -1, -1]
+    assert client.mesh(scene_name, "copy")["mask"] == 0b100
+    text = client.metrics()
+    route = 'route="/v1/scenes/{scene}/meshes/{mesh}/mask",status="200"'
+    assert "dacrt_requests_total{" in text and route in text
+
+
+def test_nearest_signed_distance_beyond_max_distance_keeps_its_sign_in_json(client, scene_name):
+    """Inside a closed box, beyond ``max_distance``, ``signed_distance`` is -inf in every answer
+    format (JSON writes it as null, as it does +inf)."""
+    from sensor_helpers import BOX
+
+    client.put_mesh(scene_name, "box", *BOX)  # [-4, -2.5] x [2, 3.5] x [0, 1.5]
+    lo, hi = BOX[0].min(0).astype(np.float64), BOX[0].max(0).astype(np.float64)
+    rng = np.random.default_rng(52)
+    points = rng.uniform(lo - 1, hi + 1, (60, 3)).astype(np.float32)
+    inside = np.all((points > lo) & (points < hi), axis=1)
+    assert 5 < inside.sum() < 55
+    gap = np.minimum(points - lo, hi - points).min(axis=1)  # inside: the distance to the box
+    for max_distance in (0.05, 0.3):
+        answers = [
+            client.nearest(scene_name, points, max_distance, sign=True, answer=fmt)
+            for fmt in ("npz", "npy", "json")
+        ]
+        for answer in answers[1:]:
+            assert_same_answer(answer, answers[0])
+        far = ~np.isfinite(answers[0].distance)
+        assert np.array_equal(answers[0].inside, inside)
+        assert (far & inside).any() and (far & ~inside).any()
+        signed = answers[0].signed_distance
+        assert np.array_equal(signed[far], np.where(inside[far], -np.inf, np.inf))
+        near = inside & ~far
+        np.testing.assert_allclose(signed[near], -gap[near], rtol=1e-5)
+
+
+def test_read_answer_of_json_equals_the_npz_answer(http, client, server_room):
+    """``read_answer`` of a JSON lidar, rig or nearest answer has the keys, dtypes, shapes and
+    values (NaN fills included) of the .npz answer, read here with ``np.load``."""
+    from sensor_helpers import npz, rigid_pose
+
+    from service.client import read_answer
+
+    pose = rigid_pose(10, 0, (0.0, -3.0, 1.2)).tolist()
+    beams = {"pose": pose, "horizontal_steps": 90, "period_s": 0.1}
+    lidar = {**beams, "model": "VLP-16"}
+    look = {"eye": [6.0, -6.0, 4.0], "target": [0.0, 0.0, 0.5], "width": 8, "height": 6}
+    scene = f"/v1/scenes/{server_room}"
+    bodies = [
+        (f"{scene}/lidar", {**lidar, "non_hits": "keep"}),
+        (f"{scene}/lidar", {**lidar, "organized": True, "return_mode": "dual"}),
+        (f"{scene}/lidar", {**beams, "vertical_angles_deg": [80.0]}),  # no points
+        (f"{scene}/sensors", {"sensors": {"roof": {"kind": "lidar", **lidar, "non_hits": "keep"},
+                                          "front": {"kind": "camera", **look}}}),
+    ]  # fmt: skip
+    for path, body in bodies:
+        as_json = http.post(path, json=body)
+        as_npz = http.post(path, json=body, headers={"Accept": wire.NPZ})
+        assert as_json.headers["content-type"] == "application/json", as_json.text
+        got, want = read_answer(as_json), npz(as_npz.content)
+        assert list(got) == list(want), path
+        for key in want:
+            assert got[key].dtype == want[key].dtype and got[key].shape == want[key].shape, key
+            assert np.array_equal(got[key], want[key], equal_nan=True), key
+        fills = [want[k] for k in want if k.endswith(("xyz", "velocity", "radial_speed"))]
+        assert any(np.isnan(fill).any() for fill in fills) or want["velocity"].shape == (0, 3)
+    from sensor_helpers import BOX
+
+    box = f"/v1/scenes/{server_room}-box"
+    client.put_mesh(f"{server_room}-box", "box", *BOX)  # closed: [-4, -2.5] x [2, 3.5] x [0, 1.5]
+    points = np.array([[-3.2, 2.7, 0.7], [0, 0, 30], [-3.2, 2.7, 30]], np.float32)
+    params = {"sign": "true", "max_distance": "0.1"}
+    as_json = http.post(f"{box}/nearest", json={"points": points.tolist()}, params=params)
+    as_npz = http.post(f"{box}/nearest", content=npy_bytes(points), params=params, headers=NPY)
+    got, want = read_answer(as_json), npz(as_npz.content)
+    assert want["signed_distance"].tolist() == [-np.inf, np.inf, np.inf]
+    assert all(np.array_equal(got[k], want[k]) and got[k].dtype == want[k].dtype for k in want)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".json"])
+def test_put_mesh_takes_a_mesh_body_saved_as_a_file(client, scene_name, tmp_path, suffix):
+    vertices, faces = grid(3, z=1.0)
+    path = tmp_path / f"mesh{suffix}"
+    if suffix == ".npz":
+        np.savez(path, vertices=vertices, faces=faces)
+    else:
+        path.write_text(json.dumps({"vertices": vertices.tolist(), "faces": faces.tolist()}))
+    info = client.put_mesh(scene_name, "from-file", file=path, mask=5)
+    assert (info["vertices"], info["triangles"], info["mask"]) == (16, 18, 5)
+    again = client.put_mesh(scene_name, "as-bytes", file=path.read_bytes(), format=suffix[1:])
+    assert again["triangles"] == 18
+    origins, directions = down_rays(np.random.default_rng(53).uniform(0.05, 0.95, (40, 2)))
+    answer = client.closest(scene_name, origins, directions, mask=1)  # sees from-file only
+    want = reference.closest(vertices, faces, origins, directions)
+    np.testing.assert_allclose(answer.t, want.t, rtol=1e-6)
+    assert np.array_equal(answer.prim, want.prim) and (answer.mesh == 0).all()
