@@ -116,9 +116,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.add_middleware(AdmissionMiddleware, admission=admission)  # a ticket for each request
     app.add_middleware(errors.CatchAll)  # inside the metrics, so that they count its 500s
-    app.add_middleware(MetricsMiddleware, metrics=metrics, routes=app.router.routes)
-    # before any ticket is held; outside the metrics, since a refused request reaches no route
+    # before any ticket is held; inside the metrics, so that an operator sees its refusals
     app.add_middleware(HostCheck, allowed=settings.host_names(), bind=settings.host)
+    app.add_middleware(MetricsMiddleware, metrics=metrics, routes=app.router.routes)
     app.add_middleware(HeadAsGet)
     return app
 

@@ -18,6 +18,8 @@ from urllib.parse import urlsplit
 
 from starlette.datastructures import Headers
 
+from .metrics import REFUSED_ROUTE
+
 #: The names of this machine's loopback addresses, allowed when the server binds one.
 LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
 #: Allows any host.
@@ -69,6 +71,7 @@ class HostCheck:
         if scope["type"] == "http":
             problem = self.problem(scope)
             if problem is not None:
+                scope[REFUSED_ROUTE] = True  # counted by the metrics under this label
                 await refuse(send, problem)
                 return
         await self.app(scope, receive, send)

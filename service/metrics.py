@@ -29,6 +29,9 @@ UNMATCHED_ROUTE = "unmatched"
 #: The route label of an answer the HTTP protocol writes itself (``service.protocol``): to
 #: headers too slow, too large or not HTTP/1.1, and to a connection over a bound
 PROTOCOL_ROUTE = "protocol"
+#: The route label of a request ``hosts.HostCheck`` refused (its 403), and the scope key that
+#: marks it: no route ran
+REFUSED_ROUTE = "refused"
 #: The method label of a request answered before its method was read
 UNKNOWN_METHOD = "unknown"
 
@@ -175,10 +178,13 @@ def route_template(scope, arrived, routes: list[BaseRoute]) -> str:
     """The path template of the route that served a request: its FastAPI route's, which the
     router puts in ``scope``, else that of the first of ``routes`` that the request as it
     ``arrived`` matches whole (Starlette's own: ``/openapi.json``, a mount's
-    ``/static/swagger-ui/{path}``); UNMATCHED_ROUTE when none does."""
+    ``/static/swagger-ui/{path}``); REFUSED_ROUTE for a request the host check refused;
+    UNMATCHED_ROUTE when none matches."""
     route = scope.get("route")
     if route is not None:
         return route.path
+    if scope.get(REFUSED_ROUTE):
+        return REFUSED_ROUTE
     for candidate in routes:
         if candidate.matches(arrived)[0] is Match.FULL:
             return candidate.path_format

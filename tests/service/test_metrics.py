@@ -3,6 +3,7 @@ that served them, and rays as DACRT_MAX_RAYS_PER_REQUEST counts them."""
 
 from __future__ import annotations
 
+import httpx
 import pytest
 from service_helpers import metric_sample
 
@@ -75,3 +76,13 @@ def test_rays_are_counted_as_the_limit_counts_them(app_client, scene_name, query
     before = metric_sample(app_client.get("/metrics").text, sample)
     app_client.post(f"/v1/scenes/{scene_name}/{path}", json=body).raise_for_status()
     assert metric_sample(app_client.get("/metrics").text, sample) == before + rays
+
+
+def test_a_request_refused_for_its_host_is_counted(app_client):
+    """A DNS-rebinding refusal (403 before any route runs) is counted as route ``refused``."""
+    before = requests(app_client, "GET", "refused", 403)
+    # arriving on the loopback address, where only the loopback names are allowed
+    with httpx.Client(transport=app_client._transport, base_url="http://localhost") as loopback:
+        answer = loopback.get("/v1/capabilities", headers={"Host": "attacker.example"})
+    assert answer.status_code == 403 and "DACRT_ALLOWED_HOSTS" in answer.json()["detail"]
+    assert requests(app_client, "GET", "refused", 403) == before + 1
