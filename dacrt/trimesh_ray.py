@@ -27,7 +27,10 @@ never exposed, so directions are normalised (as trimesh's embree intersector doe
 
 The intersector follows the mesh as trimesh's own do: a ``trimesh.Trimesh`` is read again when
 its content hash (``hash(mesh)``, which trimesh keeps up to date as its arrays change) is not the
-one it was read at; another object with ``vertices`` and ``faces`` is read once.
+one it was read at; another object with ``vertices`` and ``faces`` is read once. Threads may
+share an intersector: each call answers from one reading of the mesh (its arrays and backend,
+published together once the backend is built), and a call that finds the mesh changed while
+another thread reads it again waits for that reading.
 
 Any object with the four ray methods of ``EngineBackend`` can answer for the mesh (the service's
 ``service.intersector`` sends them to a server); ``ProximityQuery`` also asks ``nearest``.
@@ -39,6 +42,9 @@ trimesh's sign convention (positive inside, by ``RayMeshIntersector.contains_poi
 on the surface, as far as its rounding to float32 can tell, is positive). ``vertex`` is trimesh's
 own (a KD-tree of the vertices, which needs scipy).
 """
+
+import threading
+from typing import NamedTuple
 
 import numpy as np
 
@@ -109,6 +115,23 @@ class EngineBackend:
         return found.prim, found.point.astype(np.float64) + self.shift, found.distance
 
 
+class MeshReading(NamedTuple):
+    """One read of an intersector's mesh, never changed after it is made: a call answers from
+    one reading throughout."""
+
+    #: The mesh's content hash when read (None: read once, not again).
+    content_hash: object
+    #: What answers the queries for this mesh.
+    backend: object
+    #: (V, 3) float64 and (F, 3) int64, read-only copies of the mesh's arrays.
+    vertices: np.ndarray
+    faces: np.ndarray
+    #: (2, 3) float64 box of the corners the faces use (None for no faces), read-only.
+    bounds: object
+    #: (the backend's shift, the most a vertex moves when rounded to float32 after it).
+    rounding: tuple
+
+
 class RayMeshIntersector:
     """Ray queries on one triangle mesh, with trimesh's interface.
 
@@ -116,49 +139,61 @@ class RayMeshIntersector:
         ``vertices`` (V, 3) float and ``faces`` (F, 3) int (read once)
     backend : what answers the queries, for the mesh as it is now (then the mesh is read once);
         default an ``EngineBackend`` made by ``make_backend`` whenever the mesh is read
+
+    Each call answers from one ``reading()`` (threads may share the intersector).
     """
 
     def __init__(self, mesh, backend=None):
         self.mesh = mesh
         self._fixed_backend = backend
-        self._read_at = None  # the content hash the mesh was read at
-        self._read()
+        self._lock = threading.Lock()  # one thread reads the mesh again; the others wait for it
+        self._reading = self._read()
 
     def make_backend(self, vertices, faces):
         """The backend of the mesh's ``vertices`` (V, 3) float64 and ``faces`` (F, 3) int64."""
         return EngineBackend(vertices, faces)
 
+    def reading(self):
+        """The ``MeshReading`` of the mesh as it is now: read again if its content hash
+        changed, and published whole once its backend is built."""
+        reading = self._reading
+        if reading.content_hash is None or _content_hash(self.mesh) == reading.content_hash:
+            return reading
+        with self._lock:
+            reading = self._reading  # another thread may have read it again meanwhile
+            if _content_hash(self.mesh) != reading.content_hash:
+                reading = self._reading = self._read()
+        return reading
+
     def backend(self):
         """The backend of the mesh as it is now: read again if its content hash changed."""
-        if self._read_at is not None and _content_hash(self.mesh) != self._read_at:
-            self._read()
-        return self._backend
+        return self.reading().backend
 
     def _read(self):
+        """A new ``MeshReading`` of the mesh (the hash first: an edit meanwhile reads again)."""
         mesh = self.mesh
         # a given backend answers for the mesh as it was: the mesh is then read once too
-        self._read_at = _content_hash(mesh) if self._fixed_backend is None else None
-        self._vertices = np.array(mesh.vertices, dtype=np.float64)  # a copy: edits come again
-        self._faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
+        content_hash = _content_hash(mesh) if self._fixed_backend is None else None
+        vertices = np.array(mesh.vertices, dtype=np.float64)  # a copy: edits come again
+        faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
+        vertices.flags.writeable = faces.flags.writeable = False
         if self._fixed_backend is not None:
-            self._backend = self._fixed_backend
+            backend = self._fixed_backend
         else:
-            self._backend = self.make_backend(self._vertices, self._faces)
-        if len(self._faces):
-            corners = self._vertices[self._faces.ravel()]
-            self._bounds = np.stack([corners.min(axis=0), corners.max(axis=0)])
-        else:
-            self._bounds = None
-        self._rounding = None  # ``rounding``'s, derived on first use
+            backend = self.make_backend(vertices, faces)
+        bounds = None
+        if len(faces):
+            corners = vertices[faces.ravel()]
+            bounds = np.stack([corners.min(axis=0), corners.max(axis=0)])
+            bounds.flags.writeable = False
+        shift = getattr(backend, "shift", np.zeros(3))
+        rounding = (shift, rounding_slack(vertices, shift).max(initial=0.0))
+        return MeshReading(content_hash, backend, vertices, faces, bounds, rounding)
 
     def rounding(self):
         """(the backend's shift, the most a vertex moves when the mesh is rounded to float32
-        after that shift), for the mesh as it is now; once per read of the mesh."""
-        backend = self.backend()
-        if self._rounding is None:
-            shift = getattr(backend, "shift", np.zeros(3))
-            self._rounding = (shift, rounding_slack(self._vertices, shift).max(initial=0.0))
-        return self._rounding
+        after that shift), for the mesh as it is now."""
+        return self.reading().rounding
 
     def intersects_first(self, ray_origins, ray_directions):
         """The index of the first triangle each ray hits.
@@ -201,7 +236,8 @@ class RayMeshIntersector:
         Returns index_tri : (m,) int64 (rows of mesh.faces), index_ray : (m,) int64, and with
         ``return_locations`` locations : (m, 3) float64.
         """
-        backend = self.backend()
+        reading = self.reading()
+        backend = reading.backend
         origins, directions, valid = _rays(ray_origins, ray_directions)
         rays = np.flatnonzero(valid)
         if not len(rays):
@@ -217,7 +253,7 @@ class RayMeshIntersector:
         index_tri = np.asarray(prim, dtype=np.int64)
         index_ray = np.asarray(index_ray, dtype=np.int64)
         if return_locations:
-            locations = self._locations(index_tri, index_ray, origins, directions, u, v)
+            locations = self._locations(reading, index_tri, index_ray, origins, directions, u, v)
             return index_tri, index_ray, locations
         return index_tri, index_ray
 
@@ -239,17 +275,19 @@ class RayMeshIntersector:
         points : (n, 3) float
         Returns contains : (n,) bool.
         """
-        backend = self.backend()
+        return self._contains(self.reading(), points)
+
+    def _contains(self, reading, points):
+        """``contains_points`` for the mesh as ``reading`` read it."""
+        backend, bounds = reading.backend, reading.bounds
         points = np.asarray(points, dtype=np.float64)
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError("points must be (n,3)")
         contains = np.zeros(len(points), dtype=bool)
-        if self._bounds is None:
+        if bounds is None:
             return contains
         # Strictly inside the box, as trimesh's bounds.contains.
-        todo = np.flatnonzero(
-            (points > self._bounds[0]).all(axis=1) & (points < self._bounds[1]).all(axis=1)
-        )
+        todo = np.flatnonzero((points > bounds[0]).all(axis=1) & (points < bounds[1]).all(axis=1))
         directions = [CONTAINS_DIRECTION, _unit(np.random.default_rng(RETRY_SEED).random(3) - 0.5)]
         for direction in directions:
             if not len(todo):
@@ -267,10 +305,11 @@ class RayMeshIntersector:
             todo = todo[~agree & (both != 0).all(axis=0)]
         return contains
 
-    def _locations(self, prim, index_ray, origins, directions, u, v):
+    def _locations(self, reading, prim, index_ray, origins, directions, u, v):
         """(m, 3) float64 points where rays ``index_ray`` meet the planes of triangles ``prim``
-        (for a triangle nearly edge-on to its ray, (1-u-v)*p0 + u*p1 + v*p2)."""
-        corners = self._vertices[self._faces[prim]]
+        of the mesh as ``reading`` read it (for a triangle nearly edge-on to its ray,
+        (1-u-v)*p0 + u*p1 + v*p2)."""
+        corners = reading.vertices[reading.faces[prim]]
         normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         o, d = origins[index_ray], directions[index_ray]
         facing = np.einsum("ij,ij->i", normals, d)
@@ -300,8 +339,11 @@ class ProximityQuery:
         Returns closest : (m, 3) float64, distance : (m,) float64, triangle_id : (m,) int64
         (-1, with inf, for an empty mesh).
         """
-        points = _points(points)
-        prim, closest, distance = self._intersector.backend().nearest(points)
+        return self._on_surface(self._intersector.reading(), _points(points))
+
+    def _on_surface(self, reading, points):
+        """``on_surface`` of finite (m, 3) float64 points, for the mesh as ``reading`` read it."""
+        prim, closest, distance = reading.backend.nearest(points)
         return (
             np.asarray(closest, dtype=np.float64),
             np.asarray(distance, dtype=np.float64),
@@ -316,13 +358,14 @@ class ProximityQuery:
         Returns signed_distance : (n,) float64.
         """
         points = _points(points)
-        _, distance, _ = self.on_surface(points)
+        reading = self._intersector.reading()  # the distance and the sign of one mesh
+        _, distance, _ = self._on_surface(reading, points)
         # the distance is between the point and the mesh as rounded to float32: within their
         # rounding, the point may be on the surface
-        shift, mesh_rounding = self._intersector.rounding()
+        shift, mesh_rounding = reading.rounding
         slack = rounding_slack(points, shift) + mesh_rounding
         on_surface = distance <= slack * (1 + 2**-22)
-        inside = self._intersector.contains_points(points) | on_surface
+        inside = self._intersector._contains(reading, points) | on_surface
         return np.where(inside, distance, -distance)
 
     def vertex(self, points):

@@ -10,6 +10,7 @@ of the mesh's size.
 
 from __future__ import annotations
 
+import threading
 from types import SimpleNamespace
 
 import numpy as np
@@ -180,7 +181,7 @@ def test_contains_points_equals_embrees_on_the_bunny(bunny):
     both_ways = np.vstack([points, points])
     ray_directions = np.vstack([np.tile(CONTAINS_DIRECTION, (5000, 1))] * 2)
     ray_directions[5000:] *= -1
-    counts = ours._backend.count(both_ways, ray_directions).reshape(2, -1)
+    counts = ours.backend().count(both_ways, ray_directions).reshape(2, -1)
     agree = (counts[0] % 2) == (counts[1] % 2)
     assert agree.mean() > 0.95 and 500 < contains.sum() < 4500
     assert np.array_equal(contains[agree], expected[agree])
@@ -266,6 +267,63 @@ def test_a_changed_mesh_is_read_again_as_trimeshs_intersectors_read_it():
     np.testing.assert_array_equal(
         once.intersects_first(origins, directions), fresh.intersects_first(origins, directions)
     )
+
+
+class VersionedMesh:
+    """A mesh whose content hash is its ``version`` (trimesh's follows its arrays); a thread
+    named "second" asking for the hash sets ``asked``."""
+
+    def __init__(self, vertices, faces, asked):
+        self.vertices, self.faces, self.version, self.asked = vertices, faces, 0, asked
+
+    def __hash__(self):
+        if threading.current_thread().name == "second":
+            self.asked.set()
+        return self.version
+
+
+def test_a_call_while_another_thread_reads_the_changed_mesh_answers_for_the_changed_mesh():
+    """A thread finds the mesh moved and builds its backend, held open until a second thread
+    has called: the second call waits for that backend rather than answer from the old one
+    (which misses the moved mesh, while locations come from the new vertices), and the mesh
+    is read again once."""
+    asked, building, builds = threading.Event(), threading.Event(), []
+
+    class HeldBuild(RayMeshIntersector):
+        def make_backend(self, vertices, faces):
+            builds.append(threading.current_thread().name)
+            if len(builds) > 1:  # the moved mesh's backend
+                building.set()
+                assert asked.wait(60)  # a guard against hanging: the second thread asks at once
+            return super().make_backend(vertices, faces)
+
+    sphere = icosphere()
+    mesh = VersionedMesh(sphere.vertices, sphere.faces, asked)
+    intersector = HeldBuild(mesh)
+    mesh.vertices, mesh.version = sphere.vertices + [10.0, 0, 0], 1
+    rng = np.random.default_rng(13)
+    origins = np.array([10.0, 0, 5]) + rng.uniform(-0.5, 0.5, (300, 3)) * [1, 1, 0]
+    directions = np.tile([0.0, 0, -1], (300, 1))
+    moved = RayMeshIntersector(SimpleNamespace(vertices=mesh.vertices, faces=sphere.faces))
+    alone = moved.intersects_location(origins, directions)
+    assert len(alone[0]) > 300  # every ray hits the moved sphere, most twice
+    answers = {}
+
+    def call():
+        name = threading.current_thread().name
+        answers[name] = intersector.intersects_location(origins, directions)
+
+    first = threading.Thread(target=call, name="first")
+    first.start()
+    assert building.wait(60)
+    second = threading.Thread(target=call, name="second")
+    second.start()
+    first.join()
+    second.join()
+    assert builds == [threading.current_thread().name, "first"]
+    for name in ("first", "second"):
+        for got, want in zip(answers[name], alone):
+            np.testing.assert_array_equal(got, want, err_msg=name)
 
 
 def test_max_hits_zero_gives_no_hits():
