@@ -4,6 +4,7 @@ triangle once."""
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 import time
@@ -151,7 +152,9 @@ def test_a_call_does_not_queue_behind_a_busy_pool():
     """Another query holds every thread of the shared pool: this call's items all run on the
     caller's thread, and it returns without waiting for the pool."""
     release = threading.Event()
-    blockers = [chunks._pool(3).submit(release.wait, 30) for _ in range(3)]
+    pool = chunks._pool()
+    n_threads = max(3, pool.n_threads)  # every thread it will have
+    blockers = [pool.submit(functools.partial(release.wait, 30), 3) for _ in range(n_threads)]
     try:
         threads = []
 
@@ -166,6 +169,27 @@ def test_a_call_does_not_queue_behind_a_busy_pool():
     finally:
         release.set()
     assert all(blocker.result(timeout=30) for blocker in blockers)
+
+
+def test_one_pool_grown_to_the_largest_count_serves_every_count():
+    """Calls with threads=2..12 share one pool of at most 12 threads (a pool per count starts 66),
+    and each still uses at most its own count of threads."""
+    before = set(threading.enumerate())
+    largest = 12
+    for n_workers in range(2, largest + 1):
+        used = set()
+        entered = threading.Barrier(n_workers)
+
+        def work(k, used=used, entered=entered):
+            used.add(threading.current_thread())
+            if k < entered.parties:
+                entered.wait(30)  # the first n_workers items each hold a thread of their own
+            return k
+
+        assert chunks.map_on_threads(work, 3 * n_workers, n_workers) == list(range(3 * n_workers))
+        assert len(used) == n_workers
+    started = set(threading.enumerate()) - before
+    assert len(started) <= largest, f"{len(started)} threads started"
 
 
 def test_an_item_that_raises_stops_the_others_and_raises():
