@@ -230,10 +230,14 @@ class Scene:
         self.masks.flags.writeable = False  # _row_masks is derived from it once
         if old is None:
             counts = [len(faces) for _, faces in checked]
-            self.mesh_offsets = np.zeros(self.n_meshes + 1, np.int64)
-            self.mesh_offsets[1:] = np.cumsum(counts)
+            # writable for the kernels (a read-only array is another type to compile them for)
+            self._mesh_offsets = np.zeros(self.n_meshes + 1, np.int64)
+            self._mesh_offsets[1:] = np.cumsum(counts)
+            # every version of the scene shares them: callers get a read-only view
+            self.mesh_offsets = self._mesh_offsets.view()
+            self.mesh_offsets.flags.writeable = False
         else:
-            self.mesh_offsets = old.mesh_offsets
+            self._mesh_offsets, self.mesh_offsets = old._mesh_offsets, old.mesh_offsets
         self.n_triangles = int(self.mesh_offsets[-1])
         base_meshes = [i for i in range(self.n_meshes) if i not in packs and i not in deformed]
         self._base_meshes = np.array(base_meshes, np.int64)
@@ -504,7 +508,7 @@ class Scene:
         """(2, 3) float32: the box of every corner the faces refer to (degenerate triangles
         included), placed meshes' corners placed in float64 then rounded (a moving mesh's at
         the start and at the end of the interval, a deforming mesh's at both too); zeros for no
-        faces. Derived on first use."""
+        faces. Derived on first use, read-only (every later call answers this array)."""
         boxes = [self._parts[i].corner_box for i in self._base_meshes]
         boxes += list(self._deforming_corner_boxes)
         for i, (matrix, end) in enumerate(zip(self._matrices, self._ends)):
@@ -518,7 +522,9 @@ class Scene:
             for name, placement in placements:
                 corners = place_vertices(used, placement, f"{name}[{i}]")
                 boxes.append(np.concatenate([corners.min(axis=0), corners.max(axis=0)]))
-        return union_box(boxes).reshape(2, 3) if self.n_triangles else np.zeros((2, 3), FLOAT)
+        bounds = union_box(boxes).reshape(2, 3) if self.n_triangles else np.zeros((2, 3), FLOAT)
+        bounds.flags.writeable = False
+        return bounds
 
     @property
     def _box(self):
@@ -635,7 +641,7 @@ class Scene:
                 t[part],
                 best_tri[part],
                 base.ids,
-                self.mesh_offsets,
+                self._mesh_offsets,
                 base.verts,
                 normals,
                 mesh[part],
@@ -782,7 +788,7 @@ class Scene:
         levels = bool(self._instances) or self._deforming is not None
         kept = max_hits + 1 if levels else max_hits
         offsets, t, mesh, prim, u, v, normal = self._finish_hits(
-            traced, query.origins, query.directions, self._base, self.mesh_offsets, kept
+            traced, query.origins, query.directions, self._base, self._mesh_offsets, kept
         )
         n_held = traced.arrays.n_hits
         truncated = n_held > max_hits
@@ -993,7 +999,7 @@ class Scene:
             query.origins,
             query.directions,
             at_times,
-            self.mesh_offsets,
+            self._mesh_offsets,
             max_hits + 1,
         )
         ray_of_hit = np.repeat(np.arange(n_rays), np.diff(offsets))

@@ -127,6 +127,21 @@ def test_with_changes_shares_what_did_not_change():
     assert rebased._base is not old._base and rebased._parts[3] is old._parts[3]
 
 
+def test_mesh_offsets_and_bounds_are_read_only():
+    """Every version of a scene shares its mesh_offsets, and bounds answers one cached array:
+    writing into either raises (as into masks), and neither changes."""
+    meshes, transforms, masks = _world()
+    old = dacrt.Scene(meshes, masks=masks, transforms=transforms)
+    moved = old.with_changes(transforms={3: affine(offset=(0.0, 0.0, 5.0))})
+    offsets = [0, *np.cumsum([len(faces) for _, faces in meshes])]
+    bounds = old.bounds.copy()
+    for array in (old.mesh_offsets, moved.mesh_offsets, old.bounds, moved.bounds, old.masks):
+        with pytest.raises(ValueError, match="read-only"):
+            array[0] = 7
+    assert old.mesh_offsets.tolist() == offsets and moved.mesh_offsets.tolist() == offsets
+    np.testing.assert_array_equal(old.bounds, bounds)
+
+
 def _collapsed(vertices, faces, rows):
     """``vertices`` with each of ``faces[rows]``'s second corner moved onto its first: those
     triangles (and their neighbours' shared corners) degenerate or move."""
