@@ -6,14 +6,10 @@ Other rays go as one chunk per thread: contiguous runs when the input order is a
 cut so that each slab holds about the same work. Answers do not depend on the chunks.
 """
 
-import functools
 import itertools
 import math
 import os
-import queue
-import threading
-import weakref
-from concurrent.futures import Future
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -125,60 +121,11 @@ def slab_ids(values, cuts, k):
     return ids[:n]
 
 
-class SharedPool:
-    """The helper threads queries share: as many as the largest count asked for so far, each
-    running the next submitted function when free. Idle threads wait on the queue (daemon
-    threads: they do not hold the interpreter open); a pool no longer referenced lets them go."""
-
-    def __init__(self):
-        self._lock = threading.Lock()  # two callers growing the pool at once start one set
-        self._tasks = queue.SimpleQueue()
-        self._threads = []
-        weakref.finalize(self, _stop_threads, self._tasks, self._threads)
-
-    @property
-    def n_threads(self):
-        """How many threads the pool has."""
-        return len(self._threads)
-
-    def submit(self, fn, n_threads):
-        """A Future of fn(), run by the next free pool thread; the pool first grows to
-        ``n_threads`` threads if it has fewer."""
-        with self._lock:
-            while len(self._threads) < n_threads:
-                thread = threading.Thread(target=_serve, args=(self._tasks,), daemon=True)
-                thread.name = f"dacrt_{len(self._threads)}"
-                thread.start()
-                self._threads.append(thread)
-        future = Future()
-        self._tasks.put((future, fn))
-        return future
-
-
-def _serve(tasks):
-    """A pool thread: run (future, fn) tasks from the queue ``tasks`` until a None."""
-    while (task := tasks.get()) is not None:
-        future, fn = task
-        if future.set_running_or_notify_cancel():  # False: cancelled while it waited
-            try:
-                future.set_result(fn())
-            except BaseException as error:
-                future.set_exception(error)
-        del task, future, fn  # an idle thread holds no answer
-
-
-def _stop_threads(tasks, threads):
-    """One None for each of the ``threads`` serving ``tasks``: each ends after the tasks queued
-    before it."""
-    for _ in threads:
-        tasks.put(None)
-
-
-@functools.cache
-def _pool():
-    """The process's ``SharedPool``, made on first use (two first callers at once may make two:
-    the one not kept is let go after its call)."""
-    return SharedPool()
+#: The most threads the shared pool starts: more than any useful ``threads`` on this machine
+POOL_THREADS = max(32, 4 * (os.cpu_count() or 1))
+#: The threads queries share. It starts a thread only when none is idle, so it holds as many as
+#: calls have needed at once, whatever ``threads`` they asked for.
+POOL = ThreadPoolExecutor(max_workers=POOL_THREADS, thread_name_prefix="dacrt")
 
 
 def map_on_threads(fn, n_items, n_workers):
@@ -200,8 +147,7 @@ def map_on_threads(fn, n_items, n_workers):
                 failed.append(k)
                 raise
 
-    pool = _pool()
-    helpers = [pool.submit(work, n_workers) for _ in range(min(n_workers, n_items) - 1)]
+    helpers = [POOL.submit(work) for _ in range(min(n_workers, n_items) - 1)]
     try:
         work()
     finally:

@@ -4,7 +4,6 @@ triangle once."""
 
 from __future__ import annotations
 
-import functools
 import os
 import threading
 import time
@@ -152,9 +151,7 @@ def test_a_call_does_not_queue_behind_a_busy_pool():
     """Another query holds every thread of the shared pool: this call's items all run on the
     caller's thread, and it returns without waiting for the pool."""
     release = threading.Event()
-    pool = chunks._pool()
-    n_threads = max(3, pool.n_threads)  # every thread it will have
-    blockers = [pool.submit(functools.partial(release.wait, 30), 3) for _ in range(n_threads)]
+    blockers = [chunks.POOL.submit(release.wait, 30) for _ in range(chunks.POOL_THREADS)]
     try:
         threads = []
 
@@ -171,9 +168,9 @@ def test_a_call_does_not_queue_behind_a_busy_pool():
     assert all(blocker.result(timeout=30) for blocker in blockers)
 
 
-def test_one_pool_grown_to_the_largest_count_serves_every_count():
-    """Calls with threads=2..12 share one pool of at most 12 threads (a pool per count starts 66),
-    and each still uses at most its own count of threads."""
+def test_one_pool_serves_every_count():
+    """Calls with threads=2..12, one after another, share one pool of at most 12 threads (a pool
+    per count starts 66), and each still uses its own count of threads."""
     before = set(threading.enumerate())
     largest = 12
     for n_workers in range(2, largest + 1):
