@@ -21,6 +21,10 @@ each, medians of ``--frames`` frames on ``--threads`` threads:
   embree        the anchor, one process per frame: it builds the world and the car once (medium;
                 ``static ms``, not part of the frame), runs the previous frame untimed, then the
                 frame: the K transforms + the top level's commit (``commit``) + the rays (``trace``)
+  embree dynamic
+                the same anchor with the rays taken in chunks of 256 from a shared counter
+                (``bench/anchors/embree_instances_dynamic.cpp``): the anchor gives each thread a
+                fixed share of the rays, which with one lidar are unequal work
   dacrt         ``dacrt.Scene`` of the world + K placed cars (``transforms=``, built every frame:
                 ``scene``), then ``closest`` of every lidar's rays as one batch (``trace``)
   dacrt changes only when ``dacrt.Scene.with_changes`` exists: the previous frame's scene
@@ -31,10 +35,17 @@ each, medians of ``--frames`` frames on ``--threads`` threads:
   service rig   only when the server has ``POST /v1/scenes/{scene}/sensors`` (the rigs of
                 ../shared/API.md): the same frame, then every lidar in one ``/sensors`` request
 
+The two service engines each have a scene of their own on the server (``SERVICE_SCENES``, both
+uploaded at the start), so each frame moves the cars of the scene it is posted to: a second post
+of the same transforms to one scene would change nothing, and its version would reuse the
+engine scene of the first.
+
 Every frame's answers are checked: dacrt's t against Embree's (the same hit or miss, and t within
-1e-4 of the world's diagonal; the worst relative difference is printed), and the service's
-against dacrt's (identical: the same engine on the same rays). ``--out`` gets ``world.json`` (every
-timing), ``world.md`` (the tables) and ``world-frames.png``; ``--replot`` redraws the figure.
+1e-4 of the world's diagonal; the worst relative difference is printed), the two anchors' t
+against each other (identical: the same calls on the same scene), and the service's against
+dacrt's (identical: the same engine on the same rays). ``--out`` gets ``world.json`` (every
+timing, the checks, the machine and the git commit), ``world.md`` (the tables) and
+``world-frames.png``; ``--replot`` redraws the figure.
 """
 
 from __future__ import annotations
@@ -69,6 +80,10 @@ SIDEWALK = (7.0, 14.0)  # |y| of the sidewalks; the road is |y| < 7, buildings b
 LANDMARKS = ("sibenik", "conference", "sponza")  # buildings of the rows, in this order
 STATUES = ("dragon", "armadillo", "bunny")
 MAX_LIDARS = 16
+#: The shared anchor's copy that takes the rays in dynamic chunks (its header says what differs).
+DYNAMIC_ANCHOR = Path(__file__).resolve().parent / "anchors" / "embree_instances_dynamic.cpp"
+#: The scene of each service engine on the server: each frame is a real change of its own scene.
+SERVICE_SCENES = {"service": "world", "service rig": "world_rig"}
 
 
 # --- the world ------------------------------------------------------------------------------------
@@ -390,31 +405,44 @@ class InProcess:
 
 
 class ThroughService:
-    """A real server holding the world, car00 and its K - 1 instances."""
+    """A real server holding, in each service engine's scene (``SERVICE_SCENES``), the world,
+    car00 and its K - 1 instances; given ``http`` (an httpx client of a running server), that
+    server instead of a new one."""
 
-    def __init__(self, world: World, car, k: int, threads: int, max_rays: int):
+    def __init__(self, world: World, car, k: int, threads: int, max_rays: int, http=None):
         import httpx
 
         from bench.http_overhead import start_server
 
-        self.process, url = start_server(
-            {
-                "DACRT_THREADS": str(threads),
-                "DACRT_MAX_RAYS_PER_REQUEST": str(max(max_rays, 1 << 24)),
-                "DACRT_LOAD_DEMO": "false",
-                "DACRT_LOG_LEVEL": "warning",
-            }
-        )
-        self.http = httpx.Client(base_url=url, timeout=600)
+        self.process = None
+        if http is None:
+            self.process, url = start_server(
+                {
+                    "DACRT_THREADS": str(threads),
+                    "DACRT_MAX_RAYS_PER_REQUEST": str(max(max_rays, 1 << 24)),
+                    "DACRT_LOAD_DEMO": "false",
+                    "DACRT_LOG_LEVEL": "warning",
+                }
+            )
+            http = httpx.Client(base_url=url, timeout=600)
+        self.http = http
         self.k = k
-        self.put_npz("/v1/scenes/world/meshes/world", vertices=world.vertices, faces=world.faces)
-        self.put_npz("/v1/scenes/world/meshes/car00", vertices=car[0], faces=car[1])
-        for i in range(1, k):
-            r = self.http.put(f"/v1/scenes/world/meshes/car{i:02d}", json={"instance_of": "car00"})
-            r.raise_for_status()
         paths = self.http.get("/openapi.json").json()["paths"]
         self.has_rig = "/v1/scenes/{scene}/sensors" in paths
         self.rig_fields = True
+        self.scenes = {e: s for e, s in SERVICE_SCENES.items() if self.has_rig or e == "service"}
+        for scene in self.scenes.values():
+            self.upload(scene, world, car)
+
+    def upload(self, scene: str, world: World, car) -> None:
+        """The world, car00 and its K - 1 instances into ``scene``."""
+        self.put_npz(f"/v1/scenes/{scene}/meshes/world", vertices=world.vertices, faces=world.faces)
+        self.put_npz(f"/v1/scenes/{scene}/meshes/car00", vertices=car[0], faces=car[1])
+        for i in range(1, self.k):
+            r = self.http.put(
+                f"/v1/scenes/{scene}/meshes/car{i:02d}", json={"instance_of": "car00"}
+            )
+            r.raise_for_status()
 
     def put_npz(self, path, **arrays):
         body = io.BytesIO()
@@ -424,11 +452,11 @@ class ThroughService:
         )
         r.raise_for_status()
 
-    def post_frame(self, matrices):
+    def post_frame(self, scene, matrices):
         body = io.BytesIO()
         np.savez(body, **{f"car{i:02d}.transform": m for i, m in enumerate(matrices)})
         r = self.http.post(
-            "/v1/scenes/world/frame",
+            f"/v1/scenes/{scene}/frame",
             content=body.getvalue(),
             headers={"Content-Type": "application/x-npz"},
         )
@@ -444,11 +472,11 @@ class ThroughService:
         t[archive[prefix + "ray"]] = archive[prefix + "range"]
         return t
 
-    def lidars(self, poses):
+    def lidars(self, scene, poses):
         out = []
         for pose in poses:
             r = self.http.post(
-                "/v1/scenes/world/lidar",
+                f"/v1/scenes/{scene}/lidar",
                 json=self.lidar_body(pose),
                 params={"fields": "ray,range"},
                 headers={"Accept": "application/x-npz"},
@@ -458,7 +486,7 @@ class ThroughService:
                 out.append(self.t_of(archive))
         return np.concatenate(out)
 
-    def rig(self, poses):
+    def rig(self, scene, poses):
         body = {
             "sensors": {
                 f"l{j:02d}": {"kind": "lidar", **self.lidar_body(p)} for j, p in enumerate(poses)
@@ -466,29 +494,34 @@ class ThroughService:
         }
         params = {"fields": "ray,range"} if self.rig_fields else None
         r = self.http.post(
-            "/v1/scenes/world/sensors",
+            f"/v1/scenes/{scene}/sensors",
             json=body,
             params=params,
             headers={"Accept": "application/x-npz"},
         )
         if r.status_code in (400, 422) and self.rig_fields:  # a rig without ?fields=
             self.rig_fields = False
-            return self.rig(poses)
+            return self.rig(scene, poses)
         r.raise_for_status()
         with np.load(io.BytesIO(r.content)) as archive:
             return np.concatenate([self.t_of(archive, f"l{j:02d}.") for j in range(len(poses))])
 
     def frame(self, matrices, poses):
-        _, frame = timed(lambda: self.post_frame(matrices))
-        t, sensors = timed(lambda: self.lidars(poses))
+        scene = self.scenes["service"]
+        _, frame = timed(lambda: self.post_frame(scene, matrices))
+        t, sensors = timed(lambda: self.lidars(scene, poses))
         return {"frame": frame, "sensors": sensors}, t
 
     def rig_frame(self, matrices, poses):
-        _, frame = timed(lambda: self.post_frame(matrices))
-        t, sensors = timed(lambda: self.rig(poses))
+        scene = self.scenes["service rig"]
+        _, frame = timed(lambda: self.post_frame(scene, matrices))
+        t, sensors = timed(lambda: self.rig(scene, poses))
         return {"frame": frame, "sensors": sensors}, t
 
     def close(self):
+        """Stop the server this started (a client given to it stays open)."""
+        if self.process is None:
+            return
         self.http.close()
         self.process.terminate()
         self.process.wait(timeout=30)
@@ -520,11 +553,16 @@ def median(values):
 
 ENGINE_PARTS = {
     "embree": ("commit", "trace"),
+    "embree dynamic": ("commit", "trace"),
     "dacrt": ("scene", "trace"),
     "dacrt changes": ("scene", "trace"),
     "service": ("frame", "sensors"),
     "service rig": ("frame", "sensors"),
 }
+
+
+#: The Embree engines: the anchor as given, and its copy that takes the rays in dynamic chunks.
+ANCHORS = ("embree", "embree dynamic")
 
 
 def summarise(counts: dict) -> dict:
@@ -539,7 +577,7 @@ def summarise(counts: dict) -> dict:
                 "best": min(sum(f[p] for p in parts) for f in frames),
                 **{p: median([f[p] for f in frames]) for p in parts},
             }
-            if engine == "embree":
+            if engine in ANCHORS:
                 row[engine]["static"] = median([f["static"] for f in frames])
         out[n] = row
     return out
@@ -548,14 +586,16 @@ def summarise(counts: dict) -> dict:
 def tables(result: dict) -> str:
     summary = summarise(result["counts"])
     engines = [e for e in ENGINE_PARTS if any(e in row for row in summary.values())]
+    dynamic = "embree dynamic" in engines
     lines = [
         "| lidars | rays | "
-        + " | ".join(_header(e) for e in engines)
+        + " | ".join(_header(e, dynamic) for e in engines)
         + " | agree (dacrt vs Embree) |",
         "|---|---|" + "---|" * len(engines) + "---|",
     ]
     for n, row in summary.items():
         embree = row.get("embree", {}).get("total", math.nan)
+        balanced = row.get("embree dynamic", {}).get("total", math.nan)
         cells = []
         for e in engines:
             r = row.get(e)
@@ -566,6 +606,8 @@ def tables(result: dict) -> str:
             cell = f"{r['total']:.1f}, min {r['best']:.1f} ({a} {r[a]:.1f} + {b} {r[b]:.1f})"
             if e != "embree":
                 cell += f": **{embree / r['total']:.2f}×**"
+            if dynamic and e not in ANCHORS:
+                cell += f", **{balanced / r['total']:.2f}×** dynamic"
             cells.append(cell)
         check = result["counts"][n]["checks"]
         agreed = "— (no Embree run)"
@@ -584,18 +626,23 @@ def percent(share: float) -> str:
     return ("99.9999" if share < 1 and text == "100.0000" else text) + "%"
 
 
-def _header(engine):
+def _header(engine, dynamic: bool = False):
     a, b = ENGINE_PARTS[engine]
     what = {
         "embree": "Embree two-level, ms",
+        "embree dynamic": "Embree two-level, rays in dynamic chunks, ms",
         "dacrt": "dacrt new Scene, ms",
         "dacrt changes": "dacrt with_changes, ms",
         "service": "service (frame + one /lidar each), ms",
         "service rig": "service rig (frame + /sensors), ms",
     }[engine]
-    return f"{what}: median, min ({a} + {b}, medians)" + (
-        "" if engine == "embree" else ": Embree / it (medians)"
-    )
+    ratios = ""
+    if engine != "embree":
+        ratios = ": Embree / it"
+        if dynamic and engine not in ANCHORS:
+            ratios += ", Embree dynamic / it"
+        ratios += " (medians)"
+    return f"{what}: median, min ({a} + {b}, medians){ratios}"
 
 
 def draw(result: dict, path: Path) -> None:
@@ -611,6 +658,7 @@ def draw(result: dict, path: Path) -> None:
     counts = [int(n) for n in summary]
     styles = {
         "embree": {"color": "black", "linestyle": (0, (5, 2)), "marker": "s"},
+        "embree dynamic": {"color": "dimgray", "linestyle": (0, (2, 2)), "marker": "s"},
         "dacrt": {"color": DACRT_COLORS[0], "linestyle": "-", "marker": "o"},
         "dacrt changes": {"color": DACRT_COLORS[1], "linestyle": "-", "marker": "D"},
         "service": {"color": DACRT_COLORS[2], "linestyle": "-.", "marker": "^"},
@@ -636,10 +684,29 @@ def draw(result: dict, path: Path) -> None:
             )
         if engine != "embree":
             ratio = [
-                row["embree"]["total"] / row[engine]["total"] if engine in row else np.nan
+                row["embree"]["total"] / row[engine]["total"]
+                if engine in row and "embree" in row
+                else np.nan
                 for row in summary.values()
             ]
             right.plot(counts, ratio, label=engine, linewidth=2, markersize=6, **style)
+        if engine not in ANCHORS and any("embree dynamic" in row for row in summary.values()):
+            ratio = [
+                row["embree dynamic"]["total"] / row[engine]["total"]
+                if engine in row and "embree dynamic" in row
+                else np.nan
+                for row in summary.values()
+            ]
+            right.plot(
+                counts,
+                ratio,
+                label=f"{engine}: against Embree dynamic",
+                linewidth=1,
+                markersize=4,
+                color=style["color"],
+                linestyle=":",
+                marker=style["marker"],
+            )
     for ax in (left, right):
         ax.set_xscale("log", base=2)
         ax.set_xticks(counts, [str(n) for n in counts])
@@ -679,11 +746,12 @@ def draw(result: dict, path: Path) -> None:
 # --- main -----------------------------------------------------------------------------------------
 
 
-def make_runners(anchor, in_process, service, transforms, rays_of, poses_of) -> dict:
-    """{engine: run(frame) -> (times, t)} of one lidar count's frames."""
+def make_runners(anchors, in_process, service, transforms, rays_of, poses_of) -> dict:
+    """{engine: run(frame) -> (times, t)} of one lidar count's frames; ``anchors`` is
+    {engine: EmbreeAnchor}."""
     runners = {}
-    if anchor:
-        runners["embree"] = lambda f: anchor.frame(
+    for name, anchor in anchors.items():
+        runners[name] = lambda f, anchor=anchor: anchor.frame(
             [transforms[max(f - 1, 0)], transforms[f]], [rays_of[max(f - 1, 0)], rays_of[f]]
         )
     if in_process:
@@ -696,6 +764,55 @@ def make_runners(anchor, in_process, service, transforms, rays_of, poses_of) -> 
         if service.has_rig:
             runners["service rig"] = lambda f: service.rig_frame(transforms[f], poses_of[f])
     return runners
+
+
+def run_frames(runners: dict, n_frames: int, diagonal: float, in_process, label: str) -> dict:
+    """The record of one lidar count: every engine's frames but the first (``frames``: {engine:
+    [times]}), and the checks of every frame's answers."""
+    record = {"frames": {}, "checks": [], "service_identical": True, "anchors_identical": True}
+    names = list(runners)
+    for f in range(n_frames):
+        order = names[f % len(names) :] + names[: f % len(names)]
+        answers = {}
+        for name in order:
+            if name == "dacrt changes" and in_process.previous is None:
+                continue  # its first frame needs a scene to change: dacrt's comes first
+            times, answers[name] = runners[name](f)
+            if f:
+                record["frames"].setdefault(name, []).append(times)
+        if "embree" in answers and "dacrt" in answers:
+            record["checks"].append(agreement(answers["dacrt"], answers["embree"], diagonal))
+        if all(name in answers for name in ANCHORS):
+            if not np.array_equal(answers["embree"], answers["embree dynamic"]):
+                record["anchors_identical"] = False
+                log(f"the two anchors' answers differ (frame {f}, {label})")
+        for other in ("dacrt changes", "service", "service rig"):
+            if other in answers and "dacrt" in answers:
+                if not np.array_equal(answers[other], answers["dacrt"]):
+                    record["service_identical"] = False
+                    log(f"{other}'s answers differ from dacrt's (frame {f}, {label})")
+    return record
+
+
+def git_state(folder: Path = REPO) -> dict:
+    """{commit, dirty} of the checkout the bench runs from: its HEAD and whether a tracked file
+    differs from it (both None outside a git checkout)."""
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(folder), "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        changes = subprocess.run(
+            ["git", "-C", str(folder), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return {"commit": None, "dirty": None}
+    return {"commit": commit, "dirty": bool(changes.strip())}
 
 
 def int_list(text: str) -> list[int]:
@@ -714,7 +831,11 @@ def main(argv=None) -> int:
     parser.add_argument("--frames", type=int, default=5, help="timed frames per lidar count")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--engines", default="embree,dacrt,service")
+    parser.add_argument(
+        "--engines",
+        default="embree,embree-dynamic,dacrt,service",
+        help="embree, embree-dynamic (the anchor, rays in dynamic chunks), dacrt, service",
+    )
     parser.add_argument("--shared", type=Path, default=find_shared())
     parser.add_argument("--build-dir", type=Path, default=None, help="where the anchor goes")
     parser.add_argument("--out", type=Path, default=None, help="world.json, world.md, PNG")
@@ -741,6 +862,7 @@ def main(argv=None) -> int:
 
     load_start = os.getloadavg()[0]
     started = time.perf_counter()
+    code = git_state()  # before --out writes anything into the checkout
     world = build_world(scenes, int(args.triangles), args.seed)
     car = car_mesh(scenes)
     n_frames = args.frames + 1  # frame 0: the warm-up
@@ -751,15 +873,21 @@ def main(argv=None) -> int:
     )
 
     missing = {}
-    anchor = service = in_process = None
-    if "embree" in engines:
-        source = args.shared / "anchors" / "embree_instances.cpp"
+    anchors = {}
+    service = in_process = None
+    sources = {
+        "embree": args.shared / "anchors" / "embree_instances.cpp",
+        "embree dynamic": DYNAMIC_ANCHOR,
+    }
+    for name, source in sources.items():
+        if name.replace(" ", "-") not in engines:
+            continue
         try:
             binary = build_anchor(source, args.build_dir or BUILD_DIR)
-            anchor = EmbreeAnchor(binary, world, car, args.threads)
+            anchors[name] = EmbreeAnchor(binary, world, car, args.threads)
         except AnchorUnavailable as exc:
-            missing["embree"] = str(exc)
-            log(f"embree: left out: {exc}")
+            missing[name] = str(exc)
+            log(f"{name}: left out: {exc}")
     if "dacrt" in engines or "service" in engines:
         import dacrt
         import dacrt.cache
@@ -781,34 +909,15 @@ def main(argv=None) -> int:
     counts = {}
     try:
         for n in args.lidars:
-            record = {"frames": {}, "checks": [], "service_identical": True}
             rays_of = [lidar_rays(lidar_poses(n, f, world.length)) for f in range(n_frames)]
             poses_of = [lidar_poses(n, f, world.length) for f in range(n_frames)]
-            runners = make_runners(anchor, in_process, service, transforms, rays_of, poses_of)
-            names = list(runners)
-            for f in range(n_frames):
-                order = names[f % len(names) :] + names[: f % len(names)]
-                answers = {}
-                for name in order:
-                    if name == "dacrt changes" and in_process.previous is None:
-                        continue  # its first frame needs a scene to change: dacrt's comes first
-                    times, answers[name] = runners[name](f)
-                    if f:
-                        record["frames"].setdefault(name, []).append(times)
-                if "embree" in answers and "dacrt" in answers:
-                    record["checks"].append(
-                        agreement(answers["dacrt"], answers["embree"], world.diagonal)
-                    )
-                for other in ("dacrt changes", "service", "service rig"):
-                    if other in answers and "dacrt" in answers:
-                        if not np.array_equal(answers[other], answers["dacrt"]):
-                            record["service_identical"] = False
-                            log(f"{other}'s answers differ from dacrt's (frame {f}, {n} lidars)")
+            runners = make_runners(anchors, in_process, service, transforms, rays_of, poses_of)
+            record = run_frames(runners, n_frames, world.diagonal, in_process, f"{n} lidars")
             counts[n] = record
             summary = summarise({n: record})[n]
             log(f"{n} lidars: " + ", ".join(f"{e} {r['total']:.1f} ms" for e, r in summary.items()))
     finally:
-        if anchor:
+        for anchor in anchors.values():
             anchor.close()
         if service:
             service.close()
@@ -819,6 +928,7 @@ def main(argv=None) -> int:
         "machine": {"cpu": machine["cpu_model"], **machine},
         "load": [load_start, os.getloadavg()[0]],
         "seconds": time.perf_counter() - started,
+        "git": code,
         "world": {
             "triangles": int(len(world.faces)),
             "parts": world.parts,
@@ -847,8 +957,10 @@ def report(result: dict) -> str:
         f"World: {w['triangles']:,} static triangles ({parts}), street {w['street_m']:.0f} m; "
         f"{a['actors']} cars (teapot, {w['car_triangles']:,} triangles) moved every frame; "
         f"{a['threads']} threads; medians of {a['frames']} frames after a warm-up.",
-        f"Machine: {result['machine']['cpu']}, {os.cpu_count()} cores; load average "
-        f"{result['load'][0]:.2f} at the start, {result['load'][1]:.2f} at the end; "
+        f"Code: {describe_code(result.get('git'))}.",
+        f"Machine: {result['machine']['cpu']}, {result['machine'].get('logical_cores', '?')} "
+        f"cores; load average {result['load'][0]:.2f} at the start, {result['load'][1]:.2f} at "
+        "the end; "
         f"{result['seconds']:.0f} s in all.",
         f"Embree's one-time build of the world and the car (not in its frames): "
         f"{median(static):.0f} ms (median)."
@@ -864,7 +976,23 @@ def report(result: dict) -> str:
             for n, r in result["counts"].items()
         ),
     ]
+    if any("embree dynamic" in row and "embree" in row for row in summary.values()):
+        lines.append(
+            "Answers of Embree dynamic identical to Embree's: "
+            + ", ".join(
+                f"{n} lidars {'yes' if r.get('anchors_identical', True) else 'NO'}"
+                for n, r in result["counts"].items()
+            )
+        )
     return "\n".join(line for line in lines if line is not None)
+
+
+def describe_code(code: dict | None) -> str:
+    """``commit abc1234`` (``, with uncommitted changes``) of a result's ``git``."""
+    if not code or not code.get("commit"):
+        return "commit unknown"
+    dirty = ", with uncommitted changes" if code["dirty"] else ""
+    return f"commit {code['commit'][:7]}{dirty}"
 
 
 if __name__ == "__main__":

@@ -3,6 +3,8 @@ lidar rays. Skipped without the shared scenes; nothing here is timed."""
 
 from __future__ import annotations
 
+import subprocess
+
 import numpy as np
 import pytest
 
@@ -48,3 +50,23 @@ def test_lidar_rays_are_the_servers():
     assert origins.shape == directions.shape == (3 * 64 * W.STEPS, 3)
     assert np.allclose(np.linalg.norm(directions, axis=1), 1.0, atol=1e-6)
     assert np.array_equal(origins[0], poses[0][:3, 3].astype(np.float32))
+
+
+def test_git_state_names_the_commit_and_uncommitted_changes(tmp_path):
+    assert W.git_state(tmp_path) == {"commit": None, "dirty": None}  # not a checkout
+
+    def git(*args):
+        command = ["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t", *args]
+        return subprocess.run(command, capture_output=True, text=True, check=True).stdout.strip()
+
+    git("init", "-q")
+    (tmp_path / "a.txt").write_text("one")
+    git("add", "a.txt")
+    git("commit", "-q", "-m", "one")
+    head = git("rev-parse", "HEAD")
+    (tmp_path / "new.txt").write_text("untracked")  # an untracked file leaves it clean
+    assert W.git_state(tmp_path) == {"commit": head, "dirty": False}
+    (tmp_path / "a.txt").write_text("two")
+    assert W.git_state(tmp_path) == {"commit": head, "dirty": True}
+    assert W.describe_code(W.git_state(tmp_path)) == f"commit {head[:7]}, with uncommitted changes"
+    assert W.describe_code(None) == "commit unknown"  # a result written before the field
