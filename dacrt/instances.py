@@ -225,6 +225,23 @@ def rays_to_mesh_space(
         out_tmax[i] = limit[ray]
 
 
+def origins_near_box(origins, directions, to_mesh, box):
+    """(k, 3) float32: rays (k, 3) float32 in scene space given in mesh space (by ``to_mesh``
+    (3, 4) float64, in float64) with each origin moved along its ray to before the mesh's
+    ``box`` (6,) float32, then rounded: to where the ray passes closest to the box's centre,
+    less the box's diagonal and the centre's largest coordinate (more than the rounding).
+    Every point of the line in the box lies beyond the moved origin, so a count of crossings
+    is unchanged; the inside test's rays that would leave float32 go in so."""
+    o = origins.astype(np.float64) @ to_mesh[:, :3].T + to_mesh[:, 3]
+    d = directions.astype(np.float64) @ to_mesh[:, :3].T
+    lo, hi = box[:3].astype(np.float64), box[3:].astype(np.float64)
+    centre = 0.5 * (lo + hi)
+    back = np.linalg.norm(hi - lo) + np.abs(centre).max()
+    length2 = np.einsum("ij,ij->i", d, d)
+    start = np.einsum("ij,ij->i", centre - o, d) / length2 - back / np.sqrt(length2)
+    return (o + np.maximum(start, 0.0)[:, None] * d).astype(FLOAT)
+
+
 @jit
 def rays_to_mesh_space_at(
     origins,

@@ -699,7 +699,8 @@ def contains_query(scene, points, nsamples=1, mask=None, threads=None):
         origins = np.tile(points, (k, 1))
         along = np.repeat(directions, n_points, axis=0)
         masks = None if mask is None else np.tile(mask, k)
-        counts = scene.count(origins, along, mask=masks, threads=threads).count
+        # count's crossings, answered too where a ray would leave float32 in a placed mesh's space
+        counts = scene._inside_counts(origins, along, masks, threads)
         return counts.reshape(k, n_points)
 
     return inside_by_votes(count_along, len(points), nsamples)

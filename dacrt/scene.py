@@ -52,6 +52,7 @@ from .instances import (
     mark_rays_reaching,
     merge_closest,
     merge_hit_lists,
+    origins_near_box,
     placed_normals,
     rays_to_mesh_space,
     rays_to_mesh_space_at,
@@ -896,9 +897,11 @@ class Scene:
 
     def _count(
         self, origins, directions, tmin, tmax, cull, mask, strategy, threads, stats, time,
-        tracer=None,
+        tracer=None, from_box=False,
     ):  # fmt: skip
-        """``count`` with its levels traced by ``tracer`` (None: ``_trace_level``)."""
+        """``count`` with its levels traced by ``tracer`` (None: ``_trace_level``); with
+        ``from_box`` (the inside test: tmin 0, no tmax) a ray that would leave float32 in a
+        placed mesh's space starts there before that mesh's box (``_trace_instances``)."""
         query, traced = self._trace(
             COUNT, origins, directions, tmin, tmax, cull, mask, strategy, threads, time=time,
             tracer=tracer,
@@ -911,10 +914,20 @@ class Scene:
             per_level.append(found.stats)
         if self._instances and len(counts):
             limit = np.require(query.tmax, FLOAT, ["C", "W"])
-            for _, ids, found in self._trace_instances(query, limit, COUNT):
+            for _, ids, found in self._trace_instances(query, limit, COUNT, from_box=from_box):
                 counts[ids] += found.arrays.n_hits
                 per_level.append(found.stats)
         return Counts(counts, self._counters(len(counts), per_level) if stats else None)
+
+    def _inside_counts(self, origins, directions, mask, threads):
+        """(n,) int32: the crossings of the inside test's rays (``contains``), as ``count``
+        counts them from t = 0; a ray that would leave float32 in a placed mesh's space (a
+        point far from a mesh placed small) starts there before that mesh's box."""
+        counts = self._count(
+            origins, directions, None, None, "none", mask, "sampling", threads, False, None,
+            from_box=True,
+        )  # fmt: skip
+        return counts.count
 
     def _trace_deforming(self, query, tmax, rays=None, list_size=0):
         """Trace the deforming level with the query's kind and options: its rays ``rays`` (ids,
@@ -1137,8 +1150,8 @@ class Scene:
         return velocity
 
     def _scene_triangles(self) -> point_queries.SceneTriangles:
-        """The scene-space triangles, for the point queries: the one place they read the
-        scene's internals (``_placed_triangles``)."""
+        """The scene-space triangles, for the point queries: with ``_inside_counts``, the
+        places they read the scene's internals (``_placed_triangles``)."""
         return self._placed_triangles
 
     @functools.cached_property
@@ -1236,7 +1249,7 @@ class Scene:
             explain_bad_rays(origins, directions, tmin, tmax)  # no kernel checked them
         return query, traced
 
-    def _trace_instances(self, query, limit, kind, max_hits=0):
+    def _trace_instances(self, query, limit, kind, max_hits=0, from_box=False):
         """Trace the query's rays into each instance they can reach: yields (instance, ray ids
         (k,) int32, ``InstanceTraced`` with ``origins`` and ``directions`` in mesh space), in
         the order of the instances (a moving instance may yield twice: its rays where its
@@ -1245,7 +1258,9 @@ class Scene:
         whole interval, when the rays carry times) and its mask sees the instance; ``limit``
         (n,) float32 is read once, before the instances are traced side by side on the query's
         threads, one thread each (the caller merges their answers afterwards, in any order: the
-        tie rule decides)."""
+        tie rule decides). With ``from_box`` (a count of rays from tmin 0) a static ray whose
+        origin leaves float32 in mesh space starts there before the mesh's box instead
+        (``origins_near_box``): no crossing lies before it."""
         # Writable and contiguous, as the kernels are compiled for (one signature).
         origins = np.require(query.origins, FLOAT, ["C", "W"])
         directions = np.require(query.directions, FLOAT, ["C", "W"])
@@ -1307,6 +1322,12 @@ class Scene:
                 rays_to_mesh_space(
                     origins, directions, tmin, limit, ids, instance.to_mesh, *mesh_rays
                 )
+                far = ~np.isfinite(mesh_rays[0]).all(axis=1) if from_box else None
+                if from_box and far.any():
+                    mesh_rays[0][far] = origins_near_box(
+                        origins[ids[far]], directions[ids[far]], instance.to_mesh,
+                        instance.packed.box,
+                    )  # fmt: skip
                 return [(k, ids, mesh_rays, None, instance.cofactors)]
             cofactors = np.empty((n, 3, 3))
             signs = np.empty(n, np.int8)

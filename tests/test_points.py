@@ -353,6 +353,52 @@ def test_contains_in_a_closed_sphere():
     np.testing.assert_array_equal(signed[far] < 0, radii[far] < 1)
 
 
+@pytest.mark.parametrize("nsamples", [1, 3])
+def test_contains_far_from_a_mesh_placed_small(nsamples):
+    """A point 1e33 from a sphere placed at 1e-6 of its size, beside a floor as given: its rays
+    would leave float32 in the sphere's space (1e39), so they start near its box; the point is
+    outside, and the points in and around the sphere are answered as before."""
+    sphere, sphere_faces = pg.icosphere(2)
+    floor, floor_faces = pg.grid(2, 4.0)
+    floor = (floor - [2, 2, 1]).astype(np.float32)
+    matrix = np.diag([1e-6, 1e-6, 1e-6, 1.0])
+    scene = dacrt.Scene([(floor, floor_faces), (sphere, sphere_faces)], transforms=[None, matrix])
+    placed = (sphere.astype(np.float64) * 1e-6).astype(np.float32)
+    vertices, faces, _ = pg.concat([(floor, floor_faces), (placed, sphere_faces)])
+    rng = np.random.default_rng(20)
+    # the first points are 1e33 before the sphere along each direction of the inside test
+    directions = np.concatenate([-sample_directions(nsamples), pg.unit_vectors(60, rng)])
+    n_far = 20 + nsamples
+    radii = np.concatenate([np.full(n_far, 1e33), rng.uniform(0, 0.8e-6, 20), np.full(20, 2e-6)])
+    points = (directions * radii[:, None]).astype(np.float32)
+    near = _parity_votes(vertices, faces, points[n_far:], nsamples)
+    expected = np.concatenate([np.zeros(n_far, bool), near])
+    inside = scene.contains(points, nsamples)
+    np.testing.assert_array_equal(inside, expected)
+    signed = scene.signed_distance(points, nsamples)
+    np.testing.assert_array_equal(signed < 0, expected)
+    assert np.isfinite(signed).all()
+
+
+def test_far_rays_into_a_mesh_placed_small_keep_their_parity():
+    """An open grid placed at 1e-11 of its size, seen from points 1e28 away whose ray aims at
+    it: the rays start near its box in its space (from the points they would reach 1e39), and
+    each point's answer is the exact crossing parity of the placed copy."""
+    grid, faces = pg.grid(4, 2.0)
+    turn = pg.rotation([1.0, 2.0, 0.5], 0.7)
+    vertices = ((grid - [1, 1, 0]).astype(np.float64) @ turn.T * 1e33).astype(np.float32)
+    matrix = np.diag([1e-11, 1e-11, 1e-11, 1.0])
+    placed = (vertices.astype(np.float64) * 1e-11).astype(np.float32)
+    rng = np.random.default_rng(21)
+    in_plane = np.c_[rng.uniform(-1.3, 1.3, (80, 2)), np.zeros(80)]
+    targets = in_plane @ turn.T * 1e22  # on the grid's plane, some beside the grid
+    points = (targets - 1e28 * sample_directions(1)[0]).astype(np.float32)
+    inside = dacrt.Scene([(vertices, faces)], transforms=[matrix]).contains(points)
+    expected = _parity_votes(placed, faces, points, 1)
+    np.testing.assert_array_equal(inside, expected)
+    assert 10 < expected.sum() < 70  # rays through the grid and beside it
+
+
 def test_signed_distance_masks():
     meshes, vertices, faces, offsets = _scene_and_soup("multi")
     points = _points(vertices, 200, np.random.default_rng(15))

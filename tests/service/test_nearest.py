@@ -13,6 +13,7 @@ import procedural
 import pytest
 from service_helpers import NPY, NPZ, npy_bytes, npz_bytes
 
+from dacrt.points import sample_directions
 from service.client import APIError
 from service.client import read_answer as read
 
@@ -129,6 +130,18 @@ def test_a_closest_point_just_beyond_max_distance_is_none_in_every_key(app_api, 
     np.testing.assert_array_equal(near.prim, [-1, 0])
     assert np.isinf(near.point[0]).all()
     np.testing.assert_array_equal(np.abs(near.signed_distance), [np.inf, 1.0])
+
+
+def test_sign_far_from_a_mesh_placed_small(app_api, scene_name):
+    """A point 1e33 before a sphere placed at 1e-6 of its size along the inside test's ray: the
+    ray starts near the sphere in its space (from the point it would reach 1e39), so the point
+    is answered, outside, and the centre inside."""
+    app_api.put_mesh(scene_name, "ball", *procedural.icosphere(2))
+    app_api.set_transform(scene_name, "ball", np.diag([1e-6, 1e-6, 1e-6, 1.0]))
+    points = np.array([-1e33 * sample_directions(1)[0], [0, 0, 0]], np.float32)
+    answer = app_api.nearest(scene_name, points, sign=True)
+    np.testing.assert_array_equal(answer.inside, [False, True])
+    assert answer.signed_distance[1] < 0 < answer.signed_distance[0] < np.inf
 
 
 def _ball():
