@@ -1157,26 +1157,28 @@ class Scene:
     @functools.cached_property
     def _placed_triangles(self) -> point_queries.SceneTriangles:
         """The base level's rows, then each instance's triangles placed in scene space (in
-        float64, then float32, as placed copies): distances are not kept by a non-rigid
-        placement, so point queries read placed triangles. Derived on the first point query."""
+        float64, then float32, as placed copies, less those degenerate then): distances are not
+        kept by a non-rigid placement, so point queries read placed triangles. Derived on the
+        first point query."""
         verts = [self._base.verts]
         ids = [self._base.ids]
         masks = [self._row_masks]
         if self._deforming is not None:
             # The deforming rows at time 0, less those degenerate then (as the static packing).
             level = self._deforming
-            corners = level.verts.reshape(-1, 3, 3).astype(np.float64)
-            normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-            live = np.flatnonzero(normals.any(axis=1))
+            live = live_rows(level.verts)
             verts.append(level.verts[live])
             ids.append(level.ids[live])
             masks.append(self._deforming_row_masks[live])
         for instance in self._instances:
             corners = instance.packed.verts.reshape(-1, 3).astype(np.float64)
             placed = corners @ instance.matrix[:3, :3].T + instance.matrix[:3, 3]
-            verts.append(placed.astype(FLOAT).reshape(-1, 9))
-            ids.append((instance.packed.ids + self.mesh_offsets[instance.mesh]).astype(INDEX))
-            masks.append(np.full(len(instance.packed), self.masks[instance.mesh], np.uint32))
+            placed = placed.astype(FLOAT).reshape(-1, 9)
+            # less the rows whose float32 corners the placement collapses, as a placed copy's
+            live = live_rows(placed)
+            verts.append(placed[live])
+            ids.append((instance.packed.ids[live] + self.mesh_offsets[instance.mesh]).astype(INDEX))
+            masks.append(np.full(len(live), self.masks[instance.mesh], np.uint32))
         return point_queries.SceneTriangles(
             np.ascontiguousarray(np.concatenate(verts)),
             np.ascontiguousarray(np.concatenate(ids)),
@@ -1671,6 +1673,14 @@ def level_triangles(level, tri_ids, times):
     if times is None:
         return Triangles(level.verts, level.bounds, tri_ids)
     return DeformingTriangles(level.verts, level.bounds, tri_ids, level.verts_end, times)
+
+
+def live_rows(verts):
+    """(k,) int64: the rows of ``verts`` (F, 9) float32 whose corners span a triangle, their
+    cross product in float64 not zero (the others are degenerate: never an answer)."""
+    corners = verts.reshape(-1, 3, 3).astype(np.float64)
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    return np.flatnonzero(normals.any(axis=1))
 
 
 def _joined(arrays, empty):

@@ -109,6 +109,35 @@ def test_placed_meshes_answer_in_scene_space():
         np.testing.assert_array_equal(getattr(moved, field), getattr(plain, field))
 
 
+@pytest.mark.parametrize(
+    ("corners", "offset"),
+    [
+        ([[0, 0, 0], [64, 0, 0], [128, 1, 0]], [0, 1e9, 0]),  # y rounds to 1e9: collinear
+        ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [1e9, 0, 0]),  # x rounds to 1e9: two corners meet
+    ],
+)
+def test_a_triangle_its_placement_collapses_is_never_the_answer(corners, offset):
+    """A placed mesh's triangle whose float32 corners the placement makes degenerate is never
+    the answer, as in the placed copy: the other triangle is, or none beyond max_distance."""
+    vertices = np.array([*corners, [0, 0, 50], [256, 0, 50], [0, 256, 50]], np.float32)
+    faces = np.array([[0, 1, 2], [3, 4, 5]], np.int32)
+    matrix = np.eye(4)
+    matrix[:3, 3] = offset
+    placed = (vertices.astype(np.float64) + offset).astype(np.float32)
+    points = (placed[:3].astype(np.float64).mean(axis=0) + [[0, 0, 10], [0, 0, -5]]).astype(
+        np.float32
+    )
+    moved = dacrt.Scene([(vertices, faces)], transforms=[matrix]).nearest(points)
+    plain = dacrt.Scene([(placed, faces)]).nearest(points)
+    expected = pr.nearest(points, placed, faces)
+    np.testing.assert_array_equal(moved.prim, expected.prim)
+    np.testing.assert_array_equal(moved.prim, [1, 1])
+    for field in ("distance", "point", "prim", "u", "v"):
+        np.testing.assert_array_equal(getattr(moved, field), getattr(plain, field))
+    limited = dacrt.Scene([(vertices, faces)], transforms=[matrix]).nearest(points, 20.0)
+    np.testing.assert_array_equal(limited.prim, [-1, -1])
+
+
 @pytest.mark.parametrize("name", ["sphere", "tilted_grid", "soup"])
 def test_points_on_vertices_edges_and_faces(name):
     meshes, vertices, faces, offsets = _scene_and_soup(name)
