@@ -82,7 +82,8 @@ MaxHits = Annotated[
 MaxDistance = Annotated[
     float | None,
     Query(
-        description="the farthest a point's closest point may be (>= 0); beyond it, distance is "
+        description="the farthest a point's closest point may be (>= 0; a float32's shortest "
+        "decimal, as JSON answers write distances, is that float32); beyond it, distance is "
         "inf and mesh, prim are -1 (default: no limit)"
     ),
 ]

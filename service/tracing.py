@@ -28,7 +28,7 @@ from dacrt.validation import check_max_distance, check_nsamples
 from .errors import Invalid, TooLarge
 from .options import Options, Query
 from .store import Snapshot
-from .wire import MeshArrays, Rays
+from .wire import MeshArrays, Rays, float32_if_shortest
 
 if TYPE_CHECKING:
     from .cluster import Cluster
@@ -319,9 +319,12 @@ def point_options(
 ) -> PointOptions:
     """Options from query-string values, before the body is read: 413 when one point's inside
     test alone traces more than ``max_rays`` rays (``check_point_rays``), else 422 naming
-    ``max_distance`` or ``nsamples`` (the engine's checks) for a bad one."""
+    ``max_distance`` or ``nsamples`` (the engine's checks) for a bad one. A ``max_distance``
+    that is a float32's shortest decimal stands for that float32 (``float32_if_shortest``)."""
     check_max_distance(max_distance)
-    options = PointOptions(max_distance, sign, nsamples, mask, stats, threads)
+    # a distance a JSON answer wrote, given back, keeps its answer: that float32, not below it
+    limit = None if max_distance is None else float32_if_shortest(max_distance)
+    options = PointOptions(limit, sign, nsamples, mask, stats, threads)
     if isinstance(nsamples, int):
         check_point_rays(options, 1, max_rays)
     check_nsamples(nsamples)

@@ -123,6 +123,8 @@ Answers (``negotiate`` and ``encode_answer``)
     json ``{"t": [...], ...}``; float32 values in their shortest round-trip form, so
          ``np.float32(json_value)`` gives back the binary answer bit for bit; inf (and nan) are
          null. A rig's answer is ``{"NAME": {"KEY": [...], ...}, ...}`` (npz: keys ``NAME.KEY``).
+         A query-string bound that takes such a value back (``?max_distance=``) reads a
+         float32's shortest decimal as that float32 (``float32_if_shortest``).
 """
 
 from .answers import (
@@ -159,6 +161,7 @@ from .decoders import (
     decode_rays,
     decode_trace,
     decode_vertices,
+    float32_if_shortest,
     parse_label,
     parse_mask,
     parse_reflectivity,
@@ -230,6 +233,7 @@ __all__ = [
     "decode_vertices",
     "encode_answer",
     "encode_json",
+    "float32_if_shortest",
     "float_array",
     "index_array",
     "mask_array",

@@ -432,6 +432,18 @@ def parse_mask(value: Any, name: str) -> int:
     return value
 
 
+def float32_if_shortest(value: float) -> float:
+    """``value``, or the float32 it stands for where it is that float32's shortest decimal read
+    as float64, as JSON answers write float32 values: a reported distance given back is then
+    that distance (the float64 of ``0.054568082`` lies below the float32 written so). Any
+    other number is its float64 value."""
+    with np.errstate(over="ignore"):
+        single = np.float32(value)
+    if np.isfinite(single) and float(str(single)) == value:
+        return float(single)
+    return value
+
+
 def check_matrix(value: Any, name: str) -> np.ndarray:
     """A (4, 4) float64 row-major affine matrix from nested JSON lists or a float array, checked
     by the engine (shape, finite, last row [0, 0, 0, 1], invertible): its InputError names

@@ -14,6 +14,7 @@ import pytest
 from service_helpers import NPY, NPZ, npy_bytes, npz_bytes
 
 from dacrt.points import sample_directions
+from service import wire
 from service.client import APIError
 from service.client import read_answer as read
 
@@ -130,6 +131,42 @@ def test_a_closest_point_just_beyond_max_distance_is_none_in_every_key(app_api, 
     np.testing.assert_array_equal(near.prim, [-1, 0])
     assert np.isinf(near.point[0]).all()
     np.testing.assert_array_equal(np.abs(near.signed_distance), [np.inf, 1.0])
+
+
+def test_a_json_distance_given_back_as_max_distance_keeps_its_answer(app_client, sphere_scene):
+    """JSON writes a float32 distance as its shortest decimal, whose float64 may lie below it:
+    ?max_distance= reads that decimal as the float32, so the answer stays; the previous
+    float32's decimal, and a longer decimal between the two, drop it (inward, as ever)."""
+    points = _points(16, seed=5)
+    url = f"/v1/scenes/{sphere_scene}/nearest"
+    written = app_client.post(url, json={"points": points.tolist()}).json()
+    for i, reported in enumerate(written["distance"]):
+        distance = np.float32(reported)
+        below = np.nextafter(distance, np.float32(0))
+        between = (float(distance) + float(below)) / 2  # no float32's shortest decimal
+        for limit, kept in ((repr(reported), True), (str(below), False), (repr(between), False)):
+            got = app_client.post(
+                url, params={"max_distance": limit}, json={"points": [points[i].tolist()]}
+            ).json()
+            want = written["prim"][i] if kept else -1
+            assert got["prim"] == [want], (i, limit, got)
+
+
+@pytest.mark.parametrize(
+    ("given", "read"),
+    [
+        ("0.054568082", float(np.float32(0.054568082))),  # a float32's shortest decimal
+        ("0.1", float(np.float32(0.1))),
+        ("0.5", 0.5),
+        ("3.4028235e+38", float(np.finfo(np.float32).max)),
+        ("0.10000000000000002", 0.10000000000000002),  # no float32's shortest decimal
+        ("0.0545680821", 0.0545680821),
+        ("1e39", 1e39),  # beyond float32: no limit, as before
+        ("inf", np.inf),
+    ],
+)
+def test_max_distance_reads_a_float32s_shortest_decimal_as_that_float32(given, read):
+    assert wire.float32_if_shortest(float(given)) == read
 
 
 def test_sign_far_from_a_mesh_placed_small(app_api, scene_name):
