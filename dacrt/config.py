@@ -156,6 +156,15 @@ INCOHERENT_JUMPS = 0.5
 # (``ranges``) then box compact pieces, which a large mesh's file order need not give.
 AUTO_MORTON_ROWS = 1 << 20
 
+# ---- Frame centres of placed meshes (packed)
+# A placed mesh whose box's centre lies farther than FAR_SIDES times the box's largest side from
+# its origin along an axis is packed relative to that centre on that axis: its rays then move
+# into coordinates of the mesh's size (a grid 2 units wide given 16 units out and placed back:
+# 40 ulps across its surface become 0). Meshes nearer keep their own coordinates, and their
+# answers' bits (an identity's too); at least 1.5 keeps every corner within a factor of two of
+# the centre, so that corner - centre is exact (Sterbenz).
+FAR_SIDES = 4.0
+
 # ---- Point queries (points)
 # Triangles beside a point's Morton code that it measures before any partition: its first radius.
 POINT_SEEDS = 4

@@ -1,13 +1,16 @@
 """Instances: meshes placed by a matrix, traced in their own space (the second level of a trace).
 
 A placed mesh keeps its packed arrays in mesh space (``packed``), shared by all its instances and
-versions. A query traces the scene's untransformed meshes first (the base level); then the rays
-are sorted into the instances whose box in scene space they reach within [tmin, their best t]
-(``mark_rays_reaching``, ``fill_rays_reaching``); each instance's rays go into mesh space (origin
-by the inverse affine map, direction by the inverse linear part, not normalised, so t, u and v are
-the parameters along the caller's ray), are traced against the mesh with the same kernels, and are
-merged into the answers by the tie rule (smaller t, then lower (mesh, prim)). The kernels here are
-the few small steps around those traces.
+versions, relative to its frame centre c (``packed.frame_centre``: 0 for a mesh near its origin,
+its box's centre for one modelled far from it): the instance's map into that space is M's inverse
+followed by the move by -c. A query traces the scene's untransformed meshes first (the base
+level); then the rays are sorted into the instances whose box in scene space they reach within
+[tmin, their best t] (``mark_rays_reaching``, ``fill_rays_reaching``); each instance's rays go
+into mesh space (origin by that map, direction by the inverse linear part, not normalised, so t,
+u and v are the parameters along the caller's ray; in float64, then rounded to float32, which c
+keeps at the precision of the mesh's own size), are traced against the mesh with the same
+kernels, and are merged into the answers by the tie rule (smaller t, then lower (mesh, prim)).
+The kernels here are the few small steps around those traces.
 """
 
 import numpy as np
@@ -27,8 +30,10 @@ class Instance:
     """A mesh placed by an affine matrix, as a query traces it.
 
     mesh : its index in the scene
-    packed : its ``Packed`` arrays in mesh space (ids are its face rows)
-    matrix : (4, 4) float64, the placement; to_mesh : (3, 4) float64, its inverse's top rows
+    packed : its ``Packed`` arrays in mesh space (ids are its face rows), relative to its frame
+        centre ``packed.centre``; centre : the same (3,) as float64
+    matrix : (4, 4) float64, the placement; to_mesh : (3, 4) float64, its inverse's top rows,
+        the translation less the centre: scene space to the packed coordinates
     cofactor : (3, 3) float64, det(A) A^-T of the linear part A: takes a mesh-space normal
         (p1-p0)x(p2-p0) to the placed triangle's, orientation included; cofactors : the same as
         (1, 3, 3), as the merging kernels take one per ray or one for all
@@ -43,19 +48,24 @@ class Instance:
     def __init__(self, mesh, packed, matrix, matrix_end=None):
         self.mesh = mesh
         self.packed = packed
+        self.centre = packed.centre.astype(np.float64)
         self.matrix = matrix
         linear = matrix[:3, :3]
-        self.to_mesh = np.ascontiguousarray(np.linalg.inv(matrix)[:3])
+        to_mesh = np.linalg.inv(matrix)[:3]
+        to_mesh[:, 3] -= self.centre
+        self.to_mesh = np.ascontiguousarray(to_mesh)
         det = np.linalg.det(linear)
         self.cofactor = np.ascontiguousarray(det * np.linalg.inv(linear).T)
         self.cofactors = np.ascontiguousarray(self.cofactor[None])
         self.mirrored = bool(det < 0)
-        self.box_start = placed_box(packed.box, matrix)
+        # The mesh's box in its own coordinates (exact: the centre is added back in float64).
+        box = packed.box.astype(np.float64) + np.tile(self.centre, 2)
+        self.box_start = placed_box(box, matrix)
         self.matrix_end = matrix_end
         self.moving = matrix_end is not None
         self.box = self.box_start
         if self.moving:
-            end_box = placed_box(packed.box, matrix_end)
+            end_box = placed_box(box, matrix_end)
             lo = np.minimum(self.box_start[:3], end_box[:3])
             self.box = np.concatenate([lo, np.maximum(self.box_start[3:], end_box[3:])])
 
@@ -70,7 +80,7 @@ class Instance:
 
 
 def placed_box(box, matrix):
-    """A float32 box (6,) in scene space holding ``box`` (6,) placed by ``matrix`` (4, 4),
+    """A float32 box (6,) in scene space holding ``box`` (6,) float placed by ``matrix`` (4, 4),
     grown by BOX_MARGIN."""
     lo, hi = box[:3].astype(np.float64), box[3:].astype(np.float64)
     corners = np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
@@ -255,6 +265,7 @@ def rays_to_mesh_space_at(
     start_sign,
     matrix,
     matrix_end,
+    centre,
     out_o,
     out_d,
     out_tmin,
@@ -264,7 +275,8 @@ def rays_to_mesh_space_at(
 ):
     """``rays_to_mesh_space`` for a moving instance: ray ``ray_ids[i]`` at its time tau
     (``times``) goes into the space of M(tau) = (1 - tau) ``matrix`` + tau ``matrix_end`` by
-    M(tau)'s inverse (float64, then rounded); ``out_cofactors`` (k, 3, 3) gets M(tau)'s
+    M(tau)'s inverse, less ``centre`` (3,) float64, the mesh's frame centre (float64, then
+    rounded), as ``to_mesh`` maps it at tau = 0; ``out_cofactors`` (k, 3, 3) gets M(tau)'s
     cofactor (the normals' map) and ``out_sign`` (k,) int8 the sign of its determinant (-1
     mirrored, 0 singular at that instant). At tau == 0 exactly it uses the instance's own
     ``to_mesh`` and ``cofactor`` (``start_sign``: -1 where mirrored, else 1), so those rays are
@@ -301,7 +313,10 @@ def rays_to_mesh_space_at(
                     for b in range(3):
                         inv[a, b] = cof[b, a] / det
                 for a in range(3):
-                    inv[a, 3] = -(inv[a, 0] * m[0, 3] + inv[a, 1] * m[1, 3] + inv[a, 2] * m[2, 3])
+                    inv[a, 3] = (
+                        -(inv[a, 0] * m[0, 3] + inv[a, 1] * m[1, 3] + inv[a, 2] * m[2, 3])
+                        - centre[a]
+                    )
         out_sign[i] = sign
         for a in range(3):
             for b in range(3):

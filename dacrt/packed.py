@@ -7,6 +7,10 @@ triangles, so the partitions' and leaves' reads of a node's rows stay in few cac
 Nothing depends on that order: ``ids`` keeps each row's face, and every tie compares ids, never
 rows.
 
+A placed mesh is packed relative to a float32 point of its own, its frame centre
+(``frame_centre``): 0 for a mesh near its origin, else its box's centre, so that rays moved into
+its space keep float32's precision near the mesh (``instances``).
+
 A ``Packed`` is never written after it is made: the kernels only read it, and a new version of
 a mesh gets a new ``Packed``. Its arrays stay writable because Numba compiles a read-only array
 as another type, which would compile every kernel twice.
@@ -31,6 +35,8 @@ MORTON_HALF_BITS = 3 * MORTON_BITS // 2
 MORTON_HALF_MASK = (1 << MORTON_HALF_BITS) - 1
 # The box of no triangles: grows to the first one.
 EMPTY_BOX = np.array([np.inf] * 3 + [-np.inf] * 3, FLOAT)
+# The frame centre of a mesh packed in its own coordinates.
+NO_CENTRE = np.zeros(3, FLOAT)
 
 
 class Packed:
@@ -44,14 +50,18 @@ class Packed:
     box : (6,) float32, the rows' box (zeros when there are none)
     corner_box : (6,) float32, the box of every corner the faces refer to, degenerate triangles
         included (EMPTY_BOX when there are no faces)
+    centre : (3,) float32, the point the coordinates above are relative to: a corner p of the
+        mesh is stored as p - centre, exactly (``frame_centre``; NO_CENTRE but for a placed
+        mesh far from its origin)
     """
 
-    def __init__(self, verts, bounds, ids, box, corner_box):
+    def __init__(self, verts, bounds, ids, box, corner_box, centre=NO_CENTRE):
         self.verts = verts
         self.bounds = bounds
         self.ids = ids
         self.box = box
         self.corner_box = corner_box
+        self.centre = centre
 
     def __len__(self) -> int:
         return len(self.verts)
@@ -135,6 +145,56 @@ def pack_mesh(vertices, faces, order="auto", kept_order=None):
     (``pack_meshes``' kept orders) or else in the storage ``order``."""
     packed, _, _, _ = pack_meshes([(vertices, faces)], [0], order, [kept_order])
     return packed
+
+
+def pack_placed_mesh(vertices, faces, order="auto", kept_order=None):
+    """``pack_mesh`` of a mesh placed by a matrix (an instance's): relative to its frame
+    centre (``centred``)."""
+    return centred(pack_mesh(vertices, faces, order, kept_order))
+
+
+def frame_centre(corner_box):
+    """(3,) float32: the point a placed mesh with corners in ``corner_box`` (6,) is packed
+    relative to. On each axis where the box's centre lies farther than config.FAR_SIDES times
+    its largest side from 0, that centre rounded to float32 (a point of the box), else 0;
+    NO_CENTRE for no corners."""
+    lo, hi = corner_box[:3].astype(np.float64), corner_box[3:].astype(np.float64)
+    if not (lo <= hi).all():
+        return NO_CENTRE
+    middle = (lo + hi) / 2  # exact: the float32 sides' halves and sum fit float64
+    far = np.abs(middle) > config.FAR_SIDES * np.max(hi - lo)
+    return np.where(far, middle, 0.0).astype(FLOAT)
+
+
+def centred(packed):
+    """``packed`` (one mesh's, in its own coordinates) moved to be relative to its frame centre
+    (``frame_centre`` of its corner box): a new ``Packed`` sharing its ids, or ``packed`` itself
+    where the centre is 0. Every moved corner is exact, so its triangles are the mesh's, moved."""
+    centre = frame_centre(packed.corner_box)
+    if not centre.any():
+        return packed
+    return moved_by(packed, -centre, centre)
+
+
+def as_given(packed):
+    """``packed`` in the mesh's own coordinates (centre 0): ``centred``'s inverse, exact."""
+    if not packed.centre.any():
+        return packed
+    return moved_by(packed, packed.centre, NO_CENTRE)
+
+
+def moved_by(packed, shift, centre):
+    """A ``Packed`` of ``packed``'s rows moved by ``shift`` (3,) float32 (in float32, exact for
+    a shift to or from the frame centre), relative to ``centre``; its ids shared."""
+    box = packed.box if not len(packed) else packed.box + np.tile(shift, 2)  # zeros for none
+    return Packed(
+        packed.verts + np.tile(shift, 3),
+        packed.bounds + np.tile(shift, 2),
+        packed.ids,
+        box,
+        packed.corner_box + np.tile(shift, 2),
+        centre,
+    )
 
 
 def every_face(live_rows, n_faces):

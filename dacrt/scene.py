@@ -61,11 +61,14 @@ from .leaf import NO_HIT
 from .packed import (
     ORDERS,
     Packed,
+    as_given,
+    centred,
     every_face,
     live_box,
     pack_deforming,
     pack_mesh,
     pack_meshes,
+    pack_placed_mesh,
     union_box,
 )
 from .query import (
@@ -180,11 +183,13 @@ class Scene:
         (``nearest``, ...) see the meshes at time 0.
 
     A placed mesh is an instance, traced in its own space: the rays that reach it go into mesh
-    space (rounded to float32), rather than its vertices into scene space. Its answers are
-    therefore those of the mesh placed in float64 and rounded to float32 up to that rounding:
-    the same hits and misses but for rays through the exact edges or silhouette of a triangle,
-    t within a few ulps and normals within about 1e-6 (docs/engine.md, "Instances", has the
-    measured figures). Each instance is watertight on its own.
+    space (rounded to float32; relative to the mesh's box centre where the mesh lies far from
+    its own origin), rather than its vertices into scene space. Its answers are therefore those
+    of the mesh placed in float64 and rounded to float32 up to that rounding, which grows with
+    the condition number of M's 3x3 part: up to about 10, the same hits and misses but for rays
+    within a few ulps of a triangle's edges or silhouette, t within a few ulps and normals within
+    about 1e-6 (docs/engine.md, "How answers differ from placed copies", has the measured
+    figures). Each instance is watertight on its own.
     """
 
     def __init__(
@@ -209,7 +214,7 @@ class Scene:
             if matrices[i] is not None or ends[i] is not None:
                 key = (id(vertices), id(faces))
                 if key not in packings:
-                    packings[key] = pack_mesh(*args.meshes[i], self._order)
+                    packings[key] = pack_placed_mesh(*args.meshes[i], self._order)
                 packs[i] = packings[key]
         deformed = {i: end for i, end in enumerate(args.vertices_end) if end is not None}
         self._assemble(args.meshes, args.masks.copy(), matrices, ends, deformed, packs, None, set())
@@ -322,6 +327,7 @@ class Scene:
                     )
                 )
             elif isinstance(part, Packed):  # placed before, as given now
+                part = as_given(part)
                 pieces.append(
                     (
                         part.verts,
@@ -359,7 +365,8 @@ class Scene:
         corners = packed.corner_box
         if not corners[0] <= corners[3]:
             return
-        lo, hi = corners[:3].astype(np.float64), corners[3:].astype(np.float64)
+        centre = packed.centre.astype(np.float64)  # the corners in the mesh's coordinates
+        lo, hi = corners[:3] + centre, corners[3:] + centre
         points = np.array([[(lo, hi)[k >> a & 1][a] for a in range(3)] for k in range(8)])
         placed = points @ matrix[:3, :3].T + matrix[:3, 3]
         if not (np.abs(placed) <= np.finfo(FLOAT).max).all():
@@ -435,7 +442,7 @@ class Scene:
                 shared = i in vertices and part is not None
                 key = (id(vertices[i]), id(part)) if shared else ("mesh", i)
                 if key not in packings:
-                    packings[key] = pack_mesh(*checked[i], *self._kept_order(i))
+                    packings[key] = pack_placed_mesh(*checked[i], *self._kept_order(i))
                 packs[i] = packings[key]
         scene = object.__new__(Scene)
         scene._order = self._order
@@ -493,15 +500,18 @@ class Scene:
         return self._base.ids[part.lo : part.hi] - INDEX(self.mesh_offsets[i])
 
     def _packed_from_base(self, i):
-        """Mesh i's rows of the base level as a ``Packed`` of its own (ids its face rows)."""
+        """Mesh i's rows of the base level as a placed mesh's ``Packed`` of its own (ids its
+        face rows, relative to its frame centre: ``centred``)."""
         part = self._parts[i]
         rows = slice(part.lo, part.hi)
-        return Packed(
-            self._base.verts[rows].copy(),
-            self._base.bounds[rows].copy(),
-            self._face_rows(i),
-            part.box if part.box[0] <= part.box[3] else np.zeros(6, FLOAT),
-            part.corner_box,
+        return centred(
+            Packed(
+                self._base.verts[rows].copy(),
+                self._base.bounds[rows].copy(),
+                self._face_rows(i),
+                part.box if part.box[0] <= part.box[3] else np.zeros(6, FLOAT),
+                part.corner_box,
+            )
         )
 
     @functools.cached_property
@@ -1171,7 +1181,8 @@ class Scene:
             ids.append(level.ids[live])
             masks.append(self._deforming_row_masks[live])
         for instance in self._instances:
-            corners = instance.packed.verts.reshape(-1, 3).astype(np.float64)
+            # The mesh's own corners (exact: the frame centre is added back in float64).
+            corners = instance.packed.verts.reshape(-1, 3).astype(np.float64) + instance.centre
             placed = corners @ instance.matrix[:3, :3].T + instance.matrix[:3, 3]
             placed = placed.astype(FLOAT).reshape(-1, 9)
             # less the rows whose float32 corners the placement collapses, as a placed copy's
@@ -1336,7 +1347,7 @@ class Scene:
             rays_to_mesh_space_at(
                 origins, directions, tmin, limit, ids, query.times, instance.to_mesh,
                 instance.cofactor, -1 if instance.mirrored else 1, instance.matrix,
-                instance.matrix_end, *mesh_rays, cofactors, signs,
+                instance.matrix_end, instance.centre, *mesh_rays, cofactors, signs,
             )  # fmt: skip
             # Rays at an instant where the placement is singular see nothing of it; culling
             # swaps faces where it is mirrored, so those rays are traced apart.

@@ -187,6 +187,19 @@ def check_placed_meshes(rng):
         dacrt.Scene(meshes, transforms=[None, placements[3], placements[2], placements[1],
                                         placements[4]], masks=masks).closest(o, d).t,
     )  # fmt: skip
+    # The car modelled 1e4 units from its own origin and placed back: packed relative to its
+    # box's centre, which the host's rays into mesh space (static and at the rays' times) take.
+    shift = np.array([1e4, -6e3, 3e3])
+    far_car = ((car[0] + shift).astype(np.float32), car[1])
+    back = affine(np.eye(3), -shift)
+    far = dacrt.Scene(
+        [base, far_car, far_car],
+        transforms=[None, placements[1] @ back, placements[2] @ back],
+        transforms_end=[None, placements[3] @ back, None],
+    )
+    compare("modelled far", far, o, d, DEFAULT)
+    compare("modelled far, rays' times", far, o, d, DEFAULT, time=times, cull="back")
+    compare_crossings("modelled far, rays' times", far, o, d, 4, time=times)
     check_sensors(scene, rng)
     compare_crossings("placed", scene, o, d, 3, by_scene=True)
     compare_crossings("placed cull back, masks", scene, o, d, 16, cull="back", mask=ray_masks)

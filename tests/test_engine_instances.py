@@ -153,6 +153,61 @@ def test_placed_meshes_answer_as_meshes_placed_in_numpy(kind):
     )  # fmt: skip
 
 
+# Meshes modelled far from their own origin (in world or georeferenced coordinates) and placed
+# back near the scene's: (offset along (1, -0.6, 0.3), the meshes' size).
+FAR_MODELLED = [(1e3, 1.0), (1e4, 1.0), (1e4, 10.0), (1e5, 100.0), (1e6, 1.0), (1e6, 1000.0)]
+FAR_DIRECTION = np.array([1.0, -0.6, 0.3])
+
+
+def modelled_far(offset, size, linear):
+    """``_meshes()`` scaled by ``size`` and given at ``offset`` along FAR_DIRECTION (rounded to
+    float32 there), and matrices that place them back beside the origin by ``linear`` (3, 3):
+    (meshes, matrices)."""
+    shift = offset * FAR_DIRECTION
+    meshes = [((v * size + shift).astype(np.float32), f) for v, f in _meshes()]
+    beside = [(0.0, 0.0, 0.0), (3.0 * size, 0.0, 0.0), (0.0, 3.0 * size, 0.0)]
+    return meshes, [affine(linear, beside[k] - linear @ shift) for k in range(len(meshes))]
+
+
+@pytest.mark.parametrize("kind", ["translation", "rotation"])
+@pytest.mark.parametrize(("offset", "size"), FAR_MODELLED)
+def test_meshes_modelled_far_from_their_origin_answer_as_placed_copies(offset, size, kind):
+    """Meshes whose vertices lie up to a million units from their own origin, placed back by a
+    translation (the placed copies are then the meshes moved exactly) or a rotation: every
+    query answers as the placed copies within the bounds of meshes near their origin."""
+    linear = np.eye(3) if kind == "translation" else pg.rotation([1.0, 2.0, 0.5], 0.7)
+    meshes, matrices = modelled_far(offset, size, linear)
+    placed = [(place(v, m), f) for (v, f), m in zip(meshes, matrices)]
+    if kind == "translation":
+        for (v, _), m, (p, _) in zip(meshes, matrices, placed):
+            np.testing.assert_array_equal(p, v.astype(np.float64) + m[:3, 3])  # exact
+    scene = dacrt.Scene(meshes, transforms=matrices)
+    whole = dacrt.Scene(placed)
+    rng = np.random.default_rng(11)
+    rays = [pg.mixed_rays(pg.bounds(v), 300, rng) for v, _ in placed]
+    o, d = (np.concatenate(x) for x in zip(*rays))
+    for cull in ("none", "back"):
+        got = _queries(scene, o, d, cull=cull)
+        what = f"{kind}, offset {offset:g}, size {size:g}, cull={cull}"
+        assert_close_to_placed(got, _queries(whole, o, d, cull=cull), o, d, placed, what)
+        assert (got["closest"].mesh >= 0).sum() > 200, what
+
+
+def test_a_mesh_far_from_its_origin_is_packed_exactly_relative_to_a_point_of_its_box():
+    """A mesh given far from its own origin is packed relative to a point of its box (its frame
+    centre), exactly: the packed corners plus that point are the mesh's own corners; a mesh near
+    its origin keeps its own coordinates."""
+    meshes, matrices = modelled_far(1e5, 1.0, np.eye(3))
+    scene = dacrt.Scene(meshes, transforms=matrices)
+    for instance, (v, f) in zip(scene._instances, meshes):
+        centre = instance.packed.centre.astype(np.float64)
+        assert (v.min(axis=0) <= centre).all() and (centre <= v.max(axis=0)).all()
+        corners = instance.packed.verts.reshape(-1, 3).astype(np.float64) + centre
+        np.testing.assert_array_equal(corners, v[f[instance.packed.ids]].reshape(-1, 3))
+    near = dacrt.Scene(_meshes(), transforms=[np.eye(4)] * 3)
+    assert not any(instance.packed.centre.any() for instance in near._instances)
+
+
 @pytest.mark.parametrize("kind", ["reflection", "nonuniform_scale"])
 def test_normals_are_those_of_the_placed_corners(kind):
     """Normals are (p1-p0) x (p2-p0) of the placed corners, normalised: for a reflection they

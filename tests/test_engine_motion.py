@@ -72,9 +72,26 @@ def _placed_at(meshes, starts, ends, tau):
     return placed
 
 
-@pytest.mark.parametrize("tau", TIMES)
-def test_a_ray_at_tau_answers_as_the_meshes_placed_at_tau(tau):
+@functools.cache
+def _moving_far():
+    """``_moving()``'s placed meshes given 1e5 units from their own origin, moved by the same
+    placements after the move back (the soup as given, near the others)."""
     meshes, starts, ends = _moving()
+    shift = 1e5 * np.array([1.0, -0.6, 0.3])
+    back = affine(offset=-shift)
+    far = [(v, f) if m is None else ((v + shift).astype(np.float32), f) for (v, f), m in
+           zip(meshes, starts)]  # fmt: skip
+    starts = [None if m is None else m @ back for m in starts]
+    ends = [e if m is None or e is None else e @ back for m, e in zip(starts, ends)]
+    return far, starts, ends
+
+
+@pytest.mark.parametrize("modelled", ["near", "far"])
+@pytest.mark.parametrize("tau", TIMES)
+def test_a_ray_at_tau_answers_as_the_meshes_placed_at_tau(tau, modelled):
+    """Also for meshes modelled far from their own origin: the rays go into the space of
+    M(tau) relative to the mesh's box."""
+    meshes, starts, ends = _moving() if modelled == "near" else _moving_far()
     scene = dacrt.Scene(meshes, transforms=starts, transforms_end=ends)
     placed = _placed_at(meshes, starts, ends, tau)
     whole = dacrt.Scene(placed)
@@ -84,7 +101,7 @@ def test_a_ray_at_tau_answers_as_the_meshes_placed_at_tau(tau):
     for cull in ("none", "back", "front"):
         got = _queries(scene, o, d, cull=cull, time=np.full(len(o), tau, np.float32))
         want = _queries(whole, o, d, cull=cull)
-        assert_close_to_placed(got, want, o, d, placed, f"tau={tau}, cull={cull}")
+        assert_close_to_placed(got, want, o, d, placed, f"{modelled}, tau={tau}, cull={cull}")
 
 
 def test_a_batch_of_mixed_times_answers_each_ray_at_its_own():

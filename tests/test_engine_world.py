@@ -306,23 +306,34 @@ def test_hits_across_instances_are_merged_and_truncated():
     assert stats["ray_triangle_tests"] > 0
 
 
-@pytest.mark.parametrize("kind", ["rotation", "reflection", "nonuniform_scale", "far"])
+@pytest.mark.parametrize(
+    "kind",
+    ["rotation", "reflection", "nonuniform_scale", "far", "modelled far", "modelled far 1e6"],
+)
 def test_each_instance_is_watertight(kind):
     """Rays from inside a closed sphere placed by a matrix, through its vertices, edge
     midpoints and random directions: every one hits, and each counts an odd number of
-    crossings."""
+    crossings. "modelled far": the sphere given 1e5 (or 1e6) units from its own origin and
+    placed back by a rotation."""
     v, f = pg.icosphere(3)
     v = pg.perturb_radially(v, np.random.default_rng(31), 0.1)
-    m = MATRICES[kind]
+    centre = np.zeros(3)
+    if kind.startswith("modelled far"):
+        centre = (1e6 if kind.endswith("1e6") else 1e5) * np.array([1.0, -0.6, 0.3])
+        v = (v + centre).astype(np.float32)
+        linear = MATRICES["rotation"][:3, :3]
+        m = affine(linear, (0.5, 0.0, 0.0) - linear @ centre)
+    else:
+        m = MATRICES[kind]
     scene = dacrt.Scene([(v, f)], transforms=[m])
     edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     v64 = v.astype(np.float64)
     targets = np.concatenate([v64, v64[edges].mean(axis=1)])
-    inside = np.random.default_rng(32).uniform(-0.2, 0.2, (len(targets), 3))
+    inside = centre + np.random.default_rng(32).uniform(-0.2, 0.2, (len(targets), 3))
     directions = np.concatenate(
         [targets - inside, pg.unit_vectors(2000, np.random.default_rng(33))]
     )
-    starts = np.concatenate([inside, np.zeros((2000, 3))])
+    starts = np.concatenate([inside, np.broadcast_to(centre, (2000, 3))])
     # The rays in scene space: the mesh-space rays placed by the matrix.
     o = (starts @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
     d = (directions @ m[:3, :3].T).astype(np.float32)
@@ -331,6 +342,78 @@ def test_each_instance_is_watertight(kind):
     assert not len(missed), f"{len(missed)} rays slipped through, first {missed[0]}"
     assert np.all(scene.count(o, d).count % 2 == 1)
     assert scene.occluded(o, d).occluded.all()
+
+
+@functools.cache
+def _far_world():
+    """``_world()``'s meshes given 1e5 units from their own origin along (1, -0.6, 0.3) and
+    placed back where ``_world()`` places them, but meshes 0 and 1, which stay as given (far), and
+    a sixth: mesh 1's arrays again, placed back."""
+    meshes, transforms, masks = _world()
+    shift = 1e5 * np.array([1.0, -0.6, 0.3])
+    back = affine(offset=-shift)
+    moved = {}  # one far array per array of ``_world()``: its two spheres stay one
+    far = [(moved.setdefault(id(v), (v + shift).astype(np.float32)), f) for v, f in meshes]
+    far.append(far[1])
+    placed = [None, None] + [(np.eye(4) if m is None else m) @ back for m in transforms[2:]]
+    placed.append(affine(pg.rotation([1.0, 1.0, 0.0], 0.5), (0.0, -2.5, 0.0)) @ back)
+    return far, placed, np.append(masks, np.uint32(32))
+
+
+FAR_CHANGES = {
+    "move an instance": dict(transforms={3: affine(offset=(2.0 - 1e5, 1.0 + 6e4, 0.5 - 3e4))}),
+    "deform an instance": dict(vertices={4: "moved"}),
+    "place a base mesh": dict(transforms={0: affine(offset=(-1e5, 6e4, -3e4))}),
+    "put an instance as given": dict(transforms={2: None}),
+    "put the far mesh's instance as given": dict(transforms={5: None}),
+}
+
+
+@pytest.mark.parametrize("case", sorted(FAR_CHANGES))
+def test_with_changes_of_meshes_modelled_far_answers_as_a_new_scene(case):
+    """Meshes far from their own origin, as given and placed back (the same arrays both ways
+    too), changed by ``with_changes``: the answers are a new Scene's, bit for bit."""
+    meshes, transforms, masks = _far_world()
+    o, d = _rays(meshes[2:], transforms[2:])
+    ray_masks = np.random.default_rng(26).integers(1, 64, len(o)).astype(np.uint32)
+    old = dacrt.Scene(meshes, masks=masks, transforms=transforms)
+    change = FAR_CHANGES[case]
+    if "vertices" in change:
+        change = dict(vertices={i: meshes[i][0] + np.float32(0.25) for i in change["vertices"]})
+    new = old.with_changes(**change)
+    # One packing of the spheres' arrays, relative to their box's centre, kept by the move.
+    assert old._parts[3] is old._parts[4] and old._parts[3].centre.any()
+    if case == "move an instance":
+        assert new._parts[3] is old._parts[3] and new._parts[4] is old._parts[4]
+    new_meshes = [(change.get("vertices", {}).get(i, v), f) for i, (v, f) in enumerate(meshes)]
+    new_transforms = list(transforms)
+    for i, m in change.get("transforms", {}).items():
+        new_transforms[i] = m
+    fresh = dacrt.Scene(new_meshes, masks=masks, transforms=new_transforms)
+    got = _all_queries(new, o, d, ray_masks)
+    assert (got["closest, cull=none, mask=None"].mesh >= 0).sum() > 150
+    assert_same_answers(got, _all_queries(fresh, o, d, ray_masks), case)
+    np.testing.assert_array_equal(new.bounds, fresh.bounds)
+    np.testing.assert_array_equal(new.nearest(o[:200]).point, fresh.nearest(o[:200]).point)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("strategy", dacrt.STRATEGIES)
+def test_instances_of_meshes_modelled_far_answer_alike_for_every_strategy(strategy, threads):
+    meshes, transforms, masks = _far_world()
+    scene = dacrt.Scene(meshes, masks=masks, transforms=transforms)
+    o, d = _rays(meshes[2:], transforms[2:], n=33_000, seed=28)
+    expected = _far_strategy_answers()
+    got = _four(scene, o, d, strategy=strategy, threads=threads)
+    assert_same_answers(got, expected, f"{strategy}, {threads} threads")
+
+
+@functools.cache
+def _far_strategy_answers():
+    meshes, transforms, masks = _far_world()
+    scene = dacrt.Scene(meshes, masks=masks, transforms=transforms)
+    o, d = _rays(meshes[2:], transforms[2:], n=33_000, seed=28)
+    return _four(scene, o, d, strategy="sampling", threads=1)
 
 
 def _random_change(rng, meshes, state):

@@ -96,11 +96,17 @@ def test_points_at_the_edge_of_float32():
     assert np.isinf(dacrt.Scene(meshes).signed_distance(points[1:2], 3)).all()
 
 
-def test_placed_meshes_answer_in_scene_space():
+@pytest.mark.parametrize("modelled", ["near", "far"])
+def test_placed_meshes_answer_in_scene_space(modelled):
     """Transforms place the triangles before anything else: the answers are those of the placed
-    vertices, prim the row of the mesh's own faces."""
+    vertices, prim the row of the mesh's own faces; also for a mesh given 1e5 units from its
+    own origin (traced relative to its box's centre) and placed back."""
     vertices, faces = pg.icosphere(2)
     matrix = np.array([[0, -2, 0, 1], [2, 0, 0, 0], [0, 0, 2, -3], [0, 0, 0, 1]], np.float64)
+    if modelled == "far":
+        shift = np.array([1e5, -6e4, 3e4])
+        vertices = (vertices + shift).astype(np.float32)
+        matrix = matrix @ np.vstack([np.hstack([np.eye(3), -shift[:, None]]), [0, 0, 0, 1]])
     placed = (vertices.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]).astype(np.float32)
     points = _points(placed, 300, np.random.default_rng(19))
     moved = dacrt.Scene([(vertices, faces)], transforms=[matrix]).nearest(points)
