@@ -645,6 +645,14 @@ def _header(engine, dynamic: bool = False):
     return f"{what}: median, min ({a} + {b}, medians){ratios}"
 
 
+def dotted(ax, x, y, label: str, style: dict) -> None:
+    """A thin dotted line of an engine's ``style``: a part of its frame, or a second ratio."""
+    ax.plot(
+        x, y, label=label, linewidth=1, markersize=4, color=style["color"], linestyle=":",
+        marker=style["marker"],
+    )  # fmt: skip
+
+
 def draw(result: dict, path: Path) -> None:
     import matplotlib
 
@@ -672,16 +680,7 @@ def draw(result: dict, path: Path) -> None:
         left.plot(counts, y, label=engine, linewidth=2, markersize=6, **style)
         if engine in ("dacrt", "dacrt changes"):
             scene = [row.get(engine, {}).get("scene", np.nan) for row in summary.values()]
-            left.plot(
-                counts,
-                scene,
-                label=f"{engine}: scene part",
-                linewidth=1,
-                markersize=4,
-                color=style["color"],
-                linestyle=":",
-                marker=style["marker"],
-            )
+            dotted(left, counts, scene, f"{engine}: scene part", style)
         if engine != "embree":
             ratio = [
                 row["embree"]["total"] / row[engine]["total"]
@@ -697,16 +696,7 @@ def draw(result: dict, path: Path) -> None:
                 else np.nan
                 for row in summary.values()
             ]
-            right.plot(
-                counts,
-                ratio,
-                label=f"{engine}: against Embree dynamic",
-                linewidth=1,
-                markersize=4,
-                color=style["color"],
-                linestyle=":",
-                marker=style["marker"],
-            )
+            dotted(right, counts, ratio, f"{engine}: against Embree dynamic", style)
     for ax in (left, right):
         ax.set_xscale("log", base=2)
         ax.set_xticks(counts, [str(n) for n in counts])
