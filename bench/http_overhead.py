@@ -129,6 +129,7 @@ def main() -> None:
         [origins, directions]
     )  # the (N, 6) body, built once, as a caller would hold it
 
+    dacrt.cache.use_cache_dir()  # the kernels compiled once per machine, not per checkout
     dacrt.warmup()
     scene = dacrt.Scene([(vertices, faces)])
     env = {"DACRT_MAX_RAYS_PER_REQUEST": str(max(args.rays, 1))}

@@ -190,6 +190,7 @@ def main(argv=None) -> int:
     parser.add_argument("--baseline", type=Path, default=None, help="folder of dacrt_base")
     args = parser.parse_args(argv)
     modes = args.modes.split(",")
+    dacrt.cache.use_cache_dir()  # the kernels compiled once per machine, not per checkout
     base = None
     if args.baseline:
         sys.path.insert(0, str(args.baseline))

@@ -762,6 +762,7 @@ def measure_and_draw(args, out: Path, engines, dacrt, missing, native, started) 
         "figures": {},
     }
     if dacrt is not None:
+        dacrt.cache.use_cache_dir()  # the kernels compiled once per machine, not per checkout
         log("dacrt.warmup() ...")
         try:
             res["dacrt_warmup_s"] = float(dacrt.warmup())

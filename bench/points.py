@@ -110,6 +110,7 @@ def main(argv=None):
     parser.add_argument("--json", type=Path)
     parser.add_argument("--scene-dir", type=Path, default=SHARED_SCENES)
     args = parser.parse_args(argv)
+    dacrt.cache.use_cache_dir()  # the kernels compiled once per machine, not per checkout
     dacrt.warmup()
     rows = []
     for name in args.scenes.split(","):
