@@ -102,6 +102,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             module.router, dependencies=[Depends(require_ready)], responses=openapi.errors(503)
         )
     app.include_router(ops.router)
+    build_document = app.openapi  # FastAPI's, which caches the document it builds
+
+    def document() -> dict:
+        return openapi.with_token_rule(build_document(), settings.token is not None)
+
+    app.openapi = document  # type: ignore[method-assign]
     app.mount("/static/swagger-ui", StaticFiles(directory=str(SWAGGER_UI)), name="swagger-ui")
 
     @app.get("/docs", include_in_schema=False)

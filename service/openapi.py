@@ -120,7 +120,22 @@ PATTERN_INFO = _object(
 _BOUNDS = {"type": "array", "items": _POINTS["items"], "minItems": 2, "maxItems": 2}
 MESH_INFO = {
     "type": "object",
-    "required": ["scene", "mesh", "index", "vertices", "triangles", "bounds", "version"],
+    "required": [
+        "scene",
+        "mesh",
+        "index",
+        "vertices",
+        "triangles",
+        "bounds",
+        "version",
+        "mask",
+        "transform",
+        "transform_end",
+        "vertices_end",
+        "instance_of",
+        "reflectivity",
+        "label",
+    ],
     "properties": {
         "scene": {"type": "string"},
         "mesh": {"type": "string"},
@@ -144,6 +159,8 @@ MESH_INFO = {
             "anyOf": [{"type": "string"}, {"type": "null"}],
             "description": "the mesh whose arrays this instance shares; null for a mesh",
         },
+        "reflectivity": _REFLECTIVITY,
+        "label": _LABEL,
     },
 }
 SCENE_INFO = {
@@ -266,13 +283,39 @@ def json_answer(description: str, schema: dict[str, Any]) -> dict[str, Any]:
     return {"description": description, "content": {"application/json": {"schema": schema}}}
 
 
+#: A query's JSON answer: ``{KEY: [...]}``.
+ARRAYS_JSON = {"type": "object", "additionalProperties": {"type": "array"}}
+#: A rig's JSON answer: each sensor's answer by its name, ``{NAME: {KEY: [...]}}``.
+RIG_JSON = {
+    "type": "object",
+    "propertyNames": {"pattern": f"^{NAME.pattern}$"},
+    "additionalProperties": ARRAYS_JSON,
+}
+
+
 def answers(
-    description: str, formats: tuple[str, ...] = ("npz", "npy", "json")
+    description: str,
+    formats: tuple[str, ...] = ("npz", "npy", "json"),
+    json_schema: dict[str, Any] = ARRAYS_JSON,
 ) -> dict[int | str, dict[str, Any]]:
-    """The 200 of a query: the answer arrays in ``formats`` (.npz, .npy, JSON; a lidar's PCD
-    too), by ``Accept``."""
+    """The 200 of a query: the answer arrays in ``formats`` (.npz, .npy, JSON with
+    ``json_schema``; a lidar's PCD too), by ``Accept``."""
     content = {wire.MEDIA_TYPES[fmt]: {"schema": _BINARY} for fmt in formats if fmt != "json"}
     if "json" in formats:
-        json_schema = {"type": "object", "additionalProperties": {"type": "array"}}
         content[wire.JSON] = {"schema": json_schema}
     return {200: {"description": description, "content": content, "headers": ANSWER_HEADERS}}
+
+
+#: The bearer token may be sent and need not be: /health shows its details only with it.
+_TOKEN_OPTIONAL = [{}, {"HTTPBearer": []}]
+
+
+def with_token_rule(document: dict[str, Any], token_set: bool) -> dict[str, Any]:
+    """``document`` (changed in place) with each operation's security as this server asks it:
+    the token on /v1 when DACRT_TOKEN is set, optional on /health and, without a token, on /v1
+    (FastAPI declares every route that reads it as requiring it)."""
+    for path, operations in document["paths"].items():
+        for operation in operations.values():
+            if "security" in operation and (path == "/health" or not token_set):
+                operation["security"] = _TOKEN_OPTIONAL
+    return document

@@ -78,6 +78,7 @@ def json_body(model, description: str) -> dict:
         200: {
             "description": "the picture: PNG, grey (depth) or RGB (normal, shaded)",
             "content": {PNG: {"schema": {"type": "string", "format": "binary"}}},
+            "headers": openapi.ANSWER_HEADERS,
         },
         **SENSOR_ERRORS,
     },
@@ -210,6 +211,7 @@ async def lidar(
             "each sensor's answer: .npz keys NAME.KEY (roof.xyz, front.depth), or JSON "
             "{NAME: {KEY: ...}}",
             RIG_FORMATS,
+            openapi.RIG_JSON,
         ),
         **SENSOR_ERRORS,
     },
