@@ -67,6 +67,17 @@ def test_format_parameter_overrides_content_type():
     assert wire.resolve_format("application/octet-stream", "OBJ", wire.MESH_FORMATS) == "obj"
 
 
+@pytest.mark.parametrize("format", [" JSON ", "Json"])
+def test_format_parameter_is_read_in_any_case_and_without_spaces(format):
+    assert wire.resolve_format(None, format, wire.RAY_FORMATS, b"{}") == "json"
+
+
+def test_an_empty_format_parameter_is_as_absent():
+    """docs/API.md: the format then comes from Content-Type, else from the body's first bytes."""
+    assert wire.resolve_format("application/json", "", wire.RAY_FORMATS) == "json"
+    assert wire.resolve_format(None, "", wire.RAY_FORMATS, b"\x93NUMPY") == "npy"
+
+
 @pytest.mark.parametrize(
     "content_type, format, accepted",
     [
