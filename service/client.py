@@ -573,12 +573,13 @@ class Client:
         params = _params(fields, strategy, stats, cull)
         if max_hits is not None:
             params["max_hits"] = str(max_hits)
-        if mask is not None and np.ndim(mask) == 0:
+        ray_masks = mask is not None and np.ndim(mask) != 0
+        if mask is not None and not ray_masks:
             params["mask"] = str(_mask_value(mask, "mask"))
         body, fmt = {"rays": rays}, "npy"
-        if time is not None or (mask is not None and np.ndim(mask) != 0):
+        if ray_masks or time is not None:
             body, fmt = _ray_arrays(rays), "npz"  # an .npy ray array has no room for these
-        if mask is not None and np.ndim(mask) != 0:
+        if ray_masks:
             body["mask"] = _mask_array(mask, len(rays))
         if time is not None:
             body["time"] = _ray_time(time, len(rays))
@@ -993,9 +994,7 @@ def _nulls_as(value: Any, fill: float) -> Any:
     """A JSON answer's list, rows too (a point's (N, 3)), with null made ``fill``."""
     if isinstance(value, list) and value and isinstance(value[0], list):
         return [_nulls_as(row, fill) for row in value]
-    if isinstance(value, list) and any(x is None for x in value):
-        return [fill if x is None else x for x in value]
-    return value
+    return wire.nulls_as(value, fill)
 
 
 def _from_json(key: str, value: Any) -> np.ndarray:

@@ -145,7 +145,7 @@ from .arrays import (
     index_array,
     mask_array,
     mesh_arrays,
-    nulls_to_inf,
+    nulls_as,
 )
 from .body import BodyBuffer
 from .decoders import (
@@ -243,7 +243,7 @@ __all__ = [
     "npy_header",
     "npy_parts",
     "npz_parts",
-    "nulls_to_inf",
+    "nulls_as",
     "parse_label",
     "parse_mask",
     "parse_reflectivity",

@@ -53,7 +53,7 @@ def float_array(value: Any, name: str, columns: int | None) -> np.ndarray:
             value, name, (int, float, type(None)) if columns is None else (int, float)
         )
         try:
-            array = np.asarray(nulls_to_inf(value), dtype=np.float32)
+            array = np.asarray(nulls_as(value), dtype=np.float32)
         except (TypeError, ValueError, OverflowError) as exc:
             raise Invalid(f"{name} must be numbers in nested lists: {exc}") from None
     if columns is not None:
@@ -126,10 +126,11 @@ def mask_array(value: Any, name: str, n_rays: int) -> np.ndarray | int:
     return np.array(array, dtype=_U32)  # a writable copy: 4 bytes a ray
 
 
-def nulls_to_inf(value: Any) -> Any:
-    """A JSON list with null elements (+inf) made numeric; anything else unchanged."""
+def nulls_as(value: Any, fill: float = np.inf) -> Any:
+    """A JSON list with null elements (+inf, or the NaN of a lidar's fill) made ``fill``;
+    anything else unchanged."""
     if isinstance(value, list) and any(x is None for x in value):
-        return [np.inf if x is None else x for x in value]
+        return [fill if x is None else x for x in value]
     return value
 
 
