@@ -645,6 +645,14 @@ def _header(engine, dynamic: bool = False):
     return f"{what}: median, min ({a} + {b}, medians){ratios}"
 
 
+def ratios(summary: dict, anchor: str, engine: str) -> list[float]:
+    """Per lidar count, ``anchor``'s median frame / ``engine``'s (NaN where either is missing)."""
+    return [
+        row[anchor]["total"] / row[engine]["total"] if engine in row and anchor in row else np.nan
+        for row in summary.values()
+    ]
+
+
 def dotted(ax, x, y, label: str, style: dict) -> None:
     """A thin dotted line of an engine's ``style``: a part of its frame, or a second ratio."""
     ax.plot(
@@ -682,20 +690,10 @@ def draw(result: dict, path: Path) -> None:
             scene = [row.get(engine, {}).get("scene", np.nan) for row in summary.values()]
             dotted(left, counts, scene, f"{engine}: scene part", style)
         if engine != "embree":
-            ratio = [
-                row["embree"]["total"] / row[engine]["total"]
-                if engine in row and "embree" in row
-                else np.nan
-                for row in summary.values()
-            ]
+            ratio = ratios(summary, "embree", engine)
             right.plot(counts, ratio, label=engine, linewidth=2, markersize=6, **style)
         if engine not in ANCHORS and any("embree dynamic" in row for row in summary.values()):
-            ratio = [
-                row["embree dynamic"]["total"] / row[engine]["total"]
-                if engine in row and "embree dynamic" in row
-                else np.nan
-                for row in summary.values()
-            ]
+            ratio = ratios(summary, "embree dynamic", engine)
             dotted(right, counts, ratio, f"{engine}: against Embree dynamic", style)
     for ax in (left, right):
         ax.set_xscale("log", base=2)
