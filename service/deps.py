@@ -70,15 +70,6 @@ PatternsDep = Annotated[Patterns, Depends(get_patterns)]
 ReadinessDep = Annotated[Readiness, Depends(get_readiness)]
 
 
-def require_ready(ready: ReadinessDep) -> None:
-    """Dependency of the scene and query routes: 503 with Retry-After while the kernels compile,
-    rather than a request that waits minutes for the compiler."""
-    if ready.status == "starting":
-        raise NotReady("the engine is compiling its kernels (GET /health says when it is ready)")
-    if ready.status == "error":
-        raise NotReady(f"the engine failed to compile: {ready.error}; see the server's log")
-
-
 #: Declares the bearer scheme in the OpenAPI document; ``require_token`` words the refusals.
 bearer = HTTPBearer(auto_error=False, description="the server's DACRT_TOKEN, when it has one")
 
@@ -99,6 +90,16 @@ def require_token(
     presented = credentials.credentials.strip().encode()
     if not secrets.compare_digest(presented, token.get_secret_value().encode()):
         raise Unauthorized("the bearer token is wrong; use the server's DACRT_TOKEN")
+
+
+def require_ready(ready: ReadinessDep, _: Annotated[None, Depends(require_token)]) -> None:
+    """Dependency of the scene and query routes: 503 with Retry-After while the kernels compile,
+    rather than a request that waits minutes for the compiler. The token is checked first, so a
+    caller without it learns nothing of the engine's state (a compile error names paths)."""
+    if ready.status == "starting":
+        raise NotReady("the engine is compiling its kernels (GET /health says when it is ready)")
+    if ready.status == "error":
+        raise NotReady(f"the engine failed to compile: {ready.error}; see the server's log")
 
 
 async def reject_unknown_query(request: Request) -> None:

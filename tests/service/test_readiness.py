@@ -35,6 +35,16 @@ def test_scene_routes_are_503_with_retry_after_while_compiling(path):
     assert get(app, path).status_code != 503
 
 
+def test_a_caller_without_the_token_learns_nothing_of_a_failed_compile():
+    app = create_app(Settings(token="s3cret", load_demo=False))
+    app.state.readiness.status, app.state.readiness.error = "error", "ERR at /srv/cache/x.nbi"
+    response = get(app, "/v1/scenes")
+    assert response.status_code == 401 and "/srv/cache" not in response.text
+    health = get(app, "/health")
+    assert health.status_code == 503 and health.json()["status"] == "error"
+    assert "/srv/cache" not in health.text
+
+
 def test_operations_answer_while_compiling():
     app = create_app(Settings(token=None, load_demo=False))
     assert get(app, "/health").json()["status"] == "starting"
