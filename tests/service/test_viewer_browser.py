@@ -85,7 +85,10 @@ def distance(camera) -> float:
 
 
 def test_the_page_shows_the_render_of_its_camera_and_links_to_the_docs(driver, url, room):
+    driver.get_log("browser")  # what earlier pages logged
     open_viewer(driver, url, room)
+    errors = [e["message"] for e in driver.get_log("browser") if e["level"] == "SEVERE"]
+    assert errors == []  # not even a missing /favicon.ico
     camera, png, version = shown(driver)
     assert camera["width"] == 640 and camera["height"] == 480 and camera["up"] == [0, 0, 1]
     assert version == "3"
@@ -210,6 +213,39 @@ def test_when_its_scene_goes_the_page_shows_the_last_changed(driver, url, room, 
     WebDriverWait(driver, 30, poll_frequency=0.05, ignored_exceptions=REBUILT).until(
         lambda d: d.find_element("id", "scene").get_attribute("value") == later
     )
+    browser.wait_for_picture(driver)
+    camera, png, _ = shown(driver)
+    assert_is_the_render_of_its_camera(url, later, camera, png)
+    # the page says why it shows another scene, after that scene's picture has come
+    assert driver.find_element("id", "notice").text == f"scene {room} is gone; showing {later}"
+
+
+def test_a_shading_or_up_the_page_does_not_offer_is_ignored(driver, url, room):
+    driver.get("about:blank")
+    driver.get(f"{url}/#scene={room}&shading=Depth&up=x")
+    browser.wait_for_picture(driver)
+    assert driver.find_element("id", "shading").get_attribute("value") == "shaded"
+    assert driver.find_element("id", "up").get_attribute("value") == "y"
+    camera, png, _ = shown(driver)
+    assert camera["shading"] == "shaded" and driver.find_element("id", "error").text == ""
+    assert_is_the_render_of_its_camera(url, room, camera, png)
+
+
+def test_when_every_scene_goes_the_page_shows_no_picture(driver, url, room):
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    open_viewer(driver, url, room)
+    with Client(url) as api:
+        for info in api.scenes():
+            api.delete(info["scene"])
+    WebDriverWait(driver, 30, poll_frequency=0.05).until(
+        lambda d: d.find_element("id", "status").text.startswith("no scenes yet")
+    )
+    picture = driver.find_element("id", "view")
+    assert picture.get_attribute("src") in (None, "")
+    assert picture.get_attribute("data-camera") is None
+    assert driver.find_element("id", "camera").text == ""
+    assert driver.find_element("id", "notice").text == f"scene {room} is gone"
 
 
 def test_on_a_server_with_a_token_the_page_asks_for_it(driver):
