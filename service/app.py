@@ -19,7 +19,7 @@ from fastapi.staticfiles import StaticFiles
 import dacrt.cache
 from dacrt import InputError
 
-from . import __version__, errors, openapi, warmup, wire
+from . import __version__, allocator, errors, openapi, warmup, wire
 from .admission import Admission, AdmissionMiddleware
 from .cluster import Cluster
 from .deps import Readiness, require_ready
@@ -46,6 +46,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     then a bad or unknown DACRT_* variable ends the process with one line)."""
     settings = settings or load_settings_or_exit()
     configure_logging(settings.log_level)
+    allocator.cap_arenas()  # before the worker threads: RSS then follows the in-flight budget
     journal = open_data_dir(settings)
     store = Store(
         settings.max_triangles_per_scene,

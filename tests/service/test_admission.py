@@ -355,6 +355,79 @@ def test_requests_beyond_the_budget_are_503_with_retry_after(servers):
     assert "dacrt_inflight_bytes 0.0" in metrics
 
 
+#: A small budget that admits one request of HEAVY_RAYS rays at a time.
+SMALL_BUDGET = 48 * MiB
+HEAVY_RAYS = 200_000
+#: What the allocator may keep beyond the budget once many threads have each served such a
+#: request (one arena of freed heap a thread, uncapped, held 28-93 MiB more).
+SMALL_MARGIN = 16 * MiB
+
+
+def grid_mesh(n: int = 60) -> bytes:
+    """An npz of a flat n x n grid of squares on z = 0 from -n/2 to n/2 (2 n**2 triangles)."""
+    ticks = np.arange(n + 1, dtype=np.float32) - n / 2
+    x, y = np.meshgrid(ticks, ticks, indexing="ij")
+    vertices = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size, np.float32)])
+    corner = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
+    quads = np.column_stack([corner, corner + n + 1, corner + n + 2, corner + 1])
+    faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]).astype(np.int32)
+    buffer = io.BytesIO()
+    np.savez(buffer, vertices=vertices.astype(np.float32), faces=faces)
+    return buffer.getvalue()
+
+
+def npy(array: np.ndarray) -> bytes:
+    buffer = io.BytesIO()
+    np.save(buffer, array)
+    return buffer.getvalue()
+
+
+def test_many_threads_serving_heavy_requests_keep_rss_within_the_budget():
+    """24 clients, 6 heavy requests each: every request thread that served one would keep its
+    peak in its own allocator arena, and the server would hold several while the budget admits
+    one. The server caps the arenas (service.allocator)."""
+    server = ServerProcess(
+        {"DACRT_MAX_INFLIGHT_BYTES": str(SMALL_BUDGET), "DACRT_ADMISSION_WAIT": "1"}
+    )
+    try:
+        url = server.wait_ready()
+        put = httpx.put(
+            f"{url}/v1/scenes/grid/meshes/g",
+            content=grid_mesh(),
+            headers={"content-type": "application/x-npz"},
+        )
+        assert put.status_code in (200, 201)
+        rng = np.random.default_rng(5)
+        rays = np.zeros((HEAVY_RAYS, 6), np.float32)
+        rays[:, :2] = rng.uniform(-29, 29, (HEAVY_RAYS, 2))
+        rays[:, 2], rays[:, 5] = 5, -1
+        body, closest = npy(rays), f"{url}/v1/scenes/grid/closest?fields=t"
+        warm = httpx.post(closest, content=npy(rays[:16]), headers={"content-type": NPY})
+        assert warm.status_code == 200
+        pid = server.process.pid
+        idle = rss(pid, "VmRSS")
+        reset_peak(pid)
+
+        def client(_):
+            with httpx.Client(timeout=120) as http:
+                return [
+                    http.post(closest, content=body, headers={"content-type": NPY})
+                    for _ in range(6)
+                ]
+
+        with ThreadPoolExecutor(24) as pool:
+            answers = [a for answers in pool.map(client, range(24)) for a in answers]
+        peak = rss(pid, "VmHWM") - idle
+    finally:
+        server.stop()
+    statuses = [a.status_code for a in answers]
+    print(f"{statuses.count(200)} served, {statuses.count(503)} refused: +{peak / MiB:.0f} MiB")
+    assert set(statuses) <= {200, 503} and 200 in statuses
+    served = next(a for a in answers if a.status_code == 200)
+    assert np.array_equal(np.load(io.BytesIO(served.content))["t"], np.full(HEAVY_RAYS, 5, "f4"))
+    assert peak <= SMALL_BUDGET + SMALL_MARGIN, f"peak RSS +{peak / MiB:.0f} MiB over idle"
+
+
 def test_a_request_over_the_whole_budget_is_413_before_its_body_is_read(servers):
     """A JSON body of 40 MiB would cost about 17 times its size to parse: over the budget."""
     url = f"{servers['budget'].url}/v1/scenes/demo/closest"
