@@ -779,6 +779,103 @@ def test_the_service_intersector_keeps_precision_far_away_and_follows_the_mesh(a
     assert gone.value.status == 404
 
 
+def down_the_sphere(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` rays straight down from z = 5 onto a unit sphere at the origin, most of them hits."""
+    rng = np.random.default_rng(seed)
+    origins = np.column_stack([rng.uniform(-0.8, 0.8, (n, 2)), np.full(n, 5.0)])
+    return origins, np.tile([0.0, 0.0, -1.0], (n, 1))
+
+
+def test_a_call_that_another_thread_outruns_answers_from_the_mesh_it_read(app_client):
+    """Thread A's intersects_first is held before its request goes while thread B rotates the
+    mesh and queries, which uploads the rotated mesh over A's: A still answers for the mesh A
+    read and B for the rotated one, each as trimesh's own intersector on its mesh; the spare
+    scene that answered A is deleted once A's call returns."""
+    import threading
+
+    import trimesh
+    from trimesh.ray.ray_triangle import RayMeshIntersector as TrimeshIntersector
+
+    from service.intersector import RayMeshIntersector as OnService
+
+    held, release = threading.Event(), threading.Event()
+
+    class HoldingClient(Client):
+        def closest(self, *args, **kwargs):
+            if threading.current_thread().name == "A" and not release.is_set():
+                held.set()
+                release.wait(60)
+            return super().closest(*args, **kwargs)
+
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    as_a_read = mesh.copy()
+    origins, directions = down_the_sphere(200, seed=41)
+    api = HoldingClient(http=app_client)
+    before = {s["scene"] for s in api.scenes()}
+    answers = {}
+    with OnService(mesh, client=api) as remote:
+        a = threading.Thread(
+            target=lambda: answers.update(a=remote.intersects_first(origins, directions)),
+            name="A",
+        )
+        a.start()
+        assert held.wait(60)
+        mesh.apply_transform(trimesh.transformations.rotation_matrix(0.7, [1, 1, 0]))
+        answers["b"] = remote.intersects_first(origins, directions)
+        release.set()
+        a.join(60)
+        want_a = TrimeshIntersector(as_a_read).intersects_first(origins, directions)
+        want_b = TrimeshIntersector(mesh).intersects_first(origins, directions)
+        assert (want_a != want_b).sum() > 150  # the rotation changes most rays' triangles
+        assert np.array_equal(answers["a"], want_a)
+        assert np.array_equal(answers["b"], want_b)
+        assert {s["scene"] for s in api.scenes()} - before == {remote.scene}
+        assert [m["mesh"] for m in api.scene(remote.scene)["meshes"]] == ["mesh"]
+    assert {s["scene"] for s in api.scenes()} == before
+
+
+def test_readings_leave_no_scenes_or_meshes_behind(app_client):
+    """300 readings of a turning mesh keep one scene of one mesh; 10 of them held as calls in
+    flight hold them, and asked after newer ones replaced them, answer for their own mesh (as
+    trimesh's intersector) from spare scenes that go when they are dropped, or at close()."""
+    import gc
+
+    import trimesh
+    from trimesh.ray.ray_triangle import RayMeshIntersector as TrimeshIntersector
+
+    from service.intersector import RayMeshIntersector as OnService
+
+    api = Client(http=app_client)
+    before = {s["scene"] for s in api.scenes()}
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    origins, directions = down_the_sphere(50, seed=42)
+    turn = trimesh.transformations.rotation_matrix(0.05, [1, 1, 0])
+    with OnService(mesh, client=api) as remote:
+        held = []
+        for k in range(300):
+            mesh.apply_transform(turn)
+            reading = remote.reading()
+            if k % 30 == 0:
+                held.append((reading, mesh.copy()))
+        del reading
+        remote.intersects_any(origins, directions)  # the current reading: its own scene
+        assert {s["scene"] for s in api.scenes()} - before == {remote.scene}
+        assert len(api.scene(remote.scene)["meshes"]) == 1
+        for reading, as_read in held:
+            prim = reading.backend.closest(origins, directions)[0]
+            assert np.array_equal(
+                prim, TrimeshIntersector(as_read).intersects_first(origins, directions)
+            )
+        assert len({s["scene"] for s in api.scenes()} - before) == 1 + len(held)
+        del held[:5], reading, as_read
+        gc.collect()
+        assert len({s["scene"] for s in api.scenes()} - before) == 1 + len(held)
+    assert {s["scene"] for s in api.scenes()} == before
+    del held
+    gc.collect()
+    assert {s["scene"] for s in api.scenes()} == before
+
+
 def test_set_transform_places_the_mesh_for_hits_and_count(app_api, scene_name, teapot):
     """An instance placed by a rotation, a scale and a shift answers as the mesh placed in numpy."""
     import procedural
