@@ -9,7 +9,7 @@ checked here; what the engine owns (strategy, culling) is checked by the engine,
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, replace
 from enum import Enum
 
@@ -17,6 +17,7 @@ import numpy as np
 
 import dacrt
 from dacrt.sensors import CAMERA_FIELDS, LIDAR_FIELDS
+from dacrt.sensors.pcd import VECTOR_FIELDS
 from dacrt.validation import check_cull, check_strategy
 
 from . import footprint
@@ -58,6 +59,12 @@ SENSOR_FIELDS: dict[Sensor, tuple[str, ...]] = {
     Sensor.LIDAR: LIDAR_FIELDS,
     Sensor.RIG: LIDAR_FIELDS + tuple(name for name in CAMERA_FIELDS if name not in LIDAR_FIELDS),
 }
+#: The names a lidar's PCD answer takes in ``?fields=`` besides the keys: each column of a vector
+#: key (``x`` of ``xyz``, ``velocity_x`` of ``velocity``), as ``dacrt.sensors.pcd`` names them,
+#: and the key it stands for.
+PCD_COLUMNS: dict[str, str] = {
+    column: key for key, columns in VECTOR_FIELDS.items() for column in columns
+}
 #: The keys of a hits answer with one value per hit: they come with ``offsets`` (CSR), listed in
 #: ``?fields=`` or not.
 PER_HIT_FIELDS = ("t", "mesh", "prim", "u", "v", "normal")
@@ -92,11 +99,36 @@ class Options:
     #: DACRT_DEVICE: "cuda" traces closest, occluded, hits and count on the GPU where the CUDA
     #: backend answers them (``tracing.device_for``)
     device: str = "cpu"
+    #: ``?fields=`` as asked: its names in their order, each once (None: not given)
+    asked: tuple[str, ...] | None = None
 
     def pick(self, get: Callable[[str], np.ndarray]) -> dict[str, np.ndarray]:
         """The answer's arrays: ``get(key)`` for each of ``fields``, in answer order (``get``
         makes only the keys asked for)."""
         return {name: get(name) for name in self.fields}
+
+    def check_columns(self, answer_format: str) -> None:
+        """422 when ``?fields=`` names a PCD column (``x``) for an answer in another format,
+        whose arrays are the keys (``xyz``)."""
+        columns = [name for name in self.asked or () if name in PCD_COLUMNS]
+        if columns and answer_format != "pcd":
+            raise Invalid(
+                unknown_fields(",".join(self.asked), columns, self.kind.value, keys_of(self.kind))
+                + f"; {', '.join(PCD_COLUMNS)} name the columns of a PCD answer only "
+                "(Accept: application/x-pcd)"
+            )
+
+    def pcd_fields(self, answered: Collection[str]) -> tuple[str, ...] | None:
+        """A PCD answer's fields: each name of ``?fields=`` whose key is ``answered``, in the
+        order asked, a key's columns for the key (``xyz``: ``x y z``) and each column once
+        (``pcd_bytes`` of this list); None (every field) without ``?fields=``."""
+        if self.asked is None:
+            return None
+        fields: dict[str, None] = {}
+        for name in self.asked:
+            if PCD_COLUMNS.get(name, name) in answered:
+                fields.update(dict.fromkeys(VECTOR_FIELDS.get(name, (name,))))
+        return tuple(fields)
 
     def traced_as(self, query: Query, max_hits: int | None = None) -> Options:
         """What a sensor asks of the engine: ``query`` (closest, or hits of at most ``max_hits``)
@@ -149,8 +181,11 @@ def make_options(
 
     ``max_hits`` (hits only; default DEFAULT_MAX_HITS) must lie in [1, ``max_hits_limit``]."""
     kind = kind if isinstance(kind, (Query, Sensor)) else query_named(kind)
-    known = FIELDS[kind] if isinstance(kind, Query) else SENSOR_FIELDS[kind]
-    chosen = pick_fields(fields, known, kind.value)
+    known = keys_of(kind)
+    # a lidar answers a PCD file too, whose fields may be a vector key's columns
+    columns = PCD_COLUMNS if kind is Sensor.LIDAR else {}
+    chosen = pick_fields(fields, known, kind.value, columns)
+    asked = None if fields is None else listed(fields)
     if kind is Query.HITS:
         if set(chosen) & set(PER_HIT_FIELDS):
             chosen = ("offsets", *(name for name in chosen if name != "offsets"))
@@ -161,7 +196,13 @@ def make_options(
         raise Invalid(f"max_hits applies to the hits query only, not to {kind.value}")
     # the engine's own checks, before the body is read: its InputError is 422 (errors.install)
     strategy = strategies()[0] if strategy is None else check_strategy(strategy)
-    return Options(kind, chosen, strategy, stats, threads, check_cull(cull), max_hits, mask, device)
+    cull = check_cull(cull)
+    return Options(kind, chosen, strategy, stats, threads, cull, max_hits, mask, device, asked)
+
+
+def keys_of(kind: Query | Sensor) -> tuple[str, ...]:
+    """Every key of ``kind``'s answer, in answer order."""
+    return FIELDS[kind] if isinstance(kind, Query) else SENSOR_FIELDS[kind]
 
 
 def query_named(name: str) -> Query:
@@ -174,21 +215,41 @@ def query_named(name: str) -> Query:
         ) from None
 
 
-def pick_fields(fields: str | None, known: tuple[str, ...], what: str) -> tuple[str, ...]:
-    """``?fields=`` as a tuple in ``known``'s order (all of them if None); 422 naming the choices
-    for an unknown or empty list."""
+def pick_fields(
+    fields: str | None,
+    known: tuple[str, ...],
+    what: str,
+    columns: dict[str, str] | None = None,
+) -> tuple[str, ...]:
+    """``?fields=`` as a tuple in ``known``'s order (all of them if None), a name of ``columns``
+    (a PCD column, ``x``) standing for its key (``xyz``); 422 naming the choices for an unknown
+    or empty list."""
     if fields is None:
         return known
-    names = [name.strip() for name in fields.split(",") if name.strip()]
-    unknown = [name for name in names if name not in known]
+    columns = columns or {}
+    names = listed(fields)
+    unknown = [name for name in names if name not in known and name not in columns]
     if unknown or not names:
-        named = "unknown fields " + ", ".join(map(quoted, unknown[:5])) if unknown else "no field"
-        if len(unknown) > 5:
-            named += f" and {len(unknown) - 5} more"
-        raise Invalid(
-            f"?fields={cut(fields, 100)} names {named} for {what}; choose from {', '.join(known)}"
-        )
-    return tuple(name for name in known if name in names)
+        message = unknown_fields(fields, unknown, what, known)
+        if columns:
+            message += f" (and, for a PCD answer, {', '.join(columns)})"
+        raise Invalid(message)
+    keys = {columns.get(name, name) for name in names}
+    return tuple(name for name in known if name in keys)
+
+
+def listed(fields: str) -> tuple[str, ...]:
+    """The names of ``?fields=`` in their order, each once, spaces and empty names left out."""
+    return tuple(dict.fromkeys(name.strip() for name in fields.split(",") if name.strip()))
+
+
+def unknown_fields(fields: str, unknown: list[str], what: str, known: tuple[str, ...]) -> str:
+    """The 422 message of ``?fields=`` naming ``unknown`` (the first five; none: an empty
+    list) for ``what``, and the ``known`` choices."""
+    named = "unknown fields " + ", ".join(map(quoted, unknown[:5])) if unknown else "no field"
+    if len(unknown) > 5:
+        named += f" and {len(unknown) - 5} more"
+    return f"?fields={cut(fields, 100)} names {named} for {what}; choose from {', '.join(known)}"
 
 
 def check_max_hits(max_hits: int, limit: int | None) -> int:

@@ -183,6 +183,7 @@ async def lidar(
     """One sweep of a lidar: the points where its beams return, with intensity and label
     (docs/sensors.md)."""
     answer_format = wire.negotiate(request.headers.get("accept"), "json", LIDAR_FORMATS)
+    options.check_columns(answer_format)
 
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(LidarRequest, body, "lidar")
@@ -195,7 +196,12 @@ async def lidar(
         sensor, pose, pose_end = value
         return sensing.sense(store.snapshot(scene), sensor, pose, options, pose_end)
 
-    steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode_arrays)
+    def encode(result: TraceResult, answer_format: str):
+        # a PCD's fields come in the order asked, as pcd_bytes writes them in process
+        pcd_fields = options.pcd_fields(result.arrays)
+        return wire.encode_answer(result.arrays, answer_format, pcd_fields)
+
+    steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 

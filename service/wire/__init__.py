@@ -118,8 +118,8 @@ Answers (``negotiate`` and ``encode_answer``)
          field each (``a["t"]``, ``a["normal"]`` of shape (N, 3)). So every field must have one
          row per ray: a hits answer in CSR form (``offsets`` and per-hit keys) is npz or JSON only
          (the route's ``formats`` for ``negotiate``).
-    pcd  a lidar's points only (``Accept: application/x-pcd``): a binary PCD v0.7 file of its
-         fields (``x y z`` for ``xyz``), ``dacrt.sensors.pcd``.
+    pcd  a lidar's points only (``Accept: application/x-pcd``): a binary PCD v0.7 file of the
+         fields asked, in the order asked (``x y z`` for ``xyz``), ``dacrt.sensors.pcd``.
     json ``{"t": [...], ...}``; float32 values in their shortest round-trip form, so
          ``np.float32(json_value)`` gives back the binary answer bit for bit; inf (and nan) are
          null. A rig's answer is ``{"NAME": {"KEY": [...], ...}, ...}`` (npz: keys ``NAME.KEY``).

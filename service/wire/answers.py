@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -89,9 +89,10 @@ def quality(ranges: list[tuple[str, float]], names: list[str]) -> tuple[float, i
 
 
 def encode_answer(
-    arrays: Mapping[str, np.ndarray], fmt: str
+    arrays: Mapping[str, np.ndarray], fmt: str, pcd_fields: Sequence[str] | None = None
 ) -> tuple[Iterable[Buffer], int | None, str]:
-    """(body as buffers to send in order, its length, Content-Type) of an answer: npz, npy or json.
+    """(body as buffers to send in order, its length, Content-Type) of an answer: npz, npy or json,
+    or a lidar's pcd of ``pcd_fields`` in their order (None: every field), as ``pcd_bytes``.
 
     The buffers of npy and npz bodies are mostly the answer arrays' own memory: nothing is copied.
     An npz body takes each member's CRC as it is sent (``NpzBody``). A JSON body is written piece
@@ -106,7 +107,7 @@ def encode_answer(
     if fmt == "json":
         return json_pieces(arrays), None, JSON
     if fmt == "pcd":
-        body = pcd_bytes(arrays)
+        body = pcd_bytes(arrays, pcd_fields)
         return [body], len(body), PCD
     raise ValueError(f"unknown answer format {fmt!r}")
 

@@ -329,8 +329,8 @@ def test_accept_pcd_answers_the_points_as_a_binary_pcd_file(app_client, room):
     response = lidar(app_client, room, body, "?fields=xyz,intensity,ring,label", Accept=PCD)
     assert response.status_code == 200 and response.headers["content-type"] == PCD
     header, records = read_pcd(response.content)
-    assert header["VERSION"] == "0.7" and header["FIELDS"] == "x y z ring intensity label"
-    assert header["TYPE"] == "F F F U F U" and header["SIZE"] == "4 4 4 2 4 4"
+    assert header["VERSION"] == "0.7" and header["FIELDS"] == "x y z intensity ring label"
+    assert header["TYPE"] == "F F F F U U" and header["SIZE"] == "4 4 4 4 2 4"
     assert int(header["POINTS"]) == int(header["WIDTH"]) == len(points["xyz"]) > 100
     assert header["HEIGHT"] == "1"
     for axis, name in enumerate("xyz"):
@@ -349,6 +349,38 @@ def test_accept_pcd_answers_the_points_as_a_binary_pcd_file(app_client, room):
 
 PCD = "application/x-pcd"
 STEPS = 64
+LIDAR_KEYS = ", ".join(FIELDS + ("time", "velocity", "radial_speed"))
+
+
+@pytest.mark.parametrize("accept", ["application/x-npz", "application/x-npy", "application/json"])
+def test_pcd_columns_are_fields_of_a_pcd_answer_only(app_client, room, accept):
+    """x y z (velocity_x ...) name a PCD's columns; the arrays of the other formats are the keys
+    (xyz), so those names are unknown there, and the 422 says where they belong."""
+    body = {"pose": POSES[0].tolist(), "model": "VLP-16", "horizontal_steps": 8}
+    response = lidar(app_client, room, body, "?fields=x,y,z,ring", Accept=accept)
+    assert response.status_code == 422, response.text
+    detail = response.json()["detail"]
+    assert detail.startswith(
+        f"?fields=x,y,z,ring names unknown fields 'x', 'y', 'z' for lidar; choose from {LIDAR_KEYS}"
+    )
+    assert "x, y, z, velocity_x, velocity_y, velocity_z name the columns of a PCD answer" in detail
+    assert lidar(app_client, room, body, "?fields=xyz,ring", Accept=accept).status_code == 200
+
+
+def test_an_unknown_field_is_422_naming_the_fields_of_each_format(app_client, room):
+    body = {"pose": POSES[0].tolist(), "model": "VLP-16", "horizontal_steps": 8}
+    for accept in (PCD, "application/x-npz"):
+        response = lidar(app_client, room, body, "?fields=x,colour", Accept=accept)
+        assert response.status_code == 422, response.text
+        assert response.json()["detail"] == (
+            f"?fields=x,colour names unknown fields 'colour' for lidar; choose from {LIDAR_KEYS}"
+            " (and, for a PCD answer, x, y, z, velocity_x, velocity_y, velocity_z)"
+        )
+    # a rig answers no PCD: its fields are the keys
+    rig = {"sensors": {"roof": {"kind": "lidar", **body}}}
+    response = app_client.post(f"/v1/scenes/{room}/sensors?fields=x,ring", json=rig)
+    assert response.status_code == 422, response.text
+    assert "unknown fields 'x' for sensors; choose from xyz," in response.json()["detail"]
 
 
 def test_return_modes_and_max_returns(app_client, inside_sphere):

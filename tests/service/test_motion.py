@@ -355,12 +355,21 @@ def test_a_restart_restores_end_vertices(tmp_path):
         np.testing.assert_array_equal(closest_json(http, "s", o, d, times)["t"], answer)
 
 
+#: The PCD columns of the vector keys: (key, axis).
+PCD_COLUMNS = {
+    **{axis: ("xyz", k) for k, axis in enumerate("xyz")},
+    **{f"velocity_{axis}": ("velocity", k) for k, axis in enumerate("xyz")},
+}
+
+
 @pytest.mark.parametrize(
     "fields, want",
     [
         ("velocity", ["velocity_x", "velocity_y", "velocity_z"]),
         ("range,velocity", ["range", "velocity_x", "velocity_y", "velocity_z"]),
-        ("xyz,velocity,time", ["x", "y", "z", "time", "velocity_x", "velocity_y", "velocity_z"]),
+        ("xyz,velocity,time", ["x", "y", "z", "velocity_x", "velocity_y", "velocity_z", "time"]),
+        ("velocity_z,time,x,velocity_x", ["velocity_z", "time", "x", "velocity_x"]),
+        ("velocity_y,velocity,y", ["velocity_y", "velocity_x", "velocity_z", "y"]),
     ],
 )
 def test_a_pcd_holds_velocity_as_three_fields(app_client, scene_name, fields, want):
@@ -385,9 +394,13 @@ def test_a_pcd_holds_velocity_as_three_fields(app_client, scene_name, fields, wa
     assert header["FIELDS"] == want
     assert int(header["POINTS"][0]) == int(header["WIDTH"][0]) == len(points["ray"]) > 10
     assert header["HEIGHT"] == ["1"]
-    for axis, name in enumerate(["velocity_x", "velocity_y", "velocity_z"]):
-        np.testing.assert_array_equal(records[name], points["velocity"][:, axis])
-    np.testing.assert_allclose(records["velocity_x"], 20.0, atol=1e-3)
+    # the fields in the order asked, a vector key's columns by their axis
+    for name in want:
+        key, axis = PCD_COLUMNS.get(name, (name, None))
+        values = points[key] if axis is None else points[key][:, axis]
+        np.testing.assert_array_equal(records[name], values)
+    if "velocity_x" in want:
+        np.testing.assert_allclose(records["velocity_x"], 20.0, atol=1e-3)
 
 
 @pytest.mark.parametrize("accept", ["application/x-pcd", "application/json", "application/x-npz"])

@@ -42,6 +42,27 @@ def test_fields_come_in_answer_order_whatever_order_they_are_asked_in():
     assert make_options(Sensor.LIDAR, fields="ray,xyz").fields == ("xyz", "ray")
 
 
+def test_a_lidar_takes_pcd_columns_for_their_key_and_keeps_the_order_asked():
+    """A lidar's PCD answer names a vector key's columns (x y z of xyz): the engine is asked for
+    the key, and the PCD gets the names in the order asked, each column once."""
+    options = make_options(Sensor.LIDAR, fields=" z,ring,x ,velocity_y,z")
+    assert options.fields == ("xyz", "ring", "velocity")
+    assert options.asked == ("z", "ring", "x", "velocity_y")
+    answered = ("xyz", "ring", "velocity")
+    assert options.pcd_fields(answered) == ("z", "ring", "x", "velocity_y")
+    assert options.pcd_fields(("xyz", "ring")) == ("z", "ring", "x")  # no velocity answered
+    both = make_options(Sensor.LIDAR, fields="label,y,xyz")
+    assert both.pcd_fields(("xyz", "label")) == ("label", "y", "x", "z")
+    assert make_options(Sensor.LIDAR).pcd_fields(answered) is None  # every field
+    both.check_columns("pcd")
+    with pytest.raises(Invalid, match="unknown fields 'y' for lidar; choose from xyz, range"):
+        both.check_columns("npz")
+    make_options(Sensor.LIDAR, fields="xyz,label").check_columns("json")
+    for sensor in (Sensor.CAMERA, Sensor.RIG):  # no PCD answer
+        with pytest.raises(Invalid, match=f"unknown fields 'x' for {sensor.value}"):
+            make_options(sensor, fields="x")
+
+
 def test_hits_fields_of_one_value_per_hit_bring_their_offsets():
     assert make_options("hits", fields="prim,t").fields == ("offsets", "t", "prim")
     assert make_options("hits", fields="truncated").fields == ("truncated",)

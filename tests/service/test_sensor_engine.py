@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from sensor_helpers import MESHES, npz, put_room, rigid_pose
+from sensor_reference import read_pcd
 
 import dacrt
-from dacrt.sensors import Camera, Lidar, Materials, Rig, look_at_pose
+from dacrt.sensors import Camera, Lidar, Materials, Rig, look_at_pose, pcd_bytes
 
 NPZ_ANSWER = {"Accept": "application/x-npz"}
 POSE = rigid_pose(20, -5, (0.0, -3.0, 1.2))
@@ -88,6 +89,70 @@ def test_the_materials_reach_the_points(app_client, room):
     rho = np.array(REFLECTIVITY)[answer["mesh"]]
     rule = rho * answer["cos_incidence"] * np.exp(-0.004 * answer["range"].astype(np.float64))
     assert np.allclose(answer["intensity"], rule, rtol=1e-6)
+
+
+PCD_ANSWER = {"Accept": "application/x-pcd"}
+#: ``?fields=`` of a PCD answer as the docs list them: a key's columns (``x y z``) or the key
+#: itself (``xyz``), in any order; each is the list ``pcd_bytes`` takes in process.
+PCD_FIELDS = [
+    None,
+    "x,y,z,intensity,ring,label",
+    "xyz,intensity,ring,label",
+    "label,ring,intensity,xyz",
+    "intensity,z,x",
+    "range,y,mesh,cos_incidence,x,return,z",
+]
+
+
+def pcd_columns(points, fields):
+    """FIELDS of a PCD of ``points`` with ``fields``, and each one's values, from the points
+    (``xyz`` is the columns x y z, written out here; None: every key of the points)."""
+    names = list(points) if fields is None else fields
+    columns = {}
+    for name in names:
+        if name == "xyz" or name in ("x", "y", "z"):
+            for axis in "xyz" if name == "xyz" else name:
+                columns[axis] = points["xyz"][..., "xyz".index(axis)].reshape(-1)
+        else:
+            columns[name] = points[name].reshape(-1)
+    return columns
+
+
+@pytest.mark.parametrize("name", ["plain", "organized"])
+@pytest.mark.parametrize("fields", PCD_FIELDS)
+def test_a_pcd_answer_is_the_engines_pcd_file(app_client, room, scene, name, fields):
+    """``Accept: application/x-pcd`` with ``?fields=`` is byte for byte ``pcd_bytes`` of the
+    same list in process: the same names (x y z, or xyz) in the order asked."""
+    body = {"pose": POSE.tolist(), **LIDARS[name]}
+    params = {} if fields is None else {"fields": fields}
+    response = app_client.post(
+        f"/v1/scenes/{room}/lidar", params=params, json=body, headers=PCD_ANSWER
+    )
+    assert response.status_code == 200, response.text
+    points = Lidar(**lidar_kwargs(LIDARS[name])).scan(scene, POSE, MATERIALS)
+    asked = None if fields is None else fields.split(",")
+    assert response.content == pcd_bytes(points, asked)
+    # read by hand: the fields asked, in that order, with the points' values
+    header, records = read_pcd(response.content)
+    want = pcd_columns(points, asked)
+    assert header["FIELDS"] == list(want) and len(records) == points["range"].size > 100
+    for column, values in want.items():
+        assert np.array_equal(records[column], values, equal_nan=True), column
+
+
+def test_a_pcd_field_asked_twice_is_written_once_where_first_asked(app_client, room, scene):
+    """``pcd_bytes`` refuses a field named twice; the service's ``?fields=`` takes each name once
+    (as for every answer), so ``x,xyz`` is the PCD of x y z."""
+    body = {"pose": POSE.tolist(), **LIDARS["plain"]}
+    response = app_client.post(
+        f"/v1/scenes/{room}/lidar",
+        params={"fields": "ring,x,xyz,ring,label"},
+        json=body,
+        headers=PCD_ANSWER,
+    )
+    assert response.status_code == 200, response.text
+    points = Lidar(**LIDARS["plain"]).scan(scene, POSE, MATERIALS)
+    assert response.content == pcd_bytes(points, ["ring", "x", "y", "z", "label"])
 
 
 CAMERAS = {
