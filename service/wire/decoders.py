@@ -219,6 +219,8 @@ def rays_from_mapping(mapping: Mapping[str, Any], max_rays: int | None) -> Rays:
     bounds = []
     for key in ("tmin", "tmax", "time"):
         value = mapping.get(key)
+        if key == "time" and value is not None and not isinstance(value, np.ndarray):
+            check_json_times(value)
         if value is not None:
             value = float_array(value, key, None)
             if value.ndim == 0:
@@ -231,6 +233,17 @@ def rays_from_mapping(mapping: Mapping[str, Any], max_rays: int | None) -> Rays:
         mask = mask_array(mask, "mask", len(origins))
     tmin, tmax, time = bounds
     return Rays(origins, directions, tmin, tmax, mask, time)
+
+
+def check_json_times(value: Any) -> None:
+    """422 naming ``time[i]`` for a JSON time that is null or outside [0, 1] as written: the
+    engine checks the float32 it is given, into which 1.000000001 rounds as 1."""
+    times = value if isinstance(value, list) else [value]
+    for i, time in enumerate(times):
+        if time is None:
+            raise Invalid(f"time[{i}] is null: each time must be a number in [0, 1]")
+        if type(time) in (int, float) and not 0 <= time <= 1:  # NaN fails too
+            raise Invalid(f"time[{i}] is {time!r}: each time must be finite and in [0, 1]")
 
 
 def _check_ray_count(n: int, max_rays: int | None) -> None:

@@ -94,7 +94,15 @@ def test_bad_ends_and_times_are_422_naming_them(app_client, scene_name):
     response = app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame)
     assert response.status_code == 422 and "floor.transform_end" in response.text
     o, d, times = rays(4)
-    for bad, words in (([0.0, 0.5, 1.5, 0.0], "time[2]"), ([0.0, 0.5], "time has 2 values")):
+    for bad, words in (
+        ([0.0, 0.5, 1.5, 0.0], "time[2]"),
+        ([0.0, 0.5], "time has 2 values"),
+        # outside [0, 1] as written, though float32 would round it into the range
+        ([0.0, 1.000000001, 0.0, 0.0], "time[1] is 1.000000001"),
+        ([0.0, 0.0, -1e-50, 0.0], "time[2] is -1e-50"),
+        (1.000000001, "time[0] is 1.000000001"),
+        ([0.0, None, 0.0, 0.0], "time[1] is null"),
+    ):
         body = {"origins": o.tolist(), "directions": d.tolist(), "time": bad}
         response = app_client.post(f"/v1/scenes/{scene_name}/closest", json=body)
         assert response.status_code == 422 and words in response.text, response.text
