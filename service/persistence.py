@@ -3,17 +3,21 @@ DACRT_DATA_DIR before it is acknowledged, and read back on start.
 
 Layout, one folder per scene (scene names are safe file names), and the patterns::
 
-    DATA_DIR/scenes/SCENE/scene.VERSION.json         the manifest: the commit point of a version
-    DATA_DIR/scenes/SCENE/INDEX.VERSION.vertices.npy (V, 3) float32, written at VERSION
-    DATA_DIR/scenes/SCENE/INDEX.VERSION.faces.npy    (F, 3) int32, written at VERSION
-    DATA_DIR/patterns/NAME.npz                       a scan pattern (``Pattern.save``)
-    DATA_DIR/lock                                    the serving process's pid and host
+    DATA_DIR/scenes/SCENE/scene.VERSION.json             the manifest: the commit point of a version
+    DATA_DIR/scenes/SCENE/INDEX.VERSION.vertices.npy     (V, 3) float32, written at VERSION
+    DATA_DIR/scenes/SCENE/INDEX.VERSION.faces.npy        (F, 3) int32, written at VERSION
+    DATA_DIR/scenes/SCENE/INDEX.VERSION.vertices_end.npy (V, 3) float32: a deforming mesh's end
+    DATA_DIR/patterns/NAME.npz                           a scan pattern (``Pattern.save``)
+    DATA_DIR/lock                                        the serving process's pid and host
 
 An instance has no array files: its manifest entry names its source (``instance_of``) and is
 restored sharing the source's arrays. Each entry also holds the mesh's ``mask``, its material
 (``reflectivity``, ``label``; read with the defaults where absent) and, unless it is the identity,
-its ``transform`` (16 numbers, row-major, exact in JSON); a mask, material or transform change
-writes only the manifest. Manifests of format 1 (without these) are read with the defaults.
+its ``transform`` and its ``transform_end`` (16 numbers each, row-major, exact in JSON): values of
+a fixed size, so a mask, material or transform change writes only a manifest of a few hundred
+bytes a mesh. Manifests of format 1 (without these) are read with the defaults; end vertices
+that a manifest holds as rows of numbers (the form older folders hold) are read, and get their
+file at the scene's next change.
 
 Every file is written to ``NAME.tmp``, fsynced, renamed to ``NAME``, and its folder fsynced. A
 version's arrays are durable before its manifest is written, so a manifest only names complete
@@ -21,7 +25,10 @@ files; a change writes only the arrays it changes (a vertices update: one ``.npy
 manifest, never the faces). The newest manifest's number is the scene's last version, even when
 its content cannot be read, so versions are never reused; a deleted scene keeps a manifest
 ``{"deleted": true}`` for that reason. A manifest names each array's shape and CRC-32: a
-truncated or corrupted file is reported in the log and its scene skipped, never loaded.
+truncated or corrupted file is reported in the log and its scene skipped, never loaded. So is a
+scene whose manifest holds what a change through the API is refused for: ``_read_scene`` applies
+the same checks (finite vertices, faces within them, end vertices only on an unplaced mesh of its
+own and as many as its vertices, an instance's source a mesh of its own, an index within int32).
 
 A folder that cannot be written is refused at start (a probe file is created, fsynced and
 removed), unless it is only full: then the service starts and serves what it holds. A change
@@ -34,10 +41,12 @@ confirmed: the change may or may not be there after a restart, the error says so
 takes no more changes until the service restarts (``stopped``). Temporary files left by a crash
 are removed at start; entries that are not a scene's or a pattern's are logged and left alone.
 
-One process serves a folder: ``lock_folder`` holds an exclusive ``flock`` on ``DATA_DIR/lock``
-for as long as the folder is open, and a second server on the folder is refused before it reads or
-writes a scene or a pattern. The OS releases the lock when the process ends, however it ends
-(kill -9 included), so a stale lock needs no cleanup.
+One process serves a folder: ``lock_folder`` holds an exclusive ``flock`` on ``DATA_DIR`` itself
+and one on ``DATA_DIR/lock`` for as long as the folder is open, and a second server on the folder
+is refused before it reads or writes a scene or a pattern, also when the file ``lock`` was
+removed (the folder's own lock holds; the file names the holder, and on NFS locks it for the
+other hosts). The OS releases the locks when the process ends, however it ends (kill -9
+included), so a stale lock needs no cleanup.
 """
 
 from __future__ import annotations
@@ -49,7 +58,7 @@ import logging
 import os
 import re
 import socket
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import suppress
 from dataclasses import dataclass, replace
 from functools import partial
@@ -71,9 +80,11 @@ except ImportError:  # pragma: no cover - isal is a dependency; zlib gives the s
 
 from .errors import DataDirUnavailable, InsufficientStorage, Invalid
 from .store import (
+    MAX_INDEX,
     Geometry,
     Mesh,
     Snapshot,
+    check_deforming,
     check_name,
     owned_transform,
     placed,
@@ -97,6 +108,7 @@ READ_FORMATS = (1, 2)  #: the manifest formats it reads (1: no masks, transforms
 PROBE = ".write-probe"  #: written (through PROBE.tmp) and removed at start to check the folder
 FULL = frozenset({errno.ENOSPC, errno.EDQUOT})  #: OS errors that mean "full": 507, not 503
 LOCK = "lock"  #: locked (flock) by the process serving the folder, and naming it
+LAST = f"{MAX_INDEX}, the last mesh index (a hit's mesh is int32)"  #: what bounds an index
 
 
 @dataclass(frozen=True)
@@ -120,8 +132,9 @@ class Restored:
     last_versions: dict[str, int]
 
 
-#: A mesh's array files: (vertices, faces), or () for an instance.
-MeshFiles = tuple[ArrayFile, ...]
+#: A mesh's array files by kind (``vertices``, ``faces`` and, for a deforming mesh,
+#: ``vertices_end``); none for an instance.
+MeshFiles = Mapping[str, ArrayFile]
 
 
 def write_file(path: Path, write) -> None:
@@ -164,21 +177,31 @@ def _transform_end(value: Any) -> np.ndarray | None:
     return matrix
 
 
-def _vertices_end(value: Any) -> np.ndarray | None:
-    """A manifest's end vertices (absent: static), checked, read-only."""
-    if value is None:
-        return None
+def _inline_vertices_end(value: Any) -> np.ndarray:
+    """End vertices given in the manifest as rows of numbers (the form older folders hold),
+    checked, read-only."""
     vertices = check_vertices(float_array(value, "vertices_end", 3), "vertices_end")
     vertices.setflags(write=False)
     return vertices
 
 
-def _count(value: Any, key: str, path: Path, at_most: int | None = None) -> int:
-    """A manifest's index or version: an int >= 0 (and <= ``at_most``); CorruptScene if not."""
+def _arrays(mesh: Mesh) -> Iterator[tuple[str, np.ndarray]]:
+    """The arrays that a mesh's files hold, by kind; none for an instance (its source's do)."""
+    if mesh.instance_of is not None:
+        return
+    yield "vertices", mesh.vertices
+    yield "faces", mesh.faces
+    if mesh.vertices_end is not None:
+        yield "vertices_end", mesh.vertices_end
+
+
+def _count(value: Any, key: str, path: Path, at_most: int, limit: str) -> int:
+    """A manifest's index or version: an int in [0, ``at_most``] (``limit`` names that bound);
+    CorruptScene if not."""
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise CorruptScene(f"{path.name}: {key} is {value!r:.40}, not a count")
-    if at_most is not None and value > at_most:
-        raise CorruptScene(f"{path.name}: {key} {value} is past the manifest's version")
+    if value > at_most:
+        raise CorruptScene(f"{path.name}: {key} {value} is past {limit}")
     return value
 
 
@@ -209,12 +232,47 @@ class FolderLocked(Exception):
     file system has no ``flock`` (the message says which, in one line)."""
 
 
-def lock_folder(root: Path) -> BinaryIO:
-    """Hold an exclusive ``flock`` on ``root/lock`` (both created if needed) while the answered
-    file is open, with this process's pid and host written in it. FolderLocked if another process
-    holds the lock or the file system cannot lock; OSError if the file cannot be created."""
+class FolderLock:
+    """The locks that hold a data folder for this process, until ``close``: an exclusive
+    ``flock`` on the folder itself, and one on its file ``lock``, which names the process."""
+
+    def __init__(self, folder: int, file: BinaryIO) -> None:
+        self.folder = folder  #: the folder, open read-only
+        self.file = file  #: the file ``lock``
+
+    def close(self) -> None:
+        self.file.close()
+        os.close(self.folder)
+
+
+def lock_folder(root: Path) -> FolderLock:
+    """Lock ``root`` (created if needed) for this process: an exclusive ``flock`` on the folder
+    itself, which cannot be removed while it holds files (the file ``lock`` can be, and a lock
+    on that alone would then let a second server in), and one on ``root/lock`` (created if
+    needed; on NFS the folder's flock holds for this host only, the file's for every host), with
+    this process's pid and host written in it. FolderLocked if another process holds either lock
+    or the file system cannot lock; OSError if the folder or the file cannot be created."""
     root.mkdir(parents=True, exist_ok=True)
     path = root / LOCK
+    folder = os.open(root, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        try:
+            fcntl.flock(folder, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            raise _refusal(exc, root, path) from None
+        file = _locked_file(path)
+    except BaseException:
+        os.close(folder)
+        raise
+    # not truncated first: a full disk keeps the block the last holder's name used
+    with suppress(OSError), open(path, "r+b") as name:  # full or read-only: the probe says so
+        name.write(f"pid {os.getpid()} on {socket.gethostname()}\n".encode())
+        name.truncate()
+    return FolderLock(folder, file)
+
+
+def _locked_file(path: Path) -> BinaryIO:
+    """``path`` (created if needed), open and locked (``flock``) by this process."""
     # read-only: a file held open for writing keeps its disk from being remounted read-only
     file = _open(path, os.O_RDONLY)
     try:
@@ -226,23 +284,26 @@ def lock_folder(root: Path) -> BinaryIO:
             file.close()
             file = _open(path, os.O_RDWR)  # NFS locks only a file open for writing
             fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        file.close()
-        holder = " ".join(path.read_bytes()[:200].decode(errors="replace").split())
-        raise FolderLocked(
-            f"the data folder is in use by {holder or 'another process'}, which holds {path}: "
-            "a data folder serves one server at a time"
-        ) from None
     except OSError as exc:
         file.close()
-        raise FolderLocked(
-            f"the data folder cannot be locked (flock on {path}): {os_error_text(exc)}"
-        ) from None
-    # not truncated first: a full disk keeps the block the last holder's name used
-    with suppress(OSError), open(path, "r+b") as name:  # full or read-only: the probe says so
-        name.write(f"pid {os.getpid()} on {socket.gethostname()}\n".encode())
-        name.truncate()
+        raise _refusal(exc, path, path) from None
     return file
+
+
+def _refusal(exc: OSError, locked: Path, names: Path) -> FolderLocked:
+    """Why ``flock`` on ``locked`` failed: another process holds it (named by the file ``names``
+    where it is there) or the file system cannot lock."""
+    if not isinstance(exc, BlockingIOError):
+        return FolderLocked(
+            f"the data folder cannot be locked (flock on {locked}): {os_error_text(exc)}"
+        )
+    holder = ""
+    with suppress(OSError):  # removed: the folder's lock holds without it
+        holder = " ".join(names.read_bytes()[:200].decode(errors="replace").split())
+    return FolderLocked(
+        f"the data folder is in use by {holder or 'another process'}, which holds "
+        f"{names if holder else locked}: a data folder serves one server at a time"
+    )
 
 
 def _open(path: Path, mode: int) -> BinaryIO:
@@ -263,10 +324,10 @@ class DataDir:
 
     Opening checks that ``root`` can be written (OSError if not), except that a full folder is
     opened with its ``fault`` set: reads are served, changes answer 507 until space returns.
-    ``lock`` is the folder's lock file (``lock_folder``), held until ``close``.
+    ``lock`` holds the folder for this process (``lock_folder``) until ``close``.
     """
 
-    def __init__(self, root: Path, lock: BinaryIO | None = None) -> None:
+    def __init__(self, root: Path, lock: FolderLock | None = None) -> None:
         self.root = Path(root)
         self.lock = lock
         self.scenes = self.root / "scenes"
@@ -320,22 +381,16 @@ class DataDir:
             folder = self._folder(snapshot.scene, created)
             files: dict[str, MeshFiles] = {}
             for name, mesh in snapshot.meshes.items():
-                if mesh.instance_of is not None:
-                    files[name] = ()  # the source's files hold its arrays
-                    continue
                 before = old.meshes.get(name) if old is not None else None
-                kept = old_files.get(name)
-                if before is None or not kept:
-                    vertices_file = faces_file = None
-                else:
-                    vertices_file = kept[0] if before.vertices is mesh.vertices else None
-                    faces_file = kept[1] if before.faces is mesh.faces else None
-                files[name] = (
-                    vertices_file
-                    or self._write_array(folder, mesh, "vertices", snapshot.version, created),
-                    faces_file
-                    or self._write_array(folder, mesh, "faces", snapshot.version, created),
-                )
+                kept = old_files.get(name, {}) if before is not None else {}
+                files[name] = {}  # an instance's stay empty: its source's files hold its arrays
+                for kind, array in _arrays(mesh):
+                    if kind in kept and getattr(before, kind) is array:
+                        files[name][kind] = kept[kind]  # unchanged: its file stands
+                    else:
+                        files[name][kind] = self._write_array(
+                            folder, mesh.index, kind, array, snapshot.version, created
+                        )
             sync_folder(folder)  # the arrays' names are durable before a manifest names them
             record = self._manifest(snapshot, files)
             self._write_manifest(folder, snapshot.version, record, created)
@@ -461,10 +516,9 @@ class DataDir:
 
     @staticmethod
     def _write_array(
-        folder: Path, mesh: Mesh, kind: str, version: int, created: list[Path]
+        folder: Path, index: int, kind: str, array: np.ndarray, version: int, created: list[Path]
     ) -> ArrayFile:
-        name = f"{mesh.index}.{version}.{kind}.npy"
-        array = getattr(mesh, kind)
+        name = f"{index}.{version}.{kind}.npy"
         write_file(folder / name, lambda file: write_npy(file, array))
         created.append(folder / name)
         return ArrayFile(name, array.shape, checksum(array))
@@ -487,14 +541,10 @@ class DataDir:
                 record["transform"] = mesh.transform.tolist()
             if mesh.transform_end is not None:
                 record["transform_end"] = mesh.transform_end.tolist()
-            if mesh.vertices_end is not None:
-                # In the manifest, as the numbers float32 holds (JSON keeps them exactly).
-                record["vertices_end"] = mesh.vertices_end.tolist()
             if mesh.instance_of is not None:
                 record["instance_of"] = mesh.instance_of
-            else:
-                vertices_file, faces_file = files[mesh.name]
-                record["vertices"], record["faces"] = array(vertices_file), array(faces_file)
+            for kind, file in files[mesh.name].items():
+                record[kind] = array(file)
             return record
 
         return {
@@ -519,8 +569,8 @@ class DataDir:
         """Remove what the new manifest no longer names, the manifest of ``old_version`` (or
         None) included (a crash or a failure here leaves only orphans, removed at the next
         start: the change is made)."""
-        kept = {file.name for pair in new_files.values() for file in pair}
-        names = {file.name for pair in old_files.values() for file in pair} - kept
+        kept = {file.name for mesh_files in new_files.values() for file in mesh_files.values()}
+        names = {f.name for mesh_files in old_files.values() for f in mesh_files.values()} - kept
         if old_version is not None and old_version != version:
             names.add(f"scene.{old_version}.json")
         for name in names:
@@ -615,35 +665,37 @@ class DataDir:
             return None, {}
         try:
             meshes, files = {}, {}
-            next_index = _count(record["next_index"], "next_index", path)
+            next_index = _count(record["next_index"], "next_index", path, MAX_INDEX + 1, LAST)
             indices = set()
             for item in record["meshes"]:
                 name = check_name("mesh", item["name"])
-                index = _count(item["index"], f"{name}.index", path)
-                _count(item["version"], f"{name}.version", path, at_most=version)
+                index = _count(item["index"], f"{name}.index", path, MAX_INDEX, LAST)
+                _count(item["version"], f"{name}.version", path, version, "the manifest's version")
                 if name in meshes or index in indices or index >= next_index:
                     raise CorruptScene(
                         f"{path.name}: mesh {name!r} (index {index}) repeats a name or an index, "
                         f"or its index is not below next_index {next_index}"
                     )
                 indices.add(index)
-                if "instance_of" in item:
-                    geometry, files[name] = None, ()
-                else:
+                instance_of = item.get("instance_of")
+                if instance_of is None:
                     geometry, files[name] = self._read_geometry(folder, item)
+                else:
+                    geometry, files[name] = None, {}
+                    check_name("mesh", instance_of)
                 meshes[name] = Mesh(
                     name,
-                    item["index"],
+                    index,
                     geometry,  # an instance's is its source's, linked below
                     None,
                     item["version"],
                     parse_mask(item.get("mask", 0xFFFFFFFF), "mask"),
                     owned_transform(_transform(item.get("transform"))),
-                    item.get("instance_of"),
+                    instance_of,
                     parse_reflectivity(item.get("reflectivity", REFLECTIVITY), "reflectivity"),
                     parse_label(item.get("label", DEFAULT_LABEL), "label"),
                     _transform_end(item.get("transform_end")),
-                    _vertices_end(item.get("vertices_end")),
+                    self._read_vertices_end(folder, item, files[name]),
                 )
             for name, mesh in meshes.items():
                 if mesh.instance_of is not None:
@@ -654,7 +706,8 @@ class DataDir:
                             "which is not a mesh of its own"
                         )
                     mesh = replace(mesh, geometry=source.geometry)
-                meshes[name] = placed(mesh)
+                # the checks a change through the API passes (``Store._changed``)
+                meshes[name] = placed(check_deforming(mesh))
         except KeyError as exc:
             raise CorruptScene(f"{path.name} lacks {exc}") from None
         except TypeError as exc:  # a list where a name is, a number where a list is...
@@ -664,20 +717,43 @@ class DataDir:
         meshes = dict(sorted(meshes.items(), key=lambda item: item[1].index))
         return Snapshot(folder.name, version, MappingProxyType(meshes), next_index), files
 
-    def _read_geometry(self, folder: Path, item: dict[str, Any]) -> tuple[Geometry, MeshFiles]:
-        """A mesh's arrays and their files, as its manifest entry names them."""
-        vertices = self._read_array(folder, item["vertices"], np.float32)
-        faces = self._read_array(folder, item["faces"], np.int32)
-        for array, entry in ((vertices, item["vertices"]), (faces, item["faces"])):
-            if array.ndim != 2 or array.shape[1] != 3:
-                raise CorruptScene(f"{entry['file']} holds {array.shape}, not (n, 3) rows")
+    def _read_geometry(
+        self, folder: Path, item: dict[str, Any]
+    ) -> tuple[Geometry, dict[str, ArrayFile]]:
+        """A mesh's arrays and their files, as its manifest entry names them, checked as an
+        upload is (``wire.mesh_arrays``: finite vertices, every face index in [0, V))."""
+        vertices = check_vertices(self._read_rows(folder, item["vertices"], np.float32))
+        faces = self._read_rows(folder, item["faces"], np.int32)
         if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
             raise CorruptScene(f"{item['faces']['file']} has indices out of range")
-        files = (
-            ArrayFile(item["vertices"]["file"], vertices.shape, item["vertices"]["crc32"]),
-            ArrayFile(item["faces"]["file"], faces.shape, item["faces"]["crc32"]),
-        )
+        files = {
+            "vertices": ArrayFile(
+                item["vertices"]["file"], vertices.shape, item["vertices"]["crc32"]
+            ),
+            "faces": ArrayFile(item["faces"]["file"], faces.shape, item["faces"]["crc32"]),
+        }
         return Geometry(vertices, faces, referenced_bounds(vertices, faces)), files
+
+    def _read_vertices_end(
+        self, folder: Path, item: dict[str, Any], files: dict[str, ArrayFile]
+    ) -> np.ndarray | None:
+        """A mesh's end vertices (None: static) from their file, added to ``files``, or from the
+        manifest's rows of numbers (the form older folders hold)."""
+        entry = item.get("vertices_end")
+        if entry is None:
+            return None
+        if not isinstance(entry, dict):
+            return _inline_vertices_end(entry)
+        vertices = check_vertices(self._read_rows(folder, entry, np.float32), "vertices_end")
+        files["vertices_end"] = ArrayFile(entry["file"], vertices.shape, entry["crc32"])
+        return vertices
+
+    def _read_rows(self, folder: Path, item: dict[str, Any], dtype: type) -> np.ndarray:
+        """An (n, 3) array of ``dtype`` from the file that ``item`` names (``_read_array``)."""
+        array = self._read_array(folder, item, dtype)
+        if array.ndim != 2 or array.shape[1] != 3:
+            raise CorruptScene(f"{item['file']} holds {array.shape}, not (n, 3) rows")
+        return array
 
     @staticmethod
     def _read_array(folder: Path, item: dict[str, Any], dtype: type) -> np.ndarray:
@@ -709,7 +785,9 @@ class DataDir:
     @staticmethod
     def _clean(folder: Path, manifest: Path, files: dict[str, MeshFiles]) -> None:
         """Remove what a crash left: temporary files, older manifests, arrays nobody names."""
-        kept = {manifest.name} | {file.name for pair in files.values() for file in pair}
+        kept = {manifest.name} | {
+            f.name for mesh_files in files.values() for f in mesh_files.values()
+        }
         for path in folder.iterdir():
             if path.name not in kept and (
                 path.name.endswith(TEMPORARY)

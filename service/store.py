@@ -38,6 +38,7 @@ if TYPE_CHECKING:
 
 NAME = re.compile(r"[A-Za-z0-9_.\-]{1,64}")
 ALL_MASKS = 0xFFFFFFFF  #: a mesh's mask unless one is set: every ray sees it
+MAX_INDEX = 2**31 - 1  #: the last index a mesh can have: hit results give a mesh as int32
 IDENTITY = np.eye(4)
 IDENTITY.setflags(write=False)
 
@@ -654,6 +655,11 @@ class Store:
                 continue
             if name in meshes:
                 index = meshes[name].index
+            elif next_index > MAX_INDEX:
+                raise TooLarge(
+                    f"scene {scene!r} has given out every mesh index (0 to {MAX_INDEX}, never "
+                    f"reused), so it cannot take mesh {name!r}; delete the scene and make it again"
+                )
             else:
                 index, next_index = next_index, next_index + 1
             meshes[name] = replace(mesh, index=index, version=version)

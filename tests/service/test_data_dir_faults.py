@@ -2,7 +2,8 @@
 answers 507 (full) or 503 naming the folder and the OS error and changes nothing, reads go on,
 /health says degraded (its details only with the token) and /metrics counts it; writes resume
 when space returns, no temporary file is left, a restart loses nothing acknowledged, and a folder
-that cannot be written at start ends the process with one line.
+that cannot be written at start ends the process with one line. A scene whose manifest breaks
+what a change is checked for is skipped at start, and the other scenes are served.
 
 In process the faults are injected where the folder writes its files (``faults``); against a real
 server (``python -m service``) the folder is a tiny tmpfs, filled or remounted read-only, where
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import errno
 import io
+import json
 import os
 import subprocess
 import time
@@ -225,6 +227,50 @@ def test_a_full_folder_at_start_serves_reads_and_says_degraded(tmp_path, monkeyp
         assert http.get("/v1/scenes/s").json()["version"] == 1
         assert http.get("/health").json()["data_dir"]["errno"] == "ENOSPC"
         assert http.put("/v1/scenes/s/meshes/a/mask", json={"mask": 1}).status_code == 507
+
+
+def end_rows(count: int) -> list[list[float]]:
+    """End vertices as a manifest once held them, rows of numbers."""
+    return [[0.5, 0.5, 1.0]] * count
+
+
+#: Edits of scene "s"'s manifest entries (by mesh name) and record that the API would refuse
+#: as a change: "def" is a deforming grid(4), "inst" an instance of grid(4) "ball".
+BROKEN_MANIFESTS = {
+    "end rows fewer than the faces use": lambda m, r: m["def"].update(vertices_end=end_rows(5)),
+    "instance_of null": lambda m, r: m["inst"].update(instance_of=None),
+    "an instance deforming": lambda m, r: m["inst"].update(vertices_end=end_rows(25)),
+    "a mesh index past int32": lambda m, r: (
+        m["inst"].update(index=2**31),
+        r.update(next_index=2**31 + 1),
+    ),
+}
+
+
+@pytest.mark.parametrize("edit", BROKEN_MANIFESTS.values(), ids=BROKEN_MANIFESTS.keys())
+def test_a_scene_whose_manifest_a_change_would_break_is_skipped_at_start(
+    tmp_path, monkeypatch, caplog, edit
+):
+    data = tmp_path / "data"
+    with serving(data, monkeypatch) as http:
+        upload(http, "s", "ball")
+        upload(http, "s", "def")
+        frame = {"def.vertices_end": (grid(4)[0] + [0, 0, 1]).tolist()}
+        assert http.post("/v1/scenes/s/frame", json=frame).status_code == 200
+        instance = {"instance_of": "ball", "transform": SHIFT}
+        assert http.put("/v1/scenes/s/meshes/inst", json=instance).status_code == 201
+        upload(http, "other", "m")
+    [path] = (data / "scenes" / "s").glob("scene.*.json")
+    record = json.loads(path.read_bytes())
+    edit({item["name"]: item for item in record["meshes"]}, record)
+    path.write_text(json.dumps(record))
+    with caplog.at_level("ERROR", logger="service"), serving(data, monkeypatch) as http:
+        assert http.get("/health").json()["status"] == "ok"
+        assert http.get("/v1/scenes/other").json()["version"] == 1
+        response = http.post("/v1/scenes/s/closest", content=RAYS, headers=NPY)
+        assert response.status_code == 404, response.text
+        assert http.put("/v1/scenes/s/meshes/a", **mesh_body(2)).json()["version"] == 5
+    assert f"data: skipped scene 's' (version 4): {path.name}" in caplog.text
 
 
 # ---- a real server over a tiny tmpfs

@@ -1,8 +1,8 @@
 """One server per data folder (DACRT_DATA_DIR): a second app or server on a folder that another
 holds is refused in one line naming the folder and the holder's pid, before it reads anything
-there; once the holder stops, or is killed with SIGKILL, the next one starts. A folder that
-cannot be locked ends the start with one line, and a real server on a port that is taken ends
-its start before it opens its data folder."""
+there, also after the folder's file ``lock`` was removed; once the holder stops, or is killed
+with SIGKILL, the next one starts. A folder that cannot be locked ends the start with one line,
+and a real server on a port that is taken ends its start before it opens its data folder."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import errno
 import fcntl
 import os
 import socket
+import stat
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -73,15 +74,18 @@ def test_a_file_system_without_flock_ends_the_start_with_one_line(tmp_path, monk
         open_data_dir(Settings(data_dir=data))
     assert str(exited.value) == (
         f"dacrt-service: DACRT_DATA_DIR={str(data)!r}: the data folder cannot be locked (flock on "
-        f"{data / 'lock'}): [Errno {errno.ENOLCK}] {os.strerror(errno.ENOLCK)}"
+        f"{data}): [Errno {errno.ENOLCK}] {os.strerror(errno.ENOLCK)}"
     )
 
 
 def test_a_file_system_that_locks_only_files_open_for_writing_is_locked(tmp_path, monkeypatch):
     flock = fcntl.flock
 
-    def nfs_flock(file, operation) -> None:  # as NFS: EBADF for a file open read-only
-        if fcntl.fcntl(file, fcntl.F_GETFL) & os.O_ACCMODE == os.O_RDONLY:
+    def nfs_flock(file, operation) -> None:
+        # as NFS: EBADF for a file open read-only; a folder's flock is the host's own
+        fd = file if isinstance(file, int) else file.fileno()
+        read_only = fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE == os.O_RDONLY
+        if read_only and stat.S_ISREG(os.fstat(fd).st_mode):
             raise OSError(errno.EBADF, os.strerror(errno.EBADF))
         flock(file, operation)
 
@@ -93,6 +97,30 @@ def test_a_file_system_that_locks_only_files_open_for_writing_is_locked(tmp_path
     assert str(refused.value) == refusal(data, os.getpid())
     journal.close()
     open_data_dir(Settings(data_dir=data)).close()
+
+
+def test_a_removed_lock_file_does_not_let_a_second_app_in(tmp_path, monkeypatch):
+    """An operator may remove the file ``lock`` (a "stale" lock): the folder stays held, and the
+    second app is refused before it reads or writes anything there."""
+    data = tmp_path / "data"
+    with serving(data, monkeypatch) as http:
+        upload(http, "s", "a")
+        (data / "lock").unlink()
+        with pytest.raises(SystemExit) as refused:
+            open_data_dir(Settings(data_dir=data))
+        assert str(refused.value) == (
+            f"dacrt-service: DACRT_DATA_DIR={str(data)!r}: the data folder is in use by another "
+            f"process, which holds {data}: a data folder serves one server at a time"
+        )
+        assert not (data / "lock").exists()  # the refused app created nothing there
+        (data / "lock").write_text("pid 12345 on elsewhere\n")  # a name written again is given
+        with pytest.raises(SystemExit) as refused:
+            open_data_dir(Settings(data_dir=data))
+        assert "in use by pid 12345 on elsewhere, which holds" in str(refused.value)
+        assert http.put("/v1/scenes/s/meshes/a/mask", json={"mask": 1}).json()["version"] == 2
+    with serving(data, monkeypatch) as http:
+        assert http.get("/v1/scenes/s/meshes/a").json()["mask"] == 1
+    assert (data / "lock").read_text() == f"pid {os.getpid()} on {socket.gethostname()}\n"
 
 
 def test_a_folder_that_cannot_hold_its_lock_file_ends_the_start_with_one_line(tmp_path):

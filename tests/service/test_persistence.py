@@ -1,7 +1,9 @@
 """Scenes in a data folder (``service.persistence``) in-process: every change kind is read back
-with its version, versions go on after a restart, a vertex update writes one array, a rejected
+with its version, versions go on after a restart, a vertex update writes one array (end vertices
+have a file of their own, and a change to another part writes only the manifest), a rejected
 or failed change writes nothing that is loaded and leaves no file behind, a folder that cannot
-be written is refused when opened, and damaged files are logged and skipped."""
+be written is refused when opened, and damaged files, and manifests that break what the API
+checks on a change, are logged and their scene skipped."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import errno
 import json
 import logging
 import os
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +60,12 @@ def assert_same_scenes(restored: Store, original: Store) -> None:
             else:
                 assert after.meshes[name].transform.tobytes() == mesh.transform.tobytes()
                 assert not after.meshes[name].transform.flags.writeable
+            if mesh.vertices_end is None:
+                assert after.meshes[name].vertices_end is None
+            else:
+                assert after.meshes[name].vertices_end.tobytes() == mesh.vertices_end.tobytes()
+                assert after.meshes[name].vertices_end.dtype == np.float32
+                assert not after.meshes[name].vertices_end.flags.writeable
             if mesh.instance_of is not None:
                 source = after.meshes[mesh.instance_of]
                 assert after.meshes[name].geometry is source.geometry
@@ -733,3 +742,196 @@ def test_a_manifest_whose_name_and_version_differ_is_logged_and_skipped(tmp_path
     with caplog.at_level(logging.ERROR, logger="service"):
         assert open_store(tmp_path).snapshots() == []
     assert "names another scene or version" in caplog.text
+
+
+def deform(vertices: np.ndarray) -> np.ndarray:
+    """(V, 3) float32: end vertices off a grid's (a ripple, inexact in binary)."""
+    ripple = np.sin(7.1 * vertices[:, :1]) * np.cos(3.3 * vertices[:, 1:2])
+    return (vertices + np.float32(0.3) * ripple.astype(np.float32)).astype(np.float32)
+
+
+@pytest.fixture
+def deforming(tmp_path) -> Store:
+    """A store over tmp_path: scene "s" with a mesh "ball", a deforming mesh "def" and an
+    instance "inst" of "ball"; scene "other" with one mesh."""
+    store = open_store(tmp_path)
+    store.put_mesh("s", "ball", MeshArrays(*grid(4)))
+    vertices, faces = grid(5, z=2.0)
+    store.put_mesh("s", "def", MeshArrays(vertices, faces))
+    store.apply_frame("s", {"def": FrameChange(vertices_end=deform(vertices))})
+    store.put_instance("s", "inst", "ball", turn(30, shift=(0, -3, 0)))
+    store.put_mesh("other", "m", MeshArrays(*grid(2)))
+    return store
+
+
+def manifest(folder: Path) -> tuple[Path, dict]:
+    [path] = folder.glob("scene.*.json")
+    return path, json.loads(path.read_bytes())
+
+
+def test_end_vertices_have_their_own_file_with_shape_and_checksum(tmp_path, deforming):
+    vertices = grid(5, z=2.0)[0]
+    folder = tmp_path / "scenes" / "s"
+    path, record = manifest(folder)
+    entry = next(m for m in record["meshes"] if m["name"] == "def")["vertices_end"]
+    assert entry == {
+        "file": "1.3.vertices_end.npy",  # mesh 1's, written at version 3
+        "shape": [len(vertices), 3],
+        "crc32": zlib.crc32(deform(vertices).tobytes()),
+    }
+    np.testing.assert_array_equal(np.load(folder / entry["file"]), deform(vertices))
+    assert path.stat().st_size < 2000  # numbers of mesh info, no array
+    assert_same_scenes(open_store(tmp_path), deforming)
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda s: s.set_mask("s", "ball", 3),
+        lambda s: s.set_material("s", "def", 0.5, 9),
+        lambda s: s.set_transform("s", "inst", turn(5)),
+        lambda s: s.put_instance("s", "inst2", "ball"),
+        lambda s: s.apply_frame("s", {"def": FrameChange(mask=2)}),
+    ],
+    ids=["mask of another mesh", "material", "an instance's transform", "instance", "frame"],
+)
+def test_a_change_beside_end_vertices_writes_only_the_manifest(tmp_path, deforming, change):
+    before = files(tmp_path)
+    change(deforming)
+    after = files(tmp_path)
+    written = {name for name in after if before.get(name) != after[name]}
+    assert [Path(n).name for n in written] == [f"scene.{deforming.snapshot('s').version}.json"]
+    assert_same_scenes(open_store(tmp_path), deforming)
+
+
+def test_new_end_vertices_write_one_file_and_a_static_mesh_drops_it(tmp_path, deforming):
+    vertices = grid(5, z=2.0)[0]
+    folder = tmp_path / "scenes" / "s"
+    deforming.apply_frame("s", {"def": FrameChange(vertices_end=vertices + 1)})
+    assert sorted(p.name for p in folder.glob("1.*.npy")) == [
+        "1.2.faces.npy",
+        "1.2.vertices.npy",
+        "1.5.vertices_end.npy",
+    ]
+    assert_same_scenes(open_store(tmp_path), deforming)
+    deforming.update_vertices("s", "def", vertices + 2)  # new start vertices: static again
+    assert sorted(p.name for p in folder.glob("1.*.npy")) == ["1.2.faces.npy", "1.6.vertices.npy"]
+    restored = open_store(tmp_path)
+    assert_same_scenes(restored, deforming)
+    assert restored.snapshot("s").mesh("def").vertices_end is None
+
+
+def test_end_vertices_held_in_the_manifest_are_read_and_given_a_file(tmp_path, deforming):
+    """A folder written when a manifest held end vertices as rows of numbers."""
+    folder = tmp_path / "scenes" / "s"
+    path, record = manifest(folder)
+    item = next(m for m in record["meshes"] if m["name"] == "def")
+    (folder / item["vertices_end"]["file"]).unlink()
+    item["vertices_end"] = deform(grid(5, z=2.0)[0]).tolist()  # float32 values, exact in JSON
+    path.write_text(json.dumps(record))
+    restored = open_store(tmp_path)
+    assert_same_scenes(restored, deforming)
+    restored.set_mask("s", "ball", 3)  # the next change gives the end vertices a file
+    path, record = manifest(folder)
+    entry = next(m for m in record["meshes"] if m["name"] == "def")["vertices_end"]
+    assert entry["file"] == "1.5.vertices_end.npy" and (folder / entry["file"]).is_file()
+    assert_same_scenes(open_store(tmp_path), restored)
+
+
+def test_end_vertices_corrupted_in_place_are_logged_and_skipped(tmp_path, deforming, caplog):
+    [end] = (tmp_path / "scenes" / "s").glob("*.vertices_end.npy")
+    damage_flip(end)
+    with caplog.at_level(logging.ERROR, logger="service"):
+        assert [s.scene for s in open_store(tmp_path).snapshots()] == ["other"]
+    assert "skipped scene 's'" in caplog.text and "fails its CRC-32 check" in caplog.text
+
+
+def rows(count: int, value: float = 0.0) -> list[list[float]]:
+    return [[value, value, value]] * count
+
+
+def end_file(folder: Path, item: dict, vertices: np.ndarray) -> None:
+    """Give ``item`` end vertices in a file whose shape and CRC-32 its entry states."""
+    np.save(folder / "1.2.vertices_end.npy", vertices)
+    item["vertices_end"] = {
+        "file": "1.2.vertices_end.npy",
+        "shape": list(vertices.shape),
+        "crc32": checksum(vertices),
+    }
+
+
+def nan_vertices(folder: Path, item: dict) -> None:
+    """Vertices with a NaN, their entry and checksum to match."""
+    vertices = np.load(folder / item["vertices"]["file"])
+    vertices[3, 1] = np.nan
+    np.save(folder / item["vertices"]["file"], vertices)
+    item["vertices"].update(crc32=checksum(vertices))
+
+
+@pytest.mark.parametrize(
+    "mesh, edit, message",
+    [
+        ("def", lambda f, m, r: m.update(vertices_end=rows(5)), "def.vertices_end has 5 rows"),
+        (
+            "def",
+            lambda f, m, r: end_file(f, m, np.zeros((5, 3), np.float32)),
+            "def.vertices_end has 5 rows",
+        ),
+        (
+            "def",
+            lambda f, m, r: end_file(f, m, np.zeros((36, 2), np.float32)),
+            "holds (36, 2), not (n, 3) rows",
+        ),
+        (
+            "def",
+            lambda f, m, r: m.update(vertices_end=rows(36, np.nan)),
+            "vertices_end[0] is not finite",
+        ),
+        ("def", lambda f, m, r: m.update(transform=turn(5).tolist()), "placed by a transform"),
+        ("inst", lambda f, m, r: m.update(vertices_end=rows(25)), "an instance cannot deform"),
+        ("inst", lambda f, m, r: m.update(instance_of=None), "lacks 'vertices'"),
+        ("inst", lambda f, m, r: m.update(instance_of=5), "holds a value of the wrong type"),
+        ("inst", lambda f, m, r: m.update(instance_of=[]), "holds a value of the wrong type"),
+        ("inst", lambda f, m, r: m.update(instance_of="../x"), "mesh name '../x' must be"),
+        (
+            "inst",
+            lambda f, m, r: (m.update(index=2**31), r.update(next_index=2**31 + 1)),
+            "next_index 2147483649 is past 2147483647, the last mesh index",
+        ),
+        (
+            "inst",
+            lambda f, m, r: (m.update(index=2**31), r.update(next_index=2**31)),
+            "inst.index 2147483648 is past 2147483647, the last mesh index",
+        ),
+        ("def", lambda f, m, r: nan_vertices(f, m), "vertices[3] is not finite"),
+    ],
+    ids=[
+        "too few end rows in the manifest",
+        "too few end rows in a file",
+        "end rows of 2 columns",
+        "end vertices not finite",
+        "a deforming mesh placed",
+        "an instance deforming",
+        "instance_of null",
+        "instance_of a number",
+        "instance_of a list",
+        "instance_of a path",
+        "next_index past int32",
+        "index past int32",
+        "a NaN vertex",
+    ],
+)
+def test_a_manifest_that_breaks_what_a_change_checks_is_logged_and_skipped(
+    tmp_path, deforming, caplog, mesh, edit, message
+):
+    """What the API refuses in a change (``Store._changed``, ``wire.mesh_arrays``), a restart
+    refuses in a manifest: the scene is named in the log and skipped, the others served."""
+    folder = tmp_path / "scenes" / "s"
+    path, record = manifest(folder)
+    edit(folder, next(m for m in record["meshes"] if m["name"] == mesh), record)
+    path.write_text(json.dumps(record))
+    with caplog.at_level(logging.ERROR, logger="service"):
+        restored = open_store(tmp_path)
+    assert [s.scene for s in restored.snapshots()] == ["other"]
+    assert "skipped scene 's' (version 4)" in caplog.text and message in caplog.text, caplog.text
+    assert restored.put_mesh("s", "a", MeshArrays(*grid(2)))[0].version == 5  # not reused

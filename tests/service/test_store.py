@@ -13,7 +13,7 @@ from dacrt import InputError
 from service import tracing
 from service.errors import Conflict, Invalid, NotFound, TooLarge
 from service.footprint import TRIANGLE_BYTES
-from service.store import Store, check_name, referenced_bounds
+from service.store import Snapshot, Store, check_name, referenced_bounds
 from service.wire import FrameChange, MeshArrays
 
 
@@ -47,6 +47,21 @@ def test_indices_are_stable_and_never_reused(store):
         "c": 2,
         "d": 3,
     }
+
+
+def test_a_scene_that_gave_out_every_int32_index_takes_no_new_mesh(store):
+    """Hit results give a mesh's index as int32: past 2**31 - 1 a new mesh is 413 (indices are
+    never reused), while the scene's meshes still change."""
+    store.put_mesh("s", "a", mesh())
+    old = store.snapshot("s")
+    store.restore([Snapshot("s", old.version, old.meshes, 2**31 - 1)], {"s": old.version})
+    assert store.put_mesh("s", "b", mesh())[0].index == 2**31 - 1
+    with pytest.raises(TooLarge, match="scene 's' has given out every mesh index"):
+        store.apply_frame("s", {"a": (quad(0, 2, 0, 2, 0)[0], None), "c": quad(0, 1, 0, 1, 1)})
+    assert store.snapshot("s").version == 2  # the refused frame changed nothing
+    assert store.set_mask("s", "b", 1).version == 3
+    store.delete_scene("s")
+    assert store.put_mesh("s", "c", mesh())[0].index == 0  # a new scene starts again
 
 
 def test_versions_go_on_after_a_scene_is_deleted(store):
