@@ -20,6 +20,11 @@ from .contracts import FLOAT, INDEX, ONE32
 from .geometry import cull_distance, intersect_box, triangle_normal
 from .leaf import NO_HIT
 from .query import CULL_BACK, CULL_FRONT
+from .validation import MIN_PLACEMENT_SCALE
+
+#: An instant whose inverse placement has a larger squared Frobenius norm scales an axis below
+#: about MIN_PLACEMENT_SCALE (what a static placement may not): it is flat, as a singular one.
+MAX_INVERSE_NORM2 = 1.0 / (MIN_PLACEMENT_SCALE * MIN_PLACEMENT_SCALE)
 
 # The instance's box in scene space is grown by this, relative to its size and distance from
 # the origin: a ray rounded into mesh space may reach a little beyond the exact placed box.
@@ -278,7 +283,8 @@ def rays_to_mesh_space_at(
     M(tau)'s inverse, less ``centre`` (3,) float64, the mesh's frame centre (float64, then
     rounded), as ``to_mesh`` maps it at tau = 0; ``out_cofactors`` (k, 3, 3) gets M(tau)'s
     cofactor (the normals' map) and ``out_sign`` (k,) int8 the sign of its determinant (-1
-    mirrored, 0 singular at that instant). At tau == 0 exactly it uses the instance's own
+    mirrored, 0 flat at that instant: singular, or an axis scaled below about
+    MIN_PLACEMENT_SCALE). At tau == 0 exactly it uses the instance's own
     ``to_mesh`` and ``cofactor`` (``start_sign``: -1 where mirrored, else 1), so those rays are
     the static instance's bit for bit."""
     inv = np.empty((3, 4))
@@ -309,9 +315,13 @@ def rays_to_mesh_space_at(
             det = m[0, 0] * cof[0, 0] + m[0, 1] * cof[0, 1] + m[0, 2] * cof[0, 2]
             sign = 1 if det > 0.0 else (-1 if det < 0.0 else 0)
             if sign != 0:
+                norm2 = 0.0
                 for a in range(3):
                     for b in range(3):
                         inv[a, b] = cof[b, a] / det
+                        norm2 += inv[a, b] * inv[a, b]
+                if not norm2 <= MAX_INVERSE_NORM2:  # flat up to rounding (NaN too)
+                    sign = 0
                 for a in range(3):
                     inv[a, 3] = (
                         -(inv[a, 0] * m[0, 3] + inv[a, 1] * m[1, 3] + inv[a, 2] * m[2, 3])

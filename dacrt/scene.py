@@ -1313,9 +1313,12 @@ class Scene:
                     list_size,
                 )
             except InputError:
+                placement = f"transforms[{instance.mesh}]"
+                if instance.moving:
+                    placement += f" to transforms_end[{instance.mesh}], at the rays' times"
                 raise MeshSpaceError(
                     f"a ray of the batch leaves the float32 range in the space of mesh "
-                    f"{instance.mesh} (transforms[{instance.mesh}])",
+                    f"{instance.mesh} ({placement})",
                     instance.mesh,
                 ) from None
 

@@ -271,6 +271,36 @@ def test_rays_at_an_instant_where_every_placement_they_reach_is_flat_see_the_res
     np.testing.assert_allclose(on_flat[1], [-1, 0, 0])  # x = 0.25 at tau 0.25 is 0.5 in mesh space
 
 
+def test_an_instant_flat_up_to_rounding_is_flat():
+    """A half-turn made with cos and sin is flat at tau = 0.5 only up to rounding (an axis
+    scaled by 6e-17, not 0): its rays see nothing of the mesh, as at an exactly flat instant,
+    and a far ray beside them is no error (its inverse placement took it past float32)."""
+    ((vertices, faces),) = sample_scenes.sphere(12)
+    turn = np.eye(4)
+    turn[:2, :2] = [[np.cos(np.pi), -np.sin(np.pi)], [np.sin(np.pi), np.cos(np.pi)]]
+    scene = dacrt.Scene([(vertices, faces)], transforms_end=[turn])
+    origins = np.array([[1e23, 0, 0.1], [0.3, -0.2, 5]])
+    directions = np.array([[-1.0, 0, 0], [0, 0, -1]])
+    np.testing.assert_array_equal(scene.closest(origins, directions, time=0.5).t, [np.inf] * 2)
+    np.testing.assert_array_equal(scene.count(origins, directions, time=0.5).count, [0, 0])
+    # at another instant the same rays answer as the sphere placed there (numpy)
+    placed = dacrt.Scene([(place_at(vertices, None, turn, 0.3), faces)])
+    moving, still = (
+        scene.closest(origins, directions, time=0.3),
+        placed.closest(origins, directions),
+    )
+    assert moving.prim[1] == still.prim[1] >= 0
+    np.testing.assert_allclose(moving.t[1], still.t[1], rtol=1e-6)
+
+
+def test_a_ray_leaving_float32_in_a_moving_mesh_space_names_both_placements():
+    ((vertices, faces),) = sample_scenes.sphere(12)
+    small, smaller = np.diag([1e-10, 1e-10, 1e-10, 1.0]), np.diag([2e-10, 2e-10, 2e-10, 1.0])
+    scene = dacrt.Scene([(vertices, faces)], transforms=[small], transforms_end=[smaller])
+    with pytest.raises(dacrt.MeshSpaceError, match=r"transforms\[0\] to transforms_end\[0\]"):
+        scene.closest([[1e30, 0, 0]], [[-1.0, 0, 0]], time=0.5)
+
+
 def test_with_changes_sets_and_clears_end_placements():
     meshes, starts, ends = _moving()
     scene = dacrt.Scene(meshes, transforms=starts)
