@@ -357,6 +357,10 @@ def nearest(snapshot: Snapshot, points: np.ndarray, options: PointOptions) -> Tr
             inside = engine.scene.contains(points, options.nsamples, **shared)
         arrays["inside"] = inside
         arrays["signed_distance"] = signed(found.distance, inside)
-    stats = None if found.stats is None else {**found.stats, "where": "process"}
+    stats = None
+    if found.stats is not None:
+        # the engine counts nothing of the inside test: its rays, as the metrics count them
+        votes = {"inside_rays": options.rays(len(points))} if options.sign else {}
+        stats = {**found.stats, **votes, "where": "process"}
     seconds = time.perf_counter() - start
     return TraceResult(arrays, snapshot.version, stats, seconds, options.rays(len(points)))

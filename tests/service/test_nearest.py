@@ -11,7 +11,7 @@ import numpy as np
 import point_reference
 import procedural
 import pytest
-from service_helpers import NPY, NPZ, npy_bytes, npz_bytes
+from service_helpers import NPY, NPZ, metric_sample, npy_bytes, npz_bytes
 
 from dacrt.points import sample_directions
 from service import wire
@@ -114,6 +114,27 @@ def test_max_distance_mask_and_stats(app_api, sphere_scene):
     app_api.put_mesh(sphere_scene, "ball", *_ball(), mask=0x2)
     ball_only = app_api.nearest(sphere_scene, points, mask=0x2)
     assert (ball_only.mesh == 1).all()
+
+
+@pytest.mark.parametrize("sign, nsamples", [(False, 1), (True, 1), (True, 5)])
+def test_stats_count_the_inside_tests_rays_as_the_metrics_do(
+    app_client, sphere_scene, sign, nsamples
+):
+    """X-Trace-Stats (API.md: the engine's counters for this batch) with ?sign=true counts the
+    inside test's rays, points x nsamples, as dacrt_rays_traced_total does."""
+    points = _points(3, seed=4).tolist()
+    sample = 'dacrt_rays_traced_total{query="nearest"}'
+    before = metric_sample(app_client.get("/metrics").text, sample)
+    query = f"stats=true&sign={str(sign).lower()}&nsamples={nsamples}"
+    answer = app_client.post(f"/v1/scenes/{sphere_scene}/nearest?{query}", json={"points": points})
+    assert answer.status_code == 200, answer.text
+    counted = metric_sample(app_client.get("/metrics").text, sample) - before
+    stats = json.loads(answer.headers["x-trace-stats"])
+    assert stats["points"] == 3 and stats["where"] == "process"
+    if sign:
+        assert stats["inside_rays"] == 3 * nsamples == counted
+    else:
+        assert "inside_rays" not in stats and counted == 3
 
 
 @pytest.mark.parametrize("answer", ["npz", "json"])
