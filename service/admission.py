@@ -88,8 +88,8 @@ class Admission:
             return
         if nbytes > self.budget:
             raise TooLarge(
-                f"{what} would hold about {mib(nbytes)} of server memory, over the budget of "
-                f"{mib(self.budget)} for all requests in flight (DACRT_MAX_INFLIGHT_BYTES); "
+                f"{what} would hold about {amount(nbytes)} of server memory, over the budget of "
+                f"{amount(self.budget)} for all requests in flight (DACRT_MAX_INFLIGHT_BYTES); "
                 "send it in smaller batches (or .npy/.npz rather than JSON)"
             )
         fits = self.held + extra <= self.budget
@@ -109,8 +109,8 @@ class Admission:
         except TimeoutError:
             self.on_refused()
             raise Overloaded(
-                f"the server is busy: {what} needs about {mib(nbytes)} of memory and the "
-                f"requests in flight hold {mib(self.held)} of {mib(self.budget)} "
+                f"the server is busy: {what} needs about {amount(nbytes)} of memory and the "
+                f"requests in flight hold {amount(self.held)} of {amount(self.budget)} "
                 f"(DACRT_MAX_INFLIGHT_BYTES); retry after {Overloaded.headers['Retry-After']} s"
             ) from None
         finally:
@@ -140,8 +140,13 @@ class Admission:
             self._line[0].set_result(None)
 
 
-def mib(nbytes: int) -> str:
-    return f"{nbytes / 2**20:.1f} MiB"
+def amount(nbytes: int) -> str:
+    """``nbytes`` for a message: in MiB, or below a MiB in KiB or bytes (never ``0.0 MiB``)."""
+    if nbytes >= 2**20:
+        return f"{nbytes / 2**20:.1f} MiB"
+    if nbytes >= 2**10:
+        return f"{nbytes / 2**10:.1f} KiB"
+    return f"{nbytes} bytes"
 
 
 class AdmissionMiddleware:

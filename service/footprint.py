@@ -66,6 +66,9 @@ ARRAY_FACTOR = 2
 #: arrays at the most (``wire.JSON_PIECE_ITEMS``), each piece's text and lists at about 600 bytes
 #: an item (measured 456-605).
 JSON_ANSWER_BYTES = 16 * 2**20
+#: The smallest in-flight budget (DACRT_MAX_INFLIGHT_BYTES) that serves every request at its
+#: smallest: a JSON answer's JSON_ANSWER_BYTES and a MiB for a small body, its work and answer.
+MIN_BUDGET_BYTES = JSON_ANSWER_BYTES + 2**20
 #: Bytes per point of a point query (``/nearest``) beyond its body: the checked copy, the
 #: engine's float64 answers and the float32 answer (measured 102-104).
 POINT_WORK_BYTES = 128

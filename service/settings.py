@@ -24,7 +24,8 @@ from .admission import default_budget
 KiB, MiB, GiB = 2**10, 2**20, 2**30
 
 Bytes = Annotated[ByteSize, Field(gt=0)]
-Seconds = Annotated[float, Field(gt=0)]
+#: inf would turn a deadline off, which no setting means
+Seconds = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 PREFIX = "DACRT_"
 
@@ -91,11 +92,68 @@ class Settings(BaseSettings):
     #: answers); None: a quarter of the machine's memory (``service.admission``)
     max_inflight_bytes: Bytes | None = None
     #: seconds a request waits for room in that budget before it is answered 503
-    admission_wait: Annotated[float, Field(ge=0)] = 5
+    admission_wait: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 5
     #: where queries and sensors are traced: "cpu", or "cuda" (``dacrt.cuda``: on scenes without
     #: deforming meshes, no ?stats; the CPU traces the rest); "cuda" is refused at start where no
     #: GPU (nor Numba's CUDA simulator) is available
     device: Literal["cpu", "cuda"] = "cpu"
+
+    @field_validator("host", mode="before")
+    @classmethod
+    def _host_given(cls, value: object) -> object:
+        # an empty address binds every interface, which only 0.0.0.0 should ask for
+        if value == "":
+            raise ValueError("give an address to listen on (0.0.0.0 for every interface)")
+        return value
+
+    @field_validator("data_dir", "cache_dir", "demo_scene", mode="before")
+    @classmethod
+    def _empty_path_is_none(cls, value: object) -> object:
+        # pydantic reads "" as ".", the working directory
+        return None if value == "" else value
+
+    @field_validator("token_file", mode="before")
+    @classmethod
+    def _token_file_given(cls, value: object) -> object:
+        # read as unset, it would serve every request without a token
+        if value == "":
+            raise ValueError("give the token file's path, or leave the variable unset")
+        return value
+
+    @field_validator("demo_name")
+    @classmethod
+    def _scene_name(cls, value: str) -> str:
+        from .errors import Invalid
+        from .store import check_name  # the engine's import, only for a name that is set
+
+        try:
+            return check_name("scene", value)
+        except Invalid as error:
+            raise ValueError(error.detail) from None
+
+    @field_validator("threads")
+    @classmethod
+    def _threads_in_the_pool(cls, value: int | None) -> int | None:
+        from dacrt.chunks import POOL_THREADS  # the engine's import, only for a count that is set
+
+        if value is not None and value > POOL_THREADS:
+            raise ValueError(
+                f"at most {POOL_THREADS}, the most threads the engine runs on this machine "
+                "(dacrt.chunks.POOL_THREADS)"
+            )
+        return value
+
+    @field_validator("max_inflight_bytes")
+    @classmethod
+    def _budget_serves_a_request(cls, value: ByteSize | None) -> ByteSize | None:
+        from .footprint import MIN_BUDGET_BYTES  # the engine's import, only for a budget set
+
+        if value is not None and value < MIN_BUDGET_BYTES:
+            raise ValueError(
+                f"at least {MIN_BUDGET_BYTES // MiB}MiB, what a one-ray query answered in JSON "
+                "holds (service.footprint.MIN_BUDGET_BYTES)"
+            )
+        return value
 
     @field_validator("dask_scheduler", mode="before")
     @classmethod

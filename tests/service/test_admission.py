@@ -173,6 +173,47 @@ def test_a_ticket_over_the_whole_budget_is_413():
     run(scenario())
 
 
+def test_amounts_below_a_mib_are_given_in_kib_or_bytes():
+    async def scenario():
+        admission = Admission(1000, wait=5)
+        with pytest.raises(TooLarge) as refused:
+            await admission.ticket().hold(2048, "a body of 100 bytes")
+        assert "about 2.0 KiB of server memory, over the budget of 1000 bytes" in str(refused.value)
+
+    run(scenario())
+
+
+# ---- the smallest budget DACRT_MAX_INFLIGHT_BYTES takes, in process
+
+
+@pytest.fixture(scope="module")
+def smallest_budget_app():
+    budget = footprint.MIN_BUDGET_BYTES
+    settings = Settings(token=None, load_demo=False, max_inflight_bytes=budget)
+    with in_process.serve(settings) as client:
+        wall = {"vertices": [[5, -5, -5], [5, 5, -5], [5, 0, 5]], "faces": [[0, 1, 2]]}
+        client.put("/v1/scenes/s/meshes/wall", json=wall).raise_for_status()
+        yield client
+
+
+@pytest.mark.parametrize(
+    "query, body",
+    [
+        ("closest", {"origins": [[0, 0, 0]], "directions": [[1, 0, 0]]}),
+        ("occluded", {"origins": [[0, 0, 0]], "directions": [[1, 0, 0]]}),
+        ("hits", {"origins": [[0, 0, 0]], "directions": [[1, 0, 0]]}),
+        ("count", {"origins": [[0, 0, 0]], "directions": [[1, 0, 0]]}),
+        ("nearest?sign=true&nsamples=5", {"points": [[0, 0, 0]]}),
+    ],
+)
+def test_the_smallest_budget_serves_a_one_ray_query_answered_in_json(
+    smallest_budget_app, query, body
+):
+    answer = smallest_budget_app.post(f"/v1/scenes/s/{query}", json=body, headers=JSON)
+    assert answer.status_code == 200, answer.text
+    assert answer.headers["content-type"].startswith("application/json")
+
+
 # ---- a compressed .npz in process: held at what it inflates to before it is inflated
 
 

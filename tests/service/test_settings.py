@@ -232,6 +232,7 @@ LAUNCHERS = {
         ),
         ("DACRT_MAX_BODY_BYTES", "lots", "bad setting DACRT_MAX_BODY_BYTES='lots': "),
         ("DACRT_TOKEN", "abc ", "bad setting DACRT_TOKEN: Value error, the token starts or ends"),
+        ("DACRT_HOST", "", "bad setting DACRT_HOST='': "),
     ],
 )
 def test_the_server_refuses_to_start(launcher, variable, value, message):
@@ -370,3 +371,116 @@ def test_options_of_the_command_line_set_the_server(tmp_path):
         assert "INFO:     service:" not in server.output()
     finally:
         server.stop()
+
+
+def test_an_empty_host_is_refused_rather_than_bind_every_interface(environ):
+    environ(DACRT_HOST="")
+    with pytest.raises(SettingsError, match=r"^bad setting DACRT_HOST='': .*0\.0\.0\.0[^\n]*$"):
+        load_settings()
+    with pytest.raises(SettingsError, match="DACRT_HOST=''"):
+        load_settings(host="")  # --host ''
+
+
+@pytest.mark.parametrize("field", ["data_dir", "cache_dir", "demo_scene"])
+def test_an_empty_path_is_unset_not_the_working_directory(environ, field):
+    environ(**{variable(field): ""})
+    assert getattr(load_settings(), field) is None
+    assert getattr(load_settings(**{field: ""}), field) is None  # --data-dir ''
+
+
+#: The settings an empty value leaves unset (README, "Settings"); it is refused for the others.
+EMPTY_IS_UNSET = ("token", "data_dir", "cache_dir", "demo_scene", "dask_scheduler")
+
+
+@pytest.mark.parametrize("field", list(Settings.model_fields))
+def test_an_empty_value_is_unset_or_refused_in_one_line(environ, field):
+    environ(**{variable(field): ""})
+    if field in EMPTY_IS_UNSET:
+        assert getattr(load_settings(), field) is None
+        return
+    with pytest.raises(SettingsError) as refused:
+        load_settings()
+    assert str(refused.value).startswith(f"bad setting {variable(field)}='': ")
+    assert "\n" not in str(refused.value)
+
+
+def test_an_empty_data_dir_keeps_the_scenes_in_memory(environ, monkeypatch, tmp_path):
+    from service.app import open_data_dir
+
+    monkeypatch.chdir(tmp_path)
+    environ(DACRT_DATA_DIR="")
+    assert open_data_dir(load_settings()) is None
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_empty_token_file_is_refused_without_naming_the_working_directory(environ):
+    environ(DACRT_TOKEN_FILE="")
+    with pytest.raises(SettingsError) as refused:
+        load_settings()
+    message = str(refused.value)
+    assert message.startswith("bad setting DACRT_TOKEN_FILE='': ") and "\n" not in message
+    assert "'.'" not in message and "directory" not in message
+
+
+@pytest.mark.parametrize("name", ["bad name!", "", "x" * 65, "a\nb", "..", "."])
+def test_a_demo_name_that_is_no_scene_name_is_refused_naming_the_variable(environ, name):
+    environ(DACRT_DEMO_NAME=name)
+    with pytest.raises(SettingsError) as refused:
+        load_settings(load_demo=True)
+    message = str(refused.value)
+    assert message.startswith(f"bad setting DACRT_DEMO_NAME={name!r}: ") and "\n" not in message
+    assert "1-64 characters of A-Z a-z 0-9 _ - ." in message
+
+
+def test_a_demo_name_that_is_a_scene_name_is_taken(environ):
+    environ(DACRT_DEMO_NAME="teapot_2.v1")
+    assert load_settings().demo_name == "teapot_2.v1"
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "DACRT_HEADER_TIMEOUT",
+        "DACRT_BODY_TIMEOUT",
+        "DACRT_BODY_IDLE_TIMEOUT",
+        "DACRT_ANSWER_IDLE_TIMEOUT",
+        "DACRT_ADMISSION_WAIT",
+    ],
+)
+@pytest.mark.parametrize("value", ["inf", "Infinity", "1e400"])
+def test_an_infinite_wait_is_refused_rather_than_turn_a_deadline_off(environ, name, value):
+    environ(**{name: value})
+    with pytest.raises(SettingsError, match=f"^bad setting {name}='{value}': [^\n]*finite"):
+        load_settings()
+
+
+def test_more_threads_than_the_engine_runs_are_refused_naming_the_bound(environ):
+    pool = max(32, 4 * (os.cpu_count() or 1))  # the engine's pool, as README gives it
+    environ(DACRT_THREADS=str(pool))
+    assert load_settings().threads == pool
+    environ(DACRT_THREADS=str(pool + 1))
+    with pytest.raises(SettingsError, match=f"DACRT_THREADS='{pool + 1}': .*at most {pool}\\b"):
+        load_settings()
+    environ(DACRT_THREADS="100000")
+    with pytest.raises(SettingsError, match="POOL_THREADS"):
+        load_settings()
+
+
+#: The smallest budget: a JSON answer is written in pieces of 16 MiB (docs/limits.md), and a
+#: small request's body and work take the MiB beside it.
+SMALLEST_BUDGET = 17 * MiB
+
+
+@pytest.mark.parametrize("value", ["1", "8MiB", str(SMALLEST_BUDGET - 1)])
+def test_a_budget_no_json_query_fits_in_is_refused_naming_the_least(environ, value):
+    environ(DACRT_MAX_INFLIGHT_BYTES=value)
+    with pytest.raises(SettingsError) as refused:
+        load_settings()
+    message = str(refused.value)
+    assert message.startswith(f"bad setting DACRT_MAX_INFLIGHT_BYTES='{value}': ")
+    assert "at least 17MiB" in message and "\n" not in message
+
+
+def test_the_smallest_budget_is_taken(environ):
+    environ(DACRT_MAX_INFLIGHT_BYTES="17MiB")
+    assert load_settings().max_inflight_bytes == SMALLEST_BUDGET
