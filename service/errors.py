@@ -12,6 +12,8 @@ from __future__ import annotations
 import json
 import logging
 
+from .logs import untrusted
+
 log = logging.getLogger("service")
 
 
@@ -168,7 +170,7 @@ def install(app) -> None:
         log.info(
             "%s %s: the client went away before sending the whole body",
             request.method,
-            request.url.path,
+            untrusted(request.url.path),
         )
         return Response(status_code=CLIENT_GONE)
 
@@ -226,7 +228,7 @@ class CatchAll:
         try:
             await self.app(scope, receive, send_and_note)
         except Exception:
-            log.exception("unhandled error in %s %s", scope["method"], scope["path"])
+            log.exception("unhandled error in %s %s", scope["method"], untrusted(scope["path"]))
             if started:  # half an answer is out: only closing the connection is honest now
                 raise
             await send(

@@ -1,6 +1,7 @@
 """The service's log lines, set up the same under ``python -m service`` and under
 ``uvicorn service.app:create_app --factory`` (whose logging config covers only uvicorn's
-loggers)."""
+loggers). What a request sends (its path, a header's value) goes into a line through
+``untrusted``."""
 
 from __future__ import annotations
 
@@ -18,3 +19,18 @@ def configure_logging(level: str) -> None:
         handler.setFormatter(logging.Formatter(FORMAT))
         handler.dacrt = True
         logger.addHandler(handler)
+
+
+#: Characters of a request's path or header value that a log line keeps.
+MOST_LOGGED = 200
+
+
+def untrusted(text: str, most: int = MOST_LOGGED) -> str:
+    """``text`` from a request (its path, a header's value) for a log line: a backslash, a
+    control character (newline, ESC) and any other than ASCII written as Python escapes them
+    (``\\n``, ``\\x1b``), so that a client cannot start a line of its own or colour a terminal,
+    and cut to its first ``most`` characters, with its length."""
+    escaped = text.encode("unicode_escape").decode("ascii")
+    if len(escaped) <= most:
+        return escaped
+    return f"{escaped[:most]}... ({len(text)} characters)"

@@ -56,6 +56,7 @@ from .errors import (
     TooManyConnections,
     status_of,
 )
+from .logs import untrusted
 from .metrics import CLIENT_METHOD, PROTOCOL_ROUTE, UNKNOWN_METHOD
 from .settings import Settings, load_settings_or_exit
 
@@ -452,7 +453,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         # where the bytes after the headers begin in the data read, as the parser says
         located = bool(upgrade.args) and isinstance(upgrade.args[0], int)
         if b"transfer-encoding" in headers or not length.isdigit() or not located:
-            upgrade = headers.get(b"upgrade", b"").decode("latin-1")
+            upgrade = untrusted(headers.get(b"upgrade", b"").decode("latin-1"))
             self.cut_off_body(
                 cycle,
                 BadBody(
@@ -555,7 +556,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         cycle.scope["state"][CUT_OFF] = error  # counted as this answer, not as a client gone
         cycle.disconnected = True  # the app's receive() sees a disconnect and its send() is mute
         cycle.message_event.set()
-        self.answer_and_close(error, f"{cycle.scope['method']} {cycle.scope['path']}")
+        self.answer_and_close(error, f"{cycle.scope['method']} {untrusted(cycle.scope['path'])}")
 
     def answer_unread(self, error: ServiceError) -> None:
         """Answer ``error`` to a request whose line and headers the app never got, counted in
@@ -568,7 +569,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
 
     def answer_and_close(self, error: ServiceError, request: str) -> None:
         """Write ``error`` as a whole response outside any ASGI cycle, then close; log it with
-        ``request``, what was read of the request (its method and path)."""
+        ``request``, what was read of the request (its method and its path, ``untrusted``)."""
         status, headers, body = error_parts(error, {})
         log.info("%s: %s answered %d: %s", self.peer(), request, status, error.detail)
         lines = [STATUS_LINE[status]]

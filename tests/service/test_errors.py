@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import re
 
 import httpx
@@ -557,13 +558,13 @@ def test_client_raises_api_error_with_the_detail(app_api):
     assert json.loads(caught.value.response.text) == {"detail": caught.value.detail}
 
 
-async def _collect(app):
+async def _collect(app, path="/x"):
     sent = []
 
     async def send(message):
         sent.append(message)
 
-    await CatchAll(app)({"type": "http", "method": "GET", "path": "/x"}, None, send)
+    await CatchAll(app)({"type": "http", "method": "GET", "path": path}, None, send)
     return sent
 
 
@@ -583,3 +584,15 @@ def test_an_error_before_the_answer_is_a_json_500():
     sent = asyncio.run(_collect(app))
     assert [m["type"] for m in sent] == ["http.response.start", "http.response.body"]
     assert sent[0]["status"] == 500 and b"the error is in its log" in sent[1]["body"]
+
+
+def test_an_unhandled_error_logs_its_path_escaped_on_one_line(caplog):
+    """A path is percent-decoded: its %0a and %1b must not start a log line or colour one."""
+
+    async def app(scope, receive, send):
+        raise RuntimeError("failed")
+
+    with caplog.at_level(logging.ERROR, logger="service"):
+        asyncio.run(_collect(app, "/x\nERROR:    service: forged\x1b[31m"))
+    [record] = caplog.records
+    assert record.getMessage() == "unhandled error in GET /x\\nERROR:    service: forged\\x1b[31m"

@@ -231,6 +231,29 @@ def test_an_upgrade_not_spoken_with_a_chunked_body_is_400_naming_it(server):
     assert "Upgrade: h2c with a chunked body is not served" in detail(answer)
 
 
+def test_a_path_or_upgrade_a_client_sends_cannot_forge_or_colour_a_log_line(server):
+    """The protocol logs the answer it writes with the request's path, percent-decoded, and the
+    Upgrade it refuses: a %0a cannot start a line of its own, a %1b cannot colour one, and a long
+    header value is cut."""
+    path = b"/x%0aINFO:%20%20%20%20%20service:%20FORGED%1b[31m"
+    upgrade = b"h2c" + b"x" * 3000
+    with connect(server) as s:
+        s.sendall(
+            b"POST " + path + b" HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: Upgrade\r\n"
+            b"Upgrade: " + upgrade + b"\r\nTransfer-Encoding: chunked\r\n\r\n"
+            b"5\r\nhello\r\n0\r\n\r\n"
+        )
+        answer, _ = read_until_closed(s, 10)
+    assert STATUS.match(answer).group(1) == b"400"
+    assert len(detail(answer)) < 1000
+    output = server.output(last=10**6)
+    [line] = [line for line in output.splitlines() if "FORGED" in line]
+    assert line.startswith("INFO:     service: 127.0.0.1:")
+    assert "POST /x\\nINFO:     service: FORGED\\x1b[31m answered 400: Upgrade: h2cxxx" in line
+    assert "(3003 characters)" in line and len(line) < 1000
+    assert "\x1b" not in output
+
+
 def closest_counted(server: ServerProcess, status: int) -> float:
     text = httpx.get(f"{server.url}/metrics").text
     labels = f'method="POST",route="/v1/scenes/{{scene}}/closest",status="{status}"'
