@@ -162,8 +162,11 @@ class Settings(BaseSettings):
 
     @field_validator("token", mode="before")
     @classmethod
-    def _empty_token_is_none(cls, value: object) -> object:
-        return None if value in ("", None) else value
+    def _token_given(cls, value: object) -> object:
+        # read as unset, a DACRT_TOKEN=$SECRET whose SECRET is unset would serve without a token
+        if value == "":
+            raise ValueError("give the token, or leave the variable unset for a server without one")
+        return value
 
     @field_validator("token")
     @classmethod
