@@ -9,8 +9,10 @@ each worker process builds its ``dacrt.Scene`` from them on its first shard and 
 scattered key, while that key lives on the worker. A batch is cut into shards of consecutive rays
 (``shard_bounds``); each shard is scattered to a worker and traced there on one of the worker's
 threads; the answers are joined in input order. A shard whose rays or answer are lost with their
-worker is sent again, up to ``retries`` times; past that, or when the cluster is gone, the query
-raises ``ClusterError``: never a partial answer.
+worker is sent again, up to ``retries`` times; past that, when the cluster is gone, or when the
+scene's ``timeout`` passes (every call to the scheduler or the workers is bounded by it, so a
+scheduler or worker that stops answering without closing its connection costs no more), the
+query raises ``ClusterError``: never a partial answer.
 
 Needs the ``dask`` extra (``pip install ".[dask]"``); ``import dacrt`` does not import this module.
 """
@@ -51,6 +53,25 @@ _QUERIES = ("closest", "occluded", "hits", "count")
 
 class ClusterError(RuntimeError):
     """A batch the cluster could not finish (its workers or scheduler are gone): no answer."""
+
+
+def _within(client, seconds, method, *args, **kwargs):
+    """``method(*args, **kwargs)``, a method of ``client``, or ``distributed.TimeoutError`` after
+    ``seconds`` (None: no limit). It runs on the client's event loop, where dask's methods
+    answer coroutines, under ``Client.sync``'s ``callback_timeout``: the only limit that holds
+    when the other end keeps its connection open but stops answering."""
+    return client.sync(method, *args, callback_timeout=seconds, **kwargs)
+
+
+def _seconds_left(deadline):
+    """Seconds until ``deadline`` (``time.monotonic``; None: no limit), or
+    ``distributed.TimeoutError`` once it has passed."""
+    if deadline is None:
+        return None
+    left = deadline - time.monotonic()
+    if left <= 0:
+        raise distributed.TimeoutError("the deadline passed")
+    return left
 
 
 def shard_bounds(n_rays, n_threads, min_rays=MIN_SHARD_RAYS, max_rays=MAX_SHARD_RAYS):
@@ -121,7 +142,8 @@ class DistributedScene:
         here as ``Scene`` checks them
     retries : times a shard lost with its worker is sent again before ``ClusterError``
     min_shard_rays, max_shard_rays : the bounds of a shard's size (``shard_bounds``)
-    timeout : seconds a batch may take on the cluster (None: no limit), then ``ClusterError``
+    timeout : seconds a batch may take on the cluster (None: no limit), then ``ClusterError``;
+        it also bounds sending the triangles (here and by ``close``)
 
     ``closest``, ``occluded``, ``hits`` and ``count`` take ``Scene``'s arguments (``time`` and
     ``device`` too: each worker traces its shards on its own device) and answer its types, bit
@@ -176,10 +198,15 @@ class DistributedScene:
                 f"the triangles could not reach the cluster: {type(exc).__name__}: {exc}"
             ) from exc
 
-    def _send_triangles(self):
-        """Scatter the triangles to every worker; workers that join later fetch them from a
-        peer when a shard lands on them. The workers' Scenes are keyed by the scattered key."""
-        [self._payload] = self.client.scatter([self._triangles], broadcast=True, hash=False)
+    def _send_triangles(self, seconds=None):
+        """Scatter the triangles to every worker, within ``seconds`` (None: the scene's
+        ``timeout``); workers that join later fetch them from a peer when a shard lands on them.
+        The workers' Scenes are keyed by the scattered key."""
+        seconds = self.timeout if seconds is None else seconds
+        client = self.client
+        [self._payload] = _within(
+            client, seconds, client.scatter, [self._triangles], broadcast=True, hash=False
+        )
         self.key = self._payload.key
 
     def __repr__(self):
@@ -200,24 +227,25 @@ class DistributedScene:
         payload.release()
         if forget and self.client.status == "running":
             try:
-                self.client.run(_forget, self.key)
-            except OSError:  # a worker or the scheduler went away: nothing left to drop there
+                self.client.run(_forget, self.key, callback_timeout=self.timeout)
+            except OSError:  # gone or not answering (TimeoutError): nothing more to do there
                 pass
 
     def build(self):
         """Build the Scene on every worker now rather than on its first shard; answers the
         seconds it took."""
         start = time.perf_counter()
+        client = self.client
         futures = [
-            self.client.submit(_build, self.key, self._payload, workers=[worker], pure=False)
-            for worker in self.client.nthreads()
+            client.submit(_build, self.key, self._payload, workers=[worker], pure=False)
+            for worker in client.nthreads(callback_timeout=self.timeout)
         ]
-        self.client.gather(futures)
+        _within(client, self.timeout, client.gather, futures)
         return time.perf_counter() - start
 
     def threads(self):
         """Threads of the cluster's workers, in all."""
-        return sum(self.client.nthreads().values())
+        return sum(self.client.nthreads(callback_timeout=self.timeout).values())
 
     def closest(self, origins, directions, tmin=None, tmax=None, **options):
         """``Scene.closest`` on the cluster."""
@@ -243,6 +271,7 @@ class DistributedScene:
             raise TypeError(f"{query}() got an unexpected keyword argument {name!r}")
         if self._payload is None:
             raise ClusterError("this DistributedScene is closed")
+        deadline = None if self.timeout is None else time.monotonic() + self.timeout
         # The checks Scene makes, here: a bad argument fails before anything is sent.
         check_strategy(options.get("strategy", "sampling"))
         check_cull(options.get("cull", "none"))
@@ -259,8 +288,8 @@ class DistributedScene:
             mask = hide_rays(None if mask is None else np.broadcast_to(mask, (n,)), empty, n)
         times = check_time(options.pop("time", None), n)
         try:
-            nthreads = self.client.nthreads()
-        except Exception as exc:  # the client closed, or its scheduler gone
+            nthreads = self.client.nthreads(callback_timeout=_seconds_left(deadline))
+        except Exception as exc:  # the client closed, its scheduler gone or not answering
             raise ClusterError(f"the cluster is unreachable: {type(exc).__name__}: {exc}") from exc
         bounds = shard_bounds(n, sum(nthreads.values()), *self.shard_rays)
         shards = [
@@ -275,14 +304,15 @@ class DistributedScene:
             for a, b in zip(bounds[:-1], bounds[1:])
         ]
         try:
-            answers = self._map(query, shards, options, bounds, nthreads)
+            answers = self._map(query, shards, options, bounds, nthreads, deadline)
         except ValueError:
             explain_bad_rays(origins, directions, tmin, tmax)  # names the batch's first bad ray
             raise
         return join(answers)
 
-    def _map(self, query, shards, options, bounds, nthreads):
-        """Each shard's answer, in order; lost shards are sent again."""
+    def _map(self, query, shards, options, bounds, nthreads, deadline):
+        """Each shard's answer, in order, by ``deadline`` (``time.monotonic``; None: no limit);
+        lost shards are sent again."""
         client = self.client
         if client.status != "running":
             raise ClusterError(f"the dask client is {client.status}, not connected")
@@ -290,7 +320,7 @@ class DistributedScene:
         tries = [0] * len(shards)
         clock = {"shards": len(shards), "send": 0.0, "trace": 0.0, "wall": time.perf_counter()}
         sent = {}  # future -> (shard index, the scattered rays it holds on to)
-        done = distributed.as_completed(loop=client.loop, timeout=self.timeout)
+        done = distributed.as_completed(loop=client.loop, timeout=_seconds_left(deadline))
 
         # One slot per worker thread, the workers taking turns: shard i goes to slot i.
         slots = [
@@ -313,13 +343,22 @@ class DistributedScene:
             arrived, while the next ones are sent. A shard sent again goes wherever the
             scheduler likes (its slot's worker may be gone)."""
             if self._payload.status != "finished":
-                self._send_triangles()  # their only copy went with a worker
+                self._send_triangles(_seconds_left(deadline))  # their only copy went with a worker
             while True:
                 start = time.perf_counter()
                 workers = [slots[i % len(slots)]] if slots and not tries[i] else None
                 try:
-                    [rays] = client.scatter([shards[i]], workers=workers, hash=False)
+                    [rays] = _within(
+                        client,
+                        _seconds_left(deadline),
+                        client.scatter,
+                        [shards[i]],
+                        workers=workers,
+                        hash=False,
+                    )
                     break
+                except distributed.TimeoutError:  # the deadline: no time to send it again
+                    raise
                 except (OSError, KeyError) as exc:  # that worker went away
                     lost(i, exc)
                     time.sleep(0.1 * tries[i])  # the scheduler has yet to notice
@@ -353,7 +392,7 @@ class DistributedScene:
                 send(i)
         except distributed.TimeoutError as exc:
             waited = time.perf_counter() - clock["wall"]
-            if self.timeout is not None and waited >= self.timeout:
+            if deadline is not None and time.monotonic() >= deadline:
                 raise ClusterError(f"the batch took over {self.timeout} s on the cluster") from exc
             # not the batch's clock: a worker or the scheduler stopped answering mid-batch
             raise ClusterError(

@@ -92,7 +92,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.readiness, app.state.admission = Readiness(), admission
     app.state.patterns = patterns
     app.state.cluster = (
-        Cluster(settings.dask_scheduler, settings.dask_min_rays)
+        Cluster(settings.dask_scheduler, settings.dask_min_rays, settings.dask_timeout)
         if settings.dask_scheduler is not None
         else None
     )

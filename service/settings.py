@@ -88,6 +88,9 @@ class Settings(BaseSettings):
     #: rays are traced on its workers (needs the ``dask`` extra); None: every query in process
     dask_scheduler: str | None = None
     dask_min_rays: PositiveInt = 1 * MiB  #: fewest rays of a query traced on the dask cluster
+    #: seconds a query waits for each thing it asks of the dask cluster (sending a scene version's
+    #: triangles, its batch); past them, or when the cluster fails, it is traced in process
+    dask_timeout: Seconds = 30
     #: bytes that all requests in flight may hold at their peak (bodies, rays, the engine's work,
     #: answers); None: a quarter of the machine's memory (``service.admission``)
     max_inflight_bytes: Bytes | None = None

@@ -271,6 +271,50 @@ def test_worker_killed_without_retries_is_a_clear_error(client, load_shared):
     remote.close()
 
 
+def test_workers_that_stop_answering_cost_the_timeout_at_most(client):
+    """Workers that stop answering but keep their connections open (SIGSTOP: a frozen host)
+    stay dask's until its worker-ttl (5 minutes): a batch ends at the scene's ``timeout`` with
+    ClusterError, sending its shards included, and so does sending a new scene's triangles."""
+    timeout, slack = 2, 8
+    meshes = [pg.icosphere(1)]
+    remote = DistributedScene(client, meshes, timeout=timeout, **SMALL_SHARDS)
+    origins = np.zeros((2000, 3), np.float32)
+    directions = np.tile(np.float32([0, 0, 1]), (2000, 1))
+    remote.closest(origins, directions)  # both workers build their scene
+    pids = list(_worker_pids(client).values())
+    outcome = {}
+
+    def frozen():
+        for name, call in [
+            ("batch", lambda: remote.closest(origins, directions)),
+            ("scene", lambda: DistributedScene(client, meshes, timeout=timeout)),
+        ]:
+            start = time.monotonic()
+            try:
+                call()
+            except ClusterError as exc:
+                outcome[name] = (str(exc), time.monotonic() - start)
+
+    thread = threading.Thread(target=frozen, daemon=True)
+    for pid in pids:
+        os.kill(pid, signal.SIGSTOP)
+    try:
+        thread.start()
+        thread.join(2 * (timeout + slack))
+        finished = not thread.is_alive()
+    finally:
+        for pid in pids:
+            os.kill(pid, signal.SIGCONT)
+    thread.join(120)
+    assert finished, f"a call to the frozen cluster outlived its timeout: {outcome}"
+    message, seconds = outcome["batch"]
+    assert f"took over {timeout} s" in message and timeout <= seconds < timeout + slack
+    message, seconds = outcome["scene"]
+    assert "could not reach the cluster" in message and seconds < timeout + slack
+    same(remote.closest(origins, directions), dacrt.Scene(meshes).closest(origins, directions))
+    remote.close()
+
+
 def test_lost_cluster_is_an_error(client):
     meshes = [pg.icosphere(1)]
     remote = DistributedScene(client, meshes)

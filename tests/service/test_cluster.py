@@ -1,15 +1,23 @@
 """The service with DACRT_DASK_SCHEDULER: large queries traced on a LocalCluster (2 worker
 processes, 1 thread each) give the in-process answers; small ones stay in process; a new scene
 version replaces the old one on the workers; an unreachable scheduler means in-process answers
-and a degraded /health."""
+and a degraded /health. A scheduler or worker that stops answering with its connections open
+(SIGSTOP) costs a query DACRT_DASK_TIMEOUT at most, and /health none of it."""
 
 from __future__ import annotations
 
+import os
+import signal
 import time
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
+import httpx
 import in_process
 import numpy as np
 import pytest
+import reference
+from server_process import ServerProcess
 from service_helpers import grid
 
 import dacrt
@@ -18,7 +26,7 @@ from service.settings import Settings, SettingsError, load_settings
 
 distributed = pytest.importorskip("distributed")
 
-from clusters import two_worker_cluster  # noqa: E402
+from clusters import ProcessCluster, two_worker_cluster  # noqa: E402
 
 MIN_RAYS = 2000
 
@@ -159,6 +167,134 @@ def test_settings(monkeypatch):
     monkeypatch.setenv("DACRT_DASK_MIN_RAYS", "1")
     monkeypatch.setenv("DACRT_DASK_SCHEDULER", "")
     assert load_settings().dask_scheduler is None
+    monkeypatch.setenv("DACRT_DASK_TIMEOUT", "2.5")
+    assert load_settings().dask_timeout == 2.5
+    for bad in ("0", "-1", "soon"):
+        monkeypatch.setenv("DACRT_DASK_TIMEOUT", bad)
+        with pytest.raises(SettingsError, match="DACRT_DASK_TIMEOUT"):
+            load_settings()
+    monkeypatch.delenv("DACRT_DASK_TIMEOUT")
+    assert load_settings().dask_timeout == 30
     monkeypatch.setenv("DACRT_DASK_SCHEDULR", "tcp://x:1")
     with pytest.raises(SettingsError, match="did you mean DACRT_DASK_SCHEDULER"):
         load_settings()
+
+
+# ---- a scheduler or a worker that stops answering (SIGSTOP: its connections stay open)
+
+#: DACRT_DASK_TIMEOUT of the service below, and the time an answer may take beyond it
+DEADLINE, SLACK = 3, 12
+
+
+@pytest.fixture(scope="module")
+def own_cluster():
+    """A scheduler and a worker in processes of their own (``clusters.ProcessCluster``)."""
+    own = ProcessCluster()
+    yield own
+    own.close()
+
+
+@pytest.fixture(scope="module")
+def frozen_api(own_cluster):
+    """A real server (uvicorn's thread pool, clients that give up) on ``own_cluster``, with a
+    short DACRT_DASK_TIMEOUT; its client gives up DEADLINE + SLACK seconds into a request."""
+    server = ServerProcess(
+        {
+            "DACRT_DASK_SCHEDULER": own_cluster.address,
+            "DACRT_DASK_MIN_RAYS": str(MIN_RAYS),
+            "DACRT_DASK_TIMEOUT": str(DEADLINE),
+        }
+    )
+    try:
+        url = server.wait_ready()  # "ok": the cluster's too
+        api = Client(base_url=url, timeout=DEADLINE + SLACK)
+        yield api
+        api.close()
+    finally:
+        server.stop()
+
+
+@contextmanager
+def stopped(pid):
+    """The process ``pid`` stopped (SIGSTOP) inside the block: alive, its sockets open."""
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        yield
+    finally:
+        os.kill(pid, signal.SIGCONT)
+
+
+def wait_for_health(api, status, seconds):
+    """/health's body once its status is ``status``; every answer comes within 2 s."""
+    deadline = time.monotonic() + seconds
+    while True:
+        body = api.http.get("/health", timeout=2).json()
+        if body["status"] == status or time.monotonic() > deadline:
+            assert body["status"] == status, body
+            return body
+        time.sleep(0.2)
+
+
+def traced(api, scene, origins, directions, expected):
+    """The query's ``where`` and its seconds; its answer is the reference's."""
+    start = time.monotonic()
+    answer = api.closest(scene, origins, directions, stats=True)
+    seconds = time.monotonic() - start
+    np.testing.assert_allclose(answer["t"], expected.t[: len(origins)], rtol=1e-5)
+    assert np.mean(answer["prim"] == expected.prim[: len(origins)]) > 0.99
+    return answer.stats["where"], seconds
+
+
+def frozen_scene(api, scene_name):
+    """A stored grid, a large batch onto it and the reference's answer; the batch has run on
+    the cluster once (its triangles are on the worker)."""
+    vertices, faces = grid(24)
+    api.put_mesh(scene_name, "ground", vertices, faces)
+    origins, directions = rays(3 * MIN_RAYS, 11)
+    expected = reference.closest(vertices, faces, origins, directions)
+    assert np.isfinite(expected.t).sum() > MIN_RAYS
+    assert traced(api, scene_name, origins, directions, expected)[0] == "cluster"
+    return origins, directions, expected
+
+
+def test_a_frozen_scheduler_leaves_health_and_queries_answering(
+    frozen_api, own_cluster, scene_name
+):
+    """docs/cluster.md: while the scheduler is unreachable, /health answers 200 degraded and
+    every query is traced in process; a query that was sent to it costs DACRT_DASK_TIMEOUT at
+    most. /health never waits on the scheduler, so that probes given up by their callers (a load
+    balancer's) take none of the threads that queries need."""
+    api = frozen_api
+    origins, directions, expected = frozen_scene(api, scene_name)
+    with stopped(own_cluster.scheduler.pid):
+        where, seconds = traced(api, scene_name, origins, directions, expected)
+        assert where == "process" and seconds < DEADLINE + SLACK
+        body = wait_for_health(api, "degraded", 10)
+        assert body["cluster"]["status"] == "unreachable", body
+        url = str(api.http.base_url.join("/health"))
+        with ThreadPoolExecutor(48) as pool:
+            probes = list(pool.map(lambda _: httpx.get(url, timeout=2), range(48)))
+        assert [probe.status_code for probe in probes] == [200] * 48
+        where, seconds = traced(api, scene_name, origins[:10], directions[:10], expected)
+        assert where == "process"
+        where, seconds = traced(api, scene_name, origins, directions, expected)
+        assert where == "process" and seconds < DEADLINE  # the cluster is not asked again
+    wait_for_health(api, "ok", 60)
+    assert traced(api, scene_name, origins, directions, expected)[0] == "cluster"
+
+
+def test_a_frozen_worker_costs_a_query_its_deadline_at_most(frozen_api, own_cluster, scene_name):
+    """A worker that stops answering stays the scheduler's for dask's worker-ttl (5 minutes):
+    the query that sent it a shard is traced in process after DACRT_DASK_TIMEOUT, and /health
+    is degraded until the worker answers again."""
+    api = frozen_api
+    origins, directions, expected = frozen_scene(api, scene_name)
+    with stopped(own_cluster.worker.pid):
+        where, seconds = traced(api, scene_name, origins, directions, expected)
+        assert where == "process" and DEADLINE <= seconds < DEADLINE + SLACK
+        body = wait_for_health(api, "degraded", 10)
+        assert body["cluster"]["status"] == "unreachable", body
+        time.sleep(DEADLINE)  # the monitor's task for the worker goes unanswered too
+        assert api.http.get("/health").json()["status"] == "degraded"
+    wait_for_health(api, "ok", 60)
+    assert traced(api, scene_name, origins, directions, expected)[0] == "cluster"
