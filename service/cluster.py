@@ -63,8 +63,9 @@ class Cluster:
         self.retry_seconds = retry_seconds
         self.poll_seconds = poll_seconds
         self._client: Any = None
-        # held to read or change the fields below, never during a call to the cluster
-        self._lock = threading.Lock()
+        # held to read or change the fields below, never during a call to the cluster; reentrant:
+        # a snapshot's last reference may go (and _gone run) in a thread that holds it
+        self._lock = threading.RLock()
         self._error: str | None = "connecting"  #: why the cluster is not used; None: it is
         self._suspect = False  #: a call went unanswered: check the workers, then connect anew
         self._workers: dict[str, int] = {}  #: threads per worker, at the last answer

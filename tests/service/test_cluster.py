@@ -138,6 +138,34 @@ def test_a_new_version_replaces_the_old_on_the_workers(api, workers, scene_name)
     assert after - before  # the new one is there
 
 
+def test_a_snapshot_that_goes_while_its_thread_holds_the_cluster_lock_is_released():
+    """A weak reference's callback runs where the snapshot's last reference goes: in a thread
+    that may hold the cluster's lock (a temporary reference dropped under it, a collection)."""
+    import threading
+    import weakref
+
+    from service.cluster import Cluster
+
+    cluster = Cluster("tcp://127.0.0.1:9", min_rays=1)  # never started: no connection
+
+    class Snapshot:
+        pass
+
+    snapshot = Snapshot()
+    ref = weakref.ref(snapshot)
+    engine = type("Engine", (), {"scene": type("S", (), {"close": lambda *a, **k: None})()})()
+    cluster._sent["s"] = (1, None, engine, ref)
+
+    def drop_under_the_lock():
+        with cluster._lock:
+            cluster._gone("s", ref)
+
+    worker = threading.Thread(target=drop_under_the_lock, daemon=True)
+    worker.start()
+    worker.join(5)
+    assert not worker.is_alive() and "s" not in cluster._sent
+
+
 def test_unreachable_scheduler_falls_back(scene_name):
     settings = Settings(
         token=None, load_demo=False, dask_scheduler="tcp://127.0.0.1:9", dask_min_rays=10
