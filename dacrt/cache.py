@@ -3,7 +3,9 @@
 Every kernel is compiled with ``cache=True``. Until ``use_cache_dir`` is called, Numba's own rule
 files them (``NUMBA_CACHE_DIR``, else ``__pycache__`` beside dacrt's sources, else
 ``~/.cache/numba``), by the path of the source file: a checkout and an installed copy of the same
-sources compile separately.
+sources compile separately. Where the process can write none of those (a container's random
+uid), the kernels are not cached until ``use_cache_dir``; where it cannot write that folder
+either, it says so in a warning and every process compiles them.
 
 ``use_cache_dir(path)`` files dacrt's kernels, and only dacrt's (the process's other Numba code
 keeps Numba's rule, and the environment is left alone), under ``path/dacrt-<digest>/``, the
@@ -70,8 +72,7 @@ def use_cache_dir(path: str | os.PathLike[str] | None = None) -> Path:
     folder = kernels_folder(root)
     try:
         cache_class = package_cache(folder)
-        for dispatcher in dispatchers():
-            dispatcher._cache = cache_class(dispatcher.py_func)
+        caches = [(dispatcher, cache_class(dispatcher.py_func)) for dispatcher in dispatchers()]
     except (ImportError, AttributeError, TypeError) as exc:  # a Numba without these classes
         log.warning(
             "dacrt: compiled kernels stay where Numba puts them, not in %s (%s: %s)",
@@ -80,6 +81,16 @@ def use_cache_dir(path: str | os.PathLike[str] | None = None) -> Path:
             exc,
         )
         return root
+    except RuntimeError as exc:  # Numba's "no locator available": nowhere it may write
+        log.warning(
+            "dacrt: compiled kernels cannot be kept in %s, which this process cannot write "
+            "(%s); every process compiles them again",
+            root,
+            exc,
+        )
+        return root
+    for dispatcher, kernel_cache in caches:
+        dispatcher._cache = kernel_cache
     _chosen = root
     return root
 
@@ -90,7 +101,8 @@ def cache_dir() -> Path | None:
 
 
 def dispatchers() -> list:
-    """Every caching Numba dispatcher of dacrt's imported modules."""
+    """Every caching Numba dispatcher of dacrt's imported modules (``config.jit``'s: with
+    Numba's cache, or with its cache deferred where Numba found no folder for it)."""
     from numba.core.caching import NullCache
     from numba.core.dispatcher import Dispatcher
 
@@ -99,7 +111,9 @@ def dispatchers() -> list:
         if module is None or not (name == "dacrt" or name.startswith("dacrt.")):
             continue
         for value in vars(module).values():
-            if isinstance(value, Dispatcher) and not isinstance(value._cache, NullCache):
+            if isinstance(value, Dispatcher) and (
+                not isinstance(value._cache, NullCache) or getattr(value, "cache_deferred", False)
+            ):
                 found[id(value)] = value
     return list(found.values())
 

@@ -11,10 +11,35 @@ code, and its cache does not notice a change here, so clear the kernels' cache (
 after changing one. docs/benchmarks.md gives the measurements behind each value.
 """
 
+import logging
+
 import numba
 
-jit = numba.njit(cache=True, nogil=True, boundscheck=False, error_model="numpy")
-inline = numba.njit(cache=True, nogil=True, boundscheck=False, error_model="numpy", inline="always")
+log = logging.getLogger("dacrt")
+
+
+def _njit(**options):
+    """``numba.njit(cache=True, **options)``, or without Numba's cache where Numba finds no
+    folder to file it in when the kernel is defined (sources and home read-only, no
+    NUMBA_CACHE_DIR): ``dacrt.cache.use_cache_dir`` gives every kernel its cache then."""
+    cached, uncached = numba.njit(cache=True, **options), numba.njit(**options)
+
+    def decorate(function):
+        try:
+            return cached(function)
+        except RuntimeError as exc:  # "cannot cache function ...: no locator available"
+            if "no locator available" not in str(exc):
+                raise
+            log.debug("dacrt: %s; its cache comes from dacrt.cache.use_cache_dir", exc)
+            kernel = uncached(function)
+            kernel.cache_deferred = True  # for dacrt.cache.dispatchers
+            return kernel
+
+    return decorate
+
+
+jit = _njit(nogil=True, boundscheck=False, error_model="numpy")
+inline = _njit(nogil=True, boundscheck=False, error_model="numpy", inline="always")
 
 # ---- Object splits (traversal)
 # Binned splits: 16 bins (Nabata et al. 2013, Sec. 5: 32): most binned nodes hold few triangles,

@@ -5,11 +5,16 @@ from __future__ import annotations
 
 import inspect
 import json
+import os
+import shutil
 import subprocess
 import sys
+import tempfile
 from importlib.metadata import version
 from pathlib import Path
 from typing import get_args
+
+import pytest
 
 import dacrt
 from dacrt import scene
@@ -83,3 +88,54 @@ def test_importing_dacrt_defines_every_kernel():
     assert done.returncode == 0, done.stderr[-2000:]
     after_import, after_every_module = json.loads(done.stdout)
     assert after_import and after_import == after_every_module
+
+
+NO_CACHE_FOLDER = """
+import json, sys
+import dacrt, dacrt.cache
+kernels = dacrt.cache.dispatchers()
+dacrt.cache.use_cache_dir(sys.argv[1])
+print(json.dumps([len(kernels), sorted({str(d._cache._cache_path) for d in kernels})]))
+"""
+
+
+def run_as_nobody(script: str, *args: str) -> subprocess.CompletedProcess:
+    """``script`` as uid 65534, whose home does not exist, with no NUMBA_CACHE_DIR."""
+    return subprocess.run(
+        ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
+        + [sys.executable, "-c", script, *args],
+        cwd=REPO,
+        env={"HOME": "/nonexistent", "PATH": os.environ.get("PATH", "/usr/bin:/bin")},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+AS_ROOT = pytest.mark.skipif(
+    not hasattr(os, "geteuid") or os.geteuid() != 0 or shutil.which("setpriv") is None,
+    reason="runs as another user: needs root and setpriv",
+)
+
+
+@AS_ROOT
+def test_a_cache_folder_the_process_cannot_write_is_a_warning():
+    done = run_as_nobody(
+        "import dacrt, dacrt.cache; dacrt.cache.use_cache_dir('/'); print(dacrt.cache.cache_dir())"
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "None"
+    assert "cannot be kept in /, which this process cannot write" in done.stderr
+
+
+@AS_ROOT
+def test_dacrt_imports_where_numba_finds_no_folder_for_its_cache():
+    """As a container's random uid: the sources and home are not writable and NUMBA_CACHE_DIR
+    is unset, so Numba has nowhere to cache a kernel when it is defined; use_cache_dir then
+    gives every kernel its cache in the folder it is given."""
+    with tempfile.TemporaryDirectory() as folder:
+        os.chmod(folder, 0o777)
+        done = run_as_nobody(NO_CACHE_FOLDER, folder)
+        assert done.returncode == 0, done.stderr[-2000:]
+        count, paths = json.loads(done.stdout)
+        assert count > 50 and all(path.startswith(folder + "/dacrt-") for path in paths)
