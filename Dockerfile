@@ -27,6 +27,11 @@ USER app
 # in seconds (on this CPU). The kernels are filed by a digest of the engine's sources, so the
 # server finds them whichever copy of the sources it imports.
 RUN python -m service.warmup
+# Any uid may run it (docker run --user, OpenShift): such a uid is in group 0, which may write
+# the kernels' cache and the data folder as their owner may.
+USER root
+RUN chgrp -R 0 /home/app/.cache /data && chmod -R g+rwX /home/app/.cache /data
+USER app
 
 VOLUME /data
 EXPOSE 8000
