@@ -6,7 +6,7 @@ Both are inlined into the traversal loops. They take scalars, so the callers dec
 import numpy as np
 
 from .config import CULL_MARGIN, EDGE_ON_TOLERANCE, SLAB_GROWTH, inline
-from .contracts import INF32
+from .contracts import INF32, NAN32, ONE32
 from .query import CULL_BACK, CULL_FRONT
 
 # float32 constants keep the box test in float32, so loops over rays vectorise.
@@ -15,12 +15,24 @@ _MARGIN32 = np.float32(CULL_MARGIN)
 
 
 @inline
+def inverse(d):
+    """1/d of a direction component for the slab test: +-inf for a zero one (the ray never
+    reaches those planes), NaN where 1/d overflows a nonzero one (|d| < 1/FLT_MAX): NaN leaves
+    that axis out of the test, which is conservative, where +-inf would put a plane the ray
+    reaches (an origin 1e-45 from it, d = 1e-40) at an infinite distance."""
+    inv = ONE32 / d
+    return inv if d == 0 or abs(inv) < INF32 else NAN32
+
+
+@inline
 def intersect_box(ox, oy, oz, ix, iy, iz, t_lo, t_hi, x0, y0, z0, x1, y1, z1):
     """Slab test of the ray segment [t_lo, t_hi] against the box [x0,x1]x[y0,y1]x[z0,z1].
 
-    ``ix, iy, iz`` are 1/direction (+-inf for a zero component). Returns whether it hits.
+    ``ix, iy, iz`` are ``inverse(direction)`` (+-inf for a zero component, NaN where 1/d
+    overflows). Returns whether it hits.
     Conservative: the exit distance is grown by 1 + 2*gamma(3) (pbrt); a 0*inf NaN, from a ray
-    lying in a slab's plane, never tightens the interval because comparisons with NaN are false.
+    lying in a slab's plane, or of an overflowed inverse, never tightens the interval because
+    comparisons with NaN are false.
     Written with selects only, no branches, so loops over rays vectorise; float32 throughout.
     """
     ax = (x0 - ox) * ix

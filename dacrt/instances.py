@@ -16,8 +16,8 @@ The kernels here are the few small steps around those traces.
 import numpy as np
 
 from .config import inline, jit
-from .contracts import FLOAT, INDEX, ONE32
-from .geometry import cull_distance, intersect_box, triangle_normal
+from .contracts import FLOAT, INDEX
+from .geometry import cull_distance, intersect_box, inverse, triangle_normal
 from .leaf import NO_HIT
 from .query import CULL_BACK, CULL_FRONT
 from .validation import MIN_PLACEMENT_SCALE
@@ -156,9 +156,9 @@ def mark_rays_reaching(
             ox[j] = origins[i, 0]
             oy[j] = origins[i, 1]
             oz[j] = origins[i, 2]
-            ix[j] = ONE32 / directions[i, 0]
-            iy[j] = ONE32 / directions[i, 1]
-            iz[j] = ONE32 / directions[i, 2]
+            ix[j] = inverse(directions[i, 0])
+            iy[j] = inverse(directions[i, 1])
+            iz[j] = inverse(directions[i, 2])
             t_lo[j] = tmin[i]
             t_hi[j] = cull_distance(limit[i])
             if masked:

@@ -8,8 +8,7 @@ the caller owns the scratch arrays. Triangles come as one ``Triangles`` record: 
 import numpy as np
 
 from .config import BIN_SHRINK, PARTITION_BLOCK, inline
-from .contracts import ONE32
-from .geometry import cull_distance, intersect_box
+from .geometry import cull_distance, intersect_box, inverse
 from .rays import DIRECTION_QUAD, ORIGIN_QUAD, quad_view, swap_rays
 
 
@@ -268,9 +267,9 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_origin=False):
                 ox0,
                 oy0,
                 oz0,
-                ONE32 / q1[4 * i],
-                ONE32 / q1[4 * i + 1],
-                ONE32 / q1[4 * i + 2],
+                inverse(q1[4 * i]),
+                inverse(q1[4 * i + 1]),
+                inverse(q1[4 * i + 2]),
                 t0,
                 cull_distance(q1[4 * i + 3]),
                 x0,
@@ -283,14 +282,14 @@ def mark_rays_hitting_box(rays, lo, hi, box, hit_mask, fixed_origin=False):
             mask[i] = hit
         return
     for i in range(hi - lo):
-        # 1/d is +-inf for a zero component, which the slab test expects.
+        # inverse(d) is +-inf for a zero component, which the slab test expects.
         hit = intersect_box(
             q0[4 * i],
             q0[4 * i + 1],
             q0[4 * i + 2],
-            ONE32 / q1[4 * i],
-            ONE32 / q1[4 * i + 1],
-            ONE32 / q1[4 * i + 2],
+            inverse(q1[4 * i]),
+            inverse(q1[4 * i + 1]),
+            inverse(q1[4 * i + 2]),
             q0[4 * i + 3],
             cull_distance(q1[4 * i + 3]),
             x0,

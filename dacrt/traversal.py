@@ -41,7 +41,7 @@ from .contracts import (
     STAT_TRIANGLE_TESTS,
 )
 from .deforming import leaf_for
-from .geometry import cull_distance, intersect_box
+from .geometry import cull_distance, intersect_box, inverse
 from .leaf import leaf_scratch
 from .partition import (
     bin_scale,
@@ -388,13 +388,13 @@ def sample_rays(
         ox = field(rays, ORIGIN, r)
         oy = field(rays, ORIGIN + 1, r)
         oz = field(rays, ORIGIN + 2, r)
-        ix = ONE32 / field(rays, DIRECTION, r)
-        iy = ONE32 / field(rays, DIRECTION + 1, r)
-        iz = ONE32 / field(rays, DIRECTION + 2, r)
+        ix = inverse(field(rays, DIRECTION, r))
+        iy = inverse(field(rays, DIRECTION + 1, r))
+        iz = inverse(field(rays, DIRECTION + 2, r))
         t_lo = field(rays, TMIN, r)
         t_hi = cull_distance(field(rays, BEST_T, r))
-        # 1/d has the sign of d, also for a zero component (+-inf).
-        going_up = (ix if axis == 0 else (iy if axis == 1 else iz)) >= 0
+        # 1/d has the sign of d, also for a zero component (+-inf); inverse's NaN has none.
+        going_up = ONE32 / field(rays, DIRECTION + axis, r) >= 0
         step = np.int32(1) if going_up else np.int32(-1)
         for j in range(PADDED_CANDIDATES):
             hit_l = intersect_box(

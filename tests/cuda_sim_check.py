@@ -355,6 +355,14 @@ def main():
         compare_crossings("beyond float32", flat, fo, fd, 2, tmax=tmax)
         hit = dcuda.closest(flat, fo, fd, tmax=tmax).mesh >= 0
         assert hit.tolist() == [False, False, False, True, True], hit
+    # A component whose 1/d overflows (d_x = 1e-40) beside the box plane x = 0, in a level the
+    # GPU tests without a box and the CPU with one: both keep the hit at t = 1.
+    corner = np.float32([[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    one = dacrt.Scene([(corner, np.int32([[0, 1, 2]]))])
+    to, td = np.float32([[-1.4e-45, 0.3, 1]]), np.float32([[1e-40, 0, -1]])
+    compare("1/d overflows", one, to, td, DEFAULT)
+    compare_crossings("1/d overflows", one, to, td, 2)
+    assert dcuda.closest(one, to, td).t.tolist() == [1.0]
     check_placed_meshes(rng)
     # No rays, and a scene without triangles.
     none = np.zeros((0, 3), np.float32)

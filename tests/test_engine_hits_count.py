@@ -445,3 +445,48 @@ def test_numpy_integer_max_hits_is_accepted():
     d = np.array([[0.0, 0.0, -1.0]], np.float32)
     hl = dacrt.Scene([(v, f)]).hits(o, d, max_hits=np.int64(1))
     np.testing.assert_array_equal(hl.offsets, [0, 1])
+
+
+def test_a_direction_component_whose_inverse_overflows_keeps_its_hit():
+    """d_x = 1e-40: float32's 1/d_x is inf, which put the plane x = 0 of the triangle's box at
+    an infinite distance from an origin 1.4e-45 before it; the ray crosses the triangle at t = 1
+    (exactly: the reference)."""
+    v = np.float32([[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    f = np.int32([[0, 1, 2]])
+    o, d = np.float32([[-1.4e-45, 0.3, 1]]), np.float32([[1e-40, 0, -1]])
+    assert reference.count(v, f, o, d, perturbation="shear").tolist() == [1]
+    scene = dacrt.Scene([(v, f)])
+    for strategy in dacrt.STRATEGIES:
+        hit = scene.closest(o, d, strategy=strategy)
+        assert hit.t.tolist() == [1.0] and hit.prim.tolist() == [0], strategy
+        assert scene.count(o, d, strategy=strategy).count.tolist() == [1], strategy
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_direction_components_whose_inverse_overflows_answer_alike_in_every_batch(seed):
+    """Components under 1/FLT_MAX beside geometry on the planes through 0 and origins 1e-44
+    from them: each ray answers the same in every strategy and alone as in its batch (a box
+    test that dropped boxes such rays enter dropped different hits in different trees)."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 40))
+    v = (rng.random((3 * n, 3)) - 0.5).astype(np.float32)
+    v[rng.random(v.shape) < 0.2] = 0.0
+    f = np.arange(3 * n).reshape(-1, 3)
+    o = (rng.random((30, 3)) - 0.5).astype(np.float32)
+    o[rng.random(o.shape) < 0.3] *= np.float32(1e-44)
+    d = (rng.random((30, 3)) - 0.5).astype(np.float32)
+    tiny = rng.random(d.shape) < 0.4
+    signs = rng.choice([-1, 1], tiny.sum())
+    d[tiny] = (signs * 10.0 ** rng.uniform(-45, -38.5, tiny.sum())).astype(np.float32)
+    d[~d.any(axis=1), 2] = 1
+    assert (np.abs(d[d != 0]) < 1 / np.finfo(np.float32).max).any()  # 1/d overflows
+    scene = dacrt.Scene([(v, f)])
+    batch = scene.count(o, d).count
+    first = scene.closest(o, d)
+    for strategy in dacrt.STRATEGIES:
+        np.testing.assert_array_equal(scene.count(o, d, strategy=strategy).count, batch)
+        np.testing.assert_array_equal(scene.closest(o, d, strategy=strategy).prim, first.prim)
+    for r in range(len(o)):
+        alone = slice(r, r + 1)
+        assert scene.count(o[alone], d[alone]).count[0] == batch[r], r
+        assert scene.closest(o[alone], d[alone]).prim[0] == first.prim[r], r

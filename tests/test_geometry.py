@@ -82,6 +82,27 @@ def test_box_test_is_the_slab_test_and_never_misses_a_hit(seed, kind):
 
 
 @pytest.mark.parametrize("seed", SEEDS)
+def test_a_direction_component_whose_inverse_overflows_misses_no_hit(seed):
+    """|d| < 1/FLT_MAX: float32's 1/d is +-inf, which would put the plane x = 0 at an infinite
+    distance from an origin 1e-45 before it; the ray reaches it at a finite one (1e-45 / d)."""
+    rng = np.random.default_rng(seed)
+    n = 4000
+    box = np.float32([0, 0, 0, 1, 1, 1])
+    origins, directions, tmin, tmax = box_rays(rng, n, box, "generic")
+    tiny = np.float32([1.4e-45, 1e-42, 1e-40, 2.9e-39])
+    origins[:, 0] = rng.choice([-1e-40, -1.4e-45, 0.0, 1.4e-45, 0.5], n) * np.float32(1)
+    directions[:, 0] = rng.choice(tiny, n) * rng.choice([-1, 1], n).astype(np.float32)
+    assert (np.abs(directions[:, 0]) < 1 / np.finfo(np.float32).max).all()  # 1/d overflows
+    near, far = slab_interval(origins, directions, tmin, tmax, box)
+    size = np.abs(far) + np.abs(near)
+    clear_hit = near < far - 1e-5 * np.where(np.isfinite(size), size, 1.0)
+    assert clear_hit.mean() > 0.05, "vacuous"
+    hit = box_mask(origins, directions, tmin, tmax, box)
+    missed = np.flatnonzero(clear_hit & ~hit)
+    assert not len(missed), f"the box test misses rays that hit: {missed[:5]}"
+
+
+@pytest.mark.parametrize("seed", SEEDS)
 def test_a_ray_grazing_a_corner_of_the_box_hits_it(seed):
     """Conservative in rounding: a ray that enters the slabs of some axes and leaves those of the
     others at one corner touches the box at that point only; the slab test computes entry and

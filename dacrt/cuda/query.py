@@ -255,8 +255,10 @@ def crossings_of_chunk(rows, chunk, cull_side, counts, keys, max_pairs):
 def device_rays(origins, directions, tmin, tmax, ray_masks, tri_masks):
     """A level's rays and masks on the device: origins, directions, inverse directions, tmin,
     tmax, ray masks, row masks."""
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", over="ignore"):
         inv_dirs = (np.float32(1.0) / directions).astype(FLOAT)
+    # NaN where 1/d overflows a nonzero component, as geometry.inverse: that axis is left out
+    inv_dirs[(directions != 0) & np.isinf(inv_dirs)] = np.nan
     return tuple(
         cuda.to_device(np.ascontiguousarray(a))
         for a in (origins, directions, inv_dirs, tmin, tmax, ray_masks, tri_masks)
