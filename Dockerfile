@@ -6,8 +6,9 @@ FROM python:3.11-slim
 # Numba's compiled kernels go to DACRT_CACHE_DIR. Numba keys them by the CPU it compiled for:
 # the warm-up below compiles for the build machine's CPU, and a container started on a different
 # CPU (another model or instruction set) compiles again at its first start (1 to 15 minutes, /health
-# says "starting" meanwhile) into the container's own copy of the folder. Build the image where it
-# runs, or mount a volume on /home/app/.cache/dacrt to keep a compile across containers.
+# says "starting" meanwhile; in a child process of the server, about 3 GB at its peak) into the
+# container's own copy of the folder. Build the image where it runs, or mount a volume on
+# /home/app/.cache/dacrt to keep a compile across containers.
 ENV PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
     PIP_NO_CACHE_DIR=1 \

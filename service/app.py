@@ -77,6 +77,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if app.state.cluster is not None:
             app.state.cluster.start()
         yield
+        app.state.readiness.stopping.set()
         if app.state.cluster is not None:
             app.state.cluster.close()
         if journal is not None:
@@ -153,10 +154,13 @@ def open_data_dir(settings: Settings) -> DataDir | None:
 
 
 def warm_up(readiness: Readiness) -> None:
-    """Compile every kernel a request can reach (minutes the first time, then seconds from
-    Numba's cache)."""
+    """Compile every kernel a request can reach (minutes the first time, in a child process:
+    ``service.warmup``; then seconds from Numba's cache)."""
     try:
-        seconds = warmup.warm_up()
+        seconds = warmup.warm_up(readiness.stopping)
+    except warmup.Stopped as stopped:
+        log.info("warm-up: %s", stopped)
+        return
     except Exception as exc:  # report through /health rather than die in a thread
         log.exception("engine warm-up failed")
         readiness.error, readiness.status = f"{type(exc).__name__}: {exc}", "error"

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import difflib
 import secrets
+import threading
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated
 
 from anyio.to_thread import run_sync
@@ -40,6 +41,8 @@ class Readiness:
     status: str = "starting"
     seconds: float | None = None
     error: str | None = None
+    #: set when the app stops: a warm-up still compiling ends its child process
+    stopping: threading.Event = field(default_factory=threading.Event)
 
 
 def get_settings(request: Request) -> Settings:

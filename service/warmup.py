@@ -2,17 +2,28 @@
 
 The engine's checks hand its kernels one layout whatever a body holds (read-only views, strided
 columns, JSON lists: ``dacrt.validation``), so ``dacrt.warmup`` compiles every kernel a request
-reaches. This runs it and logs whether it loads the kernels from the cache or compiles them, and
-every PROGRESS_SECONDS how many have compiled and about how long is left.
-"""
+reaches. A server first loads them from the cache (``dacrt.cache``), stopping before the first
+compile. Those missing there compile in a child process, ``python -m service.warmup``, whose log
+lines the server's log shows: a process that has compiled them keeps much of Numba's and LLVM's
+memory until it ends (docs/limits.md), so the child keeps it instead of the server, which then
+loads the kernels from the cache. Where the child cannot start or fails, the server compiles them
+itself and says why; a process that has run a kernel already (one that embeds the app) compiles
+what is missing itself.
+Every PROGRESS_SECONDS a line says how many have compiled and about how long is left."""
 
 from __future__ import annotations
 
 import logging
+import os
+import re
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
+
+from numba.core import event
 
 import dacrt
 import dacrt.cache
@@ -27,6 +38,31 @@ PROGRESS_SECONDS = 15.0
 EXPECTED_COMPILES = 49
 #: What a first start takes, measured from an empty cache (README, First start).
 COLD_START = "about a minute on 2 idle cores, up to 15 on 2 cores busy with other work"
+#: The process that compiles the kernels for a server, as the Dockerfile runs it at build time.
+CHILD = [sys.executable, "-m", "service.warmup"]
+#: A line of the child's log (``service.logs.FORMAT``): its level and message.
+CHILD_LINE = re.compile(r"(CRITICAL|ERROR|WARNING|INFO|DEBUG):\s+service: (.*)")
+
+
+class NotCached(Exception):
+    """A kernel of dacrt's that is not in the cache for this CPU: loading it would compile it."""
+
+
+class Stopped(Exception):
+    """The server stopped while its child compiled the kernels."""
+
+
+class RefuseCompiles(event.Listener):
+    """Raises NotCached where Numba is about to compile a kernel of dacrt's, before it does."""
+
+    def on_start(self, started: event.Event) -> None:
+        function = getattr((started.data or {}).get("dispatcher"), "py_func", None)
+        name = f"{getattr(function, '__module__', '?')}.{getattr(function, '__qualname__', '?')}"
+        if name.startswith("dacrt."):
+            raise NotCached(name)
+
+    def on_end(self, ended: event.Event) -> None:
+        pass
 
 
 class Progress:
@@ -98,30 +134,130 @@ def announce() -> None:
         )
 
 
-def warm_up() -> float:
-    """Compile (or load from Numba's cache: ``dacrt.cache``) every kernel; answers the seconds
-    taken."""
-    announce()
+def engine_has_run() -> bool:
+    """Whether a kernel of dacrt's has compiled or loaded in this process: one that embeds the
+    app, or the tests'."""
+    return any(dispatcher.signatures for dispatcher in dacrt.cache.dispatchers())
+
+
+def load(only_cached: bool = False) -> int:
+    """``dacrt.warmup()``, with a progress line every PROGRESS_SECONDS; answers how many kernels
+    compiled. ``only_cached``: NotCached before the first kernel that would compile."""
     progress = Progress()
-    with progress.reporting():
+    refusing = (
+        event.install_listener("numba:compile", RefuseCompiles()) if only_cached else nullcontext()
+    )
+    with progress.reporting(), refusing:
         dacrt.warmup()
-    seconds = time.perf_counter() - progress.start
+    return progress.compiled
+
+
+def warm_up(stopping: threading.Event | None = None) -> float:
+    """The server's warm-up: load every kernel from Numba's cache (``dacrt.cache``), where a
+    process that has run none yet compiles those missing there in a child process first
+    (``compile_in_child``); answers the seconds taken. ``stopping`` set ends that child
+    (Stopped)."""
+    start = time.perf_counter()
+    announce()
+    if not engine_has_run():
+        try:
+            load(only_cached=True)
+        except NotCached as missing:
+            failure = compile_in_child(str(missing), stopping)
+            if failure is None:
+                try:
+                    load(only_cached=True)
+                except NotCached as still:
+                    failure = f"{still} is still not in the cache after the child's compile"
+            if failure is not None:
+                log.warning(
+                    "warm-up: compiling the kernels in this process instead (%s); it keeps "
+                    "about 2 GB of the compiler's memory until it stops",
+                    failure,
+                )
+    return report(start, load())
+
+
+def report(start: float, compiled: int) -> float:
+    """Log that the kernels are ready, and answer the seconds since ``start``."""
+    seconds = time.perf_counter() - start
     log.info(
         "warm-up: the engine's kernels (dacrt.warmup) ready after %.1f s (%d kernels compiled)",
         seconds,
-        progress.compiled,
+        compiled,
     )
     return seconds
 
 
+def compile_in_child(missing: str, stopping: threading.Event | None = None) -> str | None:
+    """Run CHILD, which compiles every kernel into this process's cache folder, and log its lines
+    as they come; answers None once it succeeded, else why it did not. ``stopping`` set ends it
+    (Stopped)."""
+    env = dict(os.environ)
+    if dacrt.cache.cache_dir() is not None:  # the folder this process loads from, absolute
+        env["DACRT_CACHE_DIR"] = str(dacrt.cache.cache_dir().resolve())
+    try:
+        child = subprocess.Popen(
+            CHILD,
+            env=env,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            errors="replace",
+        )
+    except OSError as exc:
+        return f"the child process {' '.join(CHILD)} could not start: {exc}"
+    log.info(
+        "warm-up: %s is not in the cache for this CPU: the kernels compile in a child process "
+        "(python -m service.warmup, pid %d), whose lines follow; the compiler's memory (about "
+        "3 GB at its peak) goes with it, and this server loads the kernels when it is done",
+        missing,
+        child.pid,
+    )
+    relay = threading.Thread(target=relay_lines, args=(child,), name="dacrt-warmup-child")
+    relay.start()
+    try:
+        while child.poll() is None:
+            if stopping is not None and stopping.wait(0.5):
+                raise Stopped(f"the server stopped, and with it child process {child.pid}")
+            if stopping is None:
+                child.wait()
+    finally:
+        if child.poll() is None:
+            child.terminate()
+        child.wait()
+        relay.join()
+        child.stdout.close()
+    if child.returncode < 0:
+        return f"the child process {child.pid} was ended by signal {-child.returncode}"
+    if child.returncode != 0:
+        return f"the child process {child.pid} exited with status {child.returncode}"
+    return None
+
+
+def relay_lines(child: subprocess.Popen) -> None:
+    """Log each line the child prints, at its own level; another line (a traceback, Numba's
+    warnings) as a warning."""
+    for line in child.stdout:
+        matched = CHILD_LINE.fullmatch(line.rstrip("\n"))
+        if matched is None:
+            log.warning("child %d: %s", child.pid, line.rstrip())
+        else:
+            level, message = matched.groups()
+            log.log(logging.getLevelName(level), "child %d: %s", child.pid, message)
+
+
 def main() -> None:
     """``python -m service.warmup``: compile (or load) every kernel a request reaches into
-    DACRT_CACHE_DIR, then exit; a container build runs it so that the server starts in seconds."""
+    DACRT_CACHE_DIR, in this process, then exit; a container build runs it so that the server
+    starts in seconds, and a server runs it to compile the kernels missing from the cache."""
     from .logs import configure_logging
 
     configure_logging("info")
     dacrt.cache.use_cache_dir()
-    seconds = warm_up()
+    announce()
+    seconds = report(time.perf_counter(), load())
     log.info("warm-up: every kernel ready after %.1f s", seconds)
 
 

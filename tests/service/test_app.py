@@ -37,14 +37,14 @@ def test_health_is_503_starting_until_warm_up_returns(monkeypatch):
     app = create_app(plain())
     response = get(app, "/health")
     assert response.status_code == 503 and response.json()["status"] == "starting"
-    monkeypatch.setattr(app_module.warmup, "warm_up", lambda: 0.0)
+    monkeypatch.setattr(app_module.warmup, "warm_up", lambda stopping: 0.0)
     warm_up(app.state.readiness)
     response = get(app, "/health")
     assert response.status_code == 200 and response.json()["status"] == "ok"
 
 
 def test_failed_warm_up_is_reported_by_health(monkeypatch, caplog):
-    def broken():
+    def broken(stopping):
         raise RuntimeError("no compiler")
 
     app = create_app(plain())

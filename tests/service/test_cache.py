@@ -42,14 +42,17 @@ print(json.dumps({
 START = """
 import asyncio, json, os, sys
 import dacrt.cache
+from service import warmup
 from service.app import create_app
+
+warmup.warm_up = lambda stopping: 0.0  # no child compiling into the empty folder after the exit
 
 async def start():
     app = create_app()
     async with app.router.lifespan_context(app):
         print(json.dumps(sorted({d.stats.cache_path for d in dacrt.cache.dispatchers()})))
         sys.stdout.flush()
-        os._exit(0)  # before the warm-up compiles into the empty folder
+        os._exit(0)
 
 asyncio.run(start())
 """

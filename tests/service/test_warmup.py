@@ -1,0 +1,204 @@
+"""The server's warm-up (``service.warmup``): kernels missing from the cache compile in a child
+process, whose lines the server's log shows, and the server loads them from the cache; where the
+child cannot start or fails, the server compiles them itself and says why."""
+
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import numba
+import pytest
+from server_process import ServerProcess
+
+from service import warmup
+from service.app import create_app, warm_up
+from service.settings import Settings
+
+#: What a child prints as ``service.logs`` formats it, then a line of its own.
+PRINTS = (
+    "import sys; print('INFO:     service: warm-up: compiling kernel 1 of about 49 (k), 1 s so "
+    "far'); print('NumbaWarning: something'); "
+)
+
+
+@pytest.fixture
+def cold(monkeypatch, tmp_path):
+    """A process that has run no kernel, whose cache lacks them until the child has run: the
+    engine's warm-up stands in as a check of the child's mark (``tmp_path / "compiled"``)."""
+    mark = tmp_path / "compiled"
+    loads = []
+
+    def load(only_cached: bool = False) -> int:
+        loads.append(only_cached)
+        if only_cached and not mark.exists():
+            raise warmup.NotCached("dacrt.traversal.trace")
+        return 0 if mark.exists() else 49
+
+    monkeypatch.setattr(warmup, "engine_has_run", lambda: False)
+    monkeypatch.setattr(warmup, "load", load)
+    return mark, loads
+
+
+def child(monkeypatch, code: str) -> None:
+    monkeypatch.setattr(warmup, "CHILD", [sys.executable, "-c", code])
+
+
+def test_missing_kernels_compile_in_a_child_whose_lines_the_log_shows(cold, monkeypatch, caplog):
+    mark, loads = cold
+    child(monkeypatch, PRINTS + f"open({str(mark)!r}, 'w').close()")
+    with caplog.at_level(logging.INFO, logger="service"):
+        warmup.warm_up()
+    assert loads == [True, True, False]  # tried, loaded what the child filed, checked
+    lines = caplog.text.splitlines()
+    started = next(line for line in lines if "compile in a child process" in line)
+    assert "dacrt.traversal.trace is not in the cache" in started
+    pid = started.split("pid ")[1].split(")")[0]
+    relayed = [
+        (r.levelname, r.getMessage())
+        for r in caplog.records
+        if r.getMessage().startswith(f"child {pid}: ")
+    ]
+    assert relayed == [
+        ("INFO", f"child {pid}: warm-up: compiling kernel 1 of about 49 (k), 1 s so far"),
+        ("WARNING", f"child {pid}: NumbaWarning: something"),
+    ]
+    assert "in this process instead" not in caplog.text
+    assert "(0 kernels compiled)" in lines[-1]  # this process compiled none
+
+
+@pytest.mark.parametrize(
+    "code, why",
+    [
+        (PRINTS + "sys.exit(3)", "exited with status 3"),
+        ("import os, signal; os.kill(os.getpid(), signal.SIGKILL)", "ended by signal 9"),
+        ("pass", "dacrt.traversal.trace is still not in the cache after the child's compile"),
+    ],
+    ids=["fails", "killed", "files nothing"],
+)
+def test_a_failed_child_leaves_the_compile_to_the_server_which_says_why(
+    cold, monkeypatch, caplog, code, why
+):
+    _, loads = cold
+    child(monkeypatch, code)
+    with caplog.at_level(logging.INFO, logger="service"):
+        warmup.warm_up()
+    assert loads[-1] is False  # the in-process compile
+    instead = [r.getMessage() for r in caplog.records if "in this process instead" in r.msg]
+    assert len(instead) == 1 and why in instead[0], caplog.text
+    assert "(49 kernels compiled)" in caplog.text.splitlines()[-1]
+
+
+def test_a_child_that_cannot_start_leaves_the_compile_to_the_server(cold, monkeypatch, caplog):
+    monkeypatch.setattr(warmup, "CHILD", ["/nonexistent/python", "-m", "service.warmup"])
+    with caplog.at_level(logging.INFO, logger="service"):
+        warmup.warm_up()
+    instead = [r.getMessage() for r in caplog.records if "in this process instead" in r.msg]
+    assert (
+        len(instead) == 1 and "/nonexistent/python -m service.warmup could not start" in instead[0]
+    )
+
+
+def test_a_compile_that_fails_after_the_child_is_reported_by_health(cold, monkeypatch):
+    child(monkeypatch, "raise SystemExit(1)")
+    monkeypatch.setattr(warmup, "report", lambda start, compiled: time.perf_counter() - start)
+
+    def load(only_cached: bool = False) -> int:
+        if only_cached:
+            raise warmup.NotCached("dacrt.traversal.trace")
+        raise RuntimeError("no compiler")
+
+    monkeypatch.setattr(warmup, "load", load)
+    app = create_app(Settings(token=None, load_demo=False))
+    warm_up(app.state.readiness)
+    assert app.state.readiness.status == "error" and "no compiler" in app.state.readiness.error
+
+
+def test_a_server_that_stops_ends_its_child(cold, monkeypatch, tmp_path):
+    pid_file = tmp_path / "pid"
+    child(
+        monkeypatch,
+        f"import os, time; open({str(pid_file)!r}, 'w').write(str(os.getpid())); time.sleep(600)",
+    )
+    app = create_app(Settings(token=None, load_demo=False))
+    thread = threading.Thread(target=warm_up, args=(app.state.readiness,))
+    thread.start()
+    deadline = time.monotonic() + 60
+    while not pid_file.exists() or not pid_file.read_text():
+        assert time.monotonic() < deadline
+        time.sleep(0.1)
+    app.state.readiness.stopping.set()  # as the app's lifespan does when it ends
+    thread.join(10)
+    assert not thread.is_alive()
+    assert app.state.readiness.status == "starting"
+    assert not Path(f"/proc/{pid_file.read_text()}").exists()
+
+
+def test_loading_only_from_the_cache_stops_before_a_compile():
+    def plus_one(x):
+        return x + 1
+
+    plus_one.__module__ = "dacrt.example"  # one of dacrt's kernels, as the refusal sees it
+    kernel = numba.njit(plus_one)
+    with numba.core.event.install_listener("numba:compile", warmup.RefuseCompiles()):
+        with pytest.raises(warmup.NotCached, match=r"^dacrt\.example\..*plus_one$"):
+            kernel(1)
+    assert kernel.signatures == []  # nothing compiled
+    assert kernel(1) == 2
+
+
+#: A first compile on 2 cores busy with other work (README, First start).
+COLD_START_SECONDS = 1500
+GiB = 2**30
+
+
+def vm(pid: int, name: str) -> int:
+    """``VmHWM`` (peak) or ``VmRSS`` of process ``pid``, in bytes."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(name + ":"):
+            return int(line.split()[1]) * 1024
+    raise KeyError(name)
+
+
+def test_a_cold_start_compiles_in_a_child_and_the_server_keeps_none_of_its_memory(tmp_path):
+    """From an empty cache folder: /health goes from starting to ok, the kernels compile in a
+    child (about 3 GB at its peak), and the server, which loads them from the cache, never holds
+    1 GiB; a query then compiles nothing either."""
+    server = ServerProcess({"DACRT_CACHE_DIR": str(tmp_path / "cache")})
+    statuses = []
+    try:
+        deadline = time.monotonic() + COLD_START_SECONDS
+        while statuses[-1:] != ["ok"]:
+            assert server.process.poll() is None and time.monotonic() < deadline, server.output()
+            try:
+                status = httpx.get(f"{server.url}/health", timeout=5).json()["status"]
+            except (httpx.HTTPError, ValueError):  # not listening yet
+                status = None
+            if status is not None and statuses[-1:] != [status]:
+                statuses.append(status)
+            time.sleep(1)
+        vertices, faces = [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]
+        rays = {"origins": [[0.2, 0.2, 1]], "directions": [[0, 0, -1]]}
+        answer = httpx.post(
+            f"{server.url}/v1/trace?query=closest",
+            json={"vertices": vertices, "faces": faces, **rays},
+            timeout=60,
+        )
+        peak, rss = vm(server.process.pid, "VmHWM"), vm(server.process.pid, "VmRSS")
+        output = server.output(last=10**8)
+    finally:
+        server.stop()
+    assert statuses == ["starting", "ok"]
+    assert answer.status_code == 200 and answer.json()["t"] == [1.0], answer.text
+    assert peak < GiB and rss < GiB / 2, (peak, rss)
+    lines = output.splitlines()
+    assert any("the kernels compile in a child process" in line for line in lines), output
+    compiled = [line for line in lines if "kernels compiled)" in line]
+    assert any(" child " in line and "(0 kernels compiled)" not in line for line in compiled)
+    ours = [line for line in compiled if " child " not in line]
+    assert len(ours) == 1 and "(0 kernels compiled)" in ours[0], compiled  # loaded, not compiled
+    assert "in this process instead" not in output
