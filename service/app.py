@@ -139,7 +139,7 @@ def open_data_dir(settings: Settings) -> DataDir | None:
     if settings.data_dir is None:
         return None
     root = settings.data_dir.expanduser()
-    where = f"dacrt-service: DACRT_DATA_DIR={str(settings.data_dir)!r}"
+    where = f"dacrt-service: {settings.given('data_dir')}"
     try:
         lock = lock_folder(root)  # first: a folder another server holds is neither read nor written
     except FolderLocked as exc:

@@ -66,9 +66,11 @@ def settings_help() -> str:
     )
 
 
-def check_port(host: str, port: int) -> None:
-    """End the process with one line when ``host:port`` cannot be listened on (another process
-    listens there): uvicorn binds only after the app's startup has restored the data folder."""
+def check_port(settings: Settings) -> None:
+    """End the process with one line when the settings' host and port cannot be listened on
+    (another process listens there): uvicorn binds only after the app's startup has restored the
+    data folder."""
+    host, port = settings.host, settings.port
     if port == 0:  # any free port
         return
     try:
@@ -82,9 +84,8 @@ def check_port(host: str, port: int) -> None:
                     probe.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
                 probe.bind(address)
     except OSError as exc:
-        raise SystemExit(
-            f"dacrt-service: DACRT_HOST={host!r}, DACRT_PORT={port}: cannot listen there: {exc}"
-        ) from None
+        where = f"{settings.given('host')}, {settings.given('port')}"
+        raise SystemExit(f"dacrt-service: {where}: cannot listen there: {exc}") from None
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -94,15 +95,18 @@ def main(argv: Sequence[str] | None = None) -> None:
     from .protocol import guarded_protocol
 
     arguments = vars(parser().parse_args(argv))
-    overrides: dict[str, object] = {
-        OPTIONS["--" + name.replace("_", "-")][0]: value
+    given = {
+        "--" + name.replace("_", "-"): value
         for name, value in arguments.items()
         if value is not None
     }
+    overrides: dict[str, object] = {OPTIONS[option][0]: value for option, value in given.items()}
+    # a message names the option given rather than the variable
+    options = {OPTIONS[option][0]: option for option in given}
     if "DACRT_LOAD_DEMO" not in os.environ:
         overrides["load_demo"] = True
-    settings = load_settings_or_exit(**overrides)
-    check_port(settings.host, settings.port)
+    settings = load_settings_or_exit(options, **overrides)
+    check_port(settings)
     uvicorn.run(
         create_app(settings),
         host=settings.host,

@@ -16,7 +16,15 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import ByteSize, Field, PositiveInt, SecretStr, ValidationError, field_validator
+from pydantic import (
+    ByteSize,
+    Field,
+    PositiveInt,
+    PrivateAttr,
+    SecretStr,
+    ValidationError,
+    field_validator,
+)
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from .admission import default_budget
@@ -100,6 +108,9 @@ class Settings(BaseSettings):
     #: deforming meshes, no ?stats; the CPU traces the rest); "cuda" is refused at start where no
     #: GPU (nor Numba's CUDA simulator) is available
     device: Literal["cpu", "cuda"] = "cpu"
+    #: the command-line option each setting given there came from (``service.cli``), which a
+    #: message names instead of its variable
+    _options: dict[str, str] = PrivateAttr(default_factory=dict)
 
     @field_validator("host", mode="before")
     @classmethod
@@ -194,6 +205,10 @@ class Settings(BaseSettings):
             raise ValueError("give host names separated by commas, or *")
         return ",".join(names)
 
+    def given(self, field: str) -> str:
+        """A setting as the user gave it, for a message: ``--port 8080`` or ``DACRT_PORT=8080``."""
+        return named(field, getattr(self, field), self._options)
+
     def host_names(self) -> tuple[str, ...] | None:
         """The names a request's ``Host`` may give; None: by the address it arrives on
         (``service.hosts``)."""
@@ -242,6 +257,14 @@ def variable(field: str) -> str:
     return PREFIX + field.upper()
 
 
+def named(field: str, value: object, options: Mapping[str, str]) -> str:
+    """``--port 'abc'`` where ``options`` has the setting's option, else ``DACRT_PORT='abc'``."""
+    shown = str(value) if isinstance(value, Path) else value
+    if field in options:
+        return f"{options[field]} {shown!r}"
+    return f"{variable(field)}={shown!r}"
+
+
 def check_names(environ: Mapping[str, str]) -> None:
     """Refuse DACRT_* variables that name no setting: a typo would silently keep the default."""
     fields = list(Settings.model_fields)
@@ -257,29 +280,36 @@ def check_names(environ: Mapping[str, str]) -> None:
             raise SettingsError(f"unknown setting {name}; {hint}")
 
 
-def describe(error: ValidationError) -> str:
-    """One line naming each bad variable, e.g. ``DACRT_PORT='x': Input should be ...``."""
+def describe(error: ValidationError, options: Mapping[str, str] | None = None) -> str:
+    """One line naming each bad setting as it was given, e.g. ``DACRT_PORT='x': Input should be
+    ...``, or ``--port 'x': ...`` for one of ``options`` (setting -> command-line option)."""
     parts = []
     for item in error.errors():
         field = str(item["loc"][0]) if item["loc"] else ""
-        shown = "" if field == "token" else f"={item.get('input')!r}"  # never echo the secret
-        parts.append(f"{variable(field)}{shown}: {item['msg']}")
+        if field == "token":  # never echo the secret
+            parts.append(f"{variable(field)}: {item['msg']}")
+        else:
+            parts.append(f"{named(field, item.get('input'), options or {})}: {item['msg']}")
     return "bad setting " + "; ".join(parts)
 
 
-def load_settings(**overrides: object) -> Settings:
-    """Settings from the environment (and ``overrides``), or SettingsError naming the variable."""
+def load_settings(options: Mapping[str, str] | None = None, **overrides: object) -> Settings:
+    """Settings from the environment (and ``overrides``), or SettingsError naming the variable,
+    or the command-line option of ``options`` (setting -> option) that gave the override."""
+    options = {field: option for field, option in (options or {}).items() if field in overrides}
     check_names(os.environ)
     try:
         settings = Settings(**overrides)
     except ValidationError as error:
-        raise SettingsError(describe(error)) from None
+        raise SettingsError(describe(error, options)) from None
+    settings._options = options
     check_device(settings.device)
     if settings.token_file is None:
         return settings
     if settings.token is not None:
-        raise SettingsError("set DACRT_TOKEN or DACRT_TOKEN_FILE, not both")
-    return settings.model_copy(update={"token": read_token(settings.token_file)})
+        given = options.get("token_file", variable("token_file"))
+        raise SettingsError(f"set DACRT_TOKEN or {given}, not both")
+    return settings.model_copy(update={"token": read_token(settings.token_file, options)})
 
 
 def check_device(device: str) -> None:
@@ -304,24 +334,28 @@ def token_problem(token: str) -> str | None:
     return None
 
 
-def read_token(path: Path) -> SecretStr:
-    """The token in ``path`` (surrounding whitespace removed); SettingsError if unusable."""
+def read_token(path: Path, options: Mapping[str, str] | None = None) -> SecretStr:
+    """The token in ``path`` (surrounding whitespace removed); SettingsError if unusable, naming
+    DACRT_TOKEN_FILE, or ``--token-file`` where ``options`` has it."""
+    where = named("token_file", path, options or {})
     try:
         token = path.expanduser().read_text().strip()
     except (OSError, UnicodeDecodeError) as error:
-        raise SettingsError(f"DACRT_TOKEN_FILE={str(path)!r}: cannot read it ({error})") from None
+        raise SettingsError(f"{where}: cannot read it ({error})") from None
     if not token:
-        raise SettingsError(f"DACRT_TOKEN_FILE={str(path)!r} is empty")
+        raise SettingsError(f"{where} is empty")
     problem = token_problem(token)
     if problem is not None:
-        raise SettingsError(f"DACRT_TOKEN_FILE={str(path)!r}: {problem}")
+        raise SettingsError(f"{where}: {problem}")
     return SecretStr(token)
 
 
-def load_settings_or_exit(**overrides: object) -> Settings:
-    """``load_settings`` for launchers: a bad environment ends the process with one line, no
-    traceback (SystemExit prints its message to stderr and exits with status 1)."""
+def load_settings_or_exit(
+    options: Mapping[str, str] | None = None, **overrides: object
+) -> Settings:
+    """``load_settings`` for launchers: a bad environment or option ends the process with one
+    line, no traceback (SystemExit prints its message to stderr and exits with status 1)."""
     try:
-        return load_settings(**overrides)
+        return load_settings(options, **overrides)
     except SettingsError as error:
         raise SystemExit(f"dacrt-service: {error}") from None

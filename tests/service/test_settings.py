@@ -4,6 +4,7 @@ values refused in one line."""
 from __future__ import annotations
 
 import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -488,3 +489,62 @@ def test_a_budget_no_json_query_fits_in_is_refused_naming_the_least(environ, val
 def test_the_smallest_budget_is_taken(environ):
     environ(DACRT_MAX_INFLIGHT_BYTES="17MiB")
     assert load_settings().max_inflight_bytes == SMALLEST_BUDGET
+
+
+def refusal(argv: list[str]) -> str:
+    """The one line ``dacrt-service ARGV`` ends its start with."""
+    from service.cli import main
+
+    with pytest.raises(SystemExit) as exited:
+        main(argv)
+    message = str(exited.value)
+    assert message.startswith("dacrt-service: ") and "\n" not in message
+    return message
+
+
+@pytest.mark.parametrize(
+    "argv, variable, expected",
+    [
+        (["--port", "abc"], None, "bad setting --port 'abc': Input should be a valid integer"),
+        (["--port", "abc"], ("DACRT_PORT", "9000"), "bad setting --port 'abc': "),
+        (["--port", "70000"], None, "bad setting --port '70000': Input should be less than"),
+        (["--threads", "0"], None, "bad setting --threads '0': Input should be greater than 0"),
+        (["--log-level", "loud"], None, "bad setting --log-level 'loud': Input should be"),
+        ([], ("DACRT_PORT", "abc"), "bad setting DACRT_PORT='abc': Input should be"),
+    ],
+    ids=["port", "port over its variable", "port range", "threads", "log level", "variable"],
+)
+def test_a_bad_value_is_named_as_the_user_gave_it(environ, argv, variable, expected):
+    """An option names the option, not the variable the user never set (fuzz37 F3)."""
+    if variable is not None:
+        environ(**dict([variable]))
+    message = refusal(argv)
+    assert message.startswith("dacrt-service: " + expected), message
+    if argv:
+        assert "DACRT_" not in message
+
+
+def test_a_taken_port_and_an_unusable_folder_are_named_as_the_user_gave_them(environ, tmp_path):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        message = refusal(["--port", str(port)])
+        assert message.startswith(f"dacrt-service: DACRT_HOST='127.0.0.1', --port {port}: ")
+        assert "cannot listen there" in message
+        environ(DACRT_PORT=str(port))
+        assert refusal([]).startswith(f"dacrt-service: DACRT_HOST='127.0.0.1', DACRT_PORT={port}:")
+    folder = tmp_path / "a-file"
+    folder.write_text("not a folder")
+    message = refusal(["--port", "0", "--data-dir", str(folder)])
+    assert message.startswith(f"dacrt-service: --data-dir {str(folder)!r}: the data folder cannot")
+    token = tmp_path / "token"
+    message = refusal(["--port", "0", "--token-file", str(token)])
+    assert message == f"dacrt-service: --token-file {str(token)!r}: cannot read it " + (
+        f"([Errno 2] No such file or directory: {str(token)!r})"
+    )
+    environ(DACRT_TOKEN="abc")
+    token.write_text("def")
+    assert refusal(["--token-file", str(token)]).endswith(
+        "set DACRT_TOKEN or --token-file, not both"
+    )
