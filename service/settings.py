@@ -120,18 +120,21 @@ class Settings(BaseSettings):
             raise ValueError("give an address to listen on (0.0.0.0 for every interface)")
         return value
 
-    @field_validator("data_dir", "cache_dir", "demo_scene", mode="before")
+    @field_validator("data_dir", "cache_dir", "demo_scene", "dask_scheduler", mode="before")
     @classmethod
-    def _empty_path_is_none(cls, value: object) -> object:
-        # pydantic reads "" as ".", the working directory
+    def _empty_is_unset(cls, value: object) -> object:
+        # as an env file leaves an unset ${VAR}; pydantic would read a path "" as ".", the
+        # working directory
         return None if value == "" else value
 
-    @field_validator("token_file", mode="before")
+    @field_validator("token", "token_file", mode="before")
     @classmethod
-    def _token_file_given(cls, value: object) -> object:
-        # read as unset, it would serve every request without a token
+    def _token_given(cls, value: object) -> object:
+        # read as unset, a DACRT_TOKEN=$SECRET whose SECRET is unset would serve without a token
         if value == "":
-            raise ValueError("give the token file's path, or leave the variable unset")
+            raise ValueError(
+                "give a value, or leave the variable unset for a server without a token"
+            )
         return value
 
     @field_validator("demo_name")
@@ -167,19 +170,6 @@ class Settings(BaseSettings):
                 f"at least {MIN_BUDGET_BYTES // MiB}MiB, what a one-ray query answered in JSON "
                 "holds (service.footprint.MIN_BUDGET_BYTES)"
             )
-        return value
-
-    @field_validator("dask_scheduler", mode="before")
-    @classmethod
-    def _empty_scheduler_is_none(cls, value: object) -> object:
-        return None if value in ("", None) else value
-
-    @field_validator("token", mode="before")
-    @classmethod
-    def _token_given(cls, value: object) -> object:
-        # read as unset, a DACRT_TOKEN=$SECRET whose SECRET is unset would serve without a token
-        if value == "":
-            raise ValueError("give the token, or leave the variable unset for a server without one")
         return value
 
     @field_validator("token")

@@ -579,12 +579,18 @@ def test_masks_transforms_and_instances_are_restored(tmp_path, placed):
     ids=["transform", "mask", "new instance", "frame of transforms", "delete an instance"],
 )
 def test_a_placement_change_writes_only_the_manifest(tmp_path, placed, change):
+    assert_writes_only_the_manifest(tmp_path, placed, change)
+
+
+def assert_writes_only_the_manifest(tmp_path, store, change) -> None:
+    """``change(store)`` writes the scene's new manifest and no other file, and a store opened
+    on the folder then holds what ``store`` holds."""
     before = files(tmp_path)
-    change(placed)
+    change(store)
     after = files(tmp_path)
     written = {name for name in after if before.get(name) != after[name]}
-    assert [Path(n).name for n in written] == [f"scene.{placed.snapshot('s').version}.json"]
-    assert_same_scenes(open_store(tmp_path), placed)
+    assert [Path(n).name for n in written] == [f"scene.{store.snapshot('s').version}.json"]
+    assert_same_scenes(open_store(tmp_path), store)
 
 
 def test_materials_are_restored(tmp_path, changed):
@@ -796,12 +802,7 @@ def test_end_vertices_have_their_own_file_with_shape_and_checksum(tmp_path, defo
     ids=["mask of another mesh", "material", "an instance's transform", "instance", "frame"],
 )
 def test_a_change_beside_end_vertices_writes_only_the_manifest(tmp_path, deforming, change):
-    before = files(tmp_path)
-    change(deforming)
-    after = files(tmp_path)
-    written = {name for name in after if before.get(name) != after[name]}
-    assert [Path(n).name for n in written] == [f"scene.{deforming.snapshot('s').version}.json"]
-    assert_same_scenes(open_store(tmp_path), deforming)
+    assert_writes_only_the_manifest(tmp_path, deforming, change)
 
 
 def test_new_end_vertices_write_one_file_and_a_static_mesh_drops_it(tmp_path, deforming):
