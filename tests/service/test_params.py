@@ -77,7 +77,9 @@ def test_the_query_string_reaches_the_options_with_the_mask_parsed():
     options = params.hits_options(
         settings, fields="t", strategy="rayspace", stats=True, cull="back", mask="0x10", max_hits=3
     )
-    assert options == Options(Query.HITS, ("offsets", "t"), "rayspace", True, 2, "back", 3, 0x10)
+    assert options == Options(
+        Query.HITS, ("offsets", "t"), "rayspace", True, 2, "back", 3, 0x10, asked=("t",)
+    )
     with pytest.raises(Invalid, match=r"1 to 8 \(DACRT_MAX_HITS\)"):
         params.hits_options(settings, max_hits=9)
 
