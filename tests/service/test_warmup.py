@@ -5,6 +5,7 @@ child cannot start or fails, the server compiles them itself and says why."""
 from __future__ import annotations
 
 import logging
+import shutil
 import sys
 import threading
 import time
@@ -15,6 +16,7 @@ import numba
 import pytest
 from server_process import ServerProcess
 
+import dacrt.cache
 from service import warmup
 from service.app import create_app, warm_up
 from service.settings import Settings
@@ -151,9 +153,11 @@ def test_loading_only_from_the_cache_stops_before_a_compile():
     assert kernel(1) == 2
 
 
-#: A first compile on 2 cores busy with other work (README, First start).
-COLD_START_SECONDS = 1500
+#: Seconds for a server to start when one kernel compiles (2 cores busy with other work).
+START_SECONDS = 600
 GiB = 2**30
+#: The kernel the test below takes out of the cache: small, and reached by every warm-up.
+MISSING = "chunks.slab_ids"
 
 
 def vm(pid: int, name: str) -> int:
@@ -164,14 +168,26 @@ def vm(pid: int, name: str) -> int:
     raise KeyError(name)
 
 
-def test_a_cold_start_compiles_in_a_child_and_the_server_keeps_none_of_its_memory(tmp_path):
-    """From an empty cache folder: /health goes from starting to ok, the kernels compile in a
-    child (about 3 GB at its peak), and the server, which loads them from the cache, never holds
-    1 GiB; a query then compiles nothing either."""
-    server = ServerProcess({"DACRT_CACHE_DIR": str(tmp_path / "cache")})
+def test_a_kernel_missing_from_the_cache_compiles_in_a_child_and_the_server_compiles_none(
+    tmp_path,
+):
+    """A copy of the warm cache less one kernel's files: /health goes to ok, that kernel
+    compiles in a child (which keeps the compiler's memory: about 3 GB for all of them, measured
+    in docs/limits.md), and the server loads every kernel from the cache, compiling none; a
+    query then answers."""
+    warm = dacrt.cache.kernels_folder()
+    if not warm.is_dir():
+        pytest.skip(f"no warm kernel cache at {warm} (python -m service.warmup fills it)")
+    cache = tmp_path / "cache"
+    shutil.copytree(warm, cache / warm.name)
+    taken = list((cache / warm.name).rglob(f"{MISSING}-*"))
+    assert taken, f"no cached files of {MISSING} in {warm}"
+    for path in taken:
+        path.unlink()
+    server = ServerProcess({"DACRT_CACHE_DIR": str(cache)})
     statuses = []
     try:
-        deadline = time.monotonic() + COLD_START_SECONDS
+        deadline = time.monotonic() + START_SECONDS
         while statuses[-1:] != ["ok"]:
             assert server.process.poll() is None and time.monotonic() < deadline, server.output()
             try:
@@ -180,7 +196,7 @@ def test_a_cold_start_compiles_in_a_child_and_the_server_keeps_none_of_its_memor
                 status = None
             if status is not None and statuses[-1:] != [status]:
                 statuses.append(status)
-            time.sleep(1)
+            time.sleep(0.2)
         vertices, faces = [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]
         rays = {"origins": [[0.2, 0.2, 1]], "directions": [[0, 0, -1]]}
         answer = httpx.post(
@@ -188,15 +204,17 @@ def test_a_cold_start_compiles_in_a_child_and_the_server_keeps_none_of_its_memor
             json={"vertices": vertices, "faces": faces, **rays},
             timeout=60,
         )
-        peak, rss = vm(server.process.pid, "VmHWM"), vm(server.process.pid, "VmRSS")
+        peak = vm(server.process.pid, "VmHWM")
         output = server.output(last=10**8)
     finally:
         server.stop()
-    assert statuses == ["starting", "ok"]
+    assert set(statuses) <= {"starting", "ok"} and statuses[-1] == "ok", statuses
     assert answer.status_code == 200 and answer.json()["t"] == [1.0], answer.text
-    assert peak < GiB and rss < GiB / 2, (peak, rss)
+    assert peak < GiB, peak
+    assert list((cache / warm.name).rglob(f"{MISSING}-*")), "the child filed nothing"
     lines = output.splitlines()
     assert any("the kernels compile in a child process" in line for line in lines), output
+    assert any(MISSING in line for line in lines if "is not in the cache" in line), output
     compiled = [line for line in lines if "kernels compiled)" in line]
     assert any(" child " in line and "(0 kernels compiled)" not in line for line in compiled)
     ours = [line for line in compiled if " child " not in line]
