@@ -515,7 +515,7 @@ def refusal(argv: list[str]) -> str:
     ids=["port", "port over its variable", "port range", "threads", "log level", "variable"],
 )
 def test_a_bad_value_is_named_as_the_user_gave_it(environ, argv, variable, expected):
-    """An option names the option, not the variable the user never set (fuzz37 F3)."""
+    """An option names the option, not the variable the user never set."""
     if variable is not None:
         environ(**dict([variable]))
     message = refusal(argv)
