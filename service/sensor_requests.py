@@ -8,13 +8,18 @@ strings or booleans), finite and within float32's range (the rays are float32); 
 a default where the model says so. Each model's ``sensor`` makes the engine's ``Camera`` or
 ``Lidar``, whose own checks (ranges, poses, edge rays) raise ``dacrt.InputError`` naming the same
 key (``noise.range_sigma must be >= 0``): 422 through ``errors``' table.
+
+A message spells out the first ``SHOWN_ERRORS`` errors and counts the rest, and a rig's sensors are
+read one by one up to the first that is wrong, so a body's errors cost time and memory in
+proportion to one sensor's keys and values, never to the whole rig's.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Annotated, Literal, TypeVar
+from itertools import islice
+from typing import Annotated, Any, Literal, TypeVar
 
 import numpy as np
 from pydantic import (
@@ -27,6 +32,7 @@ from pydantic import (
     ValidationError,
     model_validator,
 )
+from pydantic_core import PydanticCustomError
 
 from dacrt.sensors import MODELS, RETURN_MODES, Camera, Lidar, Pattern, check_pose, look_at_pose
 from dacrt.sensors.lidar import FRAMES, MAX_BEAMS, MAX_RETURNS, NON_HITS
@@ -38,6 +44,10 @@ from .store import NAME
 
 #: The largest float32: every number of a sensor ends up in float32 rays or bounds.
 FLOAT32_MAX = float(np.finfo(np.float32).max)
+#: The errors a message spells out; the others are counted ("and 1,019 more").
+SHOWN_ERRORS = 5
+#: The error type of an object's unknown keys, all of them in one error.
+UNKNOWN_KEYS = "unknown_keys"
 
 
 def _within_float32(value: float) -> float:
@@ -74,6 +84,18 @@ class Body(BaseModel):
     """A request body: unknown keys are refused, values are not converted between JSON types."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _known_keys(cls, data: Any) -> Any:
+        # all of an object's unknown keys in one error, before extra="forbid" makes one a key
+        known = cls.model_fields.keys()
+        if isinstance(data, dict) and not data.keys() <= known:
+            unknown = (key for key in data if key not in known)
+            shown = list(islice(unknown, SHOWN_ERRORS))
+            count = len(shown) + sum(1 for _ in unknown)
+            raise PydanticCustomError(UNKNOWN_KEYS, "unknown key", {"keys": shown, "count": count})
+        return data
 
 
 class LookAtCamera(Body):
@@ -276,22 +298,23 @@ Model = TypeVar("Model", bound=Body)
 
 #: Error types that mean the body has the wrong keys (400) rather than wrong values (422): a key
 #: missing or unknown at any depth, or a rig's sensor without its ``kind``.
-_KEY_ERRORS = ("missing", "extra_forbidden", "union_tag_not_found")
+_KEY_ERRORS = ("missing", UNKNOWN_KEYS, "union_tag_not_found")
 
 
 def parse(
     model: type[Model], body: wire.Buffer, what: str, max_sensors: int | None = None
 ) -> Model:
     """``body`` (JSON) as ``model``: 400 if it is not a JSON object or has wrong keys, 422 naming
-    each bad value; 413 for a rig of more than ``max_sensors`` sensors, before they are read."""
+    the bad values (a rig's: those of its first wrong sensor); 413 for a rig of more than
+    ``max_sensors`` sensors, before they are read."""
     keys = ", ".join(model.model_fields)
     doc = wire.read_json(body, f"keys {keys}")
     if max_sensors is not None:
         check_rig_size(doc, max_sensors)
     try:
-        value = model.model_validate(doc)
+        value = validate_rig(doc) if model is SensorsRequest else model.model_validate(doc)
     except ValidationError as error:
-        errors = error.errors(include_url=False)
+        errors = error.errors(include_url=False, include_input=False)
         wrong_keys = [e for e in errors if e["type"] in _KEY_ERRORS]
         if wrong_keys:
             raise BadBody(f"{what}: {describe(wrong_keys)}; the body's keys are {keys}") from None
@@ -309,6 +332,20 @@ def parse(
     return value
 
 
+def validate_rig(doc: dict[str, Any]) -> SensorsRequest:
+    """``doc`` as a rig, its sensors validated one by one: the ValidationError of the first wrong
+    sensor only (the whole rig's at once would hold every sensor's errors)."""
+    sensors = doc.get("sensors")
+    if not isinstance(sensors, dict) or not sensors:
+        return SensorsRequest.model_validate(doc)
+    others = {key: value for key, value in doc.items() if key != "sensors"}
+    checked = {}
+    for name, sensor in sensors.items():
+        checked |= SensorsRequest.model_validate({**others, "sensors": {name: sensor}}).sensors
+    # each sensor is checked above: the rig holds them as they are
+    return SensorsRequest.model_construct(sensors=checked)
+
+
 def check_rig_size(doc, max_sensors: int) -> None:
     """413 for a rig body whose ``sensors`` object holds more than ``max_sensors`` entries."""
     sensors = doc.get("sensors") if isinstance(doc, dict) else None
@@ -324,26 +361,43 @@ NAME_RULE = "1-64 characters of A-Z a-z 0-9 _ - ."
 
 
 def describe(errors: list[dict]) -> str:
-    """One clause per pydantic error: ``pose[3][0]: Input should be a finite number``; a rig's
-    ``sensors.NAME.KEY`` (without the tag of its kind)."""
-    parts = []
-    for error in errors:
-        loc = list(error["loc"])
-        if loc[:1] == ["sensors"] and len(loc) == 3 and loc[2] == "[key]":
-            parts.append(f"sensor name {wire.quoted(loc[1])} must be {NAME_RULE}")
-            continue
-        if loc[:1] == ["sensors"] and len(loc) >= 3 and loc[2] in ("lidar", "camera"):
-            del loc[2]  # the discriminator's tag, which the body does not name
-        path = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc)
-        path = path.removeprefix(".")
-        message = error["msg"].removeprefix("Value error, ")
-        if error["type"] == "missing":
-            message = "missing"
-        elif error["type"] == "extra_forbidden":
-            message = "unknown key"
-        elif error["type"] == "union_tag_not_found":  # a rig's sensor without its kind
-            message = "missing kind ('lidar' or 'camera')"
-        elif error["type"] == "union_tag_invalid":
-            message = f"kind {wire.quoted(str(error['ctx']['tag']))} is not 'lidar' or 'camera'"
-        parts.append(f"{path}: {message}" if path else message)
-    return "; ".join(parts)
+    """The first SHOWN_ERRORS pydantic errors, a clause each (``pose[3][0]: Input should be a
+    finite number``; a rig's ``sensors.NAME.KEY``, without the tag of its kind), and the count of
+    the others."""
+    clauses = [clause for error in errors for clause in error_clauses(error)]
+    total = sum(error["ctx"]["count"] if error["type"] == UNKNOWN_KEYS else 1 for error in errors)
+    shown = "; ".join(clauses[:SHOWN_ERRORS])
+    hidden = total - min(len(clauses), SHOWN_ERRORS)
+    return f"{shown}; and {hidden:,} more" if hidden else shown
+
+
+def error_clauses(error: dict) -> list[str]:
+    """The clauses of one pydantic error: one, or one per unknown key it names."""
+    loc = list(error["loc"])
+    if loc[:1] == ["sensors"] and len(loc) == 3 and loc[2] == "[key]":
+        return [f"sensor name {wire.quoted(loc[1])} must be {NAME_RULE}"]
+    if loc[:1] == ["sensors"] and len(loc) >= 3 and loc[2] in ("lidar", "camera"):
+        del loc[2]  # the discriminator's tag, which the body does not name
+    if error["type"] == UNKNOWN_KEYS:
+        return [f"{key_path([*loc, key])}: unknown key" for key in error["ctx"]["keys"]]
+    path = key_path(loc)
+    message = error["msg"].removeprefix("Value error, ")
+    if error["type"] == "missing":
+        message = "missing"
+    elif error["type"] == "union_tag_not_found":  # a rig's sensor without its kind
+        message = "missing kind ('lidar' or 'camera')"
+    elif error["type"] == "union_tag_invalid":
+        message = f"kind {wire.quoted(str(error['ctx']['tag']))} is not 'lidar' or 'camera'"
+    return [f"{path}: {message}" if path else message]
+
+
+def key_path(loc: list) -> str:
+    """``pose[3][0]``, ``sensors.roof.noise.seed``: a key of a body's own, however long, is
+    cut (``wire.quoted``)."""
+    parts = (f"[{p}]" if isinstance(p, int) else f".{short_key(p)}" for p in loc)
+    return "".join(parts).removeprefix(".")
+
+
+def short_key(key: str) -> str:
+    """A key as a message names it: past 80 characters, its start and its length."""
+    return key if len(key) <= 80 else wire.quoted(key)

@@ -133,6 +133,10 @@ def read_mapping(
     raise UnsupportedMediaType(f"{fmt} bodies hold no keys; send {expected} as .npz or JSON")
 
 
+#: The unknown keys a message names; the others are counted.
+SHOWN_KEYS = 5
+
+
 def check_keys(
     mapping: Mapping[str, Any], required: Iterable[str], optional: Iterable[str] = ()
 ) -> None:
@@ -147,9 +151,10 @@ def check_keys(
     if missing:
         raise BadBody(f"body lacks {', '.join(map(repr, missing))}; expected keys {expected}")
     if unknown:
-        raise BadBody(
-            f"body has unknown keys {', '.join(map(repr, unknown))}; expected keys {expected}"
-        )
+        # a few named, the others counted: a body may hold any number of keys of any length
+        named = ", ".join(quoted(key) for key in unknown[:SHOWN_KEYS])
+        more = f" and {len(unknown) - SHOWN_KEYS:,} more" if len(unknown) > SHOWN_KEYS else ""
+        raise BadBody(f"body has unknown keys {named}{more}; expected keys {expected}")
 
 
 def decode_rays(

@@ -89,6 +89,17 @@ def test_unparseable_bodies_are_400(app_client, app_api, quad_scene, path, body,
     assert state(app_api, quad_scene) == before
 
 
+def test_a_body_of_many_unknown_keys_names_a_few_and_counts_the_others(app_client, quad_scene):
+    """However many unknown keys a body has, and however long, the message names the first few
+    (cut) and counts the others."""
+    keys = {"x" * 100_000: 0, **{f"a{k}": 0 for k in range(10_000)}}
+    body = {"origins": RAYS[:, :3].tolist(), "directions": RAYS[:, 3:].tolist(), **keys}
+    message = detail(app_client.post(f"/v1/scenes/{quad_scene}/closest", json=body), 400)
+    assert message.startswith("body has unknown keys 'xxxxxxxx")
+    assert "... (100000 characters), 'a0', 'a1', 'a2', 'a3' and 9,996 more; expected" in message
+    assert len(message) < 1000
+
+
 # ---- 401: token configured
 
 

@@ -453,6 +453,60 @@ def test_a_rig_of_more_sensors_than_the_limit_is_413():
         assert "4 sensors" in detail and "DACRT_MAX_RIG_SENSORS" in detail
 
 
+def test_a_rig_of_many_bad_values_is_422_naming_the_first_in_a_short_message(app_client, room):
+    """Every elevation of every sensor out of range: the message names the first bad key,
+    spells out a few errors of that sensor and counts its others; the sensors after it are not
+    read (their errors together would be the rig's size times a sensor's)."""
+    bad = {"kind": "lidar", "pose": POSE, "vertical_angles_deg": [100.0] * 1024}
+    good = {"kind": "lidar", "pose": POSE, "model": "VLP-16"}
+    rig = {"sensors": {"good": good, **{f"s{k}": bad for k in range(64)}}}
+    response = app_client.post(f"/v1/scenes/{room}/sensors", json=rig)
+    assert response.status_code == 422, response.text
+    detail = response.json()["detail"]
+    first = "sensors: sensors.s0.vertical_angles_deg[0]: Input should be less than or equal to 90;"
+    assert detail.startswith(first)
+    assert detail.count("vertical_angles_deg[") == 5 and detail.endswith("; and 1,019 more")
+    assert len(detail) < 1000
+
+
+KEYS = {f"a{k}": 0 for k in range(10_000)}
+
+
+@pytest.mark.parametrize(
+    "route, body, first",
+    [
+        ("lidar", {"pose": POSE, "model": "VLP-16", **KEYS}, "lidar: a0: unknown key; a1:"),
+        ("lidar", {"pose": POSE, "model": "VLP-16", "noise": KEYS}, "lidar: noise.a0: unknown"),
+        (
+            "sensors",
+            {"sensors": {"roof": {"kind": "lidar", "pose": POSE, "model": "VLP-16", **KEYS}}},
+            "sensors: sensors.roof.a0: unknown key;",
+        ),
+        ("sensors", {"sensors": {}, **KEYS}, "sensors: a0: unknown key;"),
+    ],
+)
+def test_a_body_of_many_unknown_keys_is_400_naming_the_first_few(
+    app_client, room, route, body, first
+):
+    response = app_client.post(f"/v1/scenes/{room}/{route}", json=body)
+    assert response.status_code == 400, response.text
+    detail = response.json()["detail"]
+    assert detail.startswith(first) and "a4: unknown key; and 9,995 more;" in detail
+    assert len(detail) < 1000
+
+
+def test_a_long_unknown_key_is_cut_in_the_message(app_client, room):
+    body = {"pose": POSE, "model": "VLP-16", "noise": {"x" * 100_000: 0}}
+    response = app_client.post(f"/v1/scenes/{room}/lidar", json=body)
+    assert response.status_code == 400, response.text
+    detail = response.json()["detail"]
+    assert (
+        detail.startswith("lidar: noise.'xxxxxxxx")
+        and "... (100000 characters): unknown key" in detail
+    )
+    assert len(detail) < 1000
+
+
 def test_a_rig_naming_a_sensor_twice_is_400(app_client, room):
     """JSON keeps the last of a repeated key: a rig of two sensors named alike would answer one
     of them silently, so the body is refused naming the key."""
