@@ -8,7 +8,7 @@ import numpy as np
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 
-from dacrt.sensors import Camera, Lidar
+from dacrt.sensors import CAMERA_FIELDS, Camera, Lidar
 
 from .. import footprint, openapi, sensing, shading, wire
 from ..deps import (
@@ -242,6 +242,8 @@ async def sensors(
             {name: s for name, s in wanted.sensors.items() if s.kind == "camera"}, settings
         )
         rig, ends = rig_sensors(wanted, patterns)
+        for name, (sensor, _) in rig.items():
+            check_answered_fields(options.fields, sensor, f"sensors.{name}: ")
         check_sensors({name: sensor for name, (sensor, _) in rig.items()}, settings)
         sensors = [sensor for sensor, _ in rig.values()]
         return sensor_decoded((rig, ends), body, sensors, answer_format)
@@ -291,14 +293,22 @@ def sensor_decoded(value, body: memoryview, sensors: list, answer_format: str) -
     return Decoded(value, n_rays, peak, answer_format)
 
 
-def check_answered_fields(fields: tuple[str, ...], sensor: Lidar) -> None:
-    """422 when ``?fields=`` names only keys this lidar does not answer (its answer would be
-    empty): the times and speeds of a lidar without ``period_s``."""
-    if not set(fields) & set(sensor.fields):
+def check_answered_fields(fields: tuple[str, ...], sensor: Lidar | Camera, where: str = "") -> None:
+    """422 when ``?fields=`` names only keys this sensor does not answer (its answer would be
+    empty): the times and speeds of a lidar without ``period_s``, or in a rig (``where``: the
+    sensor's name) only a camera's keys for a lidar or a lidar's for a camera."""
+    lidar = isinstance(sensor, Lidar)
+    answered = sensor.fields if lidar else CAMERA_FIELDS
+    if not set(fields) & set(answered):
+        why = (
+            " (velocity and radial_speed need period_s; time needs period_s or a pattern with "
+            "time_s)"
+            if lidar
+            else ""
+        )
         raise Invalid(
-            f"?fields={','.join(fields)}: this lidar answers none of them (velocity and "
-            "radial_speed need period_s; time needs period_s or a pattern with time_s); it "
-            f"answers {', '.join(sensor.fields)}"
+            f"{where}?fields={','.join(fields)}: this {'lidar' if lidar else 'camera'} answers "
+            f"none of them{why}; it answers {', '.join(answered)}"
         )
 
 

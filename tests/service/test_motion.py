@@ -431,6 +431,40 @@ def test_fields_a_lidar_without_period_does_not_answer_are_422(app_client, scene
     assert response.status_code == 200, response.text  # the range, as a rig's sensor answers
 
 
+def test_a_rig_sensor_that_answers_none_of_the_fields_is_422_naming_it(app_client, scene_name):
+    """A rig's sensors answer ?fields= as each does alone: one that would answer nothing (the
+    speeds of a lidar without period_s, a lidar's keys of a camera) is refused naming it."""
+    frame = box_frame("car", (-1.0, 9.0, -1.0), (1.0, 11.0, 1.0))
+    assert app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame).status_code == 200
+    still = {"kind": "lidar", "pose": np.eye(4).tolist(), "vertical_angles_deg": [0.0]}
+    moving = {**still, "period_s": 0.1}
+    camera = {
+        "kind": "camera",
+        "width": 4,
+        "height": 3,
+        "eye": [0, 0, 0],
+        "target": [0, 10, 0],
+        "up": [0, 0, 1],
+    }
+    url = f"/v1/scenes/{scene_name}/sensors"
+    cases = [
+        ({"roof": still}, "time", "sensors.roof: ?fields=time: this lidar answers none"),
+        ({"spin": moving, "roof": still}, "velocity", "sensors.roof: ?fields=velocity: this"),
+        ({"roof": moving, "front": camera}, "xyz,time", "sensors.front: ?fields=xyz,time: this "
+         "camera answers none of them; it answers depth, range, mesh, prim, normal"),
+    ]  # fmt: skip
+    for sensors, fields, words in cases:
+        response = app_client.post(url, params={"fields": fields}, json={"sensors": sensors})
+        assert response.status_code == 422, response.text
+        assert response.json()["detail"].startswith(words), response.text
+    response = app_client.post(
+        url, params={"fields": "range,velocity"}, json={"sensors": {"spin": moving, "roof": still}}
+    )
+    assert response.status_code == 200, response.text
+    assert sorted(response.json()) == ["roof", "spin"]
+    assert sorted(response.json()["roof"]) == ["range"]
+
+
 def test_a_new_start_without_an_end_makes_a_mesh_static(app_client, scene_name):
     """A frame's new start placement of either kind (vertices, or a transform) and no end makes
     a mesh static whichever way it moved, and it may then take an end of the other kind."""
