@@ -107,13 +107,16 @@ from .validation import (
     check_threads,
     check_time,
     check_transform,
+    check_unplaced,
     check_vertices_end,
     explain_bad_rays,
     explain_bad_vertices,
     float64_points,
     hide_rays,
     mesh_pairs,
+    owned,
     place_vertices,
+    vertex_array,
 )
 
 #: The values of ``cull=`` and ``strategy=`` (``CULL_MODES``, ``STRATEGIES``).
@@ -159,7 +162,8 @@ class Scene:
     """Triangle meshes to cast rays into.
 
     meshes : sequence of (vertices (V, 3) float, faces (F, 3) int) pairs; hits report a mesh by
-        its position in this sequence and a triangle by its row in that mesh's faces.
+        its position in this sequence and a triangle by its row in that mesh's faces. The
+        scene keeps copies of them (and of ``vertices_end``): the caller may reuse its buffers.
     masks : None (every mesh all ones), an integer, or (n_meshes,) uint32: each mesh's mask; a
         ray sees a mesh only where ray mask & mesh mask != 0 (``mask=`` of the queries).
     transforms : None, or one entry per mesh: None (as given) or a (4, 4) row-major affine
@@ -410,8 +414,9 @@ class Scene:
         for i, matrix in transforms_end.items():
             ends[i] = None if matrix is None else check_transform(matrix, f"transforms_end[{i}]")
         checked = list(self._meshes)
+        copies = {}  # one copy of an array given to several meshes (instances)
         for i, new in vertices.items():
-            checked[i] = (self._checked_vertices(i, new), checked[i][1])
+            checked[i] = (self._checked_vertices(i, new, copies), checked[i][1])
         new_masks = self.masks.copy()
         for i, mask in masks.items():
             new_masks[i] = check_masks(mask, 1, f"masks[{i}]", "mesh")[0]
@@ -421,10 +426,12 @@ class Scene:
             if end is not None:
                 deformed[i] = end
         for i in sorted(deformed):
-            if i in vertices_end or i in vertices or i in transforms or i in transforms_end:
+            if i in vertices_end:
                 deformed[i] = check_vertices_end(
                     i, deformed[i], checked[i][0], matrices[i], ends[i]
                 )
+            elif i in transforms or i in transforms_end:  # a kept end: already checked
+                check_unplaced(i, matrices[i], ends[i])
         # A mesh that starts or stops deforming, or deforms anew, is packed again.
         changed = set(vertices) | set(vertices_end)
         packings = {}
@@ -468,16 +475,22 @@ class Scene:
             checked[int(key)] = value
         return checked
 
-    def _checked_vertices(self, i, new):
-        """Mesh i's new vertices as float32 (V, 3), V as before, finite."""
+    def _checked_vertices(self, i, new, copies):
+        """Mesh i's new vertices as float32 (V, 3), V as before, finite, ``owned``: the entry
+        of ``copies`` (id of the given array: its checked copy) for an array checked before."""
         name = f"vertices[{i}]"
-        new = as_float_rows(new, name, check_finite=False)
+        if id(new) in copies:
+            checked = copies[id(new)]
+        else:
+            checked = as_float_rows(vertex_array(new, name), name, check_finite=False)
         n_before = len(self._meshes[i][0])
-        if len(new) != n_before:
-            raise InputError(f"{name} has {len(new)} rows; mesh {i} has {n_before} vertices")
-        if not all_finite(new):
-            explain_bad_vertices(new, name)
-        return new
+        if len(checked) != n_before:
+            raise InputError(f"{name} has {len(checked)} rows; mesh {i} has {n_before} vertices")
+        if id(new) not in copies:
+            if not all_finite(checked):
+                explain_bad_vertices(checked, name, given=new)
+            copies[id(new)] = owned(checked, new)
+        return copies[id(new)]
 
     def _kept_order(self, i):
         """(order, kept order) for ``pack_mesh`` to pack new vertices of mesh i's faces in the
@@ -1629,7 +1642,11 @@ def check_scene_arguments(meshes, masks, transforms, order, transforms_end, vert
     if not isinstance(order, str) or order not in ORDERS:
         raise InputError(f"order must be one of {', '.join(ORDERS)}; got {order!r}")
     given = [pair for _, pair in mesh_pairs(meshes)]
-    checked = [check_mesh(i, vertices, faces) for i, (vertices, faces) in enumerate(given)]
+    by_arrays = {}  # instances of the same arrays share one checked copy
+    for i, (vertices, faces) in enumerate(given):
+        if (id(vertices), id(faces)) not in by_arrays:
+            by_arrays[id(vertices), id(faces)] = check_mesh(i, vertices, faces)
+    checked = [by_arrays[id(vertices), id(faces)] for vertices, faces in given]
     check_row_count(sum(len(faces) for _, faces in checked), "the scene", "triangles")
     matrices = checked_transforms(transforms, len(checked), "transforms")
     ends = checked_transforms(transforms_end, len(checked), "transforms_end")

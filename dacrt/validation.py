@@ -137,9 +137,10 @@ def check_hits(prim, u, v, n):
 
 def check_mesh(index, vertices, faces):
     """Validate one mesh; returns (vertices float32 (V, 3), faces int32 or int64 (F, 3)), as
-    ``kernel_input`` gives them."""
+    ``kernel_input`` gives them and ``owned``: never the caller's arrays."""
     label = f"mesh {index}"
-    vertices = numeric_array(vertices, f"{label}: vertices must be a (V, 3) array of numbers")
+    given_vertices, given_faces = vertices, faces
+    vertices = vertex_array(vertices, f"{label}: vertices")
     faces = numeric_array(faces, f"{label}: faces must be an (F, 3) array of integers")
     if vertices.ndim != 2 or vertices.shape[1] != 3:
         raise InputError(f"{label}: vertices must have shape (V, 3), got {vertices.shape}")
@@ -154,9 +155,10 @@ def check_mesh(index, vertices, faces):
             faces = faces.astype(np.int64)
         else:
             raise InputError(f"{label}: faces must be an integer array, got dtype {faces.dtype}")
-    vertices = as_float_rows(vertices, f"{label}: vertices", check_finite=False)
-    if not all_finite(vertices):
-        explain_bad_vertices(vertices, f"{label}: vertices")
+    converted = as_float_rows(vertices, f"{label}: vertices", check_finite=False)
+    if not all_finite(converted):
+        explain_bad_vertices(converted, f"{label}: vertices", given=vertices)
+    vertices = owned(converted, given_vertices)
     if faces.dtype == np.uint64 and faces.size and faces.max() >= len(vertices):
         explain_bad_faces(faces, len(vertices), f"{label}: faces")  # before int64 wraps them
     # Kernels take int32 and int64 faces (narrowing int64 would copy on every Scene); other
@@ -164,17 +166,36 @@ def check_mesh(index, vertices, faces):
     faces = kernel_input(faces, None if faces.dtype in (INDEX, np.int64) else np.int64)
     if not faces_in_range(faces, len(vertices)):
         explain_bad_faces(faces, len(vertices), f"{label}: faces")
-    return vertices, faces
+    return vertices, owned(faces, given_faces)
 
 
-def explain_bad_vertices(vertices, name="vertices"):
-    """Raise ValueError naming the first non-finite row of ``vertices`` (V, 3) float and how many
-    there are (a slow path, for an array known to hold one); does nothing if all are finite."""
+def vertex_array(vertices, name):
+    """``vertices`` as an ndarray (``numeric_array``); an empty one as (0, 3), no vertices, as
+    an empty ``faces`` is no faces."""
+    array = numeric_array(vertices, f"{name} must be a (V, 3) array of numbers")
+    return array.reshape(0, 3) if array.size == 0 else array
+
+
+def owned(array, given):
+    """``array``, checked from the caller's ``given``, as an array of its own: a copy where it
+    may still be ``given``'s memory (``kernel_input`` keeps an array already in its layout), so
+    that the caller may reuse its buffers while a Scene keeps reading the arrays."""
+    if isinstance(given, list | tuple) or not np.may_share_memory(array, given):
+        return array  # NumPy made it afresh
+    return array.copy()
+
+
+def explain_bad_vertices(vertices, name="vertices", given=None):
+    """Raise ValueError naming the first row of ``vertices`` (V, 3) float that is not finite,
+    with its values as the caller's ``given`` array (None: ``vertices``) holds them (a finite
+    float64 may be too large for float32), and how many there are (a slow path, for an array
+    known to hold one); does nothing if all are finite."""
     rows = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
     if len(rows):
+        shown = vertices if given is None else np.asarray(given).reshape(vertices.shape)
         raise InputError(
-            f"{name}[{rows[0]}] is not finite ({vertices[rows[0]].tolist()}); "
-            f"{rows.size} of {len(vertices)} vertices are not finite"
+            f"{name}[{rows[0]}] is not finite (or too large for float32): "
+            f"{shown[rows[0]].tolist()}; {rows.size} of {len(vertices)} vertices are not finite"
         )
 
 
@@ -309,29 +330,34 @@ def check_threads(threads, n_cores):
 
 
 def check_vertices_end(i, end, vertices, matrix, matrix_end):
-    """Mesh i's vertices at the end of the interval as float32 (V, 3): as many rows as its
-    ``vertices``, finite, on a mesh with no placement (``matrix``, ``matrix_end``: its
-    transforms, None for none), since a deforming mesh is given in scene space. InputError
+    """Mesh i's vertices at the end of the interval as float32 (V, 3), ``owned``: as many rows
+    as its ``vertices``, finite, on a mesh with no placement (``check_unplaced``). InputError
     naming ``vertices_end[i]``."""
     name = f"vertices_end[{i}]"
-    if matrix is not None or matrix_end is not None:
-        raise InputError(
-            f"{name}: mesh {i} is placed (transforms[{i}] or transforms_end[{i}]); a deforming "
-            f"mesh takes no placement, give its vertices in scene space"
-        )
+    check_unplaced(i, matrix, matrix_end)
     if end is None or isinstance(end, str | bytes):
         raise InputError(f"{name} must be a (V, 3) array of numbers")
     try:
-        end = as_float_rows(end, name, check_finite=False)
+        converted = as_float_rows(vertex_array(end, name), name, check_finite=False)
     except (TypeError, ValueError) as error:
         if isinstance(error, InputError):
             raise
         raise InputError(f"{name} must be a (V, 3) array of numbers") from None
-    if len(end) != len(vertices):
-        raise InputError(f"{name} has {len(end)} rows; mesh {i} has {len(vertices)} vertices")
-    if not all_finite(end):
-        explain_bad_vertices(end, name)
-    return end
+    if len(converted) != len(vertices):
+        raise InputError(f"{name} has {len(converted)} rows; mesh {i} has {len(vertices)} vertices")
+    if not all_finite(converted):
+        explain_bad_vertices(converted, name, given=end)
+    return owned(converted, end)
+
+
+def check_unplaced(i, matrix, matrix_end):
+    """InputError naming ``vertices_end[i]`` unless mesh i has no placement (``matrix``,
+    ``matrix_end``: its transforms, None for none): a deforming mesh is given in scene space."""
+    if matrix is not None or matrix_end is not None:
+        raise InputError(
+            f"vertices_end[{i}]: mesh {i} is placed (transforms[{i}] or transforms_end[{i}]); a "
+            f"deforming mesh takes no placement, give its vertices in scene space"
+        )
 
 
 #: The least scale a placement may have along any axis: rays move into a mesh's space by its

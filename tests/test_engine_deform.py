@@ -291,3 +291,38 @@ def test_bad_vertices_end_name_the_entry():
     bad[4, 1] = np.inf
     with pytest.raises(InputError, match=r"vertices_end\[0\]\[4\] is not finite"):
         scene.with_changes(vertices_end={0: bad})
+
+
+def test_writes_to_the_callers_arrays_change_neither_a_kept_end_nor_motion():
+    """A deforming mesh's start, end and faces are the Scene's own copies: after the caller
+    writes into the buffers it gave, ``with_changes`` keeps the end as given and ``motion``
+    answers the corners' ends less their starts as given (NumPy)."""
+    meshes, ends = _world()
+    v0, f = meshes[2]
+    v1 = ends[2]
+    given_v0, given_v1, given_f = v0.copy(), v1.copy(), f.copy()
+    scene = dacrt.Scene([meshes[0], (given_v0, given_f)], vertices_end=[None, given_v1])
+    origins, directions, times = _rays(800, seed=37)
+    hits = scene.closest(origins, directions, time=times)
+    on = np.flatnonzero(hits.mesh == 1)
+    assert len(on) > 50
+    points = origins[on] + hits.t[on, None] * directions[on]
+    given_v0 += np.float32(3.0)
+    given_v1 += np.float32(50.0)
+    given_f[:] = given_f[::-1]
+    velocity = scene.motion(
+        hits.mesh[on], points, times[on], prim=hits.prim[on], u=hits.u[on], v=hits.v[on]
+    )
+    change = v1.astype(np.float64) - v0.astype(np.float64)
+    corners = change[f[hits.prim[on]]]
+    u, v = hits.u[on, None].astype(np.float64), hits.v[on, None].astype(np.float64)
+    np.testing.assert_allclose(
+        velocity, (1 - u - v) * corners[:, 0] + u * corners[:, 1] + v * corners[:, 2]
+    )
+    # new start vertices of the same values: the end and the faces are those given
+    kept = scene.with_changes(vertices={1: v0.copy()})
+    fresh = dacrt.Scene([meshes[0], (v0, f)], vertices_end=[None, v1])
+    every = np.arange(len(origins))
+    expected = _fields("closest", fresh.closest(origins, directions, time=times), every)
+    _assert_same(expected, _fields("closest", kept.closest(origins, directions, time=times), every))
+    _assert_same(expected, _fields("closest", hits, every))

@@ -554,3 +554,38 @@ def test_max_rows_is_the_most_rows_accepted():
     check_row_count(MAX_ROWS, "a batch", "rays")
     with pytest.raises(dacrt.InputError, match="a batch has 2,147,483,648 rays"):
         check_row_count(MAX_ROWS + 1, "a batch", "rays")
+
+
+@pytest.mark.parametrize("where", ["vertices", "with_changes", "vertices_end"])
+def test_a_vertex_too_large_for_float32_is_named_with_its_value_as_given(where):
+    """A finite float64 beyond float32's range is refused as rays' are: the argument, the row
+    and the caller's value (not the inf it would round to)."""
+    v, f = _mesh()
+    big = v.astype(np.float64)
+    big[FIRST_BAD, 1] = 1e39
+    names = {
+        "vertices": r"mesh 0: vertices",
+        "with_changes": r"vertices\[0\]",
+        "vertices_end": r"vertices_end\[0\]",
+    }
+    message = rf"{names[where]}\[{FIRST_BAD}\] is not finite \(or too large for float32\)"
+    with pytest.raises(dacrt.InputError, match=message) as info:
+        if where == "vertices":
+            dacrt.Scene([(big, f)])
+        elif where == "with_changes":
+            dacrt.Scene([(v, f)]).with_changes(vertices={0: big})
+        else:
+            dacrt.Scene([(v, f)], vertices_end=[big])
+    assert "1e+39" in str(info.value) and not re.search(r"\binf\b", str(info.value))
+
+
+@pytest.mark.parametrize("vertices", [[], np.empty(0), np.empty((0, 3), np.float32)])
+def test_an_empty_mesh_may_be_given_as_empty_lists(vertices):
+    """No vertices written as ``[]`` is an empty mesh, as ``faces=[]`` is no faces."""
+    scene = dacrt.Scene([(vertices, []), pg.single_triangle()])
+    assert scene.n_triangles == 1 and scene.mesh_offsets.tolist() == [0, 0, 1]
+    origins, directions = np.float32([[0.25, 0.25, 1.0]]), np.float32([[0.0, 0.0, -1.0]])
+    hit = scene.closest(origins, directions)
+    assert hit.mesh.tolist() == [1] and hit.t.tolist() == [1.0]
+    moved = scene.with_changes(vertices={0: []}, vertices_end={0: []})
+    assert moved.closest(origins, directions).mesh.tolist() == [1]

@@ -492,3 +492,38 @@ def test_a_chain_of_random_changes_answers_as_new_scenes(seed):
         for time in (None, times):
             got = _queries(scene, o, d, mask=ray_masks, time=time)
             assert_same_answers(got, _queries(fresh, o, d, mask=ray_masks, time=time), what)
+
+
+def _placed_box(vertices, faces, matrix):
+    """(2, 3) float32: the box of the corners ``faces`` refer to, placed by ``matrix`` in
+    float64 then rounded, as plain NumPy."""
+    used = vertices[np.unique(faces)].astype(np.float64)
+    placed = (used @ matrix[:3, :3].T + matrix[:3, 3]).astype(np.float32)
+    return np.array([placed.min(axis=0), placed.max(axis=0)])
+
+
+def test_writes_to_the_callers_arrays_after_a_scene_is_built_change_none_of_its_answers():
+    """A Scene keeps arrays of its own, also of those given in the kernels' layout (float32
+    vertices, int32 faces, C-contiguous and writable): a caller that reuses its buffers changes
+    neither ``bounds`` (derived on first use) nor what ``with_changes`` packs again from the
+    faces as given."""
+    v, f = pg.triangle_soup(200, np.random.default_rng(33))
+    matrix = affine(pg.rotation([0.0, 0.0, 1.0], 0.3), (5.0, 0.0, 0.0))
+    given_v, given_f = v.copy(), f.copy()
+    # a placed mesh (its bounds read its vertices) and the same arrays as given (the base level)
+    scene = dacrt.Scene([(given_v, given_f), (given_v, given_f)], transforms=[matrix, None])
+    o, d = _rays([(v, f), (v, f)], [matrix, None], n=600, seed=34)
+    before = scene.closest(o, d)
+    given_v += np.float32(100.0)
+    given_f[:] = given_f[::-1]
+    expected = _placed_box(v, f, matrix)
+    expected = np.array([np.minimum(expected[0], v.min(axis=0)), np.maximum(expected[1], v.max(0))])
+    np.testing.assert_array_equal(scene.bounds, expected)
+    fresh = dacrt.Scene([(v, f), (v, f)], transforms=[matrix, None])
+    np.testing.assert_array_equal(scene.bounds, fresh.bounds)
+    # the same vertex values again, for each mesh: the faces are still those given
+    new = scene.with_changes(vertices={0: v.copy(), 1: v.copy()})
+    masks = np.ones(len(o), np.uint32)
+    assert_same_answers(_all_queries(new, o, d, masks), _all_queries(fresh, o, d, masks), "new")
+    for name in ("t", "mesh", "prim", "u", "v", "normal"):
+        np.testing.assert_array_equal(getattr(new.closest(o, d), name), getattr(before, name))
