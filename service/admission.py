@@ -64,6 +64,14 @@ class Ticket:
         in the caller's terms (``"1048576 rays of closest as npz"``)."""
         await self.admission.resize(self, int(nbytes), what)
 
+    def check(self, nbytes: int, what: str) -> None:
+        """413 if ``nbytes`` exceed the whole budget, without holding them."""
+        self.admission.check(int(nbytes), what)
+
+    def shrink(self, nbytes: int) -> None:
+        """Hold only ``nbytes`` (no more than it holds) from now on."""
+        self.admission.resize_now(self, min(int(nbytes), self.nbytes))
+
     def release(self) -> None:
         self.admission.resize_now(self, 0)
 
@@ -86,12 +94,7 @@ class Admission:
         if extra <= 0:
             self.resize_now(ticket, nbytes)
             return
-        if nbytes > self.budget:
-            raise TooLarge(
-                f"{what} would hold about {amount(nbytes)} of server memory, over the budget of "
-                f"{amount(self.budget)} for all requests in flight (DACRT_MAX_INFLIGHT_BYTES); "
-                "send it in smaller batches (or .npy/.npz rather than JSON)"
-            )
+        self.check(nbytes, what)
         fits = self.held + extra <= self.budget
         if fits and (not self._line or extra <= min(SMALL_BYTES, self.budget // 64)):
             self.resize_now(ticket, nbytes)
@@ -117,6 +120,15 @@ class Admission:
             self._line.remove(turn)
             self._wake()
         self.resize_now(ticket, nbytes)
+
+    def check(self, nbytes: int, what: str) -> None:
+        """413 if ``nbytes`` exceed the whole budget: they would never be admitted."""
+        if nbytes > self.budget:
+            raise TooLarge(
+                f"{what} would hold about {amount(nbytes)} of server memory, over the budget of "
+                f"{amount(self.budget)} for all requests in flight (DACRT_MAX_INFLIGHT_BYTES); "
+                "send it in smaller batches (or .npy/.npz rather than JSON)"
+            )
 
     def resize_now(self, ticket: Ticket, nbytes: int) -> None:
         """Change a ticket's bytes without waiting (a release, or bytes known to fit)."""

@@ -3,6 +3,7 @@ readiness) as ``Annotated`` dependencies, the bearer token, bounded body reading
 
 from __future__ import annotations
 
+import asyncio
 import difflib
 import secrets
 import threading
@@ -138,8 +139,13 @@ def query_parameters(route: APIRoute) -> tuple[str, ...]:
     return tuple(names)
 
 
-#: Body bytes a ticket grows by at a time while a body of unknown length (chunked) arrives.
-UNKNOWN_LENGTH_STEP = 8 * 2**20
+#: A body whose Content-Length is known holds its whole estimate while it arrives at least this
+#: fast (bytes a second), give or take BODY_STEP bytes ...
+RESERVED_BODY_RATE = 8 * 2**20
+#: ... and once it falls behind (a slow or stalled client), the bytes it has received and this
+#: many more, growing as the rest arrives, as a body of unknown length (chunked) does from its
+#: start. A huge page: what a partly filled ``wire.BodyBuffer`` may take beyond its bytes.
+BODY_STEP = 2 * 2**20
 
 #: The peak bytes of a request whose body has this many bytes, in this format (None: not known
 #: from Content-Type yet): ``service.footprint``'s estimates.
@@ -148,9 +154,10 @@ Estimate = Callable[[int, str | None], int]
 
 async def read_body(request: Request, limit: int, estimate: Estimate) -> memoryview:
     """The whole body (a read-only ``wire.BodyBuffer``), refused (413) as soon as it is known to
-    exceed ``limit``, DACRT_MAX_BODY_BYTES. Before a byte is read, the request's ticket holds
-    ``estimate(length, format)`` bytes of the in-flight budget (``service.admission``); a body
-    of unknown length holds more as it arrives."""
+    exceed ``limit``, DACRT_MAX_BODY_BYTES, or its ``estimate(length, format)`` the whole
+    in-flight budget (``service.admission``). Before a byte is read, the request's ticket holds
+    the estimate of the length Content-Length declares, until the body falls behind
+    RESERVED_BODY_RATE (``BodyHold``); the caller holds the estimate again once it is whole."""
     check_codings(request)
     declared = request.headers.get("content-length")
     expected = int(declared) if declared is not None and declared.isdigit() else None
@@ -158,22 +165,74 @@ async def read_body(request: Request, limit: int, estimate: Estimate) -> memoryv
         raise TooLarge(
             f"body of {expected} bytes is over the limit of {limit} bytes (DACRT_MAX_BODY_BYTES)"
         )
-    ticket: Ticket = request.state.ticket
     fmt = wire.declared_format(request.headers.get("content-type"))
-    what = f"{request.method} {request.url.path} with a body of {{}} bytes"
-    held = expected if expected is not None else UNKNOWN_LENGTH_STEP
-    await ticket.hold(estimate(held, fmt), what.format(held))
-    body = BodyBuffer(expected)
-    async for chunk in request.stream():
-        if body.size + len(chunk) > limit:
-            raise TooLarge(f"body is over the limit of {limit} bytes (DACRT_MAX_BODY_BYTES)")
-        if body.size + len(chunk) > held:
-            held = body.size + len(chunk) + UNKNOWN_LENGTH_STEP
-            await ticket.hold(estimate(held, fmt), what.format(held))
-        body.add(chunk)
+    hold = BodyHold(request, expected if expected is not None else limit)
+    if expected is not None:
+        await hold.reserve(estimate(expected, fmt))
+    try:
+        body = BodyBuffer(expected)
+        async for chunk in request.stream():
+            size = body.size + len(chunk)
+            if size > limit:
+                raise TooLarge(f"body is over the limit of {limit} bytes (DACRT_MAX_BODY_BYTES)")
+            if size > hold.covered:
+                await hold.grow(size, estimate(size, fmt))
+            body.add(chunk)
+            hold.received = body.size
+    finally:
+        hold.stop_watching()
     if expected is not None and body.size != expected:
         raise BadBody(f"body ended after {body.size} of its {expected} bytes (Content-Length)")
     return body.finish()
+
+
+class BodyHold:
+    """What a request's ticket holds while its body arrives: the estimate of the whole body
+    (``reserve``) while it arrives at RESERVED_BODY_RATE or faster, else the bytes received
+    and BODY_STEP more (``grow``). A client that sends its body slowly, or stalls, keeps no
+    more of the budget than what it has sent."""
+
+    def __init__(self, request: Request, most: int) -> None:
+        self.ticket: Ticket = request.state.ticket
+        self.route = f"{request.method} {request.url.path}"
+        self.most = most  #: the body's Content-Length, or else DACRT_MAX_BODY_BYTES
+        self.received = 0  #: body bytes received
+        self.covered = 0  #: body bytes that what the ticket holds covers
+        self._start = 0.0
+        self._watch: asyncio.TimerHandle | None = None
+
+    async def reserve(self, whole: int) -> None:
+        """Hold ``whole``, the whole body's estimate (waiting in line), then watch its pace."""
+        await self.ticket.hold(whole, f"{self.route} with a body of {self.most} bytes")
+        self.covered = self.most
+        loop = asyncio.get_running_loop()
+        self._start = loop.time()
+        self._watch = loop.call_at(self._due(), self._check_pace)
+
+    async def grow(self, size: int, estimate: int) -> None:
+        """Hold ``size`` received bytes and BODY_STEP more (413 once the estimate of ``size``
+        bytes exceeds the budget)."""
+        what = f"{self.route} with a body of {size} bytes so far"
+        self.ticket.check(estimate, what)
+        self.covered = min(size + BODY_STEP, self.most)
+        await self.ticket.hold(self.covered, what)
+
+    def stop_watching(self) -> None:
+        if self._watch is not None:
+            self._watch.cancel()
+
+    def _due(self) -> float:
+        """When the body falls behind RESERVED_BODY_RATE if no more of it arrives."""
+        return self._start + (self.received + BODY_STEP) / RESERVED_BODY_RATE
+
+    def _check_pace(self) -> None:
+        loop = asyncio.get_running_loop()
+        if loop.time() < self._due():
+            self._watch = loop.call_at(self._due(), self._check_pace)
+            return
+        self._watch = None
+        self.covered = min(self.received + BODY_STEP, self.most)
+        self.ticket.shrink(self.covered)
 
 
 def check_codings(request: Request) -> None:

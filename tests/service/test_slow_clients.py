@@ -1,15 +1,17 @@
 """Slow and stalled clients are cut off, connections beyond the bounds are refused, and /health and
 /metrics answer whatever the other clients hold.
 
-Two servers of their own: ``stalls`` with short deadlines (DACRT_HEADER_TIMEOUT,
+Three servers of their own: ``stalls`` with short deadlines (DACRT_HEADER_TIMEOUT,
 DACRT_BODY_IDLE_TIMEOUT, DACRT_BODY_TIMEOUT), where raw sockets play the stalling clients, all at
 once; ``bounds`` with a small DACRT_MAX_CONNECTIONS and DACRT_MAX_CONNECTIONS_PER_CLIENT, where
 idle sockets from other loopback addresses (127.0.0.2, ...: all of 127/8 is loopback on Linux) fill
-the bounds.
+the bounds; ``budget`` with a small DACRT_MAX_INFLIGHT_BYTES, where a slow body declares a large
+Content-Length.
 """
 
 from __future__ import annotations
 
+import io
 import socket
 import threading
 import time
@@ -19,12 +21,17 @@ from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 
 import httpx
+import numpy as np
 import pytest
 from server_process import ServerProcess
 from service_helpers import metric_sample
 
+from service.deps import BODY_STEP
+
 HEADER_TIMEOUT, BODY_IDLE_TIMEOUT, BODY_TIMEOUT = 1.0, 1.5, 3.0
 MAX_CONNECTIONS, MAX_PER_CLIENT = 8, 4  # of the ``bounds`` server
+MiB = 2**20
+BUDGET = 64 * MiB  # of the ``budget`` server
 STALLED_BODIES = 100  # the ``stalls`` server keeps the default DACRT_MAX_CONNECTIONS, 100
 MARGIN = 1.0  # seconds a cut-off may come after its deadline on a busy machine
 GIVE_UP = 7.0  # a client still connected after this long was never cut off
@@ -50,6 +57,7 @@ def servers():
                 "DACRT_MAX_CONNECTIONS_PER_CLIENT": str(MAX_PER_CLIENT),
             }
         ),
+        "budget": ServerProcess({"DACRT_MAX_INFLIGHT_BYTES": str(BUDGET)}),
     }
     try:
         for process in processes.values():  # they warm up side by side
@@ -314,3 +322,45 @@ def test_connections_per_client_address_are_bounded(bounded):
             assert crowded.get(f"{bounded}/health").status_code == 200
             assert other.get(f"{bounded}/v1/scenes").status_code == 200
         first(lambda: crowded.get(f"{bounded}/v1/scenes"), 200)
+
+
+def test_a_slow_body_holds_what_it_has_sent_not_its_declared_length(servers):
+    """A client declares a JSON body whose estimate (17 x its length, for parsing) is nearly the
+    whole budget, sends a few bytes of it and stalls: it keeps only those bytes and a step, and a
+    one-ray lidar, which needs 16 MiB for its JSON answer, is served beside it."""
+    url = servers["budget"].url
+    ground = np.array([[-50, -50, 0], [50, -50, 0], [50, 50, 0], [-50, 50, 0]], np.float32)
+    buffer = io.BytesIO()
+    np.savez(buffer, vertices=ground, faces=np.array([[0, 1, 2], [0, 2, 3]], np.int32))
+    put = httpx.put(
+        f"{url}/v1/scenes/slow/meshes/ground",
+        content=buffer.getvalue(),
+        headers={"content-type": "application/x-npz"},
+    )
+    assert put.status_code in (200, 201), put.text
+    declared, sent = int(3.5 * MiB), b'{"sensors": {'  # its estimate: 59.5 MiB of the 64
+    host, port = url.removeprefix("http://").split(":")
+    with socket.create_connection((host, int(port))) as slow:
+        slow.sendall(
+            b"POST /v1/scenes/slow/sensors HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            b"Content-Type: application/json\r\n"
+            + f"Content-Length: {declared}\r\n\r\n".encode()
+            + sent
+        )
+        deadline = time.monotonic() + WAIT
+        while inflight(url) == 0:  # until the server has the slow request
+            assert time.monotonic() < deadline, "the slow request never arrived"
+            time.sleep(0.05)
+        pose = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.5], [0, 0, 0, 1]]
+        lidar = {"pose": pose, "vertical_angles_deg": [-10.0], "horizontal_steps": 1}
+        answer = httpx.post(f"{url}/v1/scenes/slow/lidar", json=lidar, timeout=30)
+        assert answer.status_code == 200, answer.text
+        # 0.5 above the ground, 10 degrees down: the ground is 0.5 / sin(10 deg) away
+        assert np.allclose(answer.json()["range"], [0.5 / np.sin(np.radians(10))], rtol=1e-5)
+        held = inflight(url)  # the slow body's alone, still in flight
+        assert BODY_STEP <= held <= len(sent) + BODY_STEP, f"{held / MiB:.1f} MiB held"
+
+
+def inflight(url: str) -> float:
+    """Bytes the requests in flight hold (/metrics)."""
+    return metric_sample(httpx.get(f"{url}/metrics", timeout=5).text, "dacrt_inflight_bytes")
