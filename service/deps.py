@@ -251,16 +251,22 @@ def check_codings(request: Request) -> None:
         )
 
 
+#: Formats whose body is (or holds) JSON text, parsed whole.
+JSON_TEXT = ("json", "glb")
+
+
 async def hold_decoding(
     request: Request, body: memoryview, fmt: str, estimate: Estimate, max_bytes: int
 ) -> int:
     """Hold the request's ticket at ``estimate`` for the body in the format it turned out to be
-    in, with what an .npz's deflated members declare they inflate to, before any is inflated;
-    those inflated bytes (0 for other formats)."""
+    in, with what an .npz's deflated members declare they inflate to, before any is inflated,
+    and what a JSON body's structure may take beyond the estimate, before it is parsed; those
+    inflated bytes (0 for other formats)."""
     inflated = await run_sync(wire.inflated_bytes, body, max_bytes) if fmt == "npz" else 0
+    structure = await run_sync(footprint.structure_bytes, body, fmt) if fmt in JSON_TEXT else 0
     ticket: Ticket = request.state.ticket
     what = f"{request.method} {request.url.path} with a {fmt} body of {len(body)} bytes"
-    await ticket.hold(estimate(len(body), fmt) + inflated, what)
+    await ticket.hold(estimate(len(body), fmt) + inflated + structure, what)
     return inflated
 
 

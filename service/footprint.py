@@ -9,6 +9,8 @@ many times its text), and what the work and the answer hold per ray, pixel or hi
 
 from __future__ import annotations
 
+import numpy as np
+
 from dacrt.points import vote_rays_at_once
 
 #: Bytes per ray of a query's work beyond its body: the checked copies of origins, directions,
@@ -60,6 +62,18 @@ MESH_FILE_FACTOR = 20
 #: (measured 14-24.5 with tracemalloc, 9-37 as a server's RSS, which holds the body's copies
 #: too; a binary PLY read by trimesh less).
 MESH_TEXT_FACTOR = 47
+#: A bound of JSON parsing's peak by the body's structure, for the bodies dense in containers and
+#: keys that JSON_PARSE_FACTOR does not cover (``[[{}],...]`` peaks at 33 x its bytes): bytes per
+#: body byte (a number, measured 8.3-9.1) ...
+JSON_TEXT_BYTES = 11
+#: ... per ``"`` (half a string's object and slot: ``"ab"`` measured 64.5) ...
+JSON_QUOTE_BYTES = 32
+#: ... per ``[`` (a list and its slot, measured 64 for one of ``[[[[]]]]``) ...
+JSON_LIST_BYTES = 64
+#: ... per ``{`` (a dict and the pairs the key check builds, measured 76 for ``{}``) ...
+JSON_OBJECT_BYTES = 128
+#: ... and per ``:`` (a key's entry and its value's slot, measured 55-102 for ``"":0``).
+JSON_KEY_BYTES = 96
 #: Peak bytes per body byte of a binary (npy, npz) array body: the body and owned copies.
 ARRAY_FACTOR = 2
 #: Bytes held by a JSON answer while it is written: it is written in pieces of this many bytes of
@@ -95,6 +109,24 @@ def decode_bytes(n_body: int, fmt: str | None) -> int:
     if fmt in ("stl", "glb"):
         return n_body * (1 + MESH_FILE_FACTOR)
     return n_body * ARRAY_FACTOR
+
+
+def structure_bytes(body, fmt: str) -> int:
+    """Bytes that parsing a JSON body (or a GLB's JSON chunk, counted over the whole file) may
+    hold beyond ``decode_bytes``' estimate: what its lists, objects and keys take beyond the
+    text's factor (0 for other formats and for bodies not dense in them)."""
+    factor = {"json": JSON_PARSE_FACTOR, "glb": MESH_FILE_FACTOR}.get(fmt)
+    if factor is None:
+        return 0
+    text = np.frombuffer(body, np.uint8)
+    peak = (
+        JSON_TEXT_BYTES * len(text)
+        + JSON_QUOTE_BYTES * int(np.count_nonzero(text == ord('"')))
+        + JSON_LIST_BYTES * int(np.count_nonzero(text == ord("[")))
+        + JSON_OBJECT_BYTES * int(np.count_nonzero(text == ord("{")))
+        + JSON_KEY_BYTES * int(np.count_nonzero(text == ord(":")))
+    )
+    return max(0, peak - factor * len(text))
 
 
 def frame_bytes(n_body: int, fmt: str | None, n_meshes: int, max_meshes: int) -> int:

@@ -248,6 +248,57 @@ def test_a_compressed_npz_is_held_at_what_it_inflates_to_before_inflating(
     assert peak < 16 * MiB, f"{peak / MiB:.0f} MiB allocated"
 
 
+#: JSON dense in lists, objects and keys, the most its text's factor undercounts (33 x its
+#: bytes against 17 x), and the plain ray bodies clients send.
+DENSE_JSON = ["[{}]", '{"":{}}', "[[[[]]]]", '{"":0}', "[]", '"ab"', "1e1"]
+PLAIN_JSON = ["[0.5,-1.25,3]", "[12.345678,-0.000123,98765.4321]"]
+
+
+@pytest.mark.parametrize("item", DENSE_JSON + PLAIN_JSON)
+def test_a_json_body_parses_within_what_is_held_for_it(item):
+    """``decode_bytes`` and ``structure_bytes`` together bound the parse's peak (tracemalloc)
+    for bodies of every shape; a plain body of rays adds nothing to ``decode_bytes``."""
+    from service.wire.decoders import parse_json
+
+    body = ('{"origins":[' + ",".join([item] * 200_000) + "]}").encode()
+    held = footprint.decode_bytes(len(body), "json") + footprint.structure_bytes(body, "json")
+    tracemalloc.start()
+    try:
+        parse_json(body, "body")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < held, f"{item}: {peak / len(body):.1f} x the body, held {held / len(body):.1f}"
+    if item in PLAIN_JSON:
+        assert footprint.structure_bytes(body, "json") == 0
+
+
+@pytest.mark.parametrize(
+    "method, path",
+    [
+        ("POST", "/v1/trace"),
+        ("PUT", "/v1/scenes/dense/meshes/m"),
+        ("POST", "/v1/scenes/dense/frame"),
+    ],
+)
+def test_a_json_body_dense_in_containers_is_held_at_its_parse_before_parsing(
+    small_budget_app, method, path
+):
+    """2.5 MB of ``[{}]`` rows (17 x its bytes fit the 64 MiB budget, its parse does not):
+    413 naming the budget, without parsing it."""
+    body = ('{"origins":[' + ",".join(["[{}]"] * 500_000) + "]}").encode()
+    assert footprint.decode_bytes(len(body), "json") < 64 * MiB
+    tracemalloc.start()
+    try:
+        answer = small_budget_app.request(method, path, content=body, headers=JSON)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert answer.status_code == 413, answer.text
+    assert "DACRT_MAX_INFLIGHT_BYTES" in answer.json()["detail"]
+    assert peak < 16 * MiB, f"{peak / MiB:.0f} MiB allocated"
+
+
 def test_a_frame_of_the_most_meshes_and_its_scene_list_are_held_at_their_peak(small_budget_app):
     """A JSON frame of DACRT_MAX_MESHES_PER_SCENE instances, then the scene's info: each
     allocates less than it holds; one mesh more is 413 naming the setting, and changes nothing."""
