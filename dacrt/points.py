@@ -8,8 +8,8 @@ it a radius before any partition. Then, per chunk of points (neighbours on the M
 one explicit-stack loop over nodes: a node is a range of triangle ids, a range of point ids and
 the triangles' box; popping a node keeps the points whose distance to the box is within their
 radius, then brute-forces the node or splits its triangles at the middle and pushes both
-children, the one nearer the points on top. Leaves measure each pair exactly
-(``closest_on_triangle``, in float64). The answer of a point does not depend on the chunks,
+children, the one nearer the points on top. Leaves measure each pair in float64
+(``closest_on_triangle``). The answer of a point does not depend on the chunks,
 the seeds or the order of visits: the least squared distance, ties to the lowest global
 triangle id.
 
@@ -80,9 +80,48 @@ row_masks : (F,) uint32, each row's mesh mask
 MORTON_BITS = 10
 # Global id of "no triangle" in the kernels' tie rule: above every real id.
 NO_TRIANGLE = np.iinfo(np.int32).max
+# sin^2 of the angle at a triangle's first corner below which its plane's normal is formed
+# with exact products (the angle below 14.5 or above 165.5 degrees), where a float64 cross
+# product would cancel.
+THIN_SIN2 = 1.0 / 16.0
 
 
-# ---- Exact point-triangle distance
+# ---- Point-triangle distance
+
+
+@inline
+def split_halves(x):
+    """x (float64) as hi + lo, each with at most 26 significant bits (Veltkamp's split), so
+    that products of halves are exact in float64."""
+    t = 134217729.0 * x  # 2^27 + 1
+    hi = t - (t - x)
+    return hi, x - hi
+
+
+@inline
+def difference_of_products(a, b, c, d):
+    """a*b - c*d in float64 with the products kept exact (Dekker's product, no FMA): a
+    cancellation between them loses nothing, and the result is within an ulp or so."""
+    ah, al = split_halves(a)
+    bh, bl = split_halves(b)
+    ch, cl = split_halves(c)
+    dh, dl = split_halves(d)
+    first = a * b
+    first_lo = ((ah * bh - first) + ah * bl + al * bh) + al * bl
+    second = c * d
+    second_lo = ((ch * dh - second) + ch * dl + cl * dh) + cl * dl
+    return (first - second) + (first_lo - second_lo)
+
+
+@inline
+def accurate_cross(ux, uy, uz, vx, vy, vz):
+    """u x v (float64), each component within an ulp or so however thin the angle between u
+    and v (``difference_of_products``)."""
+    return (
+        difference_of_products(uy, vz, uz, vy),
+        difference_of_products(uz, vx, ux, vz),
+        difference_of_products(ux, vy, uy, vx),
+    )
 
 
 @inline
@@ -113,7 +152,10 @@ def closest_on_triangle(px, py, pz, verts, row):
 
     Ericson's region test (Real-Time Collision Detection, 5.1.5) picks the vertex, edge or face
     region of p; an edge is measured by ``closest_on_edge``, the face by the distance to the
-    plane, which is 0 exactly for a point on an axis-aligned face."""
+    plane, which is 0 exactly for a point on an axis-aligned face. The plane's normal is the
+    cross product of the edges at p0, or where its angle is near 0 or 180 degrees that of the
+    edges at the largest angle with exact products (``accurate_cross``): a thin triangle's
+    face distance is as accurate as any other's."""
     ax = np.float64(verts[row, 0])
     ay = np.float64(verts[row, 1])
     az = np.float64(verts[row, 2])
@@ -162,12 +204,31 @@ def closest_on_triangle(px, py, pz, verts, row):
     if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:  # edge bc
         e2, s, qx, qy, qz = closest_on_edge(px, py, pz, bx, by, bz, cx, cy, cz)
         return e2, 1.0 - s, s, qx, qy, qz
-    # Face: the distance to the plane, and p moved onto it.
+    # Face: the distance to the plane. Its normal (b - a) x (c - a) cancels where the angle
+    # at a is near 0 or 180 degrees (a thin triangle): then it is taken at the largest angle
+    # (opposite the longest edge), from the best-conditioned pair of edges, with exact products.
     nx = aby * acz - abz * acy
     ny = abz * acx - abx * acz
     nz = abx * acy - aby * acx
     nn = nx * nx + ny * ny + nz * nz
-    along = (nx * apx + ny * apy + nz * apz) / nn
+    ab2 = abx * abx + aby * aby + abz * abz
+    ac2 = acx * acx + acy * acy + acz * acz
+    wpx, wpy, wpz = apx, apy, apz
+    if nn < THIN_SIN2 * ab2 * ac2:
+        bcx = cx - bx
+        bcy = cy - by
+        bcz = cz - bz
+        bc2 = bcx * bcx + bcy * bcy + bcz * bcz
+        if bc2 >= ab2 and bc2 >= ac2:  # at a: (b - a) x (c - a)
+            nx, ny, nz = accurate_cross(abx, aby, abz, acx, acy, acz)
+        elif ac2 >= ab2:  # at b: (c - b) x (a - b), the same orientation
+            nx, ny, nz = accurate_cross(bcx, bcy, bcz, -abx, -aby, -abz)
+            wpx, wpy, wpz = bpx, bpy, bpz
+        else:  # at c: (a - c) x (b - c)
+            nx, ny, nz = accurate_cross(-acx, -acy, -acz, -bcx, -bcy, -bcz)
+            wpx, wpy, wpz = cpx, cpy, cpz
+        nn = nx * nx + ny * ny + nz * nz
+    along = (nx * wpx + ny * wpy + nz * wpz) / nn
     total = va + vb + vc
     return (
         along * along * nn,

@@ -1072,8 +1072,9 @@ class Scene:
         max_distance : None (no limit) or a number >= 0: a point farther from every triangle
             gets none (distance inf, prim -1)
         mask, threads : as for ``closest``; every thread count gives the same answers
-        Returns ``Nearest``; the distance is exact in float64, then rounded to float32, and ties
-        go to the lowest (mesh, triangle)."""
+        Returns ``Nearest``; the distance is measured in float64 (a thin triangle's face as
+        accurately as any other's), then rounded to float32, and ties go to the lowest (mesh,
+        triangle)."""
         return point_queries.nearest_query(self, points, max_distance, mask, threads, stats)
 
     def contains(

@@ -36,10 +36,11 @@ Any object with the four ray methods of ``EngineBackend`` can answer for the mes
 ``service.intersector`` sends them to a server); ``ProximityQuery`` also asks ``nearest``.
 
 ``ProximityQuery`` has trimesh's ``on_surface``, ``signed_distance`` and ``vertex``: the closest
-point by ``Scene.nearest`` (exact in float64 for the point rounded to float32; ties to the lowest
-triangle, where trimesh takes any; a degenerate triangle, of no area, is never the closest), and
-trimesh's sign convention (positive inside, by ``RayMeshIntersector.contains_points``; a point
-on the surface, as far as its rounding to float32 can tell, is positive). ``vertex`` is trimesh's
+point by ``Scene.nearest`` (measured in float64 for the point rounded to float32; ties to the
+lowest triangle, where trimesh takes any; a degenerate triangle, of no area, is never the
+closest), and trimesh's sign convention (positive inside, by
+``RayMeshIntersector.contains_points``; a point on the surface, as far as its rounding to
+float32 can tell, is positive). ``vertex`` is trimesh's
 own (a KD-tree of the vertices, which needs scipy).
 """
 

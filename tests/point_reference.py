@@ -4,7 +4,9 @@ Imports nothing from ``dacrt``. Every point is measured against every triangle i
 blocks of points x triangles so that memory stays bounded. The distance to a triangle is the
 least of the distance to its plane (where the point projects inside it) and the distances to its
 three edges as segments: no region test, so it shares no code path with the engine's.
-Conventions follow the engine contract (docs/engine-api.md):
+:func:`exact_face_distance` measures one point against one triangle's plane in rational
+arithmetic, for the accuracy of thin triangles. Conventions follow the engine contract
+(docs/engine-api.md):
 
 - degenerate (zero-area) triangles are never the answer;
 - the distance is ``inf`` and ``prim`` ``-1`` where no triangle is within ``max_distance``;
@@ -16,6 +18,7 @@ Conventions follow the engine contract (docs/engine-api.md):
 
 from __future__ import annotations
 
+from fractions import Fraction
 from typing import NamedTuple
 
 import numpy as np
@@ -108,3 +111,31 @@ def point_on_face(vertices, faces, prim, u, v) -> np.ndarray:
     u = np.asarray(u, dtype=np.float64)[:, None]
     v = np.asarray(v, dtype=np.float64)[:, None]
     return (1 - u - v) * corners[:, 0] + u * corners[:, 1] + v * corners[:, 2]
+
+
+def exact_face_distance(point, corners):
+    """The distance from ``point`` (3,) to the plane of ``corners`` (3, 3), and the barycentric
+    weights (3,) of the point's projection onto it, in rational arithmetic on the values as
+    float64: the squared distance is exact, rounded to float64 before its square root. A weight
+    below 0 means the projection lies outside the triangle, whose closest part is then not the
+    plane."""
+    p, a, b, c = ([Fraction(float(x)) for x in v] for v in (point, *corners))
+
+    def sub(x, y):
+        return [x[k] - y[k] for k in range(3)]
+
+    def dot(x, y):
+        return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
+
+    def cross(x, y):
+        return [x[1] * y[2] - x[2] * y[1], x[2] * y[0] - x[0] * y[2], x[0] * y[1] - x[1] * y[0]]
+
+    normal = cross(sub(b, a), sub(c, a))
+    area2 = dot(normal, normal)
+    offset = dot(normal, sub(p, a))
+    # The projection's weights: each sub-triangle's signed area over the whole.
+    weights = [
+        dot(cross(sub(y, p), sub(z, p)), normal) / area2 for y, z in ((b, c), (c, a), (a, b))
+    ]
+    distance = float(offset * offset / area2) ** 0.5
+    return distance, np.array([float(w) for w in weights])

@@ -1,10 +1,12 @@
 """``Scene.nearest``, ``contains`` and ``signed_distance`` against the numpy brute force
 (``point_reference``), the exact crossing count (``reference.count``), trimesh and Open3D.
 
-The engine's distance is exact in float64 and then rounded to float32; the reference measures
+The engine's distance is measured in float64 and then rounded to float32; the reference measures
 by another method in float64, so distances agree to float32 rounding and the engine's face is
 one of the reference's within a tolerance of the least distance. Where the geometry is dyadic
-(an axis-aligned grid) both are exact, and a tie must go to the lowest face.
+(an axis-aligned grid) both are exact, and a tie must go to the lowest face. On thin triangles
+the face distance is checked against exact rational arithmetic
+(``point_reference.exact_face_distance``).
 """
 
 from __future__ import annotations
@@ -513,3 +515,61 @@ def test_closed_shared_scene_against_trimesh_and_open3d(name, load_shared):
     their_sign = open3d_points.signed_distance(rival, points, nsamples=3)
     signed = scene.signed_distance(points, 3)
     np.testing.assert_array_equal(signed[apart] < 0, their_sign[apart] < 0)
+
+
+def _thin_triangles(kind, n, rng):
+    """(n, 3, 3) float32 triangles of unit size whose third corner lies within 1e-6 of the line
+    of the others: near its middle (``cap``, an angle near 180 degrees) or next to the second
+    corner (``needle``, two long edges and a short one)."""
+    a, b = rng.uniform(-1, 1, (2, n, 3))
+    if kind == "cap":
+        c = a + (b - a) * rng.uniform(0.1, 0.9, (n, 1)) + rng.normal(0, 1e-6, (n, 3))
+    else:
+        c = b + rng.normal(0, 1e-6, (n, 3))
+    return np.stack([a, b, c], axis=1).astype(np.float32)
+
+
+# A sliver of unit size 1e-6 high and a point 1e-7 off its face, where a normal taken at the
+# corner of a small angle cancels.
+SLIVER = np.array(
+    [
+        [0.7916008830070496, 0.7952451705932617, 0.01469050720334053],
+        [-0.7664663195610046, -0.8265353441238403, 0.9378830194473267],
+        [0.012567698024213314, -0.015644792467355728, 0.47628602385520935],
+    ],
+    np.float32,
+)
+SLIVER_POINT = np.array(
+    [0.012567495927214622, -0.01564505137503147, 0.47628653049468994], np.float32
+)
+
+
+@pytest.mark.parametrize("kind", ["sliver", "cap", "needle"])
+def test_a_thin_triangles_face_distance_is_accurate(kind):
+    """The distance to a thin triangle's face is the exact (rational) one to float64 rounding
+    of the triangle's size, then rounded to float32, as for any other triangle: points 1e-9 to
+    1e-3 off the face of triangles 1e-6 high, their projections well inside the face."""
+    rng = np.random.default_rng(41)
+    if kind == "sliver":
+        triangles, points = SLIVER[None], SLIVER_POINT[None]
+    else:
+        triangles = _thin_triangles(kind, 60, rng)
+        corners = triangles.astype(np.float64)
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        weights = rng.dirichlet([4, 4, 4], len(triangles))
+        offsets = rng.choice([1e-9, 1e-7, 1e-5, 1e-3], len(triangles)) * rng.choice([-1, 1])
+        inner = np.einsum("nk,nka->na", weights, corners)
+        points = (inner + offsets[:, None] * normals).astype(np.float32)
+    checked = 0
+    for corners, point in zip(triangles, points):
+        exact, weights = pr.exact_face_distance(point, corners)
+        if weights.min() < 0.01:  # float32 rounding moved the point near or past an edge
+            continue
+        found = dacrt.Scene([(corners, np.array([[0, 1, 2]]))]).nearest(point[None])
+        size = max(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1))
+        # float64 rounding of the size (2^-53 a unit), then float32 rounding of the distance.
+        bound = 3 * 2.0**-53 * (size + exact) + np.spacing(np.float32(exact)) / 2
+        assert abs(float(found.distance[0]) - exact) <= bound, (corners, point, exact)
+        checked += 1
+    assert checked >= len(triangles) * 0.8
