@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import rays as ray_gen
+from bench.entry import DASK_PRELOAD, description, kernel_cache_env, use_kernel_cache
 from bench.scene_io import load_mesh, load_view, mesh_bounds
 
 SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
@@ -62,6 +63,8 @@ def cluster(n_workers):
         processes=True,
         dashboard_address=":0",  # never a fixed port: other clusters may run
         silence_logs=logging.ERROR,
+        preload=DASK_PRELOAD,  # each worker loads the kernels from this process's folder
+        env=kernel_cache_env(),
     )
     return local, distributed.Client(local)
 
@@ -191,13 +194,15 @@ def report(rows, scenes, counts):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("--scenes", default="sibenik,sponza")
     parser.add_argument("--kinds", default="primary,random")
     parser.add_argument("--rays", default="4M,16M", help="batch sizes, e.g. 4M,16M")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--shards", default="", help="shard sizes to measure, e.g. 64K,256K,1M")
-    run(parser.parse_args(argv))
+    args = parser.parse_args(argv)
+    use_kernel_cache()
+    run(args)
 
 
 if __name__ == "__main__":

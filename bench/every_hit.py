@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from bench import rays as R
+from bench.entry import description, use_kernel_cache
 from bench.measure import median
 from bench.scene_io import load_mesh, load_view, mesh_bounds
 
@@ -57,7 +58,7 @@ def agreement(query, ours, theirs, max_hits):
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("scenes", nargs="+")
     parser.add_argument("--rays", type=int, default=1_000_000)
     parser.add_argument("--repeat", type=int, default=5)
@@ -68,6 +69,7 @@ def main(argv=None) -> int:
 
     import dacrt
 
+    use_kernel_cache()
     print("| scene | rays | query | dacrt ms | Open3D ms | Open3D / dacrt | agree |")
     print("|---|---|---|---|---|---|---|")
     for path in args.scenes:

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.entry import description, use_kernel_cache
+
 RAY_COUNTS = (131_072, 1_048_576, 4_194_304)
 CARS = 40  # the world's moving actors, as in ``bench.world``
 
@@ -116,7 +118,7 @@ def workloads(scenes: Path):
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("--scenes", type=Path, required=True, help="folder of the scenes' .npz")
     parser.add_argument("--frames", type=int, default=5, help="timed GPU frames per row")
     parser.add_argument("--cpu-frames", type=int, default=5, help="timed CPU frames per row")
@@ -130,13 +132,12 @@ def main(argv=None) -> int:
     start = time.perf_counter()
 
     import dacrt
-    import dacrt.cache
     from dacrt import cuda as dcuda
 
     if not dcuda.is_available():
         log("no CUDA GPU: nothing measured")
         return 1
-    folder = dacrt.cache.use_cache_dir()
+    folder = use_kernel_cache()
     log(f"dacrt.warmup(): {dacrt.warmup():.1f} s (kernels in {folder})")
     log("scene | triangles | rays | GPU ms/frame | CPU ms/frame | rays differing")
     for name, scene, rays_of in workloads(args.scenes):

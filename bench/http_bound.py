@@ -7,16 +7,21 @@ It answers the contract's wire formats (.npy (N, 6) rays in, .npz with all field
 one scene, any ``POST`` is a closest query on it, ``GET`` is health. No routing, no parameters,
 no checks beyond decoding, no metrics, no errors worth the name: not a service, a lower bound.
 The service's overhead can come down to this app's, not below it.
+
+At start it loads the engine's kernels from ``DACRT_CACHE_DIR`` (``bench.entry``), as the
+service does; a SIGTERM while they load ends it at once.
 """
 
 from __future__ import annotations
 
 import json
+import signal
 import time
 
 from anyio.to_thread import run_sync
 
 import dacrt
+from bench.entry import use_kernel_cache
 from bench.http_floor import read_body
 from service import wire
 
@@ -28,7 +33,13 @@ async def app(scope, receive, send):
     global _scene
     if scope["type"] == "lifespan":
         while (await receive())["type"] == "lifespan.startup":
-            dacrt.warmup()  # compiled (or loaded from Numba's cache) before the port opens
+            # uvicorn's handler would only note a SIGTERM until the start ends: nothing to undo yet
+            handler = signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            try:
+                use_kernel_cache()
+                dacrt.warmup()  # loaded (or compiled) before the port opens
+            finally:
+                signal.signal(signal.SIGTERM, handler)
             await send({"type": "lifespan.startup.complete"})
         await send({"type": "lifespan.shutdown.complete"})
         return

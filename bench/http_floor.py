@@ -33,6 +33,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 # E402: the repo root must be on sys.path (above) before the service package is imported
+from bench.entry import description  # noqa: E402
 from service.transport import PooledTransport  # noqa: E402
 from service.wire import BodyBuffer  # noqa: E402
 
@@ -168,7 +169,7 @@ def time_uvicorn(n_rays: int, repeat: int) -> dict[str, list[float]]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("--rays", type=int, default=1_000_000)
     parser.add_argument("--repeat", type=int, default=21)
     args = parser.parse_args()

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import rays as R
+from bench.entry import description, use_kernel_cache
 from bench.http_overhead import start_server
 from bench.scene_io import load_mesh, mesh_bounds
 
@@ -30,7 +31,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("scene", nargs="?", default=str(REPO.parent / "shared/scenes/sibenik.npz"))
     parser.add_argument("--rays", type=int, default=1_000_000)
     parser.add_argument("--max-hits", type=int, default=16)
@@ -41,6 +42,7 @@ def main() -> None:
     import dacrt
     from service.client import Client
 
+    use_kernel_cache()
     vertices, faces = load_mesh(args.scene)
     rays = R.random_rays(mesh_bounds(vertices, faces), args.rays, np.random.default_rng(0))
     engine = dacrt.Scene([(vertices, faces)])

@@ -24,9 +24,12 @@ With ``--frame``, also the per-frame loop of a dynamic scene, side by side in th
 from __future__ import annotations
 
 import argparse
+import ctypes
+import functools
 import importlib.util
 import os
 import platform
+import signal
 import socket
 import statistics
 import subprocess
@@ -41,6 +44,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 import dacrt  # noqa: E402
+from bench.entry import description, kernel_cache_env, use_kernel_cache  # noqa: E402
 from oracles.embree import Embree  # noqa: E402
 from service.client import Client  # noqa: E402
 
@@ -56,9 +60,27 @@ def make_rays(vertices: np.ndarray, n: int, seed: int = 0) -> tuple[np.ndarray, 
     return origins.astype(np.float32), (targets - origins).astype(np.float32)
 
 
+#: prctl's option that has Linux signal a process when the thread that started it ends
+PR_SET_PDEATHSIG = 1
+
+
+def stop_with_parent(parent: int) -> None:
+    """In a server's process before it runs: Linux kills it when ``parent`` (the thread that
+    started it) ends, so a benchmark stopped by its caller leaves no server behind."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):  # not Linux: the server outlives a killed benchmark
+        return
+    if os.getppid() != parent:  # the parent ended before prctl
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
 def start_server(
     env: dict[str, str], app: tuple[str, ...] = ("service.app:create_app", "--factory")
 ) -> tuple[subprocess.Popen, str]:
+    """A uvicorn server of ``app`` on a free loopback port, once its /health answers ok. It loads
+    dacrt's kernels from this process's folder (``bench.entry.kernel_cache_env``), and ends with
+    the thread that starts it."""
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
@@ -76,7 +98,8 @@ def start_server(
             "warning",
         ],
         cwd=REPO,
-        env={**os.environ, "PYTHONPATH": str(REPO), **env},
+        env={**os.environ, "PYTHONPATH": str(REPO), **kernel_cache_env(), **env},
+        preexec_fn=functools.partial(stop_with_parent, os.getpid()),
     )
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 300
@@ -104,7 +127,7 @@ def cpu_model() -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("scene", nargs="?", default=str(REPO / "service" / "data" / "teapot.npz"))
     parser.add_argument("--rays", type=int, default=1_000_000)
     parser.add_argument("--repeat", type=int, default=5)
@@ -129,7 +152,7 @@ def main() -> None:
         [origins, directions]
     )  # the (N, 6) body, built once, as a caller would hold it
 
-    dacrt.cache.use_cache_dir()  # the kernels compiled once per machine, not per checkout
+    use_kernel_cache()
     dacrt.warmup()
     scene = dacrt.Scene([(vertices, faces)])
     env = {"DACRT_MAX_RAYS_PER_REQUEST": str(max(args.rays, 1))}

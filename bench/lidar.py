@@ -53,6 +53,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 import dacrt  # noqa: E402
+from bench.entry import description, use_kernel_cache  # noqa: E402
 from bench.http_overhead import cpu_model, start_server  # noqa: E402
 from dacrt.sensors import Lidar, Materials  # noqa: E402
 from dacrt.sensors.lidar import make_scan  # noqa: E402
@@ -114,7 +115,7 @@ def scan_rays(pose: np.ndarray, elevations_deg, steps: int):
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     default = SHARED / "sibenik.npz"
     parser.add_argument(
         "scene",
@@ -139,6 +140,7 @@ def main() -> None:
     n_rays = len(elevations) * args.steps
     poses = frame_poses(view, args.frames + 1)
 
+    use_kernel_cache()
     dacrt.warmup()
     scene = dacrt.Scene([(vertices, faces)])
     if args.physics:

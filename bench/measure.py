@@ -121,15 +121,18 @@ def reset_peak_rss() -> bool:
         return False
 
 
-def _memory_child(spec: dict, mesh_path: str, rays_path: str) -> dict:
+def _memory_child(spec: dict, mesh_path: str, rays_path: str, kernels_in: str | None) -> dict:
     """In a fresh process: peak RSS of one build + trace above the process with its inputs
-    loaded."""
+    loaded; dacrt's kernels loaded from ``kernels_in`` (``bench.entry.use_kernel_cache``)."""
     from bench.engines import DacrtEngine, EmbreeEngine, Open3DEngine, import_dacrt
+    from bench.entry import use_kernel_cache
 
+    kernels = {}
     if spec["family"] == "dacrt":
         dacrt, reason = import_dacrt()
         if dacrt is None:
             raise RuntimeError(reason)
+        kernels["kernel_cache"] = str(use_kernel_cache(kernels_in))
         dacrt.warmup()
         engine = DacrtEngine(dacrt, spec["strategy"], spec["threads"])
     elif spec["family"] == "embree":
@@ -156,7 +159,12 @@ def _memory_child(spec: dict, mesh_path: str, rays_path: str) -> dict:
     peak_built = peak_rss_bytes()
     engine.trace(handle, payload, rays)
     peak_after = peak_rss_bytes()
+    if spec["family"] == "dacrt":
+        from dacrt import compiling
+
+        kernels["kernels_compiled"] = compiling.compiled_kernels()  # 0 where the cache held them
     return {
+        **kernels,
         "idle_rss": idle,
         "peak_before": peak_before,
         "peak_after": peak_after,
@@ -169,12 +177,18 @@ def _memory_child(spec: dict, mesh_path: str, rays_path: str) -> dict:
 
 
 def measure_memory(specs: list[dict], mesh_path: str, rays_paths: dict[str, str]) -> list[dict]:
-    """Run ``_memory_child`` for each spec, each in a new spawned process (so peaks do not mix)."""
+    """Run ``_memory_child`` for each spec, each in a new spawned process (so peaks do not mix)
+    that loads dacrt's kernels from this process's folder (``bench.entry.kernel_cache``)."""
+    from bench.entry import kernel_cache
+
+    folder = kernel_cache()
+    kernels_in = None if folder is None else str(folder)
     results = []
     for spec in specs:
         with ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn")) as pool:
             try:
-                out = pool.submit(_memory_child, spec, mesh_path, rays_paths[spec["kind"]]).result()
+                rays_path = rays_paths[spec["kind"]]
+                out = pool.submit(_memory_child, spec, mesh_path, rays_path, kernels_in).result()
             except Exception as exc:
                 out = {"error": f"{type(exc).__name__}: {exc}"}
         results.append({**spec, **out})

@@ -51,6 +51,7 @@ from pathlib import Path
 import numpy as np
 
 import dacrt
+from bench.entry import description, use_kernel_cache
 from bench.world import actor_transforms, build_world, car_mesh, find_shared, lidar_poses
 
 STEPS = 2048
@@ -199,7 +200,7 @@ def compare_hits(ours, theirs, tau, scene) -> dict:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("--triangles", type=float, default=1e6, help="static triangles")
     parser.add_argument("--actors", type=int, default=40)
     parser.add_argument("--lidars", type=int, default=8, help="131,072 rays each")
@@ -219,9 +220,7 @@ def main(argv=None) -> int:
         return 0
     if args.shared is None:
         parser.error("the shared scenes are not found: give --shared")
-    import dacrt.cache
-
-    dacrt.cache.use_cache_dir()  # compiled kernels kept between runs, as bench.world does
+    use_kernel_cache()
     embree_threads = [int(x) for x in (args.embree_threads or str(args.threads)).split(",") if x]
     world = build_world(args.shared / "scenes", int(args.triangles))
     car = car_mesh(args.shared / "scenes")

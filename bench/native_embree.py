@@ -40,6 +40,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from bench import rays as R
+from bench.entry import description, use_kernel_cache
 from bench.run import KINDS, int_list, make_ray_sets, reference_tracer
 from bench.scene_io import load_mesh, load_view, mesh_bounds
 
@@ -153,7 +154,7 @@ def agreement(ours: np.ndarray, theirs: np.ndarray, diagonal: float) -> float:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("scenes", nargs="+")
     parser.add_argument(
         "--rays", type=int_list, default=[1_000_000], help="comma list of ray counts per kind"
@@ -172,10 +173,9 @@ def main(argv=None) -> int:
         parser.error("--rays takes positive counts")
 
     import dacrt
-    import dacrt.cache
 
     baseline = load_baseline(args.baseline) if args.baseline else None
-    dacrt.cache.use_cache_dir()  # this copy's kernels; a --baseline copy keeps Numba's own rule
+    use_kernel_cache()  # this copy's kernels; a --baseline copy keeps Numba's own rule
     try:
         binary = build_anchor(args.anchor, args.build_dir)
     except AnchorUnavailable as exc:

@@ -42,6 +42,7 @@ import numpy as np
 
 import dacrt
 
+from .entry import description, use_kernel_cache
 from .rays import image_size, primary_rays
 from .scene_io import load_mesh, load_view, mesh_bounds
 from .world import build_world, find_shared, lidar_poses, lidar_rays
@@ -178,7 +179,7 @@ def table(rows) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("--scenes", default="sibenik,sponza", help="shared scenes (or none)")
     parser.add_argument("--rays", default="131072,1048576", help="batch sizes")
     parser.add_argument("--world", type=float, default=0, help="bench.world's triangles (0: no)")
@@ -190,7 +191,7 @@ def main(argv=None) -> int:
     parser.add_argument("--baseline", type=Path, default=None, help="folder of dacrt_base")
     args = parser.parse_args(argv)
     modes = args.modes.split(",")
-    dacrt.cache.use_cache_dir()  # the kernels compiled once per machine, not per checkout
+    use_kernel_cache()
     base = None
     if args.baseline:
         sys.path.insert(0, str(args.baseline))

@@ -23,6 +23,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 
+from bench.entry import description
 from bench.http_overhead import cpu_model, start_server
 
 
@@ -49,7 +50,7 @@ def npy(array: np.ndarray) -> bytes:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("--grid", type=int, default=362)
     parser.add_argument("--repeat", type=int, default=30)
     parser.add_argument("--data", default=tempfile.gettempdir(), help="where the data folder goes")

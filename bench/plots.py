@@ -33,6 +33,7 @@ import numpy as np
 
 from bench import rays as R
 from bench.engines import add_engine_arguments, available_engines
+from bench.entry import description, use_kernel_cache
 from bench.measure import build_and_trace, machine_info, median, mrays
 from bench.native_embree import (
     ANCHOR,
@@ -70,7 +71,7 @@ JSON_NAME = "plots.json"
 
 def parse_args(argv=None):
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    p = argparse.ArgumentParser(prog="python -m bench.plots", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m bench.plots", description=description(__doc__))
     p.add_argument("--out", required=True, help="directory for the PNGs and plots.json")
     p.add_argument(
         "--scene",
@@ -762,7 +763,7 @@ def measure_and_draw(args, out: Path, engines, dacrt, missing, native, started) 
         "figures": {},
     }
     if dacrt is not None:
-        dacrt.cache.use_cache_dir()  # the kernels compiled once per machine, not per checkout
+        use_kernel_cache()
         log("dacrt.warmup() ...")
         try:
             res["dacrt_warmup_s"] = float(dacrt.warmup())

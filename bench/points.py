@@ -36,6 +36,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 import dacrt  # noqa: E402
+from bench.entry import description, use_kernel_cache  # noqa: E402
 from oracles import open3d_points  # noqa: E402
 
 SHARED_SCENES = REPO.parent / "shared" / "scenes"
@@ -101,7 +102,7 @@ def measure(vertices, faces, points, threads, trimesh_points):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("--scenes", default="bunny,dragon,sibenik")
     parser.add_argument("--points", type=int, default=1_000_000)
     parser.add_argument("--threads", type=int, default=2)
@@ -110,7 +111,7 @@ def main(argv=None):
     parser.add_argument("--json", type=Path)
     parser.add_argument("--scene-dir", type=Path, default=SHARED_SCENES)
     args = parser.parse_args(argv)
-    dacrt.cache.use_cache_dir()  # the kernels compiled once per machine, not per checkout
+    use_kernel_cache()
     dacrt.warmup()
     rows = []
     for name in args.scenes.split(","):

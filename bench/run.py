@@ -23,6 +23,7 @@ import numpy as np
 
 from bench import rays as R
 from bench.engines import add_engine_arguments, available_engines
+from bench.entry import description, use_kernel_cache
 from bench.measure import (
     agreement,
     build_and_trace,
@@ -54,7 +55,7 @@ def int_list(text: str) -> list[int]:
 
 def parse_args(argv=None):
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    p = argparse.ArgumentParser(prog="python -m bench.run", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m bench.run", description=description(__doc__))
     p.add_argument("scene", help=".npz with vertices/faces, or a mesh file trimesh reads")
     p.add_argument("--rays", type=int, default=1_000_000, help="rays per kind (default 1000000)")
     p.add_argument("--kinds", default=",".join(KINDS), help="comma list of " + ",".join(KINDS))
@@ -389,7 +390,7 @@ def main(argv=None) -> int:
     for family, reason in missing.items():
         log(f"{family} not available: {reason}")
     if dacrt is not None:
-        dacrt.cache.use_cache_dir()  # the kernels compiled once per machine, not per checkout
+        use_kernel_cache()
         log("dacrt.warmup() ...")
         try:
             res["dacrt_warmup_s"] = float(dacrt.warmup())

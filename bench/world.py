@@ -68,6 +68,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.entry import description, use_kernel_cache
+
 REPO = Path(__file__).resolve().parent.parent
 LIDAR_MODEL = "HDL-64E"
 STEPS = 2048
@@ -812,7 +814,7 @@ def log(message: str) -> None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("--triangles", type=float, default=3.3e6, help="static triangles")
     parser.add_argument("--actors", type=int, default=40)
     parser.add_argument("--lidars", type=int_list, default=[1, 2, 4, 8, 16])
@@ -878,9 +880,8 @@ def main(argv=None) -> int:
             log(f"{name}: left out: {exc}")
     if "dacrt" in engines or "service" in engines:
         import dacrt
-        import dacrt.cache
 
-        dacrt.cache.use_cache_dir()
+        use_kernel_cache()
         log("dacrt.warmup() ...")
         dacrt.warmup()
     if "dacrt" in engines:

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import world
+from bench.entry import description
 
 #: The engines of the table and figure, with their names there.
 SHOWN = {
@@ -137,7 +138,7 @@ def write(out: Path) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=description(__doc__))
     parser.add_argument("--triangles", type=float_list, default=[5e5, 1e6, 2e6, 4e6, 8e6])
     parser.add_argument("--lidars", default="1,8")
     parser.add_argument("--frames", type=int, default=7, help="timed frames per lidar count")
