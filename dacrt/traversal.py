@@ -91,7 +91,6 @@ def trace_object_split(
     stack_box = np.empty((n_stack, 6), np.float32)
     stack_node = np.empty(n_stack, np.int64)  # the node of ``tree``, or 0
     first_leaf_node = 1 << tree.depth
-    middle_only = strategy_of(flags) == MIDDLE
     split_scratch = new_split_scratch()
     boxes = split_scratch[-1]  # the sides' boxes of each split
     leaf = leaf_scratch()
@@ -129,9 +128,7 @@ def trace_object_split(
         n_tris = tri_hi - tri_lo
         if n_rays == 0 or n_tris == 0:
             continue
-        halve = 0 < node < first_leaf_node and (
-            middle_only or n_rays <= RAYS_PER_TRIANGLE_FOR_COST * n_tris
-        )
+        halve = 0 < node < first_leaf_node and n_rays <= RAYS_PER_TRIANGLE_FOR_COST * n_tris
         if halve and n_rays * n_tris > RANGE_LEAF_C_R * n_rays + RANGE_LEAF_C_NODE:
             if depth < MAX_DEPTH:
                 left = 2 * node

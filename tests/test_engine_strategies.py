@@ -370,3 +370,24 @@ def test_triangle_halves_on_two_threads_answer_as_one_thread(cull, mirror):
             scene.occluded(o, d, cull=cull, mask=mask, threads=2).occluded, blocked
         )
         assert np.array_equal(blocked, np.isfinite(one.t))
+
+
+def test_middle_splits_in_space_where_rays_are_many_a_triangle():
+    """At many rays a triangle ``middle`` splits the triangles at the box's middle, as ``sah``
+    splits them by cost, whatever the rows' storage order: the halves of an incoherent file
+    order (a shuffled soup) box nearly the whole scene at every depth, and walking them would
+    test each ray against every node's box."""
+    rng = np.random.default_rng(7)
+    centres = rng.uniform(-10, 10, (20_000, 1, 3))
+    vertices = (centres + rng.uniform(-0.2, 0.2, (20_000, 3, 3))).reshape(-1, 3)
+    faces = np.arange(len(vertices)).reshape(-1, 3)
+    scene = dacrt.Scene([(vertices, faces)], order="file")
+    origins = rng.uniform(-12, 12, (200_000, 3)).astype(np.float32)
+    directions = rng.normal(size=(200_000, 3)).astype(np.float32)
+    tests = {
+        strategy: scene.closest(origins, directions, strategy=strategy, threads=1, stats=True)
+        for strategy in ("middle", "sah")
+    }
+    np.testing.assert_array_equal(tests["middle"].t, tests["sah"].t)
+    box_tests = {s: hits.stats["ray_box_tests"] for s, hits in tests.items()}
+    assert box_tests["middle"] < 3 * box_tests["sah"], box_tests
