@@ -251,10 +251,6 @@ def check_codings(request: Request) -> None:
         )
 
 
-#: Formats whose body is (or holds) JSON text, parsed whole.
-JSON_TEXT = ("json", "glb")
-
-
 async def hold_decoding(
     request: Request, body: memoryview, fmt: str, estimate: Estimate, max_bytes: int
 ) -> int:
@@ -263,7 +259,11 @@ async def hold_decoding(
     and what a JSON body's structure may take beyond the estimate, before it is parsed; those
     inflated bytes (0 for other formats)."""
     inflated = await run_sync(wire.inflated_bytes, body, max_bytes) if fmt == "npz" else 0
-    structure = await run_sync(footprint.structure_bytes, body, fmt) if fmt in JSON_TEXT else 0
+    structure = (
+        await run_sync(footprint.structure_bytes, body, fmt)
+        if fmt in footprint.JSON_TEXT_FACTORS
+        else 0
+    )
     ticket: Ticket = request.state.ticket
     what = f"{request.method} {request.url.path} with a {fmt} body of {len(body)} bytes"
     await ticket.hold(estimate(len(body), fmt) + inflated + structure, what)

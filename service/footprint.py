@@ -111,11 +111,16 @@ def decode_bytes(n_body: int, fmt: str | None) -> int:
     return n_body * ARRAY_FACTOR
 
 
+#: Formats whose body is (or holds) JSON text parsed whole, and the factor ``decode_bytes``
+#: counts for them.
+JSON_TEXT_FACTORS = {"json": JSON_PARSE_FACTOR, "glb": MESH_FILE_FACTOR}
+
+
 def structure_bytes(body, fmt: str) -> int:
     """Bytes that parsing a JSON body (or a GLB's JSON chunk, counted over the whole file) may
     hold beyond ``decode_bytes``' estimate: what its lists, objects and keys take beyond the
     text's factor (0 for other formats and for bodies not dense in them)."""
-    factor = {"json": JSON_PARSE_FACTOR, "glb": MESH_FILE_FACTOR}.get(fmt)
+    factor = JSON_TEXT_FACTORS.get(fmt)
     if factor is None:
         return 0
     text = np.frombuffer(body, np.uint8)
