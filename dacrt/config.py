@@ -84,10 +84,9 @@ BOX_TO_TRIANGLE_COST = 0.25
 # Termination: R*G < C_r*R + C_g*G.
 RAYSPACE_C_R = 16.0
 RAYSPACE_C_G = 16.0
-# A ray-space leaf with more triangles than this goes on with object splits instead.
-RAYSPACE_LEAF_TRIANGLES = 64
-# ... and so does a node, at this depth or deeper, whose frustum kept more than this fraction of
-# its parent's triangles (rays too incoherent for ray-space splits to pay).
+# A ray-space leaf goes on with object splits (``trace_object_split``), which hold the one leaf;
+# so does a node, at this depth or deeper, whose frustum kept more than this fraction of its
+# parent's triangles (rays too incoherent for ray-space splits to pay).
 RAYSPACE_MIN_DEPTH_TO_GIVE_UP = 8
 RAYSPACE_KEPT_TO_GIVE_UP = 0.8
 # ... at any depth when the rays' origins spread over more than this fraction of the scene

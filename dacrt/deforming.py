@@ -9,19 +9,15 @@ which holds the row at every instant, and its centroid is that box's. The leaf
 on those float32 corners, the arithmetic of the static leaf: a ray at tau gets the answers of the
 mesh whose vertices are ``vertex_at(v0, v1, tau)``, bit for bit.
 
-The traversals call ``leaf_for``, which Numba resolves by the triangles' record when it compiles:
-``Triangles`` get the static ``intersect_leaf``, unchanged, and ``DeformingTriangles`` get
-``deforming_leaf``: the static kernels do not change, and a scene without deforming meshes
-pays nothing.
+The traversals call ``leaf_for``, which picks the leaf by the triangles' record: a static level
+(no end corners) gets the static ``intersect_leaf``, inlined, and a deforming level gets
+``deforming_leaf``, called: both kinds of level are one record type, so every traversal
+compiles once, and a scene without deforming meshes pays one test a leaf.
 """
 
-from collections import namedtuple
-
 import numpy as np
-from numba import types
-from numba.extending import overload
 
-from .config import inline
+from .config import inline, jit
 from .geometry import (
     corners_from_origin,
     crossing,
@@ -33,14 +29,6 @@ from .geometry import (
 from .leaf import intersect_leaf, ray_frame, record_crossings, tie_key
 from .query import ALL_HITS, ANY_HIT, COLLECT, MASKED
 from .rays import BEST_T, TMIN, field, set_field
-
-DeformingTriangles = namedtuple(
-    "DeformingTriangles", ["verts", "bounds", "ids", "verts_end", "times"]
-)
-DeformingTriangles.__doc__ = """The triangles of one trace of a deforming level: ``Triangles``'
-verts (each row's corners at the start), bounds (each row's box over the whole interval) and
-ids, with verts_end (F, 9) float32, each row's corners at the end, and times (n,) float32, each
-ray's instant by its id in the batch."""
 
 
 def vertex_at(v0, v1, tau):
@@ -67,14 +55,15 @@ def corners_at(verts, verts_end, row, tau, out):
         out[0, c] = vertex_at_kernel(verts[row, c], verts_end[row, c], tau)
 
 
-@inline
+@jit
 def deforming_leaf(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch):
-    """``intersect_leaf`` for ``DeformingTriangles``: each ray against each triangle placed at
-    the ray's time (``corners_at``), by the scalar watertight test (``intersect_triangle``, the
-    arithmetic of the static leaf's t, u and v), the same rules: (t, tie key) in [tmin, best_t],
-    ANY_HIT, MASKED, culling by det, and for COLLECT the half-open ``crossing`` and
-    ``record_crossings``. A row degenerate at that instant (edge cross product exactly zero, as
-    the static packing drops) never hits. Returns the ray-triangle tests made."""
+    """``intersect_leaf`` for a deforming level's ``Triangles``: each ray against each triangle
+    placed at the ray's time (``corners_at``), by the scalar watertight test
+    (``intersect_triangle``, the arithmetic of the static leaf's t, u and v), the same rules:
+    (t, tie key) in [tmin, best_t], ANY_HIT, MASKED, culling by det, and for COLLECT the
+    half-open ``crossing`` and ``record_crossings``. A row degenerate at that instant (edge
+    cross product exactly zero, as the static packing drops) never hits. Returns the
+    ray-triangle tests made."""
     tri_verts = tris.verts
     verts_end = tris.verts_end
     times = tris.times
@@ -172,18 +161,16 @@ def deforming_leaf(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, a
     return n_tests
 
 
+@inline
 def leaf_for(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch):
-    """The leaf of the traversals: ``intersect_leaf`` for ``Triangles``, ``deforming_leaf`` for
-    ``DeformingTriangles`` (chosen when Numba compiles the caller)."""
-    raise NotImplementedError("leaf_for runs compiled only")
-
-
-@overload(leaf_for, jit_options={"nogil": True, "error_model": "numpy"})
-def _leaf_for(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch):
-    deforming = isinstance(tris, types.BaseNamedTuple) and tris.instance_class is DeformingTriangles
-    leaf = deforming_leaf if deforming else intersect_leaf
-
-    def impl(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch):
-        return leaf(flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch)
-
-    return impl
+    """The leaf of the traversals: ``deforming_leaf`` for a deforming level's ``Triangles`` (end
+    corners given), else ``intersect_leaf``. Only ``trace_object_split`` inlines it, beside the
+    leaf's scratch, which its vectorised loops need in view (a call costs them 1.5x), and the
+    leaf compiles in one kernel."""
+    if tris.verts_end.shape[0]:
+        return deforming_leaf(
+            flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
+        )
+    return intersect_leaf(
+        flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, scratch
+    )

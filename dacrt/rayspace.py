@@ -16,7 +16,6 @@ from .config import (
     RAYSPACE_C_G,
     RAYSPACE_C_R,
     RAYSPACE_KEPT_TO_GIVE_UP,
-    RAYSPACE_LEAF_TRIANGLES,
     RAYSPACE_MIN_DEPTH_TO_GIVE_UP,
     RAYSPACE_ORIGIN_SPREAD_TO_GIVE_UP,
     RAYSPACE_TOLERANCE,
@@ -26,14 +25,10 @@ from .config import (
 from .contracts import (
     SAMPLING,
     STAT_BOX_TESTS,
-    STAT_LEAVES,
     STAT_MAX_DEPTH,
     STAT_NODES,
-    STAT_TRIANGLE_TESTS,
 )
-from .deforming import leaf_for
 from .geometry import cull_distance, pick
-from .leaf import leaf_scratch
 from .partition import partition_by_mask, partition_scratch, triangle_bounds
 from .query import ANY_HIT, FIXED_ORIGIN, with_strategy
 from .ranges import RangeTree
@@ -329,9 +324,9 @@ def trace_ray_space(flags, tris, scene_box, rays, ray_ids, arrays):
     box is ``scene_box`` (both permuted in place).
 
     ``flags`` and ``arrays`` (``QueryArrays``) are the query's, as for ``trace_object_split``.
-    A node the termination rule makes a leaf but that still holds many triangles (incoherent
-    rays the frustum cannot cull for) goes to the object-split driver, with ray sampling,
-    instead of a brute force over all of them."""
+    A node the termination rule makes a leaf goes to the object-split driver, with ray
+    sampling: a small one becomes its leaf, and one that still holds many triangles (incoherent
+    rays the frustum cannot cull for) is split further instead of brute-forced."""
     hit_mask = arrays.hit_mask
     stats = arrays.stats
     any_hit = (flags & ANY_HIT) != 0
@@ -356,7 +351,6 @@ def trace_ray_space(flags, tris, scene_box, rays, ray_ids, arrays):
     node_box = np.empty(6, np.float32)
     offsets = partition_scratch()
     lanes = compare_scratch()
-    leaf = leaf_scratch()
     keep = np.empty(n_tris_all, np.bool_)
     bounds = np.empty((6, n_tris_all), np.float32)  # exact copies of the boxes
     for g in range(6):
@@ -429,27 +423,22 @@ def trace_ray_space(flags, tris, scene_box, rays, ray_ids, arrays):
                     )
                 stop = not ray_lo < ray_mid < ray_hi
             if stop:
-                # Finish the node here: brute force, or object splits for many triangles.
-                if n_tris > RAYSPACE_LEAF_TRIANGLES:
-                    triangle_bounds(tris, tri_lo, tri_hi, node_box)
-                    trace_object_split(
-                        with_strategy(flags, SAMPLING),
-                        tris,
-                        no_tree,
-                        node_box,
-                        rays,
-                        ray_ids,
-                        ray_lo,
-                        ray_hi,
-                        tri_lo,
-                        tri_hi,
-                        arrays,
-                    )
-                else:
-                    stats[STAT_LEAVES] += 1
-                    stats[STAT_TRIANGLE_TESTS] += leaf_for(
-                        flags, tris, rays, ray_ids, ray_lo, ray_hi, tri_lo, tri_hi, arrays, leaf
-                    )
+                # Finish the node with object splits, whose kernel holds the leaf: a leaf of
+                # its own here would compile it twice.
+                triangle_bounds(tris, tri_lo, tri_hi, node_box)
+                trace_object_split(
+                    with_strategy(flags, SAMPLING),
+                    tris,
+                    no_tree,
+                    node_box,
+                    rays,
+                    ray_ids,
+                    ray_lo,
+                    ray_hi,
+                    tri_lo,
+                    tri_hi,
+                    arrays,
+                )
                 continue
             for half in range(2):
                 stack[sp, 0] = ray_mid if half == 0 else ray_lo

@@ -44,7 +44,7 @@ from .contracts import (
     Nearest,
     Occlusion,
 )
-from .deforming import DeformingTriangles, corners_at_times
+from .deforming import corners_at_times
 from .instances import (
     Instance,
     fill_rays_reaching,
@@ -90,7 +90,7 @@ from .rays import new_records, pack_rays, uniform_origin, unpack_best_t
 from .rayspace import trace_ray_space
 from .results import finish_closest, finish_hits, unit_normals
 from .traversal import split_middle, trace_object_split
-from .triangles import Triangles, all_finite
+from .triangles import Triangles
 from .validation import (
     InputError,
     MeshSpaceError,
@@ -110,11 +110,10 @@ from .validation import (
     check_unplaced,
     check_vertices_end,
     explain_bad_rays,
-    explain_bad_vertices,
+    finite_vertices,
     float64_points,
     hide_rays,
     mesh_pairs,
-    owned,
     place_vertices,
     vertex_array,
 )
@@ -487,9 +486,7 @@ class Scene:
         if len(checked) != n_before:
             raise InputError(f"{name} has {len(checked)} rows; mesh {i} has {n_before} vertices")
         if id(new) not in copies:
-            if not all_finite(checked):
-                explain_bad_vertices(checked, name, given=new)
-            copies[id(new)] = owned(checked, new)
+            copies[id(new)] = finite_vertices(checked, new, name)
         return copies[id(new)]
 
     def _kept_order(self, i):
@@ -1700,11 +1697,11 @@ def check_device(device, stats, strategy, threads):
 
 
 def level_triangles(level, tri_ids, times):
-    """The kernels' record of a level's rows ``tri_ids``: ``Triangles``, or with ``times`` (each
-    ray's instant) ``DeformingTriangles`` of a ``DeformingPacked``."""
+    """The kernels' record of a level's rows ``tri_ids``: ``Triangles``, with a
+    ``DeformingPacked``'s end corners and ``times`` (each ray's instant) when given."""
     if times is None:
         return Triangles(level.verts, level.bounds, tri_ids)
-    return DeformingTriangles(level.verts, level.bounds, tri_ids, level.verts_end, times)
+    return Triangles(level.verts, level.bounds, tri_ids, level.verts_end, times)
 
 
 def live_rows(verts):

@@ -11,12 +11,25 @@ import numpy as np
 from .config import inline, jit
 from .geometry import triangle_normal
 
-Triangles = namedtuple("Triangles", ["verts", "bounds", "ids"])
+# A static level's end corners and ray times: empty, so both kinds of level are one record type
+# and every traversal compiles once for both.
+NO_END_CORNERS = np.empty((0, 9), np.float32)
+NO_TIMES = np.empty(0, np.float32)
+
+Triangles = namedtuple(
+    "Triangles",
+    ["verts", "bounds", "ids", "verts_end", "times"],
+    defaults=(NO_END_CORNERS, NO_TIMES),
+)
 Triangles.__doc__ = """The triangles of one trace, as the kernels receive them: one record.
 
-verts : (F, 9) float32, each kernel row's corners p0, p1, p2
-bounds : (F, 6) float32, each kernel row's box [x0, y0, z0, x1, y1, z1]
+verts : (F, 9) float32, each kernel row's corners p0, p1, p2 (a deforming level's at the start)
+bounds : (F, 6) float32, each kernel row's box [x0, y0, z0, x1, y1, z1] (a deforming level's
+    over the whole interval)
 ids : (k,) int32, the kernel rows traced; the partitions permute them in place
+verts_end : (F, 9) float32, a deforming level's corners at the end; (0, 9) for a static level
+times : (n,) float32, a deforming level's instant of each ray by its id in the batch; (0,) for
+    a static level
 """
 
 

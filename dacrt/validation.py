@@ -156,9 +156,7 @@ def check_mesh(index, vertices, faces):
         else:
             raise InputError(f"{label}: faces must be an integer array, got dtype {faces.dtype}")
     converted = as_float_rows(vertices, f"{label}: vertices", check_finite=False)
-    if not all_finite(converted):
-        explain_bad_vertices(converted, f"{label}: vertices", given=vertices)
-    vertices = owned(converted, given_vertices)
+    vertices = finite_vertices(converted, given_vertices, f"{label}: vertices")
     if faces.dtype == np.uint64 and faces.size and faces.max() >= len(vertices):
         explain_bad_faces(faces, len(vertices), f"{label}: faces")  # before int64 wraps them
     # Kernels take int32 and int64 faces (narrowing int64 would copy on every Scene); other
@@ -174,6 +172,14 @@ def vertex_array(vertices, name):
     an empty ``faces`` is no faces."""
     array = numeric_array(vertices, f"{name} must be a (V, 3) array of numbers")
     return array.reshape(0, 3) if array.size == 0 else array
+
+
+def finite_vertices(converted, given, name):
+    """``converted`` (float32 (V, 3), checked from the caller's ``given``) as ``owned``, or
+    InputError naming the first of its vertices that is not finite (``explain_bad_vertices``)."""
+    if not all_finite(converted):
+        explain_bad_vertices(converted, name, given=given)
+    return owned(converted, given)
 
 
 def owned(array, given):
@@ -345,9 +351,7 @@ def check_vertices_end(i, end, vertices, matrix, matrix_end):
         raise InputError(f"{name} must be a (V, 3) array of numbers") from None
     if len(converted) != len(vertices):
         raise InputError(f"{name} has {len(converted)} rows; mesh {i} has {len(vertices)} vertices")
-    if not all_finite(converted):
-        explain_bad_vertices(converted, name, given=end)
-    return owned(converted, end)
+    return finite_vertices(converted, end, name)
 
 
 def check_unplaced(i, matrix, matrix_end):

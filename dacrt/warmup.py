@@ -49,7 +49,7 @@ def warmup() -> float:
     times = np.linspace(0.0, 1.0, len(origins), dtype=np.float32)
     moving.closest(spread, directions, time=times, threads=1)
     moving.hits(spread, directions, time=times, threads=1)
-    # A deforming mesh beside a static one: the traversals over ``DeformingTriangles``, for
+    # A deforming mesh beside a static one: the traversals with the deforming leaf, for
     # every strategy, with a mask per ray too.
     lifted = vertices + np.float32([0.0, 0.0, 0.5])
     deforming = Scene([(vertices, faces)] * 2, vertices_end=[None, lifted])

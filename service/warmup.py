@@ -35,7 +35,7 @@ log = logging.getLogger("service")
 PROGRESS_SECONDS = 15.0
 #: Kernels a warm-up compiles from an empty cache (``compiling.compiled_kernels()``): the "of
 #: about N" of the progress lines and their time left.
-EXPECTED_COMPILES = 49
+EXPECTED_COMPILES = 43
 #: What a first start takes, measured from an empty cache (README, First start).
 COLD_START = "about a minute on 2 idle cores, up to 15 on 2 cores busy with other work"
 #: The process that compiles the kernels for a server, as the Dockerfile runs it at build time.
