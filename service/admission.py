@@ -96,14 +96,20 @@ class Admission:
             return
         self.check(nbytes, what)
         fits = self.held + extra <= self.budget
-        if fits and (not self._line or extra <= min(SMALL_BYTES, self.budget // 64)):
+        # A request that holds bytes and needs more goes first: those in line may be waiting
+        # for what it holds.
+        growing = ticket.nbytes > 0
+        if fits and (growing or not self._line or extra <= min(SMALL_BYTES, self.budget // 64)):
             self.resize_now(ticket, nbytes)
             return
         loop = asyncio.get_running_loop()
         if ticket.deadline is None:
             ticket.deadline = loop.time() + self.wait
         turn = loop.create_future()
-        self._line.append(turn)
+        if growing:
+            self._line.appendleft(turn)
+        else:
+            self._line.append(turn)
         try:
             async with asyncio.timeout_at(ticket.deadline):
                 while self._line[0] is not turn or self.held + extra > self.budget:

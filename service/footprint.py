@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dacrt.chunks import MIN_RAYS_PER_THREAD, MIN_RAYS_TO_SPLIT_TRIANGLES, N_CORES
 from dacrt.points import vote_rays_at_once
 
 #: Bytes per ray of a query's work beyond its body: the checked copies of origins, directions,
@@ -92,6 +93,17 @@ VOTE_RAY_BYTES = 64
 #: ... and per direction of ``?nsamples=`` (made in float64, then tiled; measured 91 a ray and
 #: direction together for one point and 1M directions).
 VOTE_DIRECTION_BYTES = 64
+#: Bytes per placed triangle of the scene a ray query (or a sensor, or ``?sign=true``'s inside
+#: test) traces, whatever its rays: the boxes of the halves of the storage order and the
+#: triangles' ids (measured 11.7 on a 3.55M-triangle scene, from 1 ray to 1M) ...
+RAY_QUERY_TRIANGLE_BYTES = 16
+#: ... and per chunk or half traced at once (its triangle ids and bins: measured 4.7).
+RAY_THREAD_TRIANGLE_BYTES = 6
+#: Bytes per placed triangle of a point query, whatever its points (the triangles' boxes, Morton
+#: codes and order: measured 61.0) ...
+POINT_QUERY_TRIANGLE_BYTES = 64
+#: ... and per chunk measured at once (its rows: measured 4.0).
+POINT_THREAD_TRIANGLE_BYTES = 4
 #: The smallest bytes of one point in a body of each format (npz counted as stored).
 MIN_POINT_BYTES = {"npy": 12, "npz": 12, "json": 8}
 #: The smallest bytes of one ray in a body of each format (npz counted as stored), for the most
@@ -169,10 +181,32 @@ def point_query_bytes(n_points: int, sign: bool, nsamples: int) -> int:
     return work + rays * VOTE_RAY_BYTES + nsamples * VOTE_DIRECTION_BYTES
 
 
+def scene_work_bytes(
+    n_triangles: int, n_items: int, threads: int | None, points: bool = False
+) -> int:
+    """Peak bytes of a query of ``n_items`` rays (or points, with ``points``) on the triangles of
+    a scene of ``n_triangles`` placed triangles, beyond what its rays or points take, on
+    ``threads`` engine threads (None: every core): the per-triangle work, and that of each
+    chunk (or half) traced at once. A point query's inside test (``?sign=true``) comes after
+    it and takes less."""
+    threads = threads or N_CORES
+    if points:
+        at_once = min(threads, max(1, n_items))
+        return n_triangles * (POINT_QUERY_TRIANGLE_BYTES + at_once * POINT_THREAD_TRIANGLE_BYTES)
+    halves = 2 if threads > 1 and n_items >= MIN_RAYS_TO_SPLIT_TRIANGLES else 1
+    at_once = min(threads, max(halves, n_items // MIN_RAYS_PER_THREAD))
+    return n_triangles * (RAY_QUERY_TRIANGLE_BYTES + at_once * RAY_THREAD_TRIANGLE_BYTES)
+
+
+def most_triangles(n_body: int) -> int:
+    """The most triangles a mesh sent in a body of ``n_body`` bytes can hold (a triangle takes
+    at least a face's 12 bytes)."""
+    return n_body // 12
+
+
 def mesh_scene_bytes(n_body: int) -> int:
-    """The most bytes of engine scene a mesh sent in a body of ``n_body`` bytes can make (a
-    triangle takes at least a face's 12 bytes)."""
-    return n_body // 12 * TRIANGLE_BYTES
+    """The most bytes of engine scene a mesh sent in a body of ``n_body`` bytes can make."""
+    return most_triangles(n_body) * TRIANGLE_BYTES
 
 
 def answer_bytes(fmt: str) -> int:

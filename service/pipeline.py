@@ -17,7 +17,7 @@ from typing import Any
 from anyio.to_thread import run_sync
 from fastapi import Request
 
-from . import wire
+from . import footprint, wire
 from .admission import Ticket
 from .deps import Estimate, hold_decoding, read_body
 from .metrics import Metrics
@@ -64,8 +64,8 @@ async def answer(
     steps: Steps,
 ) -> BuffersResponse:
     """Receive the body sent to ``scene`` of ``store`` (None: a one-shot /trace), decode it,
-    hold the in-flight budget for its peak, trace and encode it, and answer; the steps run off
-    the event loop."""
+    hold the in-flight budget for its peak (with the work on the scene's triangles), trace and
+    encode it, and answer; the steps run off the event loop."""
     got = await receive(request, settings, store, scene, format, steps.formats, steps.estimate)
 
     def decode() -> Decoded:
@@ -74,7 +74,12 @@ async def answer(
 
     decoded = await run_sync(decode)
     what = f"{request.method} {request.url.path} of {decoded.n_rays} rays"
-    await got.ticket.hold(decoded.peak + got.inflated, what)
+    work = 0
+    if scene is not None:  # the work on the scene's triangles
+        n_triangles = store.snapshot(scene).n_triangles
+        work = footprint.scene_work_bytes(n_triangles, decoded.n_rays, options.threads)
+        what += f" on the {n_triangles} triangles of scene {scene!r}"
+    await got.ticket.hold(decoded.peak + got.inflated + work, what)
 
     def work() -> tuple[TraceResult, Encoded]:
         with got.timing("trace"):

@@ -78,8 +78,13 @@ async def nearest(
 
     points = await run_sync(decode)
     tracing.check_point_rays(options, len(points), max_points)
-    what = f"{request.method} {request.url.path} of {len(points)} points"
-    await got.ticket.hold(peak(len(got.body), None, len(points)) + got.inflated, what)
+    n_triangles = store.snapshot(scene).n_triangles
+    what = (
+        f"{request.method} {request.url.path} of {len(points)} points on the {n_triangles} "
+        f"triangles of scene {scene!r}"
+    )
+    work = footprint.scene_work_bytes(n_triangles, len(points), settings.threads, points=True)
+    await got.ticket.hold(peak(len(got.body), None, len(points)) + got.inflated + work, what)
 
     def work():
         with got.timing("trace"):

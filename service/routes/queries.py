@@ -182,6 +182,8 @@ def ray_steps(
             mesh, rays = None, wire.decode_rays(body, fmt, **limits)
         check_hit_buffers(len(rays), options, settings.max_hits_bytes)
         held = peak(len(body), None, answer_format, len(rays))
+        if mesh is not None:  # the work on the mesh's triangles
+            held += footprint.scene_work_bytes(len(mesh.faces), len(rays), options.threads)
         return Decoded((mesh, rays), len(rays), held, answer_format)
 
     def trace(value) -> tracing.TraceResult:

@@ -124,6 +124,32 @@ def test_a_small_ticket_that_fits_goes_ahead_of_a_large_one_waiting():
     run(scenario())
 
 
+def test_a_ticket_that_holds_bytes_and_needs_more_goes_first_in_line():
+    """A request admitted at its body's estimate that needs more once its body is decoded does
+    not wait behind those waiting for what it holds (they would wait for each other until the
+    wait ran out): it grows at once where it fits, else first in line."""
+
+    async def scenario():
+        admission = Admission(100, wait=5)
+        grower, other, waiter = admission.ticket(), admission.ticket(), admission.ticket()
+        await grower.hold(70, "grower")
+        await other.hold(15, "other")
+        waiting = asyncio.create_task(waiter.hold(60, "waiter"))
+        await asyncio.sleep(0)
+        await asyncio.wait_for(grower.hold(80, "grower, decoded"), 1)  # fits: at once
+        growing = asyncio.create_task(grower.hold(90, "grower, more"))  # 105: waits, first
+        await asyncio.sleep(0)
+        assert not growing.done() and not waiting.done()
+        other.release()
+        await asyncio.wait_for(growing, 1)
+        assert not waiting.done() and admission.held == 90
+        grower.release()
+        await asyncio.wait_for(waiting, 1)
+        assert admission.held == 60
+
+    run(scenario())
+
+
 def test_a_request_waits_at_most_the_wait_in_all_however_many_times_it_asks():
     """One deadline a request, set when it first waits: a later hold does not wait afresh."""
 
@@ -668,3 +694,116 @@ def test_a_ticket_of_exactly_the_whole_budget_is_admitted():
 def test_the_default_budget_is_a_quarter_of_the_machines_memory(monkeypatch):
     monkeypatch.setattr(admission_module, "machine_memory", lambda: 8 << 30)
     assert admission_module.default_budget() == 2 << 30
+
+
+# ---- the work on a scene's triangles, whatever the rays
+
+
+def grid_arrays(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A flat n x n grid of quads in z = 0, split in 2 n^2 triangles."""
+    ticks = np.linspace(-1.0, 1.0, n + 1, dtype=np.float32)
+    xs, ys = np.meshgrid(ticks, ticks, indexing="ij")
+    vertices = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size, np.float32)])
+    corner = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
+    faces = np.concatenate(
+        [np.column_stack([corner, corner + n + 1, corner + 1]),
+         np.column_stack([corner + 1, corner + n + 1, corner + n + 2])]
+    ).astype(np.int32)  # fmt: skip
+    return vertices, faces
+
+
+def traced_peak(call) -> int:
+    tracemalloc.start()
+    try:
+        call()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+@pytest.mark.parametrize("threads", [1, 2, 4])
+@pytest.mark.parametrize("n_rays", [1, 8192, 40_000])
+def test_a_ray_query_holds_work_on_every_triangle_within_its_estimate(threads, n_rays):
+    """A query's work on a scene's triangles (the halves' boxes, each chunk's ids and bins) is
+    there whatever its rays: even one ray's peak is more than its rays' estimate alone, and the
+    estimate with the scene's work bounds it (tracemalloc; a grid of 512K triangles)."""
+    import dacrt
+
+    vertices, faces = grid_arrays(512)
+    scene = dacrt.Scene([(vertices, faces)])
+    rng = np.random.default_rng(5)
+    origins = np.column_stack([rng.uniform(-1, 1, (n_rays, 2)), np.full(n_rays, 3.0)])
+    origins = origins.astype(np.float32)
+    directions = np.tile(np.float32([0, 0, -1]), (n_rays, 1))
+    scene.closest(origins, directions, threads=threads)  # what a first query derives, once
+    peak = traced_peak(lambda: scene.closest(origins, directions, threads=threads))
+    rays_alone = footprint.query_bytes(n_rays, "closest", ("t",), None)
+    work = footprint.scene_work_bytes(scene.n_triangles, n_rays, threads)
+    assert peak > rays_alone + 8 * scene.n_triangles, f"{peak / MiB:.1f} MiB"
+    assert peak <= rays_alone + work, (
+        f"{peak / MiB:.1f} MiB, counted {(rays_alone + work) / MiB:.1f}"
+    )
+
+
+@pytest.mark.parametrize("threads", [1, 2, 4])
+@pytest.mark.parametrize("n_points", [1, 5000])
+def test_a_point_query_holds_work_on_every_triangle_within_its_estimate(threads, n_points):
+    """The same for ``nearest``, whose work on the triangles (their boxes, codes and order, each
+    chunk's rows) is larger still."""
+    import dacrt
+
+    vertices, faces = grid_arrays(512)
+    scene = dacrt.Scene([(vertices, faces)])
+    points = np.random.default_rng(6).uniform(-1, 1, (n_points, 3)).astype(np.float32)
+    scene.nearest(points, threads=threads)
+    peak = traced_peak(lambda: scene.nearest(points, threads=threads))
+    points_alone = footprint.point_query_bytes(n_points, False, 1)
+    work = footprint.scene_work_bytes(scene.n_triangles, n_points, threads, points=True)
+    assert peak > points_alone + 32 * scene.n_triangles, f"{peak / MiB:.1f} MiB"
+    assert peak <= points_alone + work, (
+        f"{peak / MiB:.1f} MiB, counted {(points_alone + work) / MiB:.1f}"
+    )
+
+
+@pytest.fixture(scope="module")
+def crowded_scene_app():
+    """The smallest budget; a scene of one 20,000-triangle car and 49 instances of it (1M placed
+    triangles, whose work alone is more than the budget), and a scene of 800 triangles."""
+    settings = Settings(
+        token=None, load_demo=False, max_inflight_bytes=footprint.MIN_BUDGET_BYTES, threads=2
+    )
+    vertices, faces = grid_arrays(100)
+    with in_process.serve(settings) as client:
+        client.put(
+            "/v1/scenes/crowd/meshes/car",
+            json={"vertices": vertices.tolist(), "faces": faces.tolist()},
+        ).raise_for_status()
+        for k in range(1, 50):
+            client.put(
+                f"/v1/scenes/crowd/meshes/car{k}", json={"instance_of": "car"}
+            ).raise_for_status()
+        small_vertices, small_faces = grid_arrays(20)
+        client.put(
+            "/v1/scenes/small/meshes/patch",
+            json={"vertices": small_vertices.tolist(), "faces": small_faces.tolist()},
+        ).raise_for_status()
+        yield client
+
+
+@pytest.mark.parametrize(
+    "query, body",
+    [
+        ("closest", {"origins": [[0, 0, 1]], "directions": [[0, 0, -1]]}),
+        ("nearest", {"points": [[0, 0, 1]]}),
+    ],
+)
+def test_a_query_whose_work_on_the_scene_exceeds_the_budget_is_413(crowded_scene_app, query, body):
+    """One ray (or point) into a million placed triangles holds more than the smallest budget:
+    413 naming the scene's triangles and the budget, where the same request on a small scene
+    answers."""
+    answer = crowded_scene_app.post(f"/v1/scenes/crowd/{query}", json=body, headers=JSON)
+    assert answer.status_code == 413, answer.text
+    detail = answer.json()["detail"]
+    assert "1000000 triangles of scene 'crowd'" in detail and "DACRT_MAX_INFLIGHT_BYTES" in detail
+    small = crowded_scene_app.post(f"/v1/scenes/small/{query}", json=body, headers=JSON)
+    assert small.status_code == 200, small.text
