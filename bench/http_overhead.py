@@ -24,8 +24,6 @@ With ``--frame``, also the per-frame loop of a dynamic scene, side by side in th
 from __future__ import annotations
 
 import argparse
-import ctypes
-import functools
 import importlib.util
 import os
 import platform
@@ -46,6 +44,7 @@ sys.path.insert(0, str(REPO))
 import dacrt  # noqa: E402
 from bench.entry import description, kernel_cache_env, use_kernel_cache  # noqa: E402
 from oracles.embree import Embree  # noqa: E402
+from service.children import ending_with_parent  # noqa: E402
 from service.client import Client  # noqa: E402
 
 
@@ -58,21 +57,6 @@ def make_rays(vertices: np.ndarray, n: int, seed: int = 0) -> tuple[np.ndarray, 
     origins = centre + 2 * radius * away / np.linalg.norm(away, axis=1, keepdims=True)
     targets = rng.uniform(lo, hi, (n, 3))
     return origins.astype(np.float32), (targets - origins).astype(np.float32)
-
-
-#: prctl's option that has Linux signal a process when the thread that started it ends
-PR_SET_PDEATHSIG = 1
-
-
-def stop_with_parent(parent: int) -> None:
-    """In a server's process before it runs: Linux kills it when ``parent`` (the thread that
-    started it) ends, so a benchmark stopped by its caller leaves no server behind."""
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    except (OSError, AttributeError):  # not Linux: the server outlives a killed benchmark
-        return
-    if os.getppid() != parent:  # the parent ended before prctl
-        os.kill(os.getpid(), signal.SIGKILL)
 
 
 def start_server(
@@ -99,7 +83,7 @@ def start_server(
         ],
         cwd=REPO,
         env={**os.environ, "PYTHONPATH": str(REPO), **kernel_cache_env(), **env},
-        preexec_fn=functools.partial(stop_with_parent, os.getpid()),
+        preexec_fn=ending_with_parent(signal.SIGKILL),
     )
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 300

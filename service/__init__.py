@@ -5,8 +5,9 @@ where Numba keeps the compiled kernels (``dacrt.cache.use_cache_dir``). Its modu
 
 - start and settings: ``cli`` (``dacrt-service``, ``python -m service`` through ``__main__``),
   ``app`` (the ``create_app`` factory), ``settings`` (DACRT_* environment), ``logs``,
-  ``warmup`` (every kernel a request reaches), ``protocol`` (uvicorn's HTTP with deadlines),
-  ``allocator`` (glibc's malloc arenas, capped);
+  ``warmup`` (every kernel a request reaches), ``children`` (child processes that end with the
+  server, even one killed outright), ``protocol`` (uvicorn's HTTP with deadlines), ``allocator``
+  (glibc's malloc arenas, capped);
 - requests: ``routes`` (thin handlers), ``pipeline`` (the one path of a query or sensor:
   receive, decode, trace, encode, respond), ``options`` (what a query or sensor asks: one record,
   ``?fields=`` read once), ``params`` (path and query parameters), ``deps``

@@ -4,11 +4,12 @@ The engine's checks hand its kernels one layout whatever a body holds (read-only
 columns, JSON lists: ``dacrt.validation``), so ``dacrt.warmup`` compiles every kernel a request
 reaches. A server first loads them from the cache (``dacrt.cache``), stopping before the first
 compile. Those missing there compile in a child process, ``python -m service.warmup``, whose log
-lines the server's log shows: a process that has compiled them keeps much of Numba's and LLVM's
-memory until it ends (docs/limits.md), so the child keeps it instead of the server, which then
-loads the kernels from the cache. Where the child cannot start or fails, the server compiles them
-itself and says why; a process that has run a kernel already (one that embeds the app) compiles
-what is missing itself.
+lines the server's log shows and which ends with the server (on Linux, even one killed
+outright): a process that has compiled them keeps much of Numba's and LLVM's memory until it
+ends (docs/limits.md), so the child keeps it instead of the server, which then loads the kernels
+from the cache. Where the child cannot start or fails, the server compiles them itself and says
+why; a process that has run a kernel already (one that embeds the app) compiles what is missing
+itself.
 Every PROGRESS_SECONDS a line says how many have compiled and about how long is left."""
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+import signal
 import subprocess
 import sys
 import threading
@@ -28,6 +30,8 @@ from numba.core import event
 import dacrt
 import dacrt.cache
 from dacrt import compiling
+
+from .children import ending_with_parent
 
 log = logging.getLogger("service")
 
@@ -192,7 +196,7 @@ def report(start: float, compiled: int) -> float:
 def compile_in_child(missing: str, stopping: threading.Event | None = None) -> str | None:
     """Run CHILD, which compiles every kernel into this process's cache folder, and log its lines
     as they come; answers None once it succeeded, else why it did not. ``stopping`` set ends it
-    (Stopped)."""
+    (Stopped); on Linux it also ends (SIGTERM) when this process is killed outright."""
     env = dict(os.environ)
     if dacrt.cache.cache_dir() is not None:  # the folder this process loads from, absolute
         env["DACRT_CACHE_DIR"] = str(dacrt.cache.cache_dir().resolve())
@@ -205,6 +209,8 @@ def compile_in_child(missing: str, stopping: threading.Event | None = None) -> s
             stderr=subprocess.STDOUT,
             text=True,
             errors="replace",
+            # Linux signals it when this thread ends: the server's warm-up thread, waiting below.
+            preexec_fn=ending_with_parent(signal.SIGTERM),
         )
     except OSError as exc:
         return f"the child process {' '.join(CHILD)} could not start: {exc}"

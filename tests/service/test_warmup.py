@@ -5,7 +5,10 @@ child cannot start or fails, the server compiles them itself and says why."""
 from __future__ import annotations
 
 import logging
+import os
 import shutil
+import signal
+import subprocess
 import sys
 import threading
 import time
@@ -15,6 +18,7 @@ import httpx
 import numba
 import pytest
 from server_process import ServerProcess
+from service_helpers import REPO
 
 import dacrt.cache
 from service import warmup
@@ -151,6 +155,52 @@ def test_loading_only_from_the_cache_stops_before_a_compile():
             kernel(1)
     assert kernel.signatures == []  # nothing compiled
     assert kernel(1) == 2
+
+
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` runs: it exists and is not a zombie awaiting its reaper."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_server_killed_outright_takes_its_child_with_it(tmp_path):
+    """A server killed with SIGKILL runs no clean-up: the child it started to compile the
+    kernels (here one that sleeps) ends with it rather than compile on for minutes."""
+    pid_file = tmp_path / "pid"
+    sleeper = f"import os, time; open({str(pid_file)!r}, 'w').write(str(os.getpid())); "
+    sleeper += "time.sleep(600)"
+    server = (  # compile_in_child in a thread of its own, as the server's warm-up runs it
+        "import sys, threading; from service import warmup; "
+        f"warmup.CHILD = [sys.executable, '-c', {sleeper!r}]; "
+        "threading.Thread(target=warmup.compile_in_child, args=('dacrt.example',)).start()"
+    )
+    pythonpath = os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])
+    parent = subprocess.Popen(
+        [sys.executable, "-c", server], cwd=REPO, env={**os.environ, "PYTHONPATH": pythonpath}
+    )
+    child = None
+    try:
+        deadline = time.monotonic() + 60
+        while not pid_file.exists() or not pid_file.read_text():
+            assert parent.poll() is None and time.monotonic() < deadline, parent.returncode
+            time.sleep(0.1)
+        child = int(pid_file.read_text())
+        parent.kill()
+        parent.wait()
+        deadline = time.monotonic() + 5
+        while alive(child) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not alive(child), f"child {child} runs on after its server was killed"
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
+        if child is not None and alive(child):
+            os.kill(child, signal.SIGKILL)
 
 
 #: Seconds for a server to start when one kernel compiles (2 cores busy with other work).
