@@ -6,6 +6,7 @@ Other rays go as one chunk per thread: contiguous runs when the input order is a
 cut so that each slab holds about the same work. Answers do not depend on the chunks.
 """
 
+import contextvars
 import itertools
 import math
 import os
@@ -147,7 +148,11 @@ def map_on_threads(fn, n_items, n_workers):
                 failed.append(k)
                 raise
 
-    helpers = [POOL.submit(work) for _ in range(min(n_workers, n_items) - 1)]
+    # Each helper runs in a copy of this thread's context: what the caller set holds for its items.
+    helpers = [
+        POOL.submit(contextvars.copy_context().run, work)
+        for _ in range(min(n_workers, n_items) - 1)
+    ]
     try:
         work()
     finally:

@@ -3,13 +3,13 @@
 The engine's checks hand its kernels one layout whatever a body holds (read-only views, strided
 columns, JSON lists: ``dacrt.validation``), so ``dacrt.warmup`` compiles every kernel a request
 reaches. A server first loads them from the cache (``dacrt.cache``), stopping before the first
-compile. Those missing there compile in a child process, ``python -m service.warmup``, whose log
-lines the server's log shows and which ends with the server (on Linux, even one killed
-outright): a process that has compiled them keeps much of Numba's and LLVM's memory until it
-ends (docs/limits.md), so the child keeps it instead of the server, which then loads the kernels
-from the cache. Where the child cannot start or fails, the server compiles them itself and says
-why; a process that has run a kernel already (one that embeds the app) compiles what is missing
-itself.
+compile of its own (another thread's go on). Those missing there compile in a child process,
+``python -m service.warmup``, whose log lines the server's log shows and which ends with the
+server (on Linux, even one killed outright): a process that has compiled them keeps much of
+Numba's and LLVM's memory until it ends (docs/limits.md), so the child keeps it instead of the
+server, which then loads the kernels from the cache. Where the child cannot start or fails, the
+server compiles them itself and says why; a process that has run a kernel already (one that
+embeds the app) compiles what is missing itself.
 Every PROGRESS_SECONDS a line says how many have compiled and about how long is left."""
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
+from contextvars import ContextVar
 
 from numba.core import event
 
@@ -56,10 +57,18 @@ class Stopped(Exception):
     """The server stopped while its child compiled the kernels."""
 
 
+#: True in the context of a load that refuses to compile (``refusing_compiles``): its thread's,
+#: and the copies dacrt's pool threads run its work in (``dacrt.chunks.map_on_threads``).
+REFUSING: ContextVar[bool] = ContextVar("dacrt_refusing_compiles", default=False)
+
+
 class RefuseCompiles(event.Listener):
-    """Raises NotCached where Numba is about to compile a kernel of dacrt's, before it does."""
+    """Raises NotCached where Numba is about to compile a kernel of dacrt's in a context that
+    REFUSING marks, before it does."""
 
     def on_start(self, started: event.Event) -> None:
+        if not REFUSING.get():
+            return
         function = getattr((started.data or {}).get("dispatcher"), "py_func", None)
         name = f"{getattr(function, '__module__', '?')}.{getattr(function, '__qualname__', '?')}"
         if name.startswith("dacrt."):
@@ -67,6 +76,19 @@ class RefuseCompiles(event.Listener):
 
     def on_end(self, ended: event.Event) -> None:
         pass
+
+
+@contextmanager
+def refusing_compiles() -> Iterator[None]:
+    """NotCached where the block would compile a kernel of dacrt's, in its thread or in dacrt's
+    pool threads on its behalf. Numba's listeners are the whole process's: another thread's
+    compiles (an app that embeds the service, running its first query) go on."""
+    marked = REFUSING.set(True)
+    try:
+        with event.install_listener("numba:compile", RefuseCompiles()):
+            yield
+    finally:
+        REFUSING.reset(marked)
 
 
 class Progress:
@@ -146,11 +168,10 @@ def engine_has_run() -> bool:
 
 def load(only_cached: bool = False) -> int:
     """``dacrt.warmup()``, with a progress line every PROGRESS_SECONDS; answers how many kernels
-    compiled. ``only_cached``: NotCached before the first kernel that would compile."""
+    compiled. ``only_cached``: NotCached before the first kernel that would compile
+    (``refusing_compiles``: another thread's compiles go on)."""
     progress = Progress()
-    refusing = (
-        event.install_listener("numba:compile", RefuseCompiles()) if only_cached else nullcontext()
-    )
+    refusing = refusing_compiles() if only_cached else nullcontext()
     with progress.reporting(), refusing:
         dacrt.warmup()
     return progress.compiled

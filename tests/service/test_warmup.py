@@ -21,6 +21,7 @@ from server_process import ServerProcess
 from service_helpers import REPO
 
 import dacrt.cache
+import dacrt.chunks
 from service import warmup
 from service.app import create_app, warm_up
 from service.settings import Settings
@@ -150,11 +151,60 @@ def test_loading_only_from_the_cache_stops_before_a_compile():
 
     plus_one.__module__ = "dacrt.example"  # one of dacrt's kernels, as the refusal sees it
     kernel = numba.njit(plus_one)
-    with numba.core.event.install_listener("numba:compile", warmup.RefuseCompiles()):
+    with warmup.refusing_compiles():
         with pytest.raises(warmup.NotCached, match=r"^dacrt\.example\..*plus_one$"):
             kernel(1)
     assert kernel.signatures == []  # nothing compiled
     assert kernel(1) == 2
+
+
+def dacrt_kernel(name: str) -> numba.core.registry.CPUDispatcher:
+    """A fresh kernel, not yet compiled, that the refusal takes for one of dacrt's."""
+
+    def plus_one(x):
+        return x + 1
+
+    plus_one.__module__, plus_one.__qualname__ = "dacrt.example", name
+    return numba.njit(plus_one)
+
+
+def test_loading_only_from_the_cache_refuses_its_own_compiles_only(monkeypatch):
+    """Numba's listeners are the whole process's: while the warm-up loads from the cache, another
+    thread's first query (an app that embeds the service) compiles; the warm-up's own compiles,
+    in its thread and in dacrt's pool threads on its behalf, do not."""
+    others, pooled, own = dacrt_kernel("others"), dacrt_kernel("pooled"), dacrt_kernel("own")
+    answers = []
+
+    def query() -> None:
+        try:
+            answers.append(others(1))
+        except warmup.NotCached as refused:
+            answers.append(refused)
+
+    def engine_warmup() -> None:  # dacrt.warmup, in the warm-up's thread
+        other = threading.Thread(target=query)
+        other.start()
+        other.join()
+        caller, pool_ran = threading.current_thread(), threading.Event()
+
+        def item(k: int) -> int | None:
+            if threading.current_thread() is caller:  # leaves the compile to a pool thread
+                assert pool_ran.wait(30)
+                return None
+            try:
+                return pooled(k)
+            finally:
+                pool_ran.set()
+
+        with pytest.raises(warmup.NotCached, match=r"^dacrt\.example\.pooled$"):
+            dacrt.chunks.map_on_threads(item, 2, 2)
+        own(1)
+
+    monkeypatch.setattr(dacrt, "warmup", engine_warmup)
+    with pytest.raises(warmup.NotCached, match=r"^dacrt\.example\.own$"):
+        warmup.load(only_cached=True)
+    assert answers == [2], answers
+    assert pooled.signatures == own.signatures == []  # refused before they compiled
 
 
 def alive(pid: int) -> bool:
