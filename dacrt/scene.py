@@ -555,16 +555,26 @@ class Scene:
     @property
     def nbytes(self) -> int:
         """Bytes held by the scene's packed arrays (each shared one once), with those derived
-        on demand once they exist."""
+        on demand once they exist: the rows' masks, and the placed triangles of point queries
+        beyond the base level's own."""
         held = {id(self._base): self._base}
         held.update((id(i.packed), i.packed) for i in self._instances)
         if self._deforming is not None:
             held[id(self._deforming)] = self._deforming
+        arrays = {id(self.mesh_offsets): self.mesh_offsets}
         derived = self.__dict__.get("_row_masks")
+        if derived is not None:
+            arrays[id(derived)] = derived
+        placed = self.__dict__.get("_placed_triangles")
+        if placed is not None:  # those that are not the base level's own
+            packed_arrays = {id(a) for a in (self._base.verts, self._base.ids)}
+            arrays.update(
+                (id(a), a)
+                for a in (placed.verts, placed.global_ids, placed.row_masks)
+                if id(a) not in packed_arrays
+            )
         return int(
-            sum(packed.nbytes for packed in held.values())
-            + self.mesh_offsets.nbytes
-            + (derived.nbytes if derived is not None else 0)
+            sum(packed.nbytes for packed in held.values()) + sum(a.nbytes for a in arrays.values())
         )
 
     @property
@@ -1201,11 +1211,12 @@ class Scene:
             verts.append(placed[live])
             ids.append((instance.packed.ids[live] + self.mesh_offsets[instance.mesh]).astype(INDEX))
             masks.append(np.full(len(live), self.masks[instance.mesh], np.uint32))
+        # The base level alone is its own arrays: no copy.
         return point_queries.SceneTriangles(
-            np.ascontiguousarray(np.concatenate(verts)),
-            np.ascontiguousarray(np.concatenate(ids)),
+            _joined(verts, np.empty((0, 9), FLOAT)),
+            _joined(ids, np.empty(0, INDEX)),
             self.mesh_offsets,
-            np.ascontiguousarray(np.concatenate(masks)),
+            _joined(masks, np.empty(0, np.uint32)),
         )
 
     def _visible_rows(self, ray_masks, deforming=False):

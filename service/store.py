@@ -30,7 +30,7 @@ from dacrt.sensors.physics import DEFAULT_LABEL, DEFAULT_REFLECTIVITY
 from dacrt.validation import place_vertices
 
 from .errors import Conflict, Invalid, NotFound, TooLarge
-from .footprint import TRIANGLE_BYTES
+from .footprint import POINT_TRIANGLE_BYTES, TRIANGLE_BYTES
 from .wire import FrameChange, MeshArrays, json_ready
 
 if TYPE_CHECKING:
@@ -291,8 +291,9 @@ class Snapshot:
     @property
     def nbytes(self) -> int:
         """Bytes the version holds once queried: its arrays, and the engine's scene of every
-        placed triangle (an instance's again), footprint.TRIANGLE_BYTES each at the most."""
-        return self.array_bytes + self.n_triangles * TRIANGLE_BYTES
+        placed triangle (an instance's again), footprint.TRIANGLE_BYTES each at the most, and
+        POINT_TRIANGLE_BYTES more once point queries have placed them."""
+        return self.array_bytes + self.n_triangles * (TRIANGLE_BYTES + POINT_TRIANGLE_BYTES)
 
     @property
     def held_bytes(self) -> int:
@@ -680,8 +681,8 @@ class Store:
         if nbytes > self.max_scene_bytes:
             raise TooLarge(
                 f"scenes would hold {nbytes} bytes (vertices and faces, and the engine's "
-                f"{TRIANGLE_BYTES} bytes a placed triangle), over the limit of "
-                f"{self.max_scene_bytes} bytes (DACRT_MAX_SCENE_BYTES)"
+                f"{TRIANGLE_BYTES + POINT_TRIANGLE_BYTES} bytes a placed triangle), over the "
+                f"limit of {self.max_scene_bytes} bytes (DACRT_MAX_SCENE_BYTES)"
             )
         if self.journal is not None:
             self._last_version[scene] = version  # a failed write still uses up its version

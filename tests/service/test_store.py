@@ -12,9 +12,12 @@ from service_helpers import grid, quad
 from dacrt import InputError
 from service import tracing
 from service.errors import Conflict, Invalid, NotFound, TooLarge
-from service.footprint import TRIANGLE_BYTES
+from service.footprint import POINT_TRIANGLE_BYTES, TRIANGLE_BYTES
 from service.store import Snapshot, Store, check_name, referenced_bounds
 from service.wire import FrameChange, MeshArrays
+
+#: What a stored scene counts per placed triangle: the engine's scene and its point queries'.
+PLACED_BYTES = TRIANGLE_BYTES + POINT_TRIANGLE_BYTES
 
 
 def mesh(*args) -> MeshArrays:
@@ -157,24 +160,24 @@ def test_limits_name_their_setting(store):
     ):
         store.put_mesh("s", "big", MeshArrays(*grid(30)))
     small = MeshArrays(*grid(10))  # 200 triangles, 121 vertices: 3852 bytes of arrays
-    for i in range(5):  # and 200 x 80 bytes of engine scene: 19852 bytes each
+    for i in range(3):  # and 200 x 128 bytes of engine scene: 29452 bytes each
         store.put_mesh(f"s{i}", "m", small)
     with pytest.raises(TooLarge, match="over the limit of 100000 bytes .*DACRT_MAX_SCENE_BYTES"):
-        store.put_mesh("s5", "m", small)
-    assert store.nbytes == 5 * (3852 + 200 * TRIANGLE_BYTES)
+        store.put_mesh("s3", "m", small)
+    assert store.nbytes == 3 * (3852 + 200 * PLACED_BYTES)
     with pytest.raises(NotFound):
-        store.snapshot("s5")
+        store.snapshot("s3")
 
 
 def test_the_scene_limit_counts_the_engines_placed_triangles():
     """Instances share their source's arrays but the engine places each one's triangles: the
     limit counts them (7 instances of a mesh whose arrays alone fit)."""
-    store = Store(max_triangles_per_scene=100_000, max_scene_bytes=390_000)
+    store = Store(max_triangles_per_scene=100_000, max_scene_bytes=600_000)
     store.put_mesh("s", "car", MeshArrays(*grid(20)))  # 14892 bytes, 800 triangles
     for i in range(4):
         store.put_instance("s", f"car{i}", "car", np.eye(4))
-    assert store.nbytes == 14892 + 5 * 800 * TRIANGLE_BYTES
-    with pytest.raises(TooLarge, match="engine's 80 bytes a placed triangle.*DACRT_MAX_SCENE_"):
+    assert store.nbytes == 14892 + 5 * 800 * PLACED_BYTES
+    with pytest.raises(TooLarge, match="engine's 128 bytes a placed triangle.*DACRT_MAX_SCENE_"):
         store.put_instance("s", "car4", "car", np.eye(4))
     assert store.snapshot("s").array_bytes == 14892
 
@@ -337,7 +340,7 @@ def test_a_transform_that_leaves_the_float32_range_is_422(store):
 
 
 def test_instances_share_their_sources_arrays_counted_once():
-    store = Store(max_triangles_per_scene=10_000, max_scene_bytes=500_000)
+    store = Store(max_triangles_per_scene=10_000, max_scene_bytes=700_000)
     source, _ = store.put_mesh("s", "car", MeshArrays(*grid(20)))  # 14892 bytes
     for i in range(5):
         store.put_instance("s", f"car{i}", "car", turn(10 * i, shift=(i, 0, 0)), mask=i + 1)
@@ -347,9 +350,9 @@ def test_instances_share_their_sources_arrays_counted_once():
         assert made.vertices is source.vertices and made.faces is source.faces
         assert (made.instance_of, made.mask, made.index) == ("car", i + 1, i + 1)
     assert snapshot.array_bytes == 14892 and snapshot.n_triangles == 6 * 800
-    assert store.nbytes == snapshot.nbytes == 14892 + 6 * 800 * TRIANGLE_BYTES
+    assert store.nbytes == snapshot.nbytes == 14892 + 6 * 800 * PLACED_BYTES
     store.delete_mesh("s", "car0")
-    assert store.nbytes == 14892 + 5 * 800 * TRIANGLE_BYTES
+    assert store.nbytes == 14892 + 5 * 800 * PLACED_BYTES
 
 
 def test_instances_follow_their_sources_arrays(store):
@@ -453,7 +456,7 @@ def test_the_triangle_limit_is_exact():
 
 
 def test_the_byte_limit_is_exact():
-    nbytes = 3852 + 200 * TRIANGLE_BYTES  # grid(10): its arrays and its engine scene
+    nbytes = 3852 + 200 * PLACED_BYTES  # grid(10): its arrays and its engine scene
     Store(1000, max_scene_bytes=nbytes).put_mesh("s", "m", MeshArrays(*grid(10)))
     with pytest.raises(TooLarge, match=f"{nbytes} bytes .* limit of {nbytes - 1} bytes"):
         Store(1000, max_scene_bytes=nbytes - 1).put_mesh("s", "m", MeshArrays(*grid(10)))
