@@ -184,8 +184,8 @@ def make_options(
     known = keys_of(kind)
     # a lidar answers a PCD file too, whose fields may be a vector key's columns
     columns = PCD_COLUMNS if kind is Sensor.LIDAR else {}
-    chosen = pick_fields(fields, known, kind.value, columns)
     asked = None if fields is None else listed(fields)
+    chosen = pick_fields(fields, asked, known, kind.value, columns)
     if kind is Query.HITS:
         if set(chosen) & set(PER_HIT_FIELDS):
             chosen = ("offsets", *(name for name in chosen if name != "offsets"))
@@ -217,17 +217,17 @@ def query_named(name: str) -> Query:
 
 def pick_fields(
     fields: str | None,
+    names: tuple[str, ...] | None,
     known: tuple[str, ...],
     what: str,
     columns: dict[str, str] | None = None,
 ) -> tuple[str, ...]:
-    """``?fields=`` as a tuple in ``known``'s order (all of them if None), a name of ``columns``
-    (a PCD column, ``x``) standing for its key (``xyz``); 422 naming the choices for an unknown
-    or empty list."""
-    if fields is None:
+    """``?fields=`` (``names``: its names, ``listed``) as a tuple in ``known``'s order (all of
+    them if None), a name of ``columns`` (a PCD column, ``x``) standing for its key (``xyz``);
+    422 naming the choices for an unknown or empty list."""
+    if fields is None or names is None:
         return known
     columns = columns or {}
-    names = listed(fields)
     unknown = [name for name in names if name not in known and name not in columns]
     if unknown or not names:
         message = unknown_fields(fields, unknown, what, known)
