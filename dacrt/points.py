@@ -67,14 +67,38 @@ Seeds = namedtuple("Seeds", ["codes", "rows"])
 Seeds.__doc__ = """The triangles a point measures first: the visible rows (int32) sorted by the
 Morton codes (int64) of their box centres."""
 
-SceneTriangles = namedtuple("SceneTriangles", ["verts", "global_ids", "mesh_offsets", "row_masks"])
-SceneTriangles.__doc__ = """What a point query reads of a scene (``Scene._scene_triangles``).
+SceneTriangles = namedtuple(
+    "SceneTriangles",
+    ["verts", "global_ids", "mesh_offsets", "row_masks", "bounds", "box", "seeds"],
+)
+SceneTriangles.__doc__ = """What a point query reads of a scene (``Scene._scene_triangles``),
+derived once for all its point queries (``scene_triangles``).
 
 verts : (F, 9) float32, each live triangle's corners p0, p1, p2 in scene space
 global_ids : (F,) int32, each row's triangle in the meshes' numbering (mesh_offsets[mesh] + prim)
 mesh_offsets : (n_meshes + 1,) int64, the first global id of each mesh
 row_masks : (F,) uint32, each row's mesh mask
+bounds : (F, 6) float32, each row's box
+box : (6,) float32, the rows' box
+seeds : ``Seeds`` of every row, Morton codes over ``box``
 """
+
+
+def scene_triangles(verts, global_ids, mesh_offsets, row_masks):
+    """``SceneTriangles`` of the rows ``verts``, with their boxes and every row's seeds."""
+    bounds = np.empty((len(verts), 6), FLOAT)
+    box = np.empty(6, FLOAT)
+    triangle_boxes(verts, bounds, box)
+    seeds = sorted_seeds(bounds, np.arange(len(verts), dtype=INDEX), box)
+    return SceneTriangles(verts, global_ids, mesh_offsets, row_masks, bounds, box, seeds)
+
+
+def sorted_seeds(tri_bounds, rows, box):
+    """``Seeds`` of ``rows``: sorted by the Morton codes of their box centres over ``box``."""
+    codes = triangle_codes(tri_bounds, rows, box)
+    by_code = np.argsort(codes, kind="stable")
+    return Seeds(codes[by_code], rows[by_code].astype(INDEX))
+
 
 # Bits of a Morton code per axis (30 bits in all, a uint32).
 MORTON_BITS = 10
@@ -579,13 +603,12 @@ def nearest(scene_triangles, points, max_distance, point_masks, visible_rows, th
     )
     if n_points == 0 or len(rows) == 0:
         return answer, counters
-    tri_bounds = np.empty((len(verts), 6), FLOAT)
-    scene_box = np.empty(6, FLOAT)
-    triangle_boxes(verts, tri_bounds, scene_box)
-    box = scene_box if visible_rows is None else visible_box(tri_bounds, rows)
-    codes = triangle_codes(tri_bounds, rows, box)
-    by_code = np.argsort(codes, kind="stable")
-    seeds = Seeds(codes[by_code], rows[by_code].astype(INDEX))
+    tri_bounds = scene_triangles.bounds
+    if visible_rows is None:  # every row: the seeds the scene derived once
+        box, seeds = scene_triangles.box, scene_triangles.seeds
+    else:
+        box = visible_box(tri_bounds, rows)
+        seeds = sorted_seeds(tri_bounds, rows, box)
     extent = float(np.max(box[3:].astype(np.float64) - box[:3]))
     slack2 = (POINT_CULL_SLACK * max(extent, float(np.max(np.abs(box))))) ** 2
     max_d2 = search_limit2(max_distance)

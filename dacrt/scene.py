@@ -555,8 +555,8 @@ class Scene:
     @property
     def nbytes(self) -> int:
         """Bytes held by the scene's packed arrays (each shared one once), with those derived
-        on demand once they exist: the rows' masks, and the placed triangles of point queries
-        beyond the base level's own."""
+        on demand once they exist: the rows' masks, and what point queries read (the placed
+        triangles beyond the base level's own, their boxes and order)."""
         held = {id(self._base): self._base}
         held.update((id(i.packed), i.packed) for i in self._instances)
         if self._deforming is not None:
@@ -570,7 +570,8 @@ class Scene:
             packed_arrays = {id(a) for a in (self._base.verts, self._base.ids)}
             arrays.update(
                 (id(a), a)
-                for a in (placed.verts, placed.global_ids, placed.row_masks)
+                for a in (placed.verts, placed.global_ids, placed.row_masks, placed.bounds)
+                + tuple(placed.seeds)
                 if id(a) not in packed_arrays
             )
         return int(
@@ -1212,7 +1213,7 @@ class Scene:
             ids.append((instance.packed.ids[live] + self.mesh_offsets[instance.mesh]).astype(INDEX))
             masks.append(np.full(len(live), self.masks[instance.mesh], np.uint32))
         # The base level alone is its own arrays: no copy.
-        return point_queries.SceneTriangles(
+        return point_queries.scene_triangles(
             _joined(verts, np.empty((0, 9), FLOAT)),
             _joined(ids, np.empty(0, INDEX)),
             self.mesh_offsets,

@@ -52,10 +52,11 @@ MIN_FRAME_MESH_BYTES = 10
 MESH_INFO_BYTES = 4096
 #: Bytes of engine scene per triangle (corners, box, row, normal, mask) ...
 TRIANGLE_BYTES = 80
-#: ... and per placed triangle of a stored scene, once a point query has placed them in scene
-#: space (corners, id and mask: measured 47.8 for the street world with 40 placed cars; the
-#: base level's own triangles take none more in a scene without instances or deforming meshes).
-POINT_TRIANGLE_BYTES = 48
+#: ... and per placed triangle of a stored scene, once a point query has derived what it reads:
+#: the triangles placed in scene space (corners, id and mask; none in a scene without instances
+#: or deforming meshes, which reads its own rows), their boxes and Morton order (measured 83.8
+#: for the street world with 40 placed cars, 40 for one without instances).
+POINT_TRIANGLE_BYTES = 88
 #: Peak bytes per body byte while a JSON body is parsed (measured 3.7-15.5: a digit is an 8-byte
 #: list slot, a float a 24-byte object).
 JSON_PARSE_FACTOR = 16
@@ -103,9 +104,11 @@ VOTE_DIRECTION_BYTES = 64
 RAY_QUERY_TRIANGLE_BYTES = 16
 #: ... and per chunk or half traced at once (its triangle ids and bins: measured 4.7).
 RAY_THREAD_TRIANGLE_BYTES = 6
-#: Bytes per placed triangle of a point query, whatever its points (the triangles' boxes, Morton
-#: codes and order: measured 61.0) ...
-POINT_QUERY_TRIANGLE_BYTES = 64
+#: Bytes per placed triangle of a point query, whatever its points (the rows: measured 9.0) ...
+POINT_QUERY_TRIANGLE_BYTES = 12
+#: ... or of one whose ?mask= hides some meshes (the visible rows' boxes, Morton codes and order:
+#: measured 34.4) ...
+MASKED_POINT_TRIANGLE_BYTES = 48
 #: ... and per chunk measured at once (its rows: measured 4.0).
 POINT_THREAD_TRIANGLE_BYTES = 4
 #: The smallest bytes of one point in a body of each format (npz counted as stored).
@@ -186,17 +189,17 @@ def point_query_bytes(n_points: int, sign: bool, nsamples: int) -> int:
 
 
 def scene_work_bytes(
-    n_triangles: int, n_items: int, threads: int | None, points: bool = False
+    n_triangles: int, n_items: int, threads: int | None, points: bool = False, masked: bool = False
 ) -> int:
-    """Peak bytes of a query of ``n_items`` rays (or points, with ``points``) on the triangles of
-    a scene of ``n_triangles`` placed triangles, beyond what its rays or points take, on
-    ``threads`` engine threads (None: every core): the per-triangle work, and that of each
-    chunk (or half) traced at once. A point query's inside test (``?sign=true``) comes after
-    it and takes less."""
+    """Peak bytes of a query of ``n_items`` rays (or points, with ``points``; with ``masked``, a
+    ?mask=) on the triangles of a scene of ``n_triangles`` placed triangles, beyond what its rays
+    or points take, on ``threads`` engine threads (None: every core): the per-triangle work, and
+    that of each chunk (or half) traced at once."""
     threads = threads or N_CORES
     if points:
         at_once = min(threads, max(1, n_items))
-        return n_triangles * (POINT_QUERY_TRIANGLE_BYTES + at_once * POINT_THREAD_TRIANGLE_BYTES)
+        per_query = MASKED_POINT_TRIANGLE_BYTES if masked else POINT_QUERY_TRIANGLE_BYTES
+        return n_triangles * (per_query + at_once * POINT_THREAD_TRIANGLE_BYTES)
     halves = 2 if threads > 1 and n_items >= MIN_RAYS_TO_SPLIT_TRIANGLES else 1
     at_once = min(threads, max(halves, n_items // MIN_RAYS_PER_THREAD))
     return n_triangles * (RAY_QUERY_TRIANGLE_BYTES + at_once * RAY_THREAD_TRIANGLE_BYTES)

@@ -6,6 +6,8 @@ from __future__ import annotations
 from anyio.to_thread import run_sync
 from fastapi import APIRouter, Depends, Request
 
+from dacrt.points import vote_rays_at_once
+
 from .. import footprint, openapi, tracing, wire
 from ..deps import MetricsDep, SettingsDep, StoreDep, reject_unknown_query, require_token
 from ..params import MaxDistance, NSamples, PointFormat, PointMask, SceneName, Sign, Stats
@@ -83,7 +85,12 @@ async def nearest(
         f"{request.method} {request.url.path} of {len(points)} points on the {n_triangles} "
         f"triangles of scene {scene!r}"
     )
-    work = footprint.scene_work_bytes(n_triangles, len(points), settings.threads, points=True)
+    work = footprint.scene_work_bytes(
+        n_triangles, len(points), settings.threads, points=True, masked=point_mask is not None
+    )
+    if sign:  # the inside test's rays, on the same triangles once the points are measured
+        rays = vote_rays_at_once(len(points), options.nsamples)
+        work = max(work, footprint.scene_work_bytes(n_triangles, rays, settings.threads))
     await got.ticket.hold(peak(len(got.body), None, len(points)) + got.inflated + work, what)
 
     def work():

@@ -264,7 +264,7 @@ def test_a_one_shot_trace_of_too_many_triangles_is_413(limited):
 
 
 def test_total_scene_memory_over_the_limit_is_413(limited, scene_name):
-    mesh = grid(20)  # 441 vertices and 800 faces: 14892 bytes, and 800 x 80 of engine scene
+    mesh = grid(16)  # 289 vertices and 512 faces: 9612 bytes, and 512 x 168 of engine scene
     limited.put_mesh(scene_name + "-1", "m", *mesh)
     limited.put_mesh(scene_name + "-2", "m", *mesh)
     try:
