@@ -194,7 +194,8 @@ class BodyHold:
 
     def __init__(self, request: Request, most: int) -> None:
         self.ticket: Ticket = request.state.ticket
-        self.route = f"{request.method} {request.url.path}"
+        #: the request in the budget's messages, with its load on a scene (``pipeline.receive``)
+        self.route = f"{request.method} {request.url.path}{getattr(request.state, 'load', '')}"
         self.most = most  #: the body's Content-Length, or else DACRT_MAX_BODY_BYTES
         self.received = 0  #: body bytes received
         self.covered = 0  #: body bytes that what the ticket holds covers

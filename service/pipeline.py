@@ -17,7 +17,7 @@ from typing import Any
 from anyio.to_thread import run_sync
 from fastapi import Request
 
-from . import footprint, wire
+from . import wire
 from .admission import Ticket
 from .deps import Estimate, hold_decoding, read_body
 from .metrics import Metrics
@@ -64,8 +64,8 @@ async def answer(
     steps: Steps,
 ) -> BuffersResponse:
     """Receive the body sent to ``scene`` of ``store`` (None: a one-shot /trace), decode it,
-    hold the in-flight budget for its peak (with the work on the scene's triangles), trace and
-    encode it, and answer; the steps run off the event loop."""
+    hold the in-flight budget for its peak (``Decoded.peak``: with the work on the scene's
+    triangles), trace and encode it, and answer; the steps run off the event loop."""
     got = await receive(request, settings, store, scene, format, steps.formats, steps.estimate)
 
     def decode() -> Decoded:
@@ -74,12 +74,9 @@ async def answer(
 
     decoded = await run_sync(decode)
     what = f"{request.method} {request.url.path} of {decoded.n_rays} rays"
-    work = 0
-    if scene is not None:  # the work on the scene's triangles
-        n_triangles = store.snapshot(scene).n_triangles
-        work = footprint.scene_work_bytes(n_triangles, decoded.n_rays, options.threads)
-        what += f" on the {n_triangles} triangles of scene {scene!r}"
-    await got.ticket.hold(decoded.peak + got.inflated + work, what)
+    if scene is not None:
+        what += f" on the {store.snapshot(scene).n_triangles} triangles of scene {scene!r}"
+    await got.ticket.hold(decoded.peak + got.inflated, what)
 
     def work() -> tuple[TraceResult, Encoded]:
         with got.timing("trace"):
@@ -115,7 +112,9 @@ async def receive(
     in the budget) and its format (415 naming ``formats``); the estimate is held again for the
     format the body turned out to be in, with what a compressed .npz inflates to."""
     if scene is not None:  # the trace step takes the scene's version current by then
-        store.snapshot(check_name("scene", scene))
+        n_triangles = store.snapshot(check_name("scene", scene)).n_triangles
+        # what the budget's messages say of the request's load (``deps.BodyHold``)
+        request.state.load = f" on the {n_triangles} triangles of scene {scene!r}"
     timing = ServerTiming()
     with timing("receive"):
         body = await read_body(request, settings.max_body_bytes, estimate)

@@ -4,6 +4,8 @@ engine's sensors (``sensor_requests``), traced by ``dacrt.sensors`` (``sensing``
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
@@ -20,6 +22,7 @@ from ..deps import (
     require_token,
 )
 from ..errors import Invalid, TooLarge
+from ..options import Options
 from ..params import (
     CameraOptions,
     LidarOptions,
@@ -40,6 +43,7 @@ from ..sensor_requests import (
     parse,
 )
 from ..settings import Settings
+from ..store import Store
 from ..tracing import TraceResult
 
 router = APIRouter(
@@ -96,12 +100,14 @@ async def render(
     vertical field of view (docs/sensors.md)."""
     wire.check_accepts(request.headers.get("accept"), PNG)
 
+    work = triangles_work(store, scene, options)
+
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(RenderRequest, body, "render")
         check_pixels({"render": wanted}, settings)
         camera, pose = wanted.sensor()
         check_sensors({"render": camera}, settings)
-        return sensor_decoded((camera, pose, wanted.shading), body, [camera], "png")
+        return sensor_decoded((camera, pose, wanted.shading), body, [camera], "png", work)
 
     def trace(value) -> TraceResult:
         camera, pose, style = value
@@ -139,12 +145,14 @@ async def camera(
     along the ray, the mesh, the triangle and its normal (docs/sensors.md)."""
     answer_format = wire.negotiate(request.headers.get("accept"), "json")
 
+    work = triangles_work(store, scene, options)
+
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(CameraRequest, body, "camera")
         check_pixels({"camera": wanted}, settings)
         sensor, pose = wanted.sensor()
         check_sensors({"camera": sensor}, settings)
-        return sensor_decoded((sensor, pose), body, [sensor], answer_format)
+        return sensor_decoded((sensor, pose), body, [sensor], answer_format, work)
 
     def trace(value) -> TraceResult:
         return sensing.sense(store.snapshot(scene), *value, options)
@@ -185,12 +193,16 @@ async def lidar(
     answer_format = wire.negotiate(request.headers.get("accept"), "json", LIDAR_FORMATS)
     options.check_columns(answer_format)
 
+    work = triangles_work(store, scene, options)
+
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(LidarRequest, body, "lidar")
         sensor, pose = wanted.sensor(patterns.for_lidar)
         check_answered_fields(options.fields, sensor)
         check_sensors({"lidar": sensor}, settings)
-        return sensor_decoded((sensor, pose, wanted.end_pose()), body, [sensor], answer_format)
+        return sensor_decoded(
+            (sensor, pose, wanted.end_pose()), body, [sensor], answer_format, work
+        )
 
     def trace(value) -> TraceResult:
         sensor, pose, pose_end = value
@@ -236,6 +248,8 @@ async def sensors(
     what it answers alone (``?fields=`` picks the keys each has)."""
     answer_format = wire.negotiate(request.headers.get("accept"), "json", RIG_FORMATS)
 
+    work = triangles_work(store, scene, options)
+
     def decode(body: memoryview, fmt: str) -> Decoded:
         wanted = parse(SensorsRequest, body, "sensors", settings.max_rig_sensors)
         check_pixels(
@@ -246,7 +260,7 @@ async def sensors(
             check_answered_fields(options.fields, sensor, f"sensors.{name}: ")
         check_sensors({name: sensor for name, (sensor, _) in rig.items()}, settings)
         sensors = [sensor for sensor, _ in rig.values()]
-        return sensor_decoded((rig, ends), body, sensors, answer_format)
+        return sensor_decoded((rig, ends), body, sensors, answer_format, work)
 
     def trace(value) -> TraceResult:
         rig, ends = value
@@ -279,9 +293,20 @@ def rig_sensors(
     return placed, ends
 
 
-def sensor_decoded(value, body: memoryview, sensors: list, answer_format: str) -> Decoded:
-    """Sensors' body decoded into ``value``, holding its body, the sensors' rays and hits and
-    its answer in ``answer_format``."""
+def triangles_work(store: Store, scene: str, options: Options) -> Callable[[int], int]:
+    """The work of a batch of so many rays on the triangles of ``scene``'s current version
+    (``footprint.scene_work_bytes``)."""
+    return lambda n_rays: footprint.scene_work_bytes(
+        store.snapshot(scene).n_triangles, n_rays, options.threads
+    )
+
+
+def sensor_decoded(
+    value, body: memoryview, sensors: list, answer_format: str, work: Callable[[int], int]
+) -> Decoded:
+    """Sensors' body decoded into ``value``, holding its body, the sensors' rays and hits, the
+    work of so many rays on the scene's triangles (``work``) and its answer in
+    ``answer_format``."""
     peak = len(body) + footprint.answer_bytes(answer_format)
     n_rays = 0
     for sensor in sensors:
@@ -290,7 +315,7 @@ def sensor_decoded(value, body: memoryview, sensors: list, answer_format: str) -
         if isinstance(sensor, Lidar) and (sensor.organized or sensor.non_hits == "keep"):
             peak += sensor.n_beams * sensor.slots * footprint.FILLED_POINT_BYTES
         n_rays += rays
-    return Decoded(value, n_rays, peak, answer_format)
+    return Decoded(value, n_rays, peak + work(n_rays), answer_format)
 
 
 def check_answered_fields(fields: tuple[str, ...], sensor: Lidar | Camera, where: str = "") -> None:

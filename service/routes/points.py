@@ -61,12 +61,22 @@ async def nearest(
     answer_format = wire.negotiate(accept, declared or "npz")  # again once the body is read
 
     def peak(n_body: int, fmt: str | None, n_points: int | None = None) -> int:
-        """The request's peak bytes: its body decoded, its points measured, its answer written."""
+        """The request's peak bytes: its body decoded, its points measured (with the work on
+        the scene's triangles), its answer written; before the body is read, the most it can
+        hold."""
         if n_points is None:
             n_points = footprint.most_points(n_body, fmt, max_points)
+        n_triangles = store.snapshot(scene).n_triangles
+        work = footprint.scene_work_bytes(
+            n_triangles, n_points, settings.threads, points=True, masked=point_mask is not None
+        )
+        if sign:  # the inside test's rays, on the same triangles once the points are measured
+            rays = vote_rays_at_once(n_points, options.nsamples)
+            work = max(work, footprint.scene_work_bytes(n_triangles, rays, settings.threads))
         return (
             footprint.decode_bytes(n_body, fmt)
             + footprint.point_query_bytes(n_points, sign, options.nsamples)
+            + work
             + footprint.answer_bytes(answer_format)
         )
 
@@ -80,18 +90,11 @@ async def nearest(
 
     points = await run_sync(decode)
     tracing.check_point_rays(options, len(points), max_points)
-    n_triangles = store.snapshot(scene).n_triangles
     what = (
-        f"{request.method} {request.url.path} of {len(points)} points on the {n_triangles} "
-        f"triangles of scene {scene!r}"
+        f"{request.method} {request.url.path} of {len(points)} points on the "
+        f"{store.snapshot(scene).n_triangles} triangles of scene {scene!r}"
     )
-    work = footprint.scene_work_bytes(
-        n_triangles, len(points), settings.threads, points=True, masked=point_mask is not None
-    )
-    if sign:  # the inside test's rays, on the same triangles once the points are measured
-        rays = vote_rays_at_once(len(points), options.nsamples)
-        work = max(work, footprint.scene_work_bytes(n_triangles, rays, settings.threads))
-    await got.ticket.hold(peak(len(got.body), None, len(points)) + got.inflated + work, what)
+    await got.ticket.hold(peak(len(got.body), None, len(points)) + got.inflated, what)
 
     def work():
         with got.timing("trace"):

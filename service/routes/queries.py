@@ -160,12 +160,28 @@ def ray_steps(
     max_rays = settings.max_rays_per_request
     limits = {"max_rays": max_rays, "max_bytes": settings.max_body_bytes}
 
-    def peak(n_body: int, fmt: str | None, answer_format: str, n_rays: int | None = None) -> int:
-        """The request's peak bytes: its body decoded, its rays traced, its answer written."""
+    def peak(
+        n_body: int,
+        fmt: str | None,
+        answer_format: str,
+        n_rays: int | None = None,
+        n_mesh_triangles: int | None = None,
+    ) -> int:
+        """The request's peak bytes: its body decoded, its rays traced (with the work on the
+        triangles of the scene, or of a one-shot /trace's mesh: ``n_mesh_triangles`` once it
+        is decoded), its answer written; before the body is read, the most it can hold."""
         if n_rays is None:
             n_rays = footprint.most_rays(n_body, fmt, max_rays)
-        mesh = footprint.mesh_scene_bytes(n_body) if scene is None else 0  # /trace's mesh
+        mesh = 0
+        if scene is None:  # /trace's mesh, of at most the triangles its body can hold
+            if n_mesh_triangles is None:
+                n_mesh_triangles = footprint.most_triangles(n_body)
+            mesh = n_mesh_triangles * footprint.TRIANGLE_BYTES
+            n_triangles = n_mesh_triangles
+        else:
+            n_triangles = store.snapshot(scene).n_triangles
         work = footprint.query_bytes(n_rays, options.kind.value, options.fields, options.max_hits)
+        work += footprint.scene_work_bytes(n_triangles, n_rays, options.threads)
         return (
             footprint.decode_bytes(n_body, fmt)
             + mesh
@@ -181,9 +197,8 @@ def ray_steps(
         else:
             mesh, rays = None, wire.decode_rays(body, fmt, **limits)
         check_hit_buffers(len(rays), options, settings.max_hits_bytes)
-        held = peak(len(body), None, answer_format, len(rays))
-        if mesh is not None:  # the work on the mesh's triangles
-            held += footprint.scene_work_bytes(len(mesh.faces), len(rays), options.threads)
+        n_mesh_triangles = None if mesh is None else len(mesh.faces)
+        held = peak(len(body), None, answer_format, len(rays), n_mesh_triangles)
         return Decoded((mesh, rays), len(rays), held, answer_format)
 
     def trace(value) -> tracing.TraceResult:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import io
 import json
+import threading
 import tracemalloc
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -809,3 +810,43 @@ def test_a_query_whose_work_on_the_scene_exceeds_the_budget_is_413(crowded_scene
     assert "1000000 triangles of scene 'crowd'" in detail and "DACRT_MAX_INFLIGHT_BYTES" in detail
     small = crowded_scene_app.post(f"/v1/scenes/small/{query}", json=body, headers=JSON)
     assert small.status_code == 200, small.text
+
+
+def test_concurrent_small_queries_on_a_large_scene_are_each_served_in_turn():
+    """Twelve one-ray JSON queries at once into a million placed triangles, on a budget that
+    holds two of them: each is held with its work on the scene's triangles from before its body
+    is read, so those waiting hold nothing, and all twelve answer (none waits for the others
+    until its wait runs out)."""
+    vertices, faces = grid_arrays(100)  # 20,000 triangles, and 49 instances of them
+    scene_work = footprint.scene_work_bytes(50 * len(faces), 1, 2)
+    budget = 2 * (footprint.JSON_ANSWER_BYTES + scene_work + MiB)
+    server = ServerProcess(
+        {
+            "DACRT_MAX_INFLIGHT_BYTES": str(budget),
+            "DACRT_ADMISSION_WAIT": "20",
+            "DACRT_THREADS": "2",
+        }
+    )
+    try:
+        server.wait_ready()
+        mesh = {"vertices": vertices.tolist(), "faces": faces.tolist()}
+        httpx.put(f"{server.url}/v1/scenes/crowd/meshes/car", json=mesh).raise_for_status()
+        for k in range(1, 50):
+            httpx.put(
+                f"{server.url}/v1/scenes/crowd/meshes/car{k}", json={"instance_of": "car"}
+            ).raise_for_status()
+        body = {"origins": [[0, 0, 1]], "directions": [[0, 0, -1]]}
+        url = f"{server.url}/v1/scenes/crowd/closest"
+        assert httpx.post(url, json=body).status_code == 200  # nothing lazy is left
+        together = threading.Barrier(12)
+
+        def post(_):
+            with httpx.Client(timeout=120) as client:
+                together.wait()
+                return client.post(url, json=body)
+
+        with ThreadPoolExecutor(12) as pool:
+            statuses = [a.status_code for a in pool.map(post, range(12))]
+        assert statuses == [200] * 12
+    finally:
+        server.stop()
