@@ -4,9 +4,11 @@
 This is the only module that checks and converts input. A Scene keeps its triangles packed for
 the kernels (``packed``: gathered corners and boxes, O(F) and cheap to make): its untransformed
 meshes as one base level, each placed mesh once in its own space, traced as instances
-(``instances``). Every query partitions rays and triangles from scratch and keeps nothing
-afterwards. ``Scene.with_changes`` makes a new version that shares every unchanged mesh's packed
-arrays. How a batch is cut into chunks and spread over threads is ``chunks``.
+(``instances``); its first point query derives what point queries read (the triangles placed
+in scene space, their boxes and Morton order: ``points``). Every query partitions rays (or
+points) and triangles from scratch and keeps nothing afterwards. ``Scene.with_changes`` makes a
+new version that shares every unchanged mesh's packed arrays. How a batch is cut into chunks and
+spread over threads is ``chunks``.
 """
 
 import functools
