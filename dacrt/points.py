@@ -84,11 +84,13 @@ seeds : ``Seeds`` of every row, Morton codes over ``box``
 """
 
 
-def scene_triangles(verts, global_ids, mesh_offsets, row_masks):
-    """``SceneTriangles`` of the rows ``verts``, with their boxes and every row's seeds."""
-    bounds = np.empty((len(verts), 6), FLOAT)
-    box = np.empty(6, FLOAT)
-    triangle_boxes(verts, bounds, box)
+def scene_triangles(verts, global_ids, mesh_offsets, row_masks, bounds=None, box=None):
+    """``SceneTriangles`` of the rows ``verts``, with their boxes (``bounds`` and ``box`` where
+    the caller holds them already: a packed level's own) and every row's seeds."""
+    if bounds is None:
+        bounds = np.empty((len(verts), 6), FLOAT)
+        box = np.empty(6, FLOAT)
+        triangle_boxes(verts, bounds, box)
     seeds = sorted_seeds(bounds, np.arange(len(verts), dtype=INDEX), box)
     return SceneTriangles(verts, global_ids, mesh_offsets, row_masks, bounds, box, seeds)
 

@@ -569,7 +569,7 @@ class Scene:
             arrays[id(derived)] = derived
         placed = self.__dict__.get("_placed_triangles")
         if placed is not None:  # those that are not the base level's own
-            packed_arrays = {id(a) for a in (self._base.verts, self._base.ids)}
+            packed_arrays = {id(a) for a in (self._base.verts, self._base.ids, self._base.bounds)}
             arrays.update(
                 (id(a), a)
                 for a in (placed.verts, placed.global_ids, placed.row_masks, placed.bounds)
@@ -1214,12 +1214,15 @@ class Scene:
             verts.append(placed[live])
             ids.append((instance.packed.ids[live] + self.mesh_offsets[instance.mesh]).astype(INDEX))
             masks.append(np.full(len(live), self.masks[instance.mesh], np.uint32))
-        # The base level alone is its own arrays: no copy.
+        # The base level alone is its own arrays, boxes included: no copy.
+        alone = len(verts) == 1
         return point_queries.scene_triangles(
             _joined(verts, np.empty((0, 9), FLOAT)),
             _joined(ids, np.empty(0, INDEX)),
             self.mesh_offsets,
             _joined(masks, np.empty(0, np.uint32)),
+            self._base.bounds if alone else None,
+            self._base.box if alone else None,
         )
 
     def _visible_rows(self, ray_masks, deforming=False):

@@ -55,7 +55,7 @@ TRIANGLE_BYTES = 80
 #: ... and per placed triangle of a stored scene, once a point query has derived what it reads:
 #: the triangles placed in scene space (corners, id and mask; none in a scene without instances
 #: or deforming meshes, which reads its own rows), their boxes and Morton order (measured 83.8
-#: for the street world with 40 placed cars, 40 for one without instances).
+#: for the street world with 40 placed cars, 16 for one without instances).
 POINT_TRIANGLE_BYTES = 88
 #: Peak bytes per body byte while a JSON body is parsed (measured 3.7-15.5: a digit is an 8-byte
 #: list slot, a float a 24-byte object).

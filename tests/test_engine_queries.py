@@ -335,23 +335,31 @@ def test_scene_attributes():
 def test_point_queries_place_triangles_the_scene_counts():
     """A point query reads the scene's triangles placed in scene space, their boxes and Morton
     order, derived once and counted in ``nbytes``: a scene of untransformed meshes reads its own
-    packed rows, and holds their masks (4 bytes a triangle), boxes (24) and order (12) more; one
-    with a placed mesh holds every row again as 9 corners, an id and a mask (44 bytes a
-    triangle), beside the base rows' masks. A second query derives nothing more."""
+    packed rows and boxes, and holds their masks (4 bytes a triangle) and order (12) more; one
+    with a placed mesh holds every row again as 9 corners, an id, a mask and a box (68 bytes a
+    triangle), beside the base rows' masks. A second query derives nothing more; the boxes are
+    each row's corners' (NumPy) either way."""
     rng = np.random.default_rng(51)
     a, b = pg.triangle_soup(300, rng), pg.triangle_soup(200, rng)
     plain = dacrt.Scene([a, b])
     before = plain.nbytes
     plain.nearest(np.zeros((4, 3), np.float32))
-    assert plain.nbytes == before + (4 + 24 + 12) * 500
+    assert plain.nbytes == before + (4 + 12) * 500
     plain.nearest(np.ones((4, 3), np.float32), mask=np.arange(1, 5, dtype=np.uint32))
-    assert plain.nbytes == before + (4 + 24 + 12) * 500
+    assert plain.nbytes == before + (4 + 12) * 500
     moved = np.eye(4)
     moved[:3, 3] = (5.0, 0.0, 0.0)
     placed = dacrt.Scene([a, b], transforms=[None, moved])
     before = placed.nbytes
     placed.nearest(np.zeros((4, 3), np.float32))
     assert placed.nbytes == before + (44 + 24 + 12) * 500 + 4 * 300
+    for scene in (plain, placed):
+        read = scene._scene_triangles()
+        corners = read.verts.reshape(-1, 3, 3)
+        np.testing.assert_array_equal(read.bounds, np.hstack([corners.min(1), corners.max(1)]))
+        np.testing.assert_array_equal(
+            read.box, np.hstack([corners.min((0, 1)), corners.max((0, 1))])
+        )
 
 
 def test_empty_mesh_between_others_keeps_numbering():
