@@ -22,6 +22,7 @@ import in_process
 import numpy as np
 import pytest
 from server_process import ServerProcess
+from service_helpers import grid
 
 from service import admission as admission_module
 from service import footprint
@@ -700,19 +701,6 @@ def test_the_default_budget_is_a_quarter_of_the_machines_memory(monkeypatch):
 # ---- the work on a scene's triangles, whatever the rays
 
 
-def grid_arrays(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """A flat n x n grid of quads in z = 0, split in 2 n^2 triangles."""
-    ticks = np.linspace(-1.0, 1.0, n + 1, dtype=np.float32)
-    xs, ys = np.meshgrid(ticks, ticks, indexing="ij")
-    vertices = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size, np.float32)])
-    corner = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
-    faces = np.concatenate(
-        [np.column_stack([corner, corner + n + 1, corner + 1]),
-         np.column_stack([corner + 1, corner + n + 1, corner + n + 2])]
-    ).astype(np.int32)  # fmt: skip
-    return vertices, faces
-
-
 def traced_peak(call) -> int:
     tracemalloc.start()
     try:
@@ -730,10 +718,10 @@ def test_a_ray_query_holds_work_on_every_triangle_within_its_estimate(threads, n
     estimate with the scene's work bounds it (tracemalloc; a grid of 512K triangles)."""
     import dacrt
 
-    vertices, faces = grid_arrays(512)
+    vertices, faces = grid(512)
     scene = dacrt.Scene([(vertices, faces)])
     rng = np.random.default_rng(5)
-    origins = np.column_stack([rng.uniform(-1, 1, (n_rays, 2)), np.full(n_rays, 3.0)])
+    origins = np.column_stack([rng.uniform(0, 1, (n_rays, 2)), np.full(n_rays, 3.0)])
     origins = origins.astype(np.float32)
     directions = np.tile(np.float32([0, 0, -1]), (n_rays, 1))
     scene.closest(origins, directions, threads=threads)  # what a first query derives, once
@@ -755,10 +743,10 @@ def test_a_point_query_holds_work_on_every_triangle_within_its_estimate(n_points
     codes and order (a grid of 512K triangles, and a second mesh the mask hides)."""
     import dacrt
 
-    vertices, faces = grid_arrays(512)
-    hidden = grid_arrays(8)
+    vertices, faces = grid(512)
+    hidden = grid(8)
     scene = dacrt.Scene([(vertices, faces), hidden], masks=[1, 2])
-    points = np.random.default_rng(6).uniform(-1, 1, (n_points, 3)).astype(np.float32)
+    points = np.random.default_rng(6).uniform(0, 1, (n_points, 3)).astype(np.float32)
     mask = np.ones(n_points, np.uint32) if masked else None
     scene.nearest(points, mask=mask, threads=threads)  # what a first query derives, once
     peak = traced_peak(lambda: scene.nearest(points, mask=mask, threads=threads))
@@ -775,7 +763,7 @@ def crowded_scene_app():
     settings = Settings(
         token=None, load_demo=False, max_inflight_bytes=footprint.MIN_BUDGET_BYTES, threads=2
     )
-    vertices, faces = grid_arrays(100)
+    vertices, faces = grid(100)
     with in_process.serve(settings) as client:
         client.put(
             "/v1/scenes/crowd/meshes/car",
@@ -785,7 +773,7 @@ def crowded_scene_app():
             client.put(
                 f"/v1/scenes/crowd/meshes/car{k}", json={"instance_of": "car"}
             ).raise_for_status()
-        small_vertices, small_faces = grid_arrays(20)
+        small_vertices, small_faces = grid(20)
         client.put(
             "/v1/scenes/small/meshes/patch",
             json={"vertices": small_vertices.tolist(), "faces": small_faces.tolist()},
@@ -796,8 +784,8 @@ def crowded_scene_app():
 @pytest.mark.parametrize(
     "query, body",
     [
-        ("closest", {"origins": [[0, 0, 1]], "directions": [[0, 0, -1]]}),
-        ("nearest", {"points": [[0, 0, 1]]}),
+        ("closest", {"origins": [[0.5, 0.5, 1]], "directions": [[0, 0, -1]]}),
+        ("nearest", {"points": [[0.5, 0.5, 1]]}),
     ],
 )
 def test_a_query_whose_work_on_the_scene_exceeds_the_budget_is_413(crowded_scene_app, query, body):
@@ -817,7 +805,7 @@ def test_concurrent_small_queries_on_a_large_scene_are_each_served_in_turn():
     holds two of them: each is held with its work on the scene's triangles from before its body
     is read, so those waiting hold nothing, and all twelve answer (none waits for the others
     until its wait runs out)."""
-    vertices, faces = grid_arrays(100)  # 20,000 triangles, and 49 instances of them
+    vertices, faces = grid(100)  # 20,000 triangles, and 49 instances of them
     scene_work = footprint.scene_work_bytes(50 * len(faces), 1, 2)
     budget = 2 * (footprint.JSON_ANSWER_BYTES + scene_work + MiB)
     server = ServerProcess(
@@ -835,7 +823,7 @@ def test_concurrent_small_queries_on_a_large_scene_are_each_served_in_turn():
             httpx.put(
                 f"{server.url}/v1/scenes/crowd/meshes/car{k}", json={"instance_of": "car"}
             ).raise_for_status()
-        body = {"origins": [[0, 0, 1]], "directions": [[0, 0, -1]]}
+        body = {"origins": [[0.5, 0.5, 1]], "directions": [[0, 0, -1]]}
         url = f"{server.url}/v1/scenes/crowd/closest"
         assert httpx.post(url, json=body).status_code == 200  # nothing lazy is left
         together = threading.Barrier(12)
