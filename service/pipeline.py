@@ -73,9 +73,8 @@ async def answer(
             return steps.decode(got.body, got.fmt)
 
     decoded = await run_sync(decode)
-    what = f"{request.method} {request.url.path} of {decoded.n_rays} rays"
-    if scene is not None:
-        what += f" on the {store.snapshot(scene).n_triangles} triangles of scene {scene!r}"
+    load = getattr(request.state, "load", "")  # on a scene: its triangles (``receive``)
+    what = f"{request.method} {request.url.path} of {decoded.n_rays} rays{load}"
     await got.ticket.hold(decoded.peak + got.inflated, what)
 
     def work() -> tuple[TraceResult, Encoded]:

@@ -277,9 +277,10 @@ class Snapshot:
     #: be made from (``earlier``); held until this version caches its own
     _earlier: list[Snapshot] = field(default_factory=list, compare=False, repr=False)
 
-    @property
+    @functools.cached_property
     def n_triangles(self) -> int:
-        """Placed triangles: an instance's count as many as its source's."""
+        """Placed triangles: an instance's count as many as its source's (a version's meshes do
+        not change; every query's budget reads it)."""
         return sum(m.n_triangles for m in self.meshes.values())
 
     @property

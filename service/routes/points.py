@@ -90,10 +90,7 @@ async def nearest(
 
     points = await run_sync(decode)
     tracing.check_point_rays(options, len(points), max_points)
-    what = (
-        f"{request.method} {request.url.path} of {len(points)} points on the "
-        f"{store.snapshot(scene).n_triangles} triangles of scene {scene!r}"
-    )
+    what = f"{request.method} {request.url.path} of {len(points)} points{request.state.load}"
     await got.ticket.hold(peak(len(got.body), None, len(points)) + got.inflated, what)
 
     def work():
