@@ -17,6 +17,7 @@ budget needs no lock.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 from collections import deque
 from collections.abc import Callable
@@ -76,6 +77,15 @@ class Ticket:
         self.admission.resize_now(self, 0)
 
 
+class Place:
+    """A request's place in line: what it holds, what more it needs, and the future it waits on."""
+
+    def __init__(self, held: int, extra: int, turn: asyncio.Future) -> None:
+        self.held = held
+        self.extra = extra
+        self.turn = turn
+
+
 class Admission:
     """The in-flight budget of one app."""
 
@@ -84,7 +94,7 @@ class Admission:
         self.wait = wait  #: DACRT_ADMISSION_WAIT
         self.held = 0  #: bytes held by admitted tickets
         self.on_refused: Callable[[], None] = lambda: None  #: called for each 503 (metrics)
-        self._line: deque[asyncio.Future] = deque()
+        self._line: deque[Place] = deque()
 
     def ticket(self) -> Ticket:
         return Ticket(self)
@@ -105,26 +115,30 @@ class Admission:
         loop = asyncio.get_running_loop()
         if ticket.deadline is None:
             ticket.deadline = loop.time() + self.wait
-        turn = loop.create_future()
+        place = Place(ticket.nbytes, extra, loop.create_future())
         if growing:
-            self._line.appendleft(turn)
+            self._line.appendleft(place)
         else:
-            self._line.append(turn)
+            self._line.append(place)
+        self._wake()  # the line may be stuck now that this request's bytes wait in it
         try:
-            async with asyncio.timeout_at(ticket.deadline):
-                while self._line[0] is not turn or self.held + extra > self.budget:
-                    await asyncio.shield(turn)
-                    turn = self._renew(turn)
-        except TimeoutError:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout_at(ticket.deadline):
+                    while not (self._goes(place) or self._refused_at_once(place)):
+                        await asyncio.shield(place.turn)
+                        if place.turn.done():
+                            place.turn = loop.create_future()
+            admitted = self._goes(place)
+        finally:
+            self._line.remove(place)
+            self._wake()
+        if not admitted:
             self.on_refused()
             raise Overloaded(
                 f"the server is busy: {what} needs about {amount(nbytes)} of memory and the "
                 f"requests in flight hold {amount(self.held)} of {amount(self.budget)} "
                 f"(DACRT_MAX_INFLIGHT_BYTES); retry after {Overloaded.headers['Retry-After']} s"
-            ) from None
-        finally:
-            self._line.remove(turn)
-            self._wake()
+            )
         self.resize_now(ticket, nbytes)
 
     def check(self, nbytes: int, what: str) -> None:
@@ -144,18 +158,33 @@ class Admission:
         if freed:
             self._wake()
 
-    def _renew(self, turn: asyncio.Future) -> asyncio.Future:
-        """A fresh future in ``turn``'s place in line (a woken waiter that must wait again)."""
-        if not turn.done():
-            return turn
-        fresh = asyncio.get_running_loop().create_future()
-        self._line[self._line.index(turn)] = fresh
-        return fresh
+    def _stuck(self) -> bool:
+        """Whether every byte held is held by requests waiting in line: none is freed until
+        one of them goes or is refused."""
+        return bool(self._line) and self.held == sum(place.held for place in self._line)
+
+    def _fits(self, place: Place) -> bool:
+        return self.held + place.extra <= self.budget
+
+    def _goes(self, place: Place) -> bool:
+        """Whether the request at ``place`` is admitted now: it fits, and it is first in line
+        or the line is stuck (then any that fits goes, and frees its bytes when done)."""
+        return self._fits(place) and (self._line[0] is place or self._stuck())
+
+    def _refused_at_once(self, place: Place) -> bool:
+        """Whether the request at ``place`` is refused without waiting out its deadline: the
+        line is stuck, none in it fits, and it holds the most bytes (the first such in line),
+        which its refusal frees for the others."""
+        if not self._stuck() or any(self._fits(other) for other in self._line):
+            return False
+        return place is max(self._line, key=lambda other: other.held)
 
     def _wake(self) -> None:
-        """Tell the first in line to look again: bytes were freed, or the line moved."""
-        if self._line and not self._line[0].done():
-            self._line[0].set_result(None)
+        """Tell those in line to look again: bytes were freed, or the line moved. The first in
+        line looks, or every one where the line is stuck."""
+        for place in list(self._line)[: len(self._line) if self._stuck() else 1]:
+            if not place.turn.done():
+                place.turn.set_result(None)
 
 
 def amount(nbytes: int) -> str:

@@ -152,6 +152,39 @@ def test_a_ticket_that_holds_bytes_and_needs_more_goes_first_in_line():
     run(scenario())
 
 
+def test_requests_that_wait_for_each_others_bytes_are_not_left_to_their_deadline():
+    """Two admitted requests that each need more than the other leaves wait for each other:
+    a request behind them that fits goes, then the one holding most is refused at once, not
+    after DACRT_ADMISSION_WAIT, and the other goes as soon as its bytes are freed."""
+
+    async def scenario():
+        admission = Admission(100, wait=30)
+        refusals = []
+        admission.on_refused = lambda: refusals.append(1)
+        first, second, newcomer = admission.ticket(), admission.ticket(), admission.ticket()
+        await first.hold(50, "first")
+        await second.hold(40, "second")
+        first_grows = asyncio.create_task(first.hold(70, "first, decoded"))
+        joining = asyncio.create_task(newcomer.hold(5, "newcomer"))  # 95 of 100: fits
+        await asyncio.sleep(0)
+        assert not first_grows.done() and not joining.done()  # the second runs: it frees
+        second_grows = asyncio.create_task(second.hold(60, "second, decoded"))
+        await asyncio.wait_for(joining, 1)  # the line is stuck: what fits goes
+        assert admission.held == 95 and not first_grows.done() and not second_grows.done()
+        newcomer.release()
+        done, _ = await asyncio.wait(
+            [first_grows, second_grows], timeout=1, return_when="FIRST_COMPLETED"
+        )
+        assert done == {first_grows} and refusals == [1]
+        with pytest.raises(Overloaded, match="first, decoded"):
+            first_grows.result()
+        first.release()  # the refused request ends
+        await asyncio.wait_for(second_grows, 1)
+        assert admission.held == 60 and second.nbytes == 60
+
+    run(scenario())
+
+
 def test_a_request_waits_at_most_the_wait_in_all_however_many_times_it_asks():
     """One deadline a request, set when it first waits: a later hold does not wait afresh."""
 
