@@ -32,7 +32,7 @@ BOX_MARGIN = 1e-5
 
 
 class Instance:
-    """A mesh placed by an affine matrix, as a query traces it.
+    """A mesh placed by an affine matrix, as a query traces it (``placed_instances`` makes them).
 
     mesh : its index in the scene
     packed : its ``Packed`` arrays in mesh space (ids are its face rows), relative to its frame
@@ -50,29 +50,21 @@ class Instance:
         and 1, which holds every interpolated placement)
     """
 
-    def __init__(self, mesh, packed, matrix, matrix_end=None):
+    def __init__(
+        self, mesh, packed, matrix, matrix_end, to_mesh, cofactor, mirrored, box_start, box
+    ):
         self.mesh = mesh
         self.packed = packed
         self.centre = packed.centre.astype(np.float64)
         self.matrix = matrix
-        linear = matrix[:3, :3]
-        to_mesh = np.linalg.inv(matrix)[:3]
-        to_mesh[:, 3] -= self.centre
         self.to_mesh = np.ascontiguousarray(to_mesh)
-        det = np.linalg.det(linear)
-        self.cofactor = np.ascontiguousarray(det * np.linalg.inv(linear).T)
+        self.cofactor = np.ascontiguousarray(cofactor)
         self.cofactors = np.ascontiguousarray(self.cofactor[None])
-        self.mirrored = bool(det < 0)
-        # The mesh's box in its own coordinates (exact: the centre is added back in float64).
-        box = packed.box.astype(np.float64) + np.tile(self.centre, 2)
-        self.box_start = placed_box(box, matrix)
+        self.mirrored = mirrored
         self.matrix_end = matrix_end
         self.moving = matrix_end is not None
-        self.box = self.box_start
-        if self.moving:
-            end_box = placed_box(box, matrix_end)
-            lo = np.minimum(self.box_start[:3], end_box[:3])
-            self.box = np.concatenate([lo, np.maximum(self.box_start[3:], end_box[3:])])
+        self.box_start = box_start
+        self.box = box
 
     def flags(self, flags, mirrored=None):
         """The query's ``flags`` in mesh space: culling's back and front swap when mirrored
@@ -84,19 +76,72 @@ class Instance:
         return (flags & ~(CULL_BACK | CULL_FRONT)) | swapped
 
 
-def placed_box(box, matrix):
-    """A float32 box (6,) in scene space holding ``box`` (6,) float placed by ``matrix`` (4, 4),
-    grown by BOX_MARGIN."""
-    lo, hi = box[:3].astype(np.float64), box[3:].astype(np.float64)
-    corners = np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
-    placed = corners @ matrix[:3, :3].T + matrix[:3, 3]
-    p_lo, p_hi = placed.min(axis=0), placed.max(axis=0)
-    margin = BOX_MARGIN * (np.max(p_hi - p_lo) + np.max(np.abs(placed)))
-    grown = np.concatenate([p_lo - margin, p_hi + margin])
+def placed_instances(meshes, packs, matrices, ends):
+    """An ``Instance`` of each of ``meshes`` (mesh indices), with its ``Packed`` in ``packs``, its
+    placement in ``matrices`` and its end (None: static) in ``ends``, one entry a mesh: their
+    inverses, cofactors and boxes made for all at once (a frame moves many)."""
+    if not meshes:
+        return []
+    matrix = np.stack(matrices)
+    centre = np.stack([packed.centre for packed in packs]).astype(np.float64)
+    to_mesh = np.linalg.inv(matrix)[:, :3]
+    to_mesh[:, :, 3] -= centre
+    linear = matrix[:, :3, :3]
+    det = np.linalg.det(linear)
+    cofactor = det[:, None, None] * np.swapaxes(np.linalg.inv(linear), 1, 2)
+    # Each mesh's box in its own coordinates (exact: the centre is added back in float64).
+    box = np.stack([packed.box for packed in packs]).astype(np.float64) + np.tile(centre, 2)
+    box_start = placed_boxes(box, matrix)
+    boxes = list(box_start)
+    moving = [k for k, end in enumerate(ends) if end is not None]
+    if moving:
+        end_boxes = placed_boxes(box[moving], np.stack([ends[k] for k in moving]))
+        for k, end_box in zip(moving, end_boxes):
+            lo = np.minimum(box_start[k, :3], end_box[:3])
+            boxes[k] = np.concatenate([lo, np.maximum(box_start[k, 3:], end_box[3:])])
+    return [
+        Instance(
+            mesh,
+            packs[k],
+            matrices[k],
+            ends[k],
+            to_mesh[k],
+            cofactor[k],
+            bool(det[k] < 0),
+            box_start[k],
+            boxes[k],
+        )  # fmt: skip
+        for k, mesh in enumerate(meshes)
+    ]
+
+
+#: Which of lo (0) or hi (1) each of a box's 8 corners takes along each axis: (8, 3).
+CORNER_SIDES = np.array([[k >> a & 1 for a in range(3)] for k in range(8)])
+
+
+def box_corners(boxes):
+    """(K, 8, 3) float64 the corners of boxes (K, 6) (lo, hi)."""
+    boxes = np.asarray(boxes, np.float64)
+    return np.where(CORNER_SIDES == 1, boxes[:, None, 3:], boxes[:, None, :3])
+
+
+def placed_points(points, matrices):
+    """Points (K, m, 3) float64 placed by affine matrices (K, 4, 4): (K, m, 3)."""
+    return points @ np.swapaxes(matrices[:, :3, :3], 1, 2) + matrices[:, None, :3, 3]
+
+
+def placed_boxes(boxes, matrices):
+    """Float32 boxes (K, 6) in scene space holding ``boxes`` (K, 6) float placed by
+    ``matrices`` (K, 4, 4), grown by BOX_MARGIN."""
+    placed = placed_points(box_corners(boxes), matrices)
+    p_lo, p_hi = placed.min(axis=1), placed.max(axis=1)
+    margin = BOX_MARGIN * (np.max(p_hi - p_lo, axis=1) + np.max(np.abs(placed), axis=(1, 2)))
+    grown = np.concatenate([p_lo - margin[:, None], p_hi + margin[:, None]], axis=1)
     rounded = grown.astype(FLOAT)
     # Round outwards: float32 must not shrink the box.
-    rounded[:3] = np.where(rounded[:3] > grown[:3], np.nextafter(rounded[:3], -np.inf), rounded[:3])
-    rounded[3:] = np.where(rounded[3:] < grown[3:], np.nextafter(rounded[3:], np.inf), rounded[3:])
+    lo, hi = rounded[:, :3], rounded[:, 3:]
+    rounded[:, :3] = np.where(lo > grown[:, :3], np.nextafter(lo, -np.inf), lo)
+    rounded[:, 3:] = np.where(hi < grown[:, 3:], np.nextafter(hi, np.inf), hi)
     return rounded
 
 

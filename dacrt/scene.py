@@ -48,14 +48,16 @@ from .contracts import (
 )
 from .deforming import corners_at_times
 from .instances import (
-    Instance,
+    box_corners,
     fill_rays_reaching,
     group_boxes,
     mark_rays_reaching,
     merge_closest,
     merge_hit_lists,
     origins_near_box,
+    placed_instances,
     placed_normals,
+    placed_points,
     rays_to_mesh_space,
     rays_to_mesh_space_at,
 )
@@ -108,7 +110,7 @@ from .validation import (
     check_strategy,
     check_threads,
     check_time,
-    check_transform,
+    check_transforms,
     check_unplaced,
     check_vertices_end,
     explain_bad_rays,
@@ -262,23 +264,31 @@ class Scene:
             self._parts = {i: old._parts[i] for i in base_meshes}
         else:
             self._base, self._parts = self._pack_base(base_meshes, old, changed)
-        instances = []
-        for i in sorted(packs):
-            matrix = IDENTITY if matrices[i] is None else matrices[i]
-            end = ends[i]
-            self._parts[i] = packs[i]
-            self._check_placement(i, packs[i], matrix, "transforms")
-            if end is not None:
-                self._check_placement(i, packs[i], end, "transforms_end")
+        placed = sorted(packs)
+        starts = [IDENTITY if matrices[i] is None else matrices[i] for i in placed]
+        check_placements(
+            [(i, packs[i], start, "transforms") for i, start in zip(placed, starts)]
+            + [(i, packs[i], ends[i], "transforms_end") for i in placed if ends[i] is not None]
+        )
+        self._parts.update(packs)
+        instance_of = {}
+        for i in placed:
             kept = old is not None and i in old._instance_of and old._parts[i] is packs[i]
             if (
                 kept
                 and _same_matrix(old._matrices[i], matrices[i])
-                and _same_matrix(old._ends[i], end)
+                and _same_matrix(old._ends[i], ends[i])
             ):
-                instances.append(old._instance_of[i])
-            elif len(packs[i]):
-                instances.append(Instance(i, packs[i], matrix, end))
+                instance_of[i] = old._instance_of[i]
+        new = [k for k, i in enumerate(placed) if i not in instance_of and len(packs[placed[k]])]
+        for instance in placed_instances(
+            [placed[k] for k in new],
+            [packs[placed[k]] for k in new],
+            [starts[k] for k in new],
+            [ends[placed[k]] for k in new],
+        ):
+            instance_of[instance.mesh] = instance
+        instances = [instance_of[i] for i in placed if i in instance_of]
         self._instances = instances
         self._instance_of = {instance.mesh: instance for instance in instances}
         # Only a scene with a moving instance or a deforming mesh reads the rays' times.
@@ -364,19 +374,6 @@ class Scene:
         )
         return packed, parts
 
-    @staticmethod
-    def _check_placement(i, packed, matrix, name):
-        """InputError naming ``name[i]`` if the placed mesh leaves the float32 range."""
-        corners = packed.corner_box
-        if not corners[0] <= corners[3]:
-            return
-        centre = packed.centre.astype(np.float64)  # the corners in the mesh's coordinates
-        lo, hi = corners[:3] + centre, corners[3:] + centre
-        points = np.array([[(lo, hi)[k >> a & 1][a] for a in range(3)] for k in range(8)])
-        placed = points @ matrix[:3, :3].T + matrix[:3, 3]
-        if not (np.abs(placed) <= np.finfo(FLOAT).max).all():
-            raise InputError(f"{name}[{i}] places mesh {i} beyond the float32 range")
-
     def with_changes(
         self,
         transforms: dict[int, ArrayLike | None] | None = None,
@@ -409,11 +406,13 @@ class Scene:
         transforms_end = self._by_mesh(transforms_end, "transforms_end")
         vertices_end = self._by_mesh(vertices_end, "vertices_end")
         matrices = list(self._matrices)
-        for i, matrix in transforms.items():
-            matrices[i] = None if matrix is None else check_transform(matrix, f"transforms[{i}]")
+        given = changed_transforms(transforms, "transforms")
+        for i in transforms:
+            matrices[i] = given.get(i)  # None: as given
         ends = list(self._ends)
-        for i, matrix in transforms_end.items():
-            ends[i] = None if matrix is None else check_transform(matrix, f"transforms_end[{i}]")
+        given = changed_transforms(transforms_end, "transforms_end")
+        for i in transforms_end:
+            ends[i] = given.get(i)  # None: static
         checked = list(self._meshes)
         copies = {}  # one copy of an array given to several meshes (instances)
         for i, new in vertices.items():
@@ -1678,10 +1677,30 @@ def checked_transforms(transforms, n_meshes, name):
     """``transforms`` (None, or one None or matrix per mesh) as a list of None or checked
     (4, 4) float64 matrices; InputError naming ``name`` or its entry."""
     matrices = one_per_mesh(transforms, n_meshes, name, "a (4, 4) matrix or None")
-    return [
-        None if matrix is None else check_transform(matrix, f"{name}[{i}]")
-        for i, matrix in enumerate(matrices)
-    ]
+    given = changed_transforms(dict(enumerate(matrices)), name)
+    return [given.get(i) for i in range(n_meshes)]
+
+
+def changed_transforms(transforms, name):
+    """{mesh index: matrix} as {mesh index: checked (4, 4) float64} for the matrices that are
+    not None, checked at once (``check_transforms``); InputError naming ``name[i]``."""
+    given = [(i, matrix) for i, matrix in transforms.items() if matrix is not None]
+    checked = check_transforms([matrix for _, matrix in given], lambda k: f"{name}[{given[k][0]}]")
+    return {i: matrix for (i, _), matrix in zip(given, checked)}
+
+
+def check_placements(placements):
+    """InputError naming ``name[i]`` for the first of ``placements``, (i, packed, matrix, name)
+    each, whose matrix places mesh i's packed corners beyond the float32 range."""
+    boxed = [p for p in placements if p[1].corner_box[0] <= p[1].corner_box[3]]
+    if not boxed:
+        return
+    centres = np.stack([packed.centre for _, packed, _, _ in boxed]).astype(np.float64)
+    corners = np.stack([packed.corner_box for _, packed, _, _ in boxed]) + np.tile(centres, 2)
+    placed = placed_points(box_corners(corners), np.stack([p[2] for p in boxed]))
+    beyond = ~(np.abs(placed) <= np.finfo(FLOAT).max).all(axis=(1, 2))
+    for i, _, _, name in (p for p, out in zip(boxed, beyond) if out):
+        raise InputError(f"{name}[{i}] places mesh {i} beyond the float32 range")
 
 
 def one_per_mesh(values, n_meshes, name, what):

@@ -404,6 +404,30 @@ def check_transform(matrix, name="matrix"):
     return matrix
 
 
+def check_transforms(matrices, name_of):
+    """``check_transform`` of each of ``matrices`` (a list), made for all at once (a frame
+    places many): a list of float64 (4, 4); the error names ``name_of(k)`` for the k-th."""
+    stack = np.empty((len(matrices), 4, 4))
+    for k, matrix in enumerate(matrices):
+        if isinstance(matrix, np.ndarray) and matrix.shape == (4, 4) and matrix.dtype.kind in "fiu":
+            stack[k] = matrix
+        else:
+            stack[k] = check_transform(matrix, name_of(k))
+    linear = stack[:, :3, :3]
+    with np.errstate(all="ignore"):  # a bad matrix is named by check_transform below
+        scale = np.prod(np.linalg.norm(linear, axis=2), axis=1)
+        det = np.abs(np.linalg.det(linear))
+        good = (
+            np.isfinite(stack).all(axis=(1, 2))
+            & (stack[:, 3] == (0.0, 0.0, 0.0, 1.0)).all(axis=1)
+            & (det > 1e-12 * scale)
+            & (det >= MIN_PLACEMENT_SCALE * (linear * linear).sum(axis=(1, 2)))
+        )
+    for k in np.flatnonzero(~good):
+        stack[k] = check_transform(matrices[k], name_of(k))  # raises, or passes the SVD's test
+    return list(stack)
+
+
 def place_vertices(vertices, matrix, name):
     """``vertices`` (V, 3) moved by the affine ``matrix`` (``check_transform``) in float64,
     as float32; ValueError naming ``name`` if a placed vertex leaves the float32 range."""

@@ -371,6 +371,38 @@ def test_a_ray_beyond_float32_in_a_mesh_space_is_an_error_naming_the_mesh():
     assert len(scene.closest(origins[1:], directions[1:]).t) == 1  # the near ray is traced
 
 
+def test_many_transforms_checked_at_once_name_the_first_bad_one():
+    """A frame of many placements is checked in one pass: the error names the first bad entry,
+    whatever its kind, and the scene the frame was to change is left as it was. A placement
+    that only the singular values accept (an axis scaled a little over the least scale) is
+    accepted, as ``check_transform`` accepts it."""
+    sphere = sample_scenes.sphere(6)[0]
+    rng = np.random.default_rng(3)
+    moves = [affine(pg.rotation(rng.normal(size=3), 0.3), rng.normal(size=3)) for _ in range(50)]
+    scene = dacrt.Scene([sphere] * 50, transforms=moves)
+    o, d = pg.mixed_rays(np.array([[-4.0, -4, -4], [4, 4, 4]]), 2000, rng)
+    before = scene.closest(o, d)
+    barely = affine(np.diag([1.5e-12, 1e3, 1e3]))
+    np.testing.assert_array_equal(dacrt.check_transform(barely), barely)
+    for bad, message in [
+        (np.where(np.eye(4) == 1, np.eye(4), np.nan), "non-finite"),
+        (affine(np.diag([1.0, 1.0, 0.0])), "singular"),
+        (affine(np.eye(3) * 1e-13), "under 1e-12"),
+        (np.eye(4)[:3].tolist(), r"shape \(4, 4\)"),
+    ]:
+        changes = {i: moves[(i + 1) % 50] for i in range(50)}
+        changes[41], changes[37] = barely, bad  # the first bad entry, by mesh index, is 37
+        with pytest.raises(ValueError, match=r"transforms\[37\]") as raised:
+            scene.with_changes(transforms=changes)
+        assert raised.match(message)
+    changes = {i: moves[(i + 1) % 50] for i in range(50)} | {41: barely}
+    moved = scene.with_changes(transforms=changes)
+    fresh = dacrt.Scene([sphere] * 50, transforms=[changes[i] for i in range(50)])
+    assert_same_answers({"closest": moved.closest(o, d)}, {"closest": fresh.closest(o, d)}, "moved")
+    assert_same_answers({"closest": scene.closest(o, d)}, {"closest": before}, "unchanged")
+    assert (before.mesh >= 0).mean() > 0.2  # the rays meet the spheres
+
+
 def test_check_transform_returns_the_matrix_as_float64():
     m = MATRICES["shear"]
     got = dacrt.check_transform(m.tolist())
