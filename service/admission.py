@@ -58,6 +58,8 @@ class Ticket:
         self.nbytes = 0
         #: when the request's waiting ends (event loop time), set when it first waits
         self.deadline: float | None = None
+        #: whether its bytes were admitted in its turn, not ahead of others as a small request
+        self.in_turn = False
 
     async def hold(self, nbytes: int, what: str) -> None:
         """Hold ``nbytes`` in all from now on (more or fewer than before): waits in line for
@@ -78,11 +80,13 @@ class Ticket:
 
 
 class Place:
-    """A request's place in line: what it holds, what more it needs, and the future it waits on."""
+    """A request's place in line: what it holds, what more it needs, whether it waits ahead of
+    those not yet admitted, and the future it waits on."""
 
-    def __init__(self, held: int, extra: int, turn: asyncio.Future) -> None:
+    def __init__(self, held: int, extra: int, ahead: bool, turn: asyncio.Future) -> None:
         self.held = held
         self.extra = extra
+        self.ahead = ahead
         self.turn = turn
 
 
@@ -106,20 +110,21 @@ class Admission:
             return
         self.check(nbytes, what)
         fits = self.held + extra <= self.budget
-        # A request that holds bytes and needs more goes first: those in line may be waiting
-        # for what it holds.
-        growing = ticket.nbytes > 0
-        if fits and (growing or not self._line or extra <= min(SMALL_BYTES, self.budget // 64)):
+        # A request admitted in its turn that needs more goes ahead of those not admitted yet
+        # (they may be waiting for what it holds), after others like it; one that went ahead
+        # as small waits its turn as a new request does.
+        ahead = ticket.in_turn and ticket.nbytes > 0
+        n_ahead = sum(place.ahead for place in self._line)  # they wait at the front
+        small = extra <= min(SMALL_BYTES, self.budget // 64)
+        if fits and (not self._line or (ahead and not n_ahead) or small):
+            ticket.in_turn = ticket.in_turn or not self._line
             self.resize_now(ticket, nbytes)
             return
         loop = asyncio.get_running_loop()
         if ticket.deadline is None:
             ticket.deadline = loop.time() + self.wait
-        place = Place(ticket.nbytes, extra, loop.create_future())
-        if growing:
-            self._line.appendleft(place)
-        else:
-            self._line.append(place)
+        place = Place(ticket.nbytes, extra, ahead, loop.create_future())
+        self._line.insert(n_ahead if ahead else len(self._line), place)
         self._wake()  # the line may be stuck now that this request's bytes wait in it
         try:
             with contextlib.suppress(TimeoutError):
@@ -128,7 +133,7 @@ class Admission:
                         await asyncio.shield(place.turn)
                         if place.turn.done():
                             place.turn = loop.create_future()
-            admitted = self._goes(place)
+            admitted = ticket.in_turn = self._goes(place)
         finally:
             self._line.remove(place)
             self._wake()

@@ -152,6 +152,37 @@ def test_a_ticket_that_holds_bytes_and_needs_more_goes_first_in_line():
     run(scenario())
 
 
+def test_requests_that_grow_keep_their_turn():
+    """Sensors hold their small body, then their rays' peak once it is known. One admitted in
+    its turn goes ahead of a query not yet admitted; one that went ahead as small waits behind
+    that query, so a stream of sensors keeps arrival order and starves no one."""
+
+    async def scenario():
+        admission = Admission(100, wait=5)
+        order = []
+        a, b, query, c = (admission.ticket() for _ in range(4))
+
+        async def hold(ticket, name, *amounts):
+            for nbytes in amounts:
+                await ticket.hold(nbytes, name)
+            order.append(name)
+
+        await hold(a, "a", 1, 60)  # the line is empty: in turn
+        b_grows = asyncio.create_task(hold(b, "b", 1, 60))  # in turn, then waits ahead
+        await asyncio.sleep(0)
+        query_waits = asyncio.create_task(hold(query, "query", 60))
+        await asyncio.sleep(0)
+        c_grows = asyncio.create_task(hold(c, "c", 1, 60))  # small: goes ahead, then waits
+        await asyncio.sleep(0)
+        assert order == ["a"] and c.nbytes == 1 and admission.held == 62
+        for ticket, task in ((a, b_grows), (b, query_waits), (query, c_grows)):
+            ticket.release()
+            await asyncio.wait_for(task, 1)
+        assert order == ["a", "b", "query", "c"]
+
+    run(scenario())
+
+
 def test_requests_that_wait_for_each_others_bytes_are_not_left_to_their_deadline():
     """Two admitted requests that each need more than the other leaves wait for each other:
     a request behind them that fits goes, then the one holding most is refused at once, not
