@@ -12,6 +12,7 @@ spread over threads is ``chunks``.
 """
 
 import functools
+import threading
 from collections import namedtuple
 from collections.abc import Iterable, Sequence
 from typing import Literal
@@ -155,6 +156,9 @@ InstanceTraced.__doc__ = """``Traced`` of an instance, with the rays it traced i
 
 #: The start placement of a mesh given an end placement and none at the start.
 IDENTITY = np.eye(4)
+#: Rows placed at a time for the point queries (``_placed_triangles``): their float64 corners
+#: take about 1.2 MB.
+PLACING_BLOCK_ROWS = 16384
 
 BaseRows = namedtuple("BaseRows", ["lo", "hi", "box", "corner_box"])
 BaseRows.__doc__ = """Where an untransformed mesh lies in the scene's base level: rows lo:hi,
@@ -241,6 +245,8 @@ class Scene:
         self._vertices_end = deformed
         self.masks = masks
         self.masks.flags.writeable = False  # _row_masks is derived from it once
+        self._points_lock = threading.Lock()
+        self._point_triangles = None  # what point queries read, derived on the first
         if old is None:
             counts = [len(faces) for _, faces in checked]
             # writable for the kernels (a read-only array is another type to compile them for)
@@ -566,7 +572,7 @@ class Scene:
         derived = self.__dict__.get("_row_masks")
         if derived is not None:
             arrays[id(derived)] = derived
-        placed = self.__dict__.get("_placed_triangles")
+        placed = self._point_triangles
         if placed is not None:  # those that are not the base level's own
             packed_arrays = {id(a) for a in (self._base.verts, self._base.ids, self._base.bounds)}
             arrays.update(
@@ -1182,47 +1188,69 @@ class Scene:
             velocity[rows] = (change[:3, :3] @ local)[:, :, 0] + change[:3, 3]
         return velocity
 
-    def _scene_triangles(self) -> point_queries.SceneTriangles:
-        """The scene-space triangles, for the point queries: with ``_inside_counts``, the
-        places they read the scene's internals (``_placed_triangles``)."""
-        return self._placed_triangles
+    @property
+    def derived_for_points(self) -> bool:
+        """Whether the scene holds what its point queries read (``nearest``, ``contains``,
+        ``signed_distance``): its first point query derives it, once, and ``nbytes`` counts it
+        from then on."""
+        return self._point_triangles is not None
 
-    @functools.cached_property
+    def _scene_triangles(self) -> point_queries.SceneTriangles:
+        """The scene-space triangles, for the point queries (``_placed_triangles``), derived on
+        the first one under the scene's own lock: two first queries at once derive them once,
+        and other scenes' queries do not wait for them."""
+        with self._points_lock:
+            if self._point_triangles is None:
+                self._point_triangles = self._placed_triangles()
+            return self._point_triangles
+
     def _placed_triangles(self) -> point_queries.SceneTriangles:
-        """The base level's rows, then each instance's triangles placed in scene space (in
-        float64, then float32, as placed copies, less those degenerate then): distances are not
-        kept by a non-rigid placement, so point queries read placed triangles. Derived on the
-        first point query."""
-        verts = [self._base.verts]
-        ids = [self._base.ids]
-        masks = [self._row_masks]
-        if self._deforming is not None:
-            # The deforming rows at time 0, less those degenerate then (as the static packing).
-            level = self._deforming
-            live = live_rows(level.verts)
-            verts.append(level.verts[live])
-            ids.append(level.ids[live])
-            masks.append(self._deforming_row_masks[live])
+        """The base level's rows, then the deforming level's at time 0 and each instance's
+        triangles placed in scene space (in float64, then float32, as placed copies), less
+        those degenerate there: distances are not kept by a non-rigid placement, so point
+        queries read placed triangles. Placed block by block into arrays of their final size,
+        so that deriving them holds little beyond what is kept."""
+        base = self._base
+        if self._deforming is None and not self._instances:  # the base level's own arrays
+            return point_queries.scene_triangles(
+                base.verts, base.ids, self.mesh_offsets, self._row_masks, base.bounds, base.box
+            )
+        level = self._deforming
+        n_rows = len(base) + (0 if level is None else len(level))
+        n_rows += sum(len(instance.packed) for instance in self._instances)
+        verts = np.empty((n_rows, 9), FLOAT)
+        ids = np.empty(n_rows, INDEX)
+        masks = np.empty(n_rows, np.uint32)
+        n = len(base)
+        verts[:n], ids[:n], masks[:n] = base.verts, base.ids, self._row_masks
+
+        def add(block_verts, block_ids, block_masks):
+            """The rows of a block that span a triangle, after those added before."""
+            nonlocal n
+            live = live_rows(block_verts)
+            end = n + len(live)
+            verts[n:end], ids[n:end] = block_verts[live], block_ids[live]
+            masks[n:end] = block_masks if np.isscalar(block_masks) else block_masks[live]
+            n = end
+
+        if level is not None:  # at time 0, less the rows degenerate then (as the static packing)
+            for lo in range(0, len(level), PLACING_BLOCK_ROWS):
+                rows = slice(lo, lo + PLACING_BLOCK_ROWS)
+                add(level.verts[rows], level.ids[rows], self._deforming_row_masks[rows])
         for instance in self._instances:
-            # The mesh's own corners (exact: the frame centre is added back in float64).
-            corners = instance.packed.verts.reshape(-1, 3).astype(np.float64) + instance.centre
-            placed = corners @ instance.matrix[:3, :3].T + instance.matrix[:3, 3]
-            placed = placed.astype(FLOAT).reshape(-1, 9)
-            # less the rows whose float32 corners the placement collapses, as a placed copy's
-            live = live_rows(placed)
-            verts.append(placed[live])
-            ids.append((instance.packed.ids[live] + self.mesh_offsets[instance.mesh]).astype(INDEX))
-            masks.append(np.full(len(live), self.masks[instance.mesh], np.uint32))
-        # The base level alone is its own arrays, boxes included: no copy.
-        alone = len(verts) == 1
-        return point_queries.scene_triangles(
-            _joined(verts, np.empty((0, 9), FLOAT)),
-            _joined(ids, np.empty(0, INDEX)),
-            self.mesh_offsets,
-            _joined(masks, np.empty(0, np.uint32)),
-            self._base.bounds if alone else None,
-            self._base.box if alone else None,
-        )
+            packed, matrix = instance.packed, instance.matrix
+            offset = self.mesh_offsets[instance.mesh]
+            for lo in range(0, len(packed), PLACING_BLOCK_ROWS):
+                rows = slice(lo, lo + PLACING_BLOCK_ROWS)
+                # The mesh's own corners (exact: the frame centre is added back in float64).
+                corners = packed.verts[rows].reshape(-1, 3).astype(np.float64) + instance.centre
+                placed = corners @ matrix[:3, :3].T + matrix[:3, 3]
+                # less the rows whose float32 corners the placement collapses, as a placed copy's
+                add(placed.astype(FLOAT).reshape(-1, 9), packed.ids[rows] + offset,
+                    self.masks[instance.mesh])  # fmt: skip
+        for array in (verts, ids, masks):  # less the degenerate rows' room, in place
+            array.resize((n, *array.shape[1:]), refcheck=False)
+        return point_queries.scene_triangles(verts, ids, self.mesh_offsets, masks)
 
     def _visible_rows(self, ray_masks, deforming=False):
         """How a batch's masks are traced on the base level (or the deforming level):

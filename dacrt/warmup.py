@@ -60,6 +60,7 @@ def warmup() -> float:
     scene.nearest(origins, threads=1)
     scene.nearest(origins, mask=np.arange(1, 5, dtype=np.uint32), threads=1)
     scene.contains(origins, threads=1)
+    placed.nearest(spread, threads=1)  # the instances placed in scene space
     # Incoherent batches on two threads are cut into slabs of origins.
     n_rays = 2 * MIN_RAYS_PER_THREAD
     scattered = np.random.default_rng(0).uniform(-1.0, 2.0, (n_rays, 6)).astype(np.float32)

@@ -60,6 +60,9 @@ class Ticket:
         self.deadline: float | None = None
         #: whether its bytes were admitted in its turn, not ahead of others as a small request
         self.in_turn = False
+        #: bytes the request holds whatever its size (its work on a scene's triangles), for the
+        #: advice of a 413
+        self.least = 0
 
     async def hold(self, nbytes: int, what: str) -> None:
         """Hold ``nbytes`` in all from now on (more or fewer than before): waits in line for
@@ -69,7 +72,7 @@ class Ticket:
 
     def check(self, nbytes: int, what: str) -> None:
         """413 if ``nbytes`` exceed the whole budget, without holding them."""
-        self.admission.check(int(nbytes), what)
+        self.admission.check(int(nbytes), what, self.least)
 
     def shrink(self, nbytes: int) -> None:
         """Hold only ``nbytes`` (no more than it holds) from now on."""
@@ -108,7 +111,7 @@ class Admission:
         if extra <= 0:
             self.resize_now(ticket, nbytes)
             return
-        self.check(nbytes, what)
+        self.check(nbytes, what, ticket.least)
         fits = self.held + extra <= self.budget
         # A request admitted in its turn that needs more goes ahead of those not admitted yet
         # (they may be waiting for what it holds), after others like it; one that went ahead
@@ -146,14 +149,22 @@ class Admission:
             )
         self.resize_now(ticket, nbytes)
 
-    def check(self, nbytes: int, what: str) -> None:
-        """413 if ``nbytes`` exceed the whole budget: they would never be admitted."""
-        if nbytes > self.budget:
-            raise TooLarge(
-                f"{what} would hold about {amount(nbytes)} of server memory, over the budget of "
-                f"{amount(self.budget)} for all requests in flight (DACRT_MAX_INFLIGHT_BYTES); "
-                "send it in smaller batches (or .npy/.npz rather than JSON)"
+    def check(self, nbytes: int, what: str, least: int = 0) -> None:
+        """413 if ``nbytes`` exceed the whole budget: they would never be admitted. ``least``:
+        what the request holds whatever its size; over the budget, no smaller batch helps."""
+        if nbytes <= self.budget:
+            return
+        advice = "send it in smaller batches (or .npy/.npz rather than JSON)"
+        if least > self.budget:
+            advice = (
+                f"its work on the scene's triangles alone holds about {amount(least)}, whatever "
+                "its size: raise DACRT_MAX_INFLIGHT_BYTES, or use a scene of fewer triangles"
             )
+        raise TooLarge(
+            f"{what} would hold about {amount(nbytes)} of server memory, over the budget of "
+            f"{amount(self.budget)} for all requests in flight (DACRT_MAX_INFLIGHT_BYTES); "
+            f"{advice}"
+        )
 
     def resize_now(self, ticket: Ticket, nbytes: int) -> None:
         """Change a ticket's bytes without waiting (a release, or bytes known to fit)."""

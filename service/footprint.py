@@ -13,6 +13,7 @@ import numpy as np
 
 from dacrt.chunks import MIN_RAYS_PER_THREAD, MIN_RAYS_TO_SPLIT_TRIANGLES, N_CORES
 from dacrt.points import vote_rays_at_once
+from dacrt.scene import PLACING_BLOCK_ROWS
 
 #: Bytes per ray of a query's work beyond its body: the checked copies of origins, directions,
 #: tmin and tmax, and the engine's ray ids and bounds (measured 32-48).
@@ -111,6 +112,14 @@ POINT_QUERY_TRIANGLE_BYTES = 12
 MASKED_POINT_TRIANGLE_BYTES = 48
 #: ... and per chunk measured at once (its rows: measured 4.0).
 POINT_THREAD_TRIANGLE_BYTES = 4
+#: Bytes per placed triangle that the first point query on a scene version holds while it
+#: derives what point queries read, beyond what is kept (which the scene limit counts): the
+#: rows' Morton codes and their sort (measured 24.0 without instances, 25.5-30.0 with instances
+#: or deforming meshes) ...
+POINT_SETUP_TRIANGLE_BYTES = 32
+#: ... and per row of a block of rows placed at a time (``dacrt.scene.PLACING_BLOCK_ROWS``;
+#: measured 2.2 MiB at most in all, 70 B a triangle on a scene of 32,768).
+POINT_SETUP_BLOCK_ROW_BYTES = 160
 #: The smallest bytes of one point in a body of each format (npz counted as stored).
 MIN_POINT_BYTES = {"npy": 12, "npz": 12, "json": 8}
 #: The smallest bytes of one ray in a body of each format (npz counted as stored), for the most
@@ -189,17 +198,28 @@ def point_query_bytes(n_points: int, sign: bool, nsamples: int) -> int:
 
 
 def scene_work_bytes(
-    n_triangles: int, n_items: int, threads: int | None, points: bool = False, masked: bool = False
+    n_triangles: int,
+    n_items: int,
+    threads: int | None,
+    points: bool = False,
+    masked: bool = False,
+    setup: bool = False,
 ) -> int:
     """Peak bytes of a query of ``n_items`` rays (or points, with ``points``; with ``masked``, a
-    ?mask=) on the triangles of a scene of ``n_triangles`` placed triangles, beyond what its rays
-    or points take, on ``threads`` engine threads (None: every core): the per-triangle work, and
-    that of each chunk (or half) traced at once."""
+    ?mask=; with ``setup``, the version's first, which derives what point queries read) on the
+    triangles of a scene of ``n_triangles`` placed triangles, beyond what its rays or points
+    take, on ``threads`` engine threads (None: every core): the per-triangle work, and that of
+    each chunk (or half) traced at once."""
     threads = threads or N_CORES
     if points:
         at_once = min(threads, max(1, n_items))
         per_query = MASKED_POINT_TRIANGLE_BYTES if masked else POINT_QUERY_TRIANGLE_BYTES
-        return n_triangles * (per_query + at_once * POINT_THREAD_TRIANGLE_BYTES)
+        per_triangle = per_query + at_once * POINT_THREAD_TRIANGLE_BYTES
+        if not setup:
+            return n_triangles * per_triangle
+        # the setup's transient is freed before the points are measured
+        block = min(n_triangles, PLACING_BLOCK_ROWS) * POINT_SETUP_BLOCK_ROW_BYTES
+        return n_triangles * max(per_triangle, POINT_SETUP_TRIANGLE_BYTES) + block
     halves = 2 if threads > 1 and n_items >= MIN_RAYS_TO_SPLIT_TRIANGLES else 1
     at_once = min(threads, max(halves, n_items // MIN_RAYS_PER_THREAD))
     return n_triangles * (RAY_QUERY_TRIANGLE_BYTES + at_once * RAY_THREAD_TRIANGLE_BYTES)

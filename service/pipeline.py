@@ -114,6 +114,7 @@ async def receive(
         n_triangles = store.snapshot(check_name("scene", scene)).n_triangles
         # what the budget's messages say of the request's load (``deps.BodyHold``)
         request.state.load = f" on the {n_triangles} triangles of scene {scene!r}"
+        request.state.ticket.least = estimate(0, None)  # its work on them, whatever its body
     timing = ServerTiming()
     with timing("receive"):
         body = await read_body(request, settings.max_body_bytes, estimate)

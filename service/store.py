@@ -350,6 +350,10 @@ class Snapshot:
                 self._earlier.clear()  # this version's own is built: the earlier one may go
             return self._cache[key]
 
+    def built(self, key: str) -> Any | None:
+        """What the snapshot cached under ``key``, or None where it is not built yet."""
+        return self._cache.get(key)
+
     def earlier(self, key: str) -> tuple[Snapshot, Any] | None:
         """An earlier version of the scene and what it cached under ``key`` (e.g. its engine
         scene, for this version's to reuse what did not change), or None."""

@@ -166,6 +166,13 @@ def meshes_by_name(snapshot: Snapshot, engine: EngineScene) -> Iterator[None]:
         ) from None
 
 
+def derives_for_points(snapshot: Snapshot) -> bool:
+    """Whether a point query on the version derives what point queries read (its engine scene,
+    built or not, has not yet: ``dacrt.Scene.derived_for_points``)."""
+    engine = snapshot.built("dacrt")
+    return engine is None or not engine.scene.derived_for_points
+
+
 def engine_scene(snapshot: Snapshot) -> EngineScene:
     """The engine scene of one scene version, built once per version (the sensors' too)."""
     return snapshot.cached("dacrt", _snapshot_engine)

@@ -74,6 +74,54 @@ def test_nearest_matches_the_brute_force(name):
     _check_against_reference(found, expected, vertices, faces, offsets, points)
 
 
+def test_a_first_point_query_derives_once_and_holds_up_no_other_scene():
+    """What point queries read is derived on a scene's first, under that scene's own lock: a
+    second first query on the scene waits for it and derives nothing, while another scene's
+    first query answers meanwhile; all answer as the brute force over placed copies."""
+    import threading
+
+    meshes, vertices, faces, _ = _scene_and_soup("sphere")
+    moved = np.eye(4)
+    moved[:3, 3] = (3.0, 0.0, 0.0)
+    held = dacrt.Scene([meshes[0]] * 2, transforms=[None, moved])
+    other = dacrt.Scene([meshes[0]] * 2, transforms=[None, moved])
+    points = _points(vertices, 50, np.random.default_rng(4))
+    derived, started, release = [], threading.Event(), threading.Event()
+    derive = held._placed_triangles
+
+    def slow_derive():
+        derived.append(1)
+        started.set()
+        release.wait(30)
+        return derive()
+
+    held._placed_triangles = slow_derive
+    answers = [None, None]
+
+    def query(k):
+        answers[k] = held.nearest(points)
+
+    first = threading.Thread(target=query, args=(0,))
+    first.start()
+    assert started.wait(30)
+    second = threading.Thread(target=query, args=(1,))
+    second.start()
+    beside = threading.Thread(target=other.nearest, args=(points,))
+    beside.start()
+    beside.join(30)
+    assert not beside.is_alive() and first.is_alive() and second.is_alive()
+    release.set()
+    first.join(30)
+    second.join(30)
+    assert derived == [1] and held.derived_for_points
+    placed_vertices = np.vstack([vertices, vertices + np.float32([3.0, 0.0, 0.0])])
+    placed_faces = np.vstack([faces, faces + len(vertices)])
+    expected = pr.nearest(points, placed_vertices, placed_faces)
+    for answer in answers:
+        np.testing.assert_allclose(answer.distance, expected.distance, rtol=1e-6, atol=1e-7)
+        np.testing.assert_array_equal(answer.distance, answers[0].distance)
+
+
 @pytest.mark.parametrize("name", ["soup", "sphere"])
 def test_points_far_away(name):
     meshes, vertices, faces, offsets = _scene_and_soup(name)

@@ -117,7 +117,7 @@ async def render(
         picture = shading.png(result.arrays["pixels"])
         return [picture], len(picture), PNG
 
-    steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode)
+    steps = Steps(JSON_ONLY, sensor_estimate(work), decode, trace, encode)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -157,7 +157,7 @@ async def camera(
     def trace(value) -> TraceResult:
         return sensing.sense(store.snapshot(scene), *value, options)
 
-    steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode_arrays)
+    steps = Steps(JSON_ONLY, sensor_estimate(work), decode, trace, encode_arrays)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -213,7 +213,7 @@ async def lidar(
         pcd_fields = options.pcd_fields(result.arrays)
         return wire.encode_answer(result.arrays, answer_format, pcd_fields)
 
-    steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode)
+    steps = Steps(JSON_ONLY, sensor_estimate(work), decode, trace, encode)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -269,7 +269,7 @@ async def sensors(
     def encode(result: TraceResult, answer_format: str):
         return wire.encode_rig_answer(result.arrays, answer_format)
 
-    steps = Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode)
+    steps = Steps(JSON_ONLY, sensor_estimate(work), decode, trace, encode)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -299,6 +299,12 @@ def triangles_work(store: Store, scene: str, options: Options) -> Callable[[int]
     return lambda n_rays: footprint.scene_work_bytes(
         store.snapshot(scene).n_triangles, n_rays, options.threads
     )
+
+
+def sensor_estimate(work: Callable[[int], int]) -> Callable[[int, str | None], int]:
+    """A sensor body's peak before it is decoded: the body decoded, and the work of one ray on
+    the scene's triangles, the least a sensor holds there (``work``: ``triangles_work``)."""
+    return lambda n_body, fmt: footprint.decode_bytes(n_body, fmt) + work(1)
 
 
 def sensor_decoded(

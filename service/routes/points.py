@@ -66,10 +66,12 @@ async def nearest(
         hold."""
         if n_points is None:
             n_points = footprint.most_points(n_body, fmt, max_points)
-        n_triangles = store.snapshot(scene).n_triangles
+        snapshot = store.snapshot(scene)
+        n_triangles = snapshot.n_triangles
         work = footprint.scene_work_bytes(
-            n_triangles, n_points, settings.threads, points=True, masked=point_mask is not None
-        )
+            n_triangles, n_points, settings.threads, points=True, masked=point_mask is not None,
+            setup=tracing.derives_for_points(snapshot),
+        )  # fmt: skip
         if sign:  # the inside test's rays, on the same triangles once the points are measured
             rays = vote_rays_at_once(n_points, options.nsamples)
             work = max(work, footprint.scene_work_bytes(n_triangles, rays, settings.threads))

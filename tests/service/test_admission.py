@@ -820,6 +820,34 @@ def test_a_point_query_holds_work_on_every_triangle_within_its_estimate(n_points
     assert peak <= points_alone + work, f"{peak / MiB:.1f} MiB, counted {work / MiB:.1f}"
 
 
+@pytest.mark.parametrize("kind", ["as given", "instances", "deforming"])
+def test_a_versions_first_point_query_holds_its_setup_within_its_estimate(kind):
+    """The first point query on a scene version derives what point queries read: beyond what
+    stays (``Scene.nbytes``, which the scene limit counts), its peak is more than a later
+    query's estimate and within the first's (``setup``), with instances placed or meshes
+    deforming too (tracemalloc; grids of 128K triangles)."""
+    import dacrt
+
+    vertices, faces = grid(256)
+    lifted = vertices + np.float32([0, 0, 0.25])
+    moved = np.eye(4)
+    moved[:3, 3] = (1.5, 0, 0)
+    scene = {
+        "as given": lambda: dacrt.Scene([(vertices, faces)]),
+        "instances": lambda: dacrt.Scene([(vertices, faces)] * 3, transforms=[None, moved, moved]),
+        "deforming": lambda: dacrt.Scene([(vertices, faces)] * 2, vertices_end=[None, lifted]),
+    }[kind]()
+    point = np.float32([[0.5, 0.5, 1.0]])
+    before = scene.nbytes
+    assert not scene.derived_for_points
+    peak = traced_peak(lambda: scene.nearest(point, threads=1))
+    assert scene.derived_for_points
+    kept = scene.nbytes - before
+    first = footprint.scene_work_bytes(scene.n_triangles, 1, 1, points=True, setup=True)
+    later = footprint.scene_work_bytes(scene.n_triangles, 1, 1, points=True)
+    assert later < peak - kept <= first, f"{(peak - kept) / scene.n_triangles:.1f} B a triangle"
+
+
 @pytest.fixture(scope="module")
 def crowded_scene_app():
     """The smallest budget; a scene of one 20,000-triangle car and 49 instances of it (1M placed
@@ -850,16 +878,19 @@ def crowded_scene_app():
     [
         ("closest", {"origins": [[0.5, 0.5, 1]], "directions": [[0, 0, -1]]}),
         ("nearest", {"points": [[0.5, 0.5, 1]]}),
+        ("lidar", {"pose": np.eye(4).tolist(), "vertical_angles_deg": [0], "horizontal_steps": 4}),
     ],
 )
 def test_a_query_whose_work_on_the_scene_exceeds_the_budget_is_413(crowded_scene_app, query, body):
-    """One ray (or point) into a million placed triangles holds more than the smallest budget:
-    413 naming the scene's triangles and the budget, where the same request on a small scene
-    answers."""
+    """One ray (or point, or a lidar of four) into a million placed triangles holds more than
+    the smallest budget: 413 naming the scene's triangles and the budget, and advising what can
+    help (a larger budget or a smaller scene, not a smaller batch), where the same request on a
+    small scene answers."""
     answer = crowded_scene_app.post(f"/v1/scenes/crowd/{query}", json=body, headers=JSON)
     assert answer.status_code == 413, answer.text
     detail = answer.json()["detail"]
     assert "1000000 triangles of scene 'crowd'" in detail and "DACRT_MAX_INFLIGHT_BYTES" in detail
+    assert "fewer triangles" in detail and "smaller batches" not in detail, detail
     small = crowded_scene_app.post(f"/v1/scenes/small/{query}", json=body, headers=JSON)
     assert small.status_code == 200, small.text
 
