@@ -40,4 +40,4 @@ EXPOSE 8000
 HEALTHCHECK --interval=15s --timeout=5s --start-period=900s --retries=3 \
     CMD ["python", "-c", "import sys, urllib.request; sys.exit(urllib.request.urlopen('http://127.0.0.1:8000/health', timeout=4).status != 200)"]
 CMD ["uvicorn", "service.app:create_app", "--factory", "--http", "service.protocol:GuardedHttpProtocol", \
-     "--host", "0.0.0.0", "--port", "8000"]
+     "--timeout-graceful-shutdown", "5", "--host", "0.0.0.0", "--port", "8000"]

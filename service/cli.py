@@ -88,6 +88,11 @@ def check_port(settings: Settings) -> None:
         raise SystemExit(f"dacrt-service: {where}: cannot listen there: {exc}") from None
 
 
+#: Seconds a stopping server waits for the requests in flight (a slow upload would hold it up to
+#: DACRT_BODY_TIMEOUT), within the 10 s a container's stop allows before SIGKILL.
+SHUTDOWN_GRACE_SECONDS = 5
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     import uvicorn
 
@@ -113,4 +118,5 @@ def main(argv: Sequence[str] | None = None) -> None:
         port=settings.port,
         http=guarded_protocol(settings),
         log_level=settings.log_level,
+        timeout_graceful_shutdown=SHUTDOWN_GRACE_SECONDS,
     )

@@ -22,7 +22,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, nullcontext
 from contextvars import ContextVar
 
@@ -214,6 +214,19 @@ def report(start: float, compiled: int) -> float:
     return seconds
 
 
+def child_setup(ending: Callable[[], None] | None) -> Callable[[], None]:
+    """The warm-up child's ``preexec_fn``: it ignores SIGINT, as a terminal's Ctrl-C is the
+    server's to handle (the server then ends the child), and runs ``ending``: Linux signals it
+    when the server's warm-up thread, which waits for it, ends (``ending_with_parent``)."""
+
+    def setup() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if ending is not None:
+            ending()
+
+    return setup
+
+
 def compile_in_child(missing: str, stopping: threading.Event | None = None) -> str | None:
     """Run CHILD, which compiles every kernel into this process's cache folder, and log its lines
     as they come; answers None once it succeeded, else why it did not. ``stopping`` set ends it
@@ -230,8 +243,7 @@ def compile_in_child(missing: str, stopping: threading.Event | None = None) -> s
             stderr=subprocess.STDOUT,
             text=True,
             errors="replace",
-            # Linux signals it when this thread ends: the server's warm-up thread, waiting below.
-            preexec_fn=ending_with_parent(signal.SIGTERM),
+            preexec_fn=child_setup(ending_with_parent(signal.SIGTERM)),
         )
     except OSError as exc:
         return f"the child process {' '.join(CHILD)} could not start: {exc}"

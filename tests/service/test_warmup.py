@@ -145,6 +145,32 @@ def test_a_server_that_stops_ends_its_child(cold, monkeypatch, tmp_path):
     assert not Path(f"/proc/{pid_file.read_text()}").exists()
 
 
+def test_the_child_leaves_a_terminals_ctrl_c_to_the_server(cold, monkeypatch, tmp_path):
+    """A terminal's Ctrl-C reaches the server's whole process group: the child ignores it (no
+    traceback of an interrupted compile in the server's log), and ends when the server stops."""
+    pid_file = tmp_path / "pid"
+    child(
+        monkeypatch,
+        "import os, signal, time; ignored = signal.getsignal(signal.SIGINT) == signal.SIG_IGN; "
+        f"open({str(pid_file)!r}, 'w').write(f'{{os.getpid()}} {{ignored}}'); time.sleep(600)",
+    )
+    app = create_app(Settings(token=None, load_demo=False))
+    thread = threading.Thread(target=warm_up, args=(app.state.readiness,))
+    thread.start()
+    deadline = time.monotonic() + 60
+    while not pid_file.exists() or not pid_file.read_text():
+        assert time.monotonic() < deadline
+        time.sleep(0.1)
+    pid, ignored = pid_file.read_text().split()
+    assert ignored == "True"
+    os.kill(int(pid), signal.SIGINT)
+    time.sleep(0.5)
+    assert alive(int(pid)) and thread.is_alive()
+    app.state.readiness.stopping.set()
+    thread.join(10)
+    assert not thread.is_alive() and not alive(int(pid))
+
+
 def test_loading_only_from_the_cache_stops_before_a_compile():
     def plus_one(x):
         return x + 1
