@@ -29,9 +29,11 @@ USER app
 # server finds them whichever copy of the sources it imports.
 RUN python -m service.warmup
 # Any uid may run it (docker run --user, OpenShift): such a uid is in group 0, which may write
-# the kernels' cache and the data folder as their owner may.
+# the kernels' cache and the data folder as their owner may (and enter the home that holds the cache,
+# whatever mode useradd gave it).
 USER root
-RUN chgrp -R 0 /home/app/.cache /data && chmod -R g+rwX /home/app/.cache /data
+RUN chgrp -R 0 /home/app/.cache /data && chmod -R g+rwX /home/app/.cache /data \
+    && chgrp 0 /home/app && chmod g+rx /home/app
 USER app
 
 VOLUME /data
