@@ -751,7 +751,8 @@ def _link_instances(scene: str, meshes: dict[str, Mesh], changed: Iterable[str],
                 f"it has {sorted(n for n in meshes if n != name) or 'none'}"
             )
         # every instance on the way links to the same source, so no chain is walked twice
-        meshes[name] = replace(mesh, instance_of=source)
+        if mesh.instance_of != source:
+            meshes[name] = replace(mesh, instance_of=source)
         for link in chain[1:]:
             if meshes[link].instance_of != source:
                 meshes[link] = replace(meshes[link], instance_of=source)

@@ -12,6 +12,7 @@ import numpy as np
 
 import dacrt
 import dacrt.sensors
+from dacrt.validation import check_transforms
 
 from ..errors import BadBody, Invalid, TooLarge, UnsupportedMediaType
 from .arrays import (
@@ -329,7 +330,24 @@ def decode_frame(
         raise BadBody("frame body holds no MESH.vertices (or other MESH.*) keys")
     if max_meshes is not None and len(parts) > max_meshes:
         _too_many_meshes(str(len(parts)), max_meshes)
-    return {mesh: _frame_change(mesh, arrays) for mesh, arrays in parts.items()}
+    changes = {mesh: _frame_change(mesh, arrays) for mesh, arrays in parts.items()}
+    return _checked_placements(changes)
+
+
+def _checked_placements(changes: dict[str, FrameChange]) -> dict[str, FrameChange]:
+    """``changes`` with every transform and transform_end checked by the engine at once (a frame
+    places many meshes): its InputError names the first bad one's key (422)."""
+    given = [
+        (mesh, part)
+        for mesh, change in changes.items()
+        for part in ("transform", "transform_end")
+        if getattr(change, part) is not None
+    ]
+    matrices = [getattr(changes[mesh], part) for mesh, part in given]
+    checked = check_transforms(matrices, lambda k: f"{given[k][0]}.{given[k][1]}")
+    for (mesh, part), matrix in zip(given, checked):
+        changes[mesh] = changes[mesh]._replace(**{part: matrix})
+    return changes
 
 
 def _too_many_meshes(count: str, max_meshes: int) -> None:
@@ -355,10 +373,10 @@ def _frame_change(mesh: str, arrays: dict[str, Any]) -> FrameChange:
     if "faces" in arrays:
         faces = index_array(arrays["faces"], f"{mesh}.faces")
         faces = check_faces(faces, len(vertices), f"{mesh}.faces")
-    if "transform" in arrays:
-        transform = check_matrix(arrays["transform"], f"{mesh}.transform")
+    if "transform" in arrays:  # checked by the engine with the frame's others
+        transform = matrix_value(arrays["transform"], f"{mesh}.transform")
     if "transform_end" in arrays:
-        transform_end = check_matrix(arrays["transform_end"], f"{mesh}.transform_end")
+        transform_end = matrix_value(arrays["transform_end"], f"{mesh}.transform_end")
     vertices_end = None
     if "vertices_end" in arrays:
         name = f"{mesh}.vertices_end"
@@ -466,6 +484,12 @@ def check_matrix(value: Any, name: str) -> np.ndarray:
     """A (4, 4) float64 row-major affine matrix from nested JSON lists or a float array, checked
     by the engine (shape, finite, last row [0, 0, 0, 1], invertible): its InputError names
     ``name`` (422 through ``errors``' table)."""
+    return dacrt.check_transform(matrix_value(value, name), name)
+
+
+def matrix_value(value: Any, name: str) -> np.ndarray:
+    """A matrix from nested JSON lists or a float array, as an array for the engine to check
+    (``check_matrix``): 422 naming ``name`` for what is no array of numbers."""
     if isinstance(value, np.ndarray):
         if value.dtype.kind not in "fiu":
             raise Invalid(f"{name} must be a float array, got {value.dtype}")
@@ -479,7 +503,7 @@ def check_matrix(value: Any, name: str) -> np.ndarray:
             value = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError, OverflowError):
             raise Invalid(f"{name} must be a 4x4 matrix (4 rows of 4 numbers)") from None
-    return dacrt.check_transform(value, name)
+    return value
 
 
 def decode_trace(

@@ -330,6 +330,42 @@ def test_bounds_are_of_the_placed_referenced_vertices(store):
     np.testing.assert_array_equal(store.snapshot("s").bounds, placed.bounds)
 
 
+def test_a_frame_places_many_instances_at_once_as_each_alone():
+    """A frame that moves 30 instances of one mesh (and ends the move of some) makes each one's
+    bounds as placed alone: those of its referenced vertices placed in float64, then float32,
+    the box of both placements for a moving one. One that places a vertex beyond float32 is 422
+    naming it, and the scene keeps its version."""
+    store = Store(max_triangles_per_scene=10_000, max_scene_bytes=10**7)
+    vertices, faces = grid(6)
+    vertices = np.vstack([vertices, np.float32([[1e30, 1e30, 1e30]])])  # one unreferenced
+    store.put_mesh("s", "car", MeshArrays(vertices, faces))
+    for k in range(1, 30):
+        store.put_instance("s", f"car{k}", "car")
+    names = ["car"] + [f"car{k}" for k in range(1, 30)]
+    rng = np.random.default_rng(2)
+    starts = [turn(rng.uniform(0, 360), rng.normal(size=3) * 50) for _ in names]
+    ends = {name: turn(rng.uniform(0, 360), rng.normal(size=3) * 50) for name in names[::4]}
+    frame = {
+        name: FrameChange(transform=start, transform_end=ends.get(name))
+        for name, start in zip(names, starts)
+    }
+    snapshot = store.apply_frame("s", frame)
+    referenced = vertices[:-1].astype(np.float64)
+    for name, start in zip(names, starts):
+        boxes = []
+        for matrix in (start, ends.get(name)):
+            if matrix is not None:
+                placed = (referenced @ matrix[:3, :3].T + matrix[:3, 3]).astype(np.float32)
+                boxes.append([placed.min(axis=0), placed.max(axis=0)])
+        expected = [np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)]
+        np.testing.assert_array_equal(snapshot.meshes[name].bounds, expected, name)
+    frame["car17"] = FrameChange(transform=np.diag([1e9, 1.0, 1.0, 1.0]))
+    beyond = f"transform of mesh 'car17' places vertex {len(vertices) - 1} beyond"
+    with pytest.raises(InputError, match=beyond):
+        store.apply_frame("s", frame)
+    assert store.snapshot("s").version == snapshot.version
+
+
 def test_a_transform_that_leaves_the_float32_range_is_422(store):
     vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1e30, 0, 0]], np.float32)
     store.put_mesh("s", "a", MeshArrays(vertices, np.array([[0, 1, 2]], np.int32)))

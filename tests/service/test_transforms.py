@@ -169,6 +169,28 @@ def test_a_bad_matrix_is_422_with_the_engines_message_and_changes_nothing(
     assert info(app_client, scene_name, "pot") == before
 
 
+@pytest.mark.parametrize("matrix, message", BAD_MATRICES)
+def test_a_frame_of_many_placements_names_its_bad_matrix_and_changes_nothing(
+    app_client, scene_name, teapot, matrix, message
+):
+    """A frame's placements are checked together: the one bad matrix among ten is 422 with the
+    engine's message naming its key (or its mesh, for a vertex placed beyond float32)."""
+    upload(app_client, scene_name, "car0", *teapot)
+    for k in range(1, 10):
+        app_client.put(
+            f"/v1/scenes/{scene_name}/meshes/car{k}", json={"instance_of": "car0"}
+        ).raise_for_status()
+    frame = {f"car{k}.transform": affine(k).tolist() for k in range(10)}
+    before = app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame).json()["version"]
+    frame["car5.transform"] = matrix
+    response = app_client.post(f"/v1/scenes/{scene_name}/frame", json=frame)
+    named = "transform of mesh 'car5'" if message == "places vertex" else "car5.transform"
+    assert response.status_code == 422, response.text
+    assert message.replace("matrix", named, 1) in response.json()["detail"], response.text
+    assert named in response.json()["detail"]
+    assert info(app_client, scene_name, "car0")["version"] == before
+
+
 @pytest.mark.parametrize("text", ["NaN", "Infinity", "1e999"])
 def test_a_non_finite_matrix_is_422(app_client, scene_name, text):
     upload(app_client, scene_name, "a", *quad(0, 1, 0, 1, 0))
