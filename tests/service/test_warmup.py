@@ -125,12 +125,10 @@ def test_a_compile_that_fails_after_the_child_is_reported_by_health(cold, monkey
     assert app.state.readiness.status == "error" and "no compiler" in app.state.readiness.error
 
 
-def test_a_server_that_stops_ends_its_child(cold, monkeypatch, tmp_path):
-    pid_file = tmp_path / "pid"
-    child(
-        monkeypatch,
-        f"import os, time; open({str(pid_file)!r}, 'w').write(str(os.getpid())); time.sleep(600)",
-    )
+def warming_with_child(monkeypatch, pid_file: Path, code: str):
+    """(app, its warm-up thread) once the child running ``code`` (which writes ``pid_file``)
+    has written it."""
+    child(monkeypatch, code)
     app = create_app(Settings(token=None, load_demo=False))
     thread = threading.Thread(target=warm_up, args=(app.state.readiness,))
     thread.start()
@@ -138,6 +136,16 @@ def test_a_server_that_stops_ends_its_child(cold, monkeypatch, tmp_path):
     while not pid_file.exists() or not pid_file.read_text():
         assert time.monotonic() < deadline
         time.sleep(0.1)
+    return app, thread
+
+
+def test_a_server_that_stops_ends_its_child(cold, monkeypatch, tmp_path):
+    pid_file = tmp_path / "pid"
+    app, thread = warming_with_child(
+        monkeypatch,
+        pid_file,
+        f"import os, time; open({str(pid_file)!r}, 'w').write(str(os.getpid())); time.sleep(600)",
+    )
     app.state.readiness.stopping.set()  # as the app's lifespan does when it ends
     thread.join(10)
     assert not thread.is_alive()
@@ -149,18 +157,12 @@ def test_the_child_leaves_a_terminals_ctrl_c_to_the_server(cold, monkeypatch, tm
     """A terminal's Ctrl-C reaches the server's whole process group: the child ignores it (no
     traceback of an interrupted compile in the server's log), and ends when the server stops."""
     pid_file = tmp_path / "pid"
-    child(
+    app, thread = warming_with_child(
         monkeypatch,
+        pid_file,
         "import os, signal, time; ignored = signal.getsignal(signal.SIGINT) == signal.SIG_IGN; "
         f"open({str(pid_file)!r}, 'w').write(f'{{os.getpid()}} {{ignored}}'); time.sleep(600)",
     )
-    app = create_app(Settings(token=None, load_demo=False))
-    thread = threading.Thread(target=warm_up, args=(app.state.readiness,))
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not pid_file.exists() or not pid_file.read_text():
-        assert time.monotonic() < deadline
-        time.sleep(0.1)
     pid, ignored = pid_file.read_text().split()
     assert ignored == "True"
     os.kill(int(pid), signal.SIGINT)
