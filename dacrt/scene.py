@@ -273,8 +273,12 @@ class Scene:
         placed = sorted(packs)
         starts = [IDENTITY if matrices[i] is None else matrices[i] for i in placed]
         check_placements(
-            [(i, packs[i], start, "transforms") for i, start in zip(placed, starts)]
-            + [(i, packs[i], ends[i], "transforms_end") for i in placed if ends[i] is not None]
+            [
+                (i, packs[i], matrix, name)
+                for i, start in zip(placed, starts)
+                for matrix, name in ((start, "transforms"), (ends[i], "transforms_end"))
+                if matrix is not None
+            ]
         )
         self._parts.update(packs)
         instance_of = {}

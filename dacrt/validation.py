@@ -407,12 +407,18 @@ def check_transform(matrix, name="matrix"):
 def check_transforms(matrices, name_of):
     """``check_transform`` of each of ``matrices`` (a list), made for all at once (a frame
     places many): a list of float64 (4, 4); the error names ``name_of(k)`` for the k-th."""
-    stack = np.empty((len(matrices), 4, 4))
+    checked = np.empty((len(matrices), 4, 4))
+    n_read = len(matrices)  # those before the first one that is no (4, 4) array of numbers
     for k, matrix in enumerate(matrices):
         if isinstance(matrix, np.ndarray) and matrix.shape == (4, 4) and matrix.dtype.kind in "fiu":
-            stack[k] = matrix
-        else:
-            stack[k] = check_transform(matrix, name_of(k))
+            checked[k] = matrix
+            continue
+        try:
+            checked[k] = check_transform(matrix, name_of(k))
+        except InputError:
+            n_read = k  # named below, unless one before it is bad too
+            break
+    stack = checked[:n_read]
     linear = stack[:, :3, :3]
     with np.errstate(all="ignore"):  # a bad matrix is named by check_transform below
         scale = np.prod(np.linalg.norm(linear, axis=2), axis=1)
@@ -425,7 +431,9 @@ def check_transforms(matrices, name_of):
         )
     for k in np.flatnonzero(~good):
         stack[k] = check_transform(matrices[k], name_of(k))  # raises, or passes the SVD's test
-    return list(stack)
+    if n_read < len(matrices):
+        check_transform(matrices[n_read], name_of(n_read))  # raises
+    return list(checked)
 
 
 def place_vertices(vertices, matrix, name):

@@ -392,6 +392,7 @@ def test_many_transforms_checked_at_once_name_the_first_bad_one():
     ]:
         changes = {i: moves[(i + 1) % 50] for i in range(50)}
         changes[41], changes[37] = barely, bad  # the first bad entry, by mesh index, is 37
+        changes[45] = "eye"  # a later entry that is no matrix at all is named after it
         with pytest.raises(ValueError, match=r"transforms\[37\]") as raised:
             scene.with_changes(transforms=changes)
         assert raised.match(message)
@@ -401,6 +402,17 @@ def test_many_transforms_checked_at_once_name_the_first_bad_one():
     assert_same_answers({"closest": moved.closest(o, d)}, {"closest": fresh.closest(o, d)}, "moved")
     assert_same_answers({"closest": scene.closest(o, d)}, {"closest": before}, "unchanged")
     assert (before.mesh >= 0).mean() > 0.2  # the rays meet the spheres
+
+
+def test_a_placement_beyond_float32_is_named_in_mesh_order():
+    """Each mesh's start placement, then its end, mesh after mesh: the first to place its mesh
+    beyond float32 is named (an end of mesh 0 before the start of mesh 1)."""
+    sphere = sample_scenes.sphere(4)[0]
+    far = affine(np.eye(3) * 1e39)
+    with pytest.raises(ValueError, match=r"transforms_end\[0\] places mesh 0 beyond"):
+        dacrt.Scene([sphere] * 2, transforms=[np.eye(4), far], transforms_end=[far, None])
+    with pytest.raises(ValueError, match=r"^transforms\[0\] places mesh 0 beyond"):
+        dacrt.Scene([sphere] * 2, transforms=[far, far], transforms_end=[far, None])
 
 
 def test_check_transform_returns_the_matrix_as_float64():

@@ -13,6 +13,7 @@ from ..deps import MetricsDep, SettingsDep, StoreDep, reject_unknown_query, requ
 from ..params import MaxDistance, NSamples, PointFormat, PointMask, SceneName, Sign, Stats
 from ..pipeline import receive, respond
 from ..responses import BuffersResponse
+from ..store import Snapshot
 
 router = APIRouter(
     prefix="/v1",
@@ -60,13 +61,15 @@ async def nearest(
     declared = format or wire.declared_format(request.headers.get("content-type"))
     answer_format = wire.negotiate(accept, declared or "npz")  # again once the body is read
 
-    def peak(n_body: int, fmt: str | None, n_points: int | None = None) -> int:
+    def peak(
+        n_body: int, fmt: str | None, n_points: int | None = None, snapshot: Snapshot | None = None
+    ) -> int:
         """The request's peak bytes: its body decoded, its points measured (with the work on
-        the scene's triangles), its answer written; before the body is read, the most it can
-        hold."""
+        the triangles of the scene's version ``snapshot``, by default the current one), its
+        answer written; before the body is read, the most it can hold."""
         if n_points is None:
             n_points = footprint.most_points(n_body, fmt, max_points)
-        snapshot = store.snapshot(scene)
+        snapshot = snapshot or store.snapshot(scene)
         n_triangles = snapshot.n_triangles
         work = footprint.scene_work_bytes(
             n_triangles, n_points, settings.threads, points=True, masked=point_mask is not None,
@@ -93,11 +96,16 @@ async def nearest(
     points = await run_sync(decode)
     tracing.check_point_rays(options, len(points), max_points)
     what = f"{request.method} {request.url.path} of {len(points)} points{request.state.load}"
-    await got.ticket.hold(peak(len(got.body), None, len(points)) + got.inflated, what)
+    # The version measured is the one its peak was held for: a frame that commits meanwhile
+    # may bring a first point query's setup.
+    snapshot = None
+    while snapshot is not store.snapshot(scene):
+        snapshot = store.snapshot(scene)
+        await got.ticket.hold(peak(len(got.body), None, len(points), snapshot) + got.inflated, what)
 
     def work():
         with got.timing("trace"):
-            result = tracing.nearest(store.snapshot(scene), points, options)
+            result = tracing.nearest(snapshot, points, options)
         with got.timing("encode"):
             return result, wire.encode_answer(result.arrays, answer_format)
 

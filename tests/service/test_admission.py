@@ -848,6 +848,47 @@ def test_a_versions_first_point_query_holds_its_setup_within_its_estimate(kind):
     assert later < peak - kept <= first, f"{(peak - kept) / scene.n_triangles:.1f} B a triangle"
 
 
+def test_a_point_query_measures_the_version_its_setup_was_held_for(monkeypatch):
+    """A frame that commits while a point query waits for room makes a version that has not
+    derived what point queries read: the query holds that setup before it measures the new
+    version (it answers with its X-Scene-Version), never a version it holds nothing for."""
+    settings = Settings(token=None, load_demo=False)
+    vertices, faces = grid(64)
+    held = []
+    hold = admission_module.Admission.resize
+
+    with in_process.serve(settings) as client:
+        client.put(
+            "/v1/scenes/s/meshes/m", json={"vertices": vertices.tolist(), "faces": faces.tolist()}
+        ).raise_for_status()
+        client.put("/v1/scenes/s/meshes/i", json={"instance_of": "m"}).raise_for_status()
+        point = {"points": [[0.5, 0.5, 1.0]]}
+        client.post("/v1/scenes/s/nearest", json=point).raise_for_status()  # version 2 derives
+        store = client._transport._asgi.app.state.store
+
+        async def resize(self, ticket, nbytes, what):
+            if " points " in what and not held:  # a frame commits while the query waits
+                held.append(what)
+                moved = np.eye(4)
+                moved[0, 3] = 0.25
+                store.set_transform("s", "i", moved)
+            return await hold(self, ticket, nbytes, what)
+
+        monkeypatch.setattr(admission_module.Admission, "resize", resize)
+        setups = []
+        work = footprint.scene_work_bytes
+
+        def scene_work_bytes(*args, **kwargs):
+            setups.append(kwargs.get("setup"))
+            return work(*args, **kwargs)
+
+        monkeypatch.setattr(footprint, "scene_work_bytes", scene_work_bytes)
+        answer = client.post("/v1/scenes/s/nearest", json=point)
+    assert answer.status_code == 200, answer.text
+    assert answer.headers["X-Scene-Version"] == "3"
+    assert setups[-1] is True  # held for version 3's setup before it was measured
+
+
 @pytest.fixture(scope="module")
 def crowded_scene_app():
     """The smallest budget; a scene of one 20,000-triangle car and 49 instances of it (1M placed
