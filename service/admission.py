@@ -63,6 +63,8 @@ class Ticket:
         #: bytes the request holds whatever its size (its work on a scene's triangles), for the
         #: advice of a 413
         self.least = 0
+        #: the advice of a 413 for a load too heavy, where smaller batches do not apply
+        self.advice: str | None = None
 
     async def hold(self, nbytes: int, what: str) -> None:
         """Hold ``nbytes`` in all from now on (more or fewer than before): waits in line for
@@ -72,7 +74,7 @@ class Ticket:
 
     def check(self, nbytes: int, what: str) -> None:
         """413 if ``nbytes`` exceed the whole budget, without holding them."""
-        self.admission.check(int(nbytes), what, self.least)
+        self.admission.check(int(nbytes), what, self.least, self.advice)
 
     def shrink(self, nbytes: int) -> None:
         """Hold only ``nbytes`` (no more than it holds) from now on."""
@@ -111,7 +113,7 @@ class Admission:
         if extra <= 0:
             self.resize_now(ticket, nbytes)
             return
-        self.check(nbytes, what, ticket.least)
+        self.check(nbytes, what, ticket.least, ticket.advice)
         fits = self.held + extra <= self.budget
         # A request admitted in its turn that needs more goes ahead of those not admitted yet
         # (they may be waiting for what it holds), after others like it; one that went ahead
@@ -149,12 +151,13 @@ class Admission:
             )
         self.resize_now(ticket, nbytes)
 
-    def check(self, nbytes: int, what: str, least: int = 0) -> None:
+    def check(self, nbytes: int, what: str, least: int = 0, advice: str | None = None) -> None:
         """413 if ``nbytes`` exceed the whole budget: they would never be admitted. ``least``:
-        what the request holds whatever its size; over the budget, no smaller batch helps."""
+        what the request holds whatever its size (over the budget, no smaller load helps);
+        ``advice``: how to lighten it, where smaller batches do not apply."""
         if nbytes <= self.budget:
             return
-        advice = "send it in smaller batches (or .npy/.npz rather than JSON)"
+        advice = advice or "send it in smaller batches (or .npy/.npz rather than JSON)"
         if least > self.budget:
             advice = (
                 f"its work on the scene's triangles alone holds about {amount(least)}, whatever "

@@ -51,6 +51,11 @@ class Steps:
     decode: Callable[[memoryview, str], Decoded]  #: the body, in its format
     trace: Callable[[Any], TraceResult]  #: the engine's answer to ``Decoded.value``
     encode: Callable[[TraceResult, str], Encoded]  #: the answer in ``Decoded.answer_format``
+    #: bytes it holds on the scene whatever its body (a sensor's one ray), for a 413's advice,
+    #: where ``estimate`` of an empty body does not say
+    least: Callable[[], int] | None = None
+    #: what a 413 advises for a body too heavy for the budget, where batches do not apply
+    advice: str | None = None
 
 
 async def answer(
@@ -66,7 +71,10 @@ async def answer(
     """Receive the body sent to ``scene`` of ``store`` (None: a one-shot /trace), decode it,
     hold the in-flight budget for its peak (``Decoded.peak``: with the work on the scene's
     triangles), trace and encode it, and answer; the steps run off the event loop."""
-    got = await receive(request, settings, store, scene, format, steps.formats, steps.estimate)
+    request.state.ticket.advice = steps.advice
+    got = await receive(
+        request, settings, store, scene, format, steps.formats, steps.estimate, steps.least
+    )
 
     def decode() -> Decoded:
         with got.timing("decode"):
@@ -106,6 +114,7 @@ async def receive(
     format: str | None,
     formats: tuple[str, ...],
     estimate: Estimate,
+    least: Callable[[], int] | None = None,
 ) -> Received:
     """404 for an unknown scene before the body is read, then the body (its estimated peak held
     in the budget) and its format (415 naming ``formats``); the estimate is held again for the
@@ -114,7 +123,8 @@ async def receive(
         n_triangles = store.snapshot(check_name("scene", scene)).n_triangles
         # what the budget's messages say of the request's load (``deps.BodyHold``)
         request.state.load = f" on the {n_triangles} triangles of scene {scene!r}"
-        request.state.ticket.least = estimate(0, None)  # its work on them, whatever its body
+        # its work on them, whatever its body (``least``: where the estimate does not hold it)
+        request.state.ticket.least = max(estimate(0, None), least() if least else 0)
     timing = ServerTiming()
     with timing("receive"):
         body = await read_body(request, settings.max_body_bytes, estimate)

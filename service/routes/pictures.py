@@ -117,7 +117,9 @@ async def render(
         picture = shading.png(result.arrays["pixels"])
         return [picture], len(picture), PNG
 
-    steps = Steps(JSON_ONLY, sensor_estimate(work), decode, trace, encode)
+    steps = Steps(
+        JSON_ONLY, footprint.decode_bytes, decode, trace, encode, lambda: work(1), PIXELS_ADVICE
+    )
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -157,7 +159,10 @@ async def camera(
     def trace(value) -> TraceResult:
         return sensing.sense(store.snapshot(scene), *value, options)
 
-    steps = Steps(JSON_ONLY, sensor_estimate(work), decode, trace, encode_arrays)
+    steps = Steps(
+        JSON_ONLY, footprint.decode_bytes, decode, trace, encode_arrays, lambda: work(1),
+        PIXELS_ADVICE + NPZ_ADVICE,
+    )  # fmt: skip
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -213,7 +218,10 @@ async def lidar(
         pcd_fields = options.pcd_fields(result.arrays)
         return wire.encode_answer(result.arrays, answer_format, pcd_fields)
 
-    steps = Steps(JSON_ONLY, sensor_estimate(work), decode, trace, encode)
+    steps = Steps(
+        JSON_ONLY, footprint.decode_bytes, decode, trace, encode, lambda: work(1),
+        "make fewer rays (fewer horizontal_steps or beam_samples)" + NPZ_ADVICE,
+    )  # fmt: skip
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -269,7 +277,10 @@ async def sensors(
     def encode(result: TraceResult, answer_format: str):
         return wire.encode_rig_answer(result.arrays, answer_format)
 
-    steps = Steps(JSON_ONLY, sensor_estimate(work), decode, trace, encode)
+    steps = Steps(
+        JSON_ONLY, footprint.decode_bytes, decode, trace, encode, lambda: work(1),
+        "make fewer rays (fewer sensors, steps or pixels)" + NPZ_ADVICE,
+    )  # fmt: skip
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -293,18 +304,17 @@ def rig_sensors(
     return placed, ends
 
 
+#: A 413's advice for a sensor too heavy for the budget, where smaller batches do not apply.
+PIXELS_ADVICE = "make fewer pixels (a smaller width and height)"
+NPZ_ADVICE = ", or ask for an .npz answer (Accept: application/x-npz) rather than JSON"
+
+
 def triangles_work(store: Store, scene: str, options: Options) -> Callable[[int], int]:
     """The work of a batch of so many rays on the triangles of ``scene``'s current version
     (``footprint.scene_work_bytes``)."""
     return lambda n_rays: footprint.scene_work_bytes(
         store.snapshot(scene).n_triangles, n_rays, options.threads
     )
-
-
-def sensor_estimate(work: Callable[[int], int]) -> Callable[[int, str | None], int]:
-    """A sensor body's peak before it is decoded: the body decoded, and the work of one ray on
-    the scene's triangles, the least a sensor holds there (``work``: ``triangles_work``)."""
-    return lambda n_body, fmt: footprint.decode_bytes(n_body, fmt) + work(1)
 
 
 def sensor_decoded(

@@ -936,6 +936,21 @@ def test_a_query_whose_work_on_the_scene_exceeds_the_budget_is_413(crowded_scene
     assert small.status_code == 200, small.text
 
 
+def test_a_sensor_too_heavy_for_the_budget_is_advised_in_its_own_terms(crowded_scene_app):
+    """A lidar whose JSON answer does not fit the smallest budget: 413 advising fewer rays or an
+    .npz answer (a sensor's body is no batch), and the same lidar answered in .npz is 200."""
+    body = {"pose": np.eye(4).tolist(), "model": "HDL-64E", "horizontal_steps": 200}
+    answer = crowded_scene_app.post("/v1/scenes/small/lidar", json=body)
+    assert answer.status_code == 413, answer.text
+    detail = answer.json()["detail"]
+    assert "fewer horizontal_steps" in detail and "Accept: application/x-npz" in detail, detail
+    assert "batches" not in detail, detail
+    npz = crowded_scene_app.post(
+        "/v1/scenes/small/lidar", json=body, headers={"Accept": "application/x-npz"}
+    )
+    assert npz.status_code == 200, npz.text
+
+
 def test_concurrent_small_queries_on_a_large_scene_are_each_served_in_turn():
     """Twelve one-ray JSON queries at once into a million placed triangles, on a budget that
     holds two of them: each is held with its work on the scene's triangles from before its body
@@ -953,12 +968,7 @@ def test_concurrent_small_queries_on_a_large_scene_are_each_served_in_turn():
     )
     try:
         server.wait_ready()
-        mesh = {"vertices": vertices.tolist(), "faces": faces.tolist()}
-        httpx.put(f"{server.url}/v1/scenes/crowd/meshes/car", json=mesh).raise_for_status()
-        for k in range(1, 50):
-            httpx.put(
-                f"{server.url}/v1/scenes/crowd/meshes/car{k}", json={"instance_of": "car"}
-            ).raise_for_status()
+        upload_crowd(server.url, vertices, faces)
         body = {"origins": [[0.5, 0.5, 1]], "directions": [[0, 0, -1]]}
         url = f"{server.url}/v1/scenes/crowd/closest"
         assert httpx.post(url, json=body).status_code == 200  # nothing lazy is left
@@ -972,5 +982,53 @@ def test_concurrent_small_queries_on_a_large_scene_are_each_served_in_turn():
         with ThreadPoolExecutor(12) as pool:
             statuses = [a.status_code for a in pool.map(post, range(12))]
         assert statuses == [200] * 12
+    finally:
+        server.stop()
+
+
+def upload_crowd(url: str, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Scene ``crowd``: mesh ``car`` and 49 instances of it."""
+    mesh = {"vertices": vertices.tolist(), "faces": faces.tolist()}
+    httpx.put(f"{url}/v1/scenes/crowd/meshes/car", json=mesh).raise_for_status()
+    for k in range(1, 50):
+        httpx.put(
+            f"{url}/v1/scenes/crowd/meshes/car{k}", json={"instance_of": "car"}
+        ).raise_for_status()
+
+
+def test_concurrent_sensors_that_fit_alone_are_each_served_in_turn():
+    """Three lidars at once into a million placed triangles, on a budget that holds one of them
+    at its peak: a sensor holds its work on the scene once its body says how many rays it makes,
+    not before, so two admitted bodies never wait for each other's bytes, and all three answer
+    in turn (none is refused for want of the room another is about to free)."""
+    vertices, faces = grid(100)
+    n_rays = 64 * 1024
+    body = {"pose": np.eye(4).tolist(), "model": "HDL-64E", "horizontal_steps": n_rays // 64}
+    one = footprint.sensor_bytes(n_rays) + footprint.scene_work_bytes(50 * len(faces), n_rays, 2)
+    budget = int(1.5 * one)
+    assert 2 * footprint.scene_work_bytes(50 * len(faces), 1, 2) < budget  # two bodies' worth
+    server = ServerProcess(
+        {
+            "DACRT_MAX_INFLIGHT_BYTES": str(budget),
+            "DACRT_ADMISSION_WAIT": "30",
+            "DACRT_THREADS": "2",
+        }
+    )
+    try:
+        server.wait_ready()
+        upload_crowd(server.url, vertices, faces)
+        url = f"{server.url}/v1/scenes/crowd/lidar"
+        npz = {"Accept": "application/x-npz"}
+        assert httpx.post(url, json=body, headers=npz, timeout=120).status_code == 200
+        together = threading.Barrier(3)
+
+        def post(_):
+            with httpx.Client(timeout=120) as client:
+                together.wait()
+                return client.post(url, json=body, headers=npz)
+
+        with ThreadPoolExecutor(3) as pool:
+            answers = list(pool.map(post, range(3)))
+        assert [a.status_code for a in answers] == [200] * 3, [a.text for a in answers]
     finally:
         server.stop()
