@@ -84,14 +84,29 @@ seeds : ``Seeds`` of every row, Morton codes over ``box``
 """
 
 
-def scene_triangles(verts, global_ids, mesh_offsets, row_masks, bounds=None, box=None):
+def scene_triangles(
+    verts, global_ids, mesh_offsets, row_masks, bounds=None, box=None, threads=None
+):
     """``SceneTriangles`` of the rows ``verts``, with their boxes (``bounds`` and ``box`` where
-    the caller holds them already: a packed level's own) and every row's seeds."""
+    the caller holds them already: a packed level's own) and every row's seeds, made in parts
+    on ``threads`` threads (None: every core)."""
+    n_rows = len(verts)
+    n_parts = max(1, min(threads or N_CORES, n_rows // MIN_ROWS_PER_PART))
+    parts = [slice(k * n_rows // n_parts, (k + 1) * n_rows // n_parts) for k in range(n_parts)]
     if bounds is None:
-        bounds = np.empty((len(verts), 6), FLOAT)
-        box = np.empty(6, FLOAT)
-        triangle_boxes(verts, bounds, box)
-    seeds = sorted_seeds(bounds, np.arange(len(verts), dtype=INDEX), box)
+        bounds = np.empty((n_rows, 6), FLOAT)
+        part_boxes = np.empty((n_parts, 6), FLOAT)
+        map_on_threads(
+            lambda k: triangle_boxes(verts[parts[k]], bounds[parts[k]], part_boxes[k]),
+            n_parts,
+            n_parts,
+        )
+        box = np.concatenate([part_boxes[:, :3].min(axis=0), part_boxes[:, 3:].max(axis=0)])
+    rows = np.arange(n_rows, dtype=INDEX)
+    codes = map_on_threads(lambda k: triangle_codes(bounds, rows[parts[k]], box), n_parts, n_parts)
+    codes = codes[0] if n_parts == 1 else np.concatenate(codes)
+    by_code = np.argsort(codes, kind="stable")
+    seeds = Seeds(codes[by_code], by_code.astype(INDEX))  # the rows, sorted by their codes
     return SceneTriangles(verts, global_ids, mesh_offsets, row_masks, bounds, box, seeds)
 
 
@@ -104,6 +119,8 @@ def sorted_seeds(tri_bounds, rows, box):
 
 # Bits of a Morton code per axis (30 bits in all, a uint32).
 MORTON_BITS = 10
+# Rows of a scene's point setup (``scene_triangles``) below which it is made on one thread.
+MIN_ROWS_PER_PART = 65536
 # Global id of "no triangle" in the kernels' tie rule: above every real id.
 NO_TRIANGLE = np.iinfo(np.int32).max
 # sin^2 of the angle at a triangle's first corner below which its plane's normal is formed
@@ -738,7 +755,7 @@ def nearest_query(scene, points, max_distance=None, mask=None, threads=None, sta
     points = check_points(points)
     max_distance = check_max_distance(max_distance)
     threads = check_threads(threads, N_CORES)
-    triangles = scene._scene_triangles()
+    triangles = scene._scene_triangles(threads)
     n_points = len(points)
     point_masks = None if mask is None else check_masks(mask, n_points, "mask", "point")
     uniform = point_masks is None or not n_points or (point_masks == point_masks[0]).all()

@@ -268,6 +268,10 @@ class Scene:
         ):
             self._base = old._base
             self._parts = {i: old._parts[i] for i in base_meshes}
+            if "_row_masks" in old.__dict__ and np.array_equal(
+                old.masks[self._base_meshes], masks[self._base_meshes]
+            ):  # each base row's mesh mask, as the old scene derived it
+                self.__dict__["_row_masks"] = old.__dict__["_row_masks"]
         else:
             self._base, self._parts = self._pack_base(base_meshes, old, changed)
         placed = sorted(packs)
@@ -1199,16 +1203,16 @@ class Scene:
         from then on."""
         return self._point_triangles is not None
 
-    def _scene_triangles(self) -> point_queries.SceneTriangles:
+    def _scene_triangles(self, threads=None) -> point_queries.SceneTriangles:
         """The scene-space triangles, for the point queries (``_placed_triangles``), derived on
-        the first one under the scene's own lock: two first queries at once derive them once,
-        and other scenes' queries do not wait for them."""
+        the first one (on its ``threads``) under the scene's own lock: two first queries at
+        once derive them once, and other scenes' queries do not wait for them."""
         with self._points_lock:
             if self._point_triangles is None:
-                self._point_triangles = self._placed_triangles()
+                self._point_triangles = self._placed_triangles(threads)
             return self._point_triangles
 
-    def _placed_triangles(self) -> point_queries.SceneTriangles:
+    def _placed_triangles(self, threads=None) -> point_queries.SceneTriangles:
         """The base level's rows, then the deforming level's at time 0 and each instance's
         triangles placed in scene space (in float64, then float32, as placed copies), less
         those degenerate there: distances are not kept by a non-rigid placement, so point
@@ -1217,8 +1221,9 @@ class Scene:
         base = self._base
         if self._deforming is None and not self._instances:  # the base level's own arrays
             return point_queries.scene_triangles(
-                base.verts, base.ids, self.mesh_offsets, self._row_masks, base.bounds, base.box
-            )
+                base.verts, base.ids, self.mesh_offsets, self._row_masks, base.bounds, base.box,
+                threads,
+            )  # fmt: skip
         level = self._deforming
         n_rows = len(base) + (0 if level is None else len(level))
         n_rows += sum(len(instance.packed) for instance in self._instances)
@@ -1254,7 +1259,7 @@ class Scene:
                     self.masks[instance.mesh])  # fmt: skip
         for array in (verts, ids, masks):  # less the degenerate rows' room, in place
             array.resize((n, *array.shape[1:]), refcheck=False)
-        return point_queries.scene_triangles(verts, ids, self.mesh_offsets, masks)
+        return point_queries.scene_triangles(verts, ids, self.mesh_offsets, masks, threads=threads)
 
     def _visible_rows(self, ray_masks, deforming=False):
         """How a batch's masks are traced on the base level (or the deforming level):

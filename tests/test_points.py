@@ -89,11 +89,11 @@ def test_a_first_point_query_derives_once_and_holds_up_no_other_scene():
     derived, started, release = [], threading.Event(), threading.Event()
     derive = held._placed_triangles
 
-    def slow_derive():
+    def slow_derive(threads):
         derived.append(1)
         started.set()
         release.wait(30)
-        return derive()
+        return derive(threads)
 
     held._placed_triangles = slow_derive
     answers = [None, None]
