@@ -956,44 +956,11 @@ def test_concurrent_small_queries_on_a_large_scene_are_each_served_in_turn():
     holds two of them: each is held with its work on the scene's triangles from before its body
     is read, so those waiting hold nothing, and all twelve answer (none waits for the others
     until its wait runs out)."""
-    vertices, faces = grid(100)  # 20,000 triangles, and 49 instances of them
-    scene_work = footprint.scene_work_bytes(50 * len(faces), 1, 2)
+    scene_work = footprint.scene_work_bytes(CROWD_TRIANGLES, 1, 2)
     budget = 2 * (footprint.JSON_ANSWER_BYTES + scene_work + MiB)
-    server = ServerProcess(
-        {
-            "DACRT_MAX_INFLIGHT_BYTES": str(budget),
-            "DACRT_ADMISSION_WAIT": "20",
-            "DACRT_THREADS": "2",
-        }
-    )
-    try:
-        server.wait_ready()
-        upload_crowd(server.url, vertices, faces)
-        body = {"origins": [[0.5, 0.5, 1]], "directions": [[0, 0, -1]]}
-        url = f"{server.url}/v1/scenes/crowd/closest"
-        assert httpx.post(url, json=body).status_code == 200  # nothing lazy is left
-        together = threading.Barrier(12)
-
-        def post(_):
-            with httpx.Client(timeout=120) as client:
-                together.wait()
-                return client.post(url, json=body)
-
-        with ThreadPoolExecutor(12) as pool:
-            statuses = [a.status_code for a in pool.map(post, range(12))]
-        assert statuses == [200] * 12
-    finally:
-        server.stop()
-
-
-def upload_crowd(url: str, vertices: np.ndarray, faces: np.ndarray) -> None:
-    """Scene ``crowd``: mesh ``car`` and 49 instances of it."""
-    mesh = {"vertices": vertices.tolist(), "faces": faces.tolist()}
-    httpx.put(f"{url}/v1/scenes/crowd/meshes/car", json=mesh).raise_for_status()
-    for k in range(1, 50):
-        httpx.put(
-            f"{url}/v1/scenes/crowd/meshes/car{k}", json={"instance_of": "car"}
-        ).raise_for_status()
+    body = {"origins": [[0.5, 0.5, 1]], "directions": [[0, 0, -1]]}
+    answers = posted_together_on_a_crowd(budget, 20, "closest", body, {}, 12)
+    assert [a.status_code for a in answers] == [200] * 12, [a.text for a in answers]
 
 
 def test_concurrent_sensors_that_fit_alone_are_each_served_in_turn():
@@ -1001,34 +968,53 @@ def test_concurrent_sensors_that_fit_alone_are_each_served_in_turn():
     at its peak: a sensor holds its work on the scene once its body says how many rays it makes,
     not before, so two admitted bodies never wait for each other's bytes, and all three answer
     in turn (none is refused for want of the room another is about to free)."""
-    vertices, faces = grid(100)
     n_rays = 64 * 1024
     body = {"pose": np.eye(4).tolist(), "model": "HDL-64E", "horizontal_steps": n_rays // 64}
-    one = footprint.sensor_bytes(n_rays) + footprint.scene_work_bytes(50 * len(faces), n_rays, 2)
+    one = footprint.sensor_bytes(n_rays) + footprint.scene_work_bytes(CROWD_TRIANGLES, n_rays, 2)
     budget = int(1.5 * one)
-    assert 2 * footprint.scene_work_bytes(50 * len(faces), 1, 2) < budget  # two bodies' worth
+    assert 2 * footprint.scene_work_bytes(CROWD_TRIANGLES, 1, 2) < budget  # two bodies' worth
+    npz = {"Accept": "application/x-npz"}
+    answers = posted_together_on_a_crowd(budget, 30, "lidar", body, npz, 3)
+    assert [a.status_code for a in answers] == [200] * 3, [a.text for a in answers]
+
+
+#: Placed triangles of scene ``crowd``: a 20,000-triangle grid and 49 instances of it.
+CROWD_TRIANGLES = 50 * 20_000
+
+
+def posted_together_on_a_crowd(
+    budget: int, wait: int, route: str, body: dict, headers: dict, n: int
+) -> list[httpx.Response]:
+    """The answers of ``n`` POSTs of ``body`` to ``route`` of scene ``crowd`` sent at once, to
+    a server of two threads with ``budget`` and ``wait`` (after one alone, so that nothing lazy
+    is left)."""
     server = ServerProcess(
         {
             "DACRT_MAX_INFLIGHT_BYTES": str(budget),
-            "DACRT_ADMISSION_WAIT": "30",
+            "DACRT_ADMISSION_WAIT": str(wait),
             "DACRT_THREADS": "2",
         }
     )
     try:
         server.wait_ready()
-        upload_crowd(server.url, vertices, faces)
-        url = f"{server.url}/v1/scenes/crowd/lidar"
-        npz = {"Accept": "application/x-npz"}
-        assert httpx.post(url, json=body, headers=npz, timeout=120).status_code == 200
-        together = threading.Barrier(3)
+        vertices, faces = grid(100)
+        mesh = {"vertices": vertices.tolist(), "faces": faces.tolist()}
+        httpx.put(f"{server.url}/v1/scenes/crowd/meshes/car", json=mesh).raise_for_status()
+        for k in range(1, 50):
+            httpx.put(
+                f"{server.url}/v1/scenes/crowd/meshes/car{k}", json={"instance_of": "car"}
+            ).raise_for_status()
+        url = f"{server.url}/v1/scenes/crowd/{route}"
+        alone = httpx.post(url, json=body, headers=headers, timeout=120)
+        assert alone.status_code == 200, alone.text
+        together = threading.Barrier(n)
 
         def post(_):
             with httpx.Client(timeout=120) as client:
                 together.wait()
-                return client.post(url, json=body, headers=npz)
+                return client.post(url, json=body, headers=headers)
 
-        with ThreadPoolExecutor(3) as pool:
-            answers = list(pool.map(post, range(3)))
-        assert [a.status_code for a in answers] == [200] * 3, [a.text for a in answers]
+        with ThreadPoolExecutor(n) as pool:
+            return list(pool.map(post, range(n)))
     finally:
         server.stop()
