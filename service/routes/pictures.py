@@ -117,9 +117,7 @@ async def render(
         picture = shading.png(result.arrays["pixels"])
         return [picture], len(picture), PNG
 
-    steps = Steps(
-        JSON_ONLY, footprint.decode_bytes, decode, trace, encode, lambda: work(1), PIXELS_ADVICE
-    )
+    steps = sensor_steps(decode, trace, encode, work, PIXELS_ADVICE)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -159,10 +157,7 @@ async def camera(
     def trace(value) -> TraceResult:
         return sensing.sense(store.snapshot(scene), *value, options)
 
-    steps = Steps(
-        JSON_ONLY, footprint.decode_bytes, decode, trace, encode_arrays, lambda: work(1),
-        PIXELS_ADVICE + NPZ_ADVICE,
-    )  # fmt: skip
+    steps = sensor_steps(decode, trace, encode_arrays, work, PIXELS_ADVICE + NPZ_ADVICE)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -218,10 +213,7 @@ async def lidar(
         pcd_fields = options.pcd_fields(result.arrays)
         return wire.encode_answer(result.arrays, answer_format, pcd_fields)
 
-    steps = Steps(
-        JSON_ONLY, footprint.decode_bytes, decode, trace, encode, lambda: work(1),
-        "make fewer rays (fewer horizontal_steps or beam_samples)" + NPZ_ADVICE,
-    )  # fmt: skip
+    steps = sensor_steps(decode, trace, encode, work, LIDAR_ADVICE + NPZ_ADVICE)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -277,10 +269,7 @@ async def sensors(
     def encode(result: TraceResult, answer_format: str):
         return wire.encode_rig_answer(result.arrays, answer_format)
 
-    steps = Steps(
-        JSON_ONLY, footprint.decode_bytes, decode, trace, encode, lambda: work(1),
-        "make fewer rays (fewer sensors, steps or pixels)" + NPZ_ADVICE,
-    )  # fmt: skip
+    steps = sensor_steps(decode, trace, encode, work, RIG_ADVICE + NPZ_ADVICE)
     return await answer(request, settings, store, metrics, options, scene, format, steps)
 
 
@@ -306,7 +295,16 @@ def rig_sensors(
 
 #: A 413's advice for a sensor too heavy for the budget, where smaller batches do not apply.
 PIXELS_ADVICE = "make fewer pixels (a smaller width and height)"
+LIDAR_ADVICE = "make fewer rays (fewer horizontal_steps or beam_samples)"
+RIG_ADVICE = "make fewer rays (fewer sensors, steps or pixels)"
 NPZ_ADVICE = ", or ask for an .npz answer (Accept: application/x-npz) rather than JSON"
+
+
+def sensor_steps(decode, trace, encode, work: Callable[[int], int], advice: str) -> Steps:
+    """A sensor route's ``Steps``: a JSON body, held at its decode until it says how many rays
+    it makes; ``work`` (``triangles_work``) of one ray is the least it holds on the scene, for
+    a 413's ``advice``."""
+    return Steps(JSON_ONLY, footprint.decode_bytes, decode, trace, encode, lambda: work(1), advice)
 
 
 def triangles_work(store: Store, scene: str, options: Options) -> Callable[[int], int]:
